@@ -1,0 +1,61 @@
+"""ncjax: metric room layouts from single non-central circular panoramas, in JAX.
+
+Modules mirror the paper's pipeline: the camera (Section 3), Plücker geometry
+(Section 3.1), synthetic rooms with exact labels (Section 5.1).
+"""
+
+from ._camera import (
+    NonCentralPanorama,
+    angles_to_pixel,
+    angles_to_ray,
+    is_visible,
+    optical_centre,
+    pixel_to_angles,
+    pixel_to_ray,
+    point_to_angles,
+    project,
+)
+from ._plucker import (
+    closest_point_to_origin,
+    closest_points,
+    horizontal_wall_line,
+    intersect_coplanar_lines,
+    line_from_point_direction,
+    line_through_points,
+    normalize_line,
+    plucker_constraint,
+    point_at,
+    rotate_line_z,
+    rotation_z,
+    safe_norm,
+    side,
+    translate_line,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "NonCentralPanorama",
+    "angles_to_pixel",
+    "angles_to_ray",
+    "closest_point_to_origin",
+    "closest_points",
+    "horizontal_wall_line",
+    "intersect_coplanar_lines",
+    "is_visible",
+    "line_from_point_direction",
+    "line_through_points",
+    "normalize_line",
+    "optical_centre",
+    "pixel_to_angles",
+    "pixel_to_ray",
+    "plucker_constraint",
+    "point_at",
+    "point_to_angles",
+    "project",
+    "rotate_line_z",
+    "rotation_z",
+    "safe_norm",
+    "side",
+    "translate_line",
+]

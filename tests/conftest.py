@@ -1,0 +1,35 @@
+"""Shared test setup.
+
+- Runtime shape/dtype checking of every public ``ncjax`` function through
+  jaxtyping + beartype (the annotations are part of the contract).
+- ``x64`` fixture: float64 only for the tests that need it.
+- Hypothesis profile sized for 2-core CI machines.
+"""
+
+import os
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+from jaxtyping import install_import_hook  # noqa: E402
+
+with install_import_hook("ncjax", "beartype.beartype"):
+    import ncjax  # noqa: E402, F401
+
+settings.register_profile(
+    "ncjax",
+    max_examples=40,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+    derandomize=True,
+)
+settings.load_profile("ncjax")
+
+
+@pytest.fixture
+def x64():
+    """Run the test with 64-bit floats enabled."""
+    with jax.enable_x64(True):
+        yield
