@@ -31,11 +31,25 @@ from ._plucker import (
     side,
     translate_line,
 )
+from ._rooms import (
+    Room,
+    RoomConfig,
+    RoomLabels,
+    RoomStatus,
+    random_room,
+    room_corners_3d,
+    room_labels,
+    room_walls,
+)
 
 __version__ = "0.1.0"
 
 __all__ = [
     "NonCentralPanorama",
+    "Room",
+    "RoomConfig",
+    "RoomLabels",
+    "RoomStatus",
     "angles_to_pixel",
     "angles_to_ray",
     "closest_point_to_origin",
@@ -53,6 +67,10 @@ __all__ = [
     "point_at",
     "point_to_angles",
     "project",
+    "random_room",
+    "room_corners_3d",
+    "room_labels",
+    "room_walls",
     "rotate_line_z",
     "rotation_z",
     "safe_norm",

@@ -15,7 +15,7 @@ def _as_float(x: ArrayLike) -> Array:
     return jnp.asarray(x, dtype=jnp.result_type(float))
 
 
-def safe_norm(x: Float[ArrayLike, "*batch n"], axis: int = -1) -> Float[Array, "*batch"]:
+def safe_norm(x: Float[ArrayLike, "*#batch n"], axis: int = -1) -> Float[Array, "*batch"]:
     """Euclidean norm whose gradient is 0 (not NaN) at the zero vector."""
     x = _as_float(x)
     squared = jnp.sum(x * x, axis=axis)
@@ -23,7 +23,7 @@ def safe_norm(x: Float[ArrayLike, "*batch n"], axis: int = -1) -> Float[Array, "
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, squared, 1.0)), 0.0)
 
 
-def side(a: Float[ArrayLike, "*batch 6"], b: Float[ArrayLike, "*batch 6"]) -> Float[Array, "*batch"]:
+def side(a: Float[ArrayLike, "*#batch 6"], b: Float[ArrayLike, "*#batch 6"]) -> Float[Array, "*batch"]:
     """The side operator ``side(A, B) = a . bbar + abar . b`` (paper eq. side).
 
     Zero iff the two lines are coplanar (they meet, possibly at infinity).
@@ -32,20 +32,20 @@ def side(a: Float[ArrayLike, "*batch 6"], b: Float[ArrayLike, "*batch 6"]) -> Fl
     return jnp.sum(a[..., :3] * b[..., 3:], -1) + jnp.sum(a[..., 3:] * b[..., :3], -1)
 
 
-def plucker_constraint(line: Float[ArrayLike, "*batch 6"]) -> Float[Array, "*batch"]:
+def plucker_constraint(line: Float[ArrayLike, "*#batch 6"]) -> Float[Array, "*batch"]:
     """The Klein-quadric constraint ``l . lbar`` (zero for every real line)."""
     line = _as_float(line)
     return jnp.sum(line[..., :3] * line[..., 3:], -1)
 
 
-def normalize_line(line: Float[ArrayLike, "*batch 6"]) -> Float[Array, "*batch 6"]:
+def normalize_line(line: Float[ArrayLike, "*#batch 6"]) -> Float[Array, "*batch 6"]:
     """Scale a line so its direction has unit norm (the moment is then metric)."""
     line = _as_float(line)
     return line / safe_norm(line[..., :3])[..., None]
 
 
 def line_from_point_direction(
-    point: Float[ArrayLike, "*batch 3"], direction: Float[ArrayLike, "*batch 3"]
+    point: Float[ArrayLike, "*#batch 3"], direction: Float[ArrayLike, "*#batch 3"]
 ) -> Float[Array, "*batch 6"]:
     """The line through ``point`` with ``direction`` (normalised to unit length)."""
     point, direction = jnp.broadcast_arrays(_as_float(point), _as_float(direction))
@@ -53,20 +53,20 @@ def line_from_point_direction(
     return jnp.concatenate([unit, jnp.cross(point, unit)], -1)
 
 
-def line_through_points(p: Float[ArrayLike, "*batch 3"], q: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 6"]:
+def line_through_points(p: Float[ArrayLike, "*#batch 3"], q: Float[ArrayLike, "*#batch 3"]) -> Float[Array, "*batch 6"]:
     """The line through two distinct points, direction ``(q - p) / |q - p|``."""
     p, q = _as_float(p), _as_float(q)
     return line_from_point_direction(p, q - p)
 
 
-def closest_point_to_origin(line: Float[ArrayLike, "*batch 6"]) -> Float[Array, "*batch 3"]:
+def closest_point_to_origin(line: Float[ArrayLike, "*#batch 6"]) -> Float[Array, "*batch 3"]:
     """The point of the line nearest the origin, ``l x lbar / |l|^2``."""
     line = _as_float(line)
     direction, moment = line[..., :3], line[..., 3:]
     return jnp.cross(direction, moment) / jnp.sum(direction * direction, -1)[..., None]
 
 
-def point_at(line: Float[ArrayLike, "*batch 6"], t: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 3"]:
+def point_at(line: Float[ArrayLike, "*#batch 6"], t: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 3"]:
     """``closest_point_to_origin(L) + t * l / |l|``: points along a line by arc length."""
     line = _as_float(line)
     direction = line[..., :3] / safe_norm(line[..., :3])[..., None]
@@ -74,7 +74,7 @@ def point_at(line: Float[ArrayLike, "*batch 6"], t: Float[ArrayLike, "*batch"]) 
 
 
 def closest_points(
-    a: Float[ArrayLike, "*batch 6"], b: Float[ArrayLike, "*batch 6"]
+    a: Float[ArrayLike, "*#batch 6"], b: Float[ArrayLike, "*#batch 6"]
 ) -> tuple[Float[Array, "*batch 3"], Float[Array, "*batch 3"], Float[Array, "*batch"]]:
     """Closest points of two lines and their Euclidean distance.
 
@@ -103,7 +103,7 @@ def closest_points(
     return on_a, on_b, safe_norm(on_a - on_b)
 
 
-def intersect_coplanar_lines(a: Float[ArrayLike, "*batch 6"], b: Float[ArrayLike, "*batch 6"]) -> Float[Array, "*batch 3"]:
+def intersect_coplanar_lines(a: Float[ArrayLike, "*#batch 6"], b: Float[ArrayLike, "*#batch 6"]) -> Float[Array, "*batch 3"]:
     """Meeting point of two coplanar, non-parallel lines.
 
     Computed as the midpoint of the closest points, which is exact for coplanar
@@ -113,7 +113,7 @@ def intersect_coplanar_lines(a: Float[ArrayLike, "*batch 6"], b: Float[ArrayLike
     return 0.5 * (on_a + on_b)
 
 
-def rotation_z(angle: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 3 3"]:
+def rotation_z(angle: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 3 3"]:
     """Rotation matrix about the z axis by ``angle`` (counter-clockwise seen from +z)."""
     angle = _as_float(angle)
     c, s = jnp.cos(angle), jnp.sin(angle)
@@ -123,7 +123,7 @@ def rotation_z(angle: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 3 3"]:
     )
 
 
-def rotate_line_z(line: Float[ArrayLike, "*batch 6"], angle: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 6"]:
+def rotate_line_z(line: Float[ArrayLike, "*#batch 6"], angle: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 6"]:
     """Rotate a line about the z axis through the origin (direction and moment both rotate)."""
     line = _as_float(line)
     rotation = rotation_z(angle)
@@ -132,7 +132,7 @@ def rotate_line_z(line: Float[ArrayLike, "*batch 6"], angle: Float[ArrayLike, "*
     return jnp.concatenate([direction, moment], -1)
 
 
-def translate_line(line: Float[ArrayLike, "*batch 6"], offset: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 6"]:
+def translate_line(line: Float[ArrayLike, "*#batch 6"], offset: Float[ArrayLike, "*#batch 3"]) -> Float[Array, "*batch 6"]:
     """Translate a line by ``offset``: the moment becomes ``lbar + offset x l``."""
     line, offset = _as_float(line), _as_float(offset)
     direction = line[..., :3]
@@ -141,7 +141,7 @@ def translate_line(line: Float[ArrayLike, "*batch 6"], offset: Float[ArrayLike, 
 
 
 def horizontal_wall_line(
-    direction: Float[ArrayLike, "*batch 2"], distance: Float[ArrayLike, "*batch"], height: Float[ArrayLike, "*batch"]
+    direction: Float[ArrayLike, "*#batch 2"], distance: Float[ArrayLike, "*#batch"], height: Float[ArrayLike, "*#batch"]
 ) -> Float[Array, "*batch 6"]:
     """The horizontal line at ``height`` in the vertical wall plane (DESIGN.md section 3).
 
