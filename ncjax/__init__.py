@@ -31,6 +31,7 @@ from ._plucker import (
     side,
     translate_line,
 )
+from . import metrics
 from ._rooms import (
     Room,
     RoomConfig,
@@ -59,6 +60,7 @@ __all__ = [
     "is_visible",
     "line_from_point_direction",
     "line_through_points",
+    "metrics",
     "normalize_line",
     "optical_centre",
     "pixel_to_angles",
