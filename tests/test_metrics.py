@@ -84,8 +84,9 @@ def test_cen_and_line_errors():
 def test_room_and_labels_are_layouts():
     import jax
 
-    room = ncjax.random_room(jax.random.key(0), ncjax.RoomConfig(occlusion="none", room_tries=1, camera_tries=16))
-    labels = ncjax.room_labels(room, room.camera(128, 64))
+    config = ncjax.RoomConfig(occlusion="none", room_tries=1, camera_tries=16)
+    room = jax.jit(ncjax.random_room, static_argnums=1)(jax.random.key(0), config)
+    labels = jax.jit(lambda r: ncjax.room_labels(r, r.camera(128, 64)))(room)
     result = metrics.evaluate_layout(labels, room)
     assert result["iou3d"] == pytest.approx(1.0, abs=1e-5) and result["ce"] == pytest.approx(0.0, abs=1e-5)
 
