@@ -72,7 +72,7 @@ class NonCentralPanorama(eqx.Module):
 
 
 def pixel_to_angles(
-    cam: NonCentralPanorama, u: Float[ArrayLike, "*batch"], v: Float[ArrayLike, "*batch"]
+    cam: NonCentralPanorama, u: Float[ArrayLike, "*#batch"], v: Float[ArrayLike, "*#batch"]
 ) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"]]:
     """Azimuth ``varphi`` and elevation ``phi`` of pixel (u, v) (paper eq. backproj).
 
@@ -88,13 +88,13 @@ def pixel_to_angles(
     u, v = _as_float(u), _as_float(v)
     azimuth = cam.fov_horizontal / 2 - cam.fov_horizontal * (u + 0.5) / cam.width
     elevation = cam.fov_vertical / 2 - cam.fov_vertical * (v + 0.5) / cam.height
-    return jnp.broadcast_arrays(azimuth, elevation)
+    return tuple(jnp.broadcast_arrays(azimuth, elevation))
 
 
 def angles_to_pixel(
     cam: NonCentralPanorama,
-    azimuth: Float[ArrayLike, "*batch"],
-    elevation: Float[ArrayLike, "*batch"],
+    azimuth: Float[ArrayLike, "*#batch"],
+    elevation: Float[ArrayLike, "*#batch"],
 ) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"]]:
     """Pixel (u, v) of an azimuth and elevation (paper eq. img, inverse of eq. backproj).
 
@@ -103,13 +103,13 @@ def angles_to_pixel(
     azimuth, elevation = _as_float(azimuth), _as_float(elevation)
     u = (cam.fov_horizontal / 2 - azimuth) / cam.fov_horizontal * cam.width - 0.5
     v = (cam.fov_vertical / 2 - elevation) / cam.fov_vertical * cam.height - 0.5
-    return jnp.broadcast_arrays(u, v)
+    return tuple(jnp.broadcast_arrays(u, v))
 
 
 def angles_to_ray(
-    rc: Float[ArrayLike, "*batch"],
-    azimuth: Float[ArrayLike, "*batch"],
-    elevation: Float[ArrayLike, "*batch"],
+    rc: Float[ArrayLike, "*#batch"],
+    azimuth: Float[ArrayLike, "*#batch"],
+    elevation: Float[ArrayLike, "*#batch"],
 ) -> Float[Array, "*batch 6"]:
     """Plücker coordinates of the projecting ray of given angles (paper eq. pluckerray).
 
@@ -134,7 +134,7 @@ def angles_to_ray(
 
 
 def pixel_to_ray(
-    cam: NonCentralPanorama, u: Float[ArrayLike, "*batch"], v: Float[ArrayLike, "*batch"]
+    cam: NonCentralPanorama, u: Float[ArrayLike, "*#batch"], v: Float[ArrayLike, "*#batch"]
 ) -> Float[Array, "*batch 6"]:
     """Back-projection: the Plücker ray of pixel (u, v) (paper eqs. backproj, pluckerray).
 
@@ -150,13 +150,13 @@ def pixel_to_ray(
     return angles_to_ray(cam.rc, azimuth, elevation)
 
 
-def optical_centre(cam: NonCentralPanorama, u: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 3"]:
+def optical_centre(cam: NonCentralPanorama, u: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 3"]:
     """The optical centre of column ``u``: ``rc (cos varphi, sin varphi, 0)``."""
     azimuth, _ = pixel_to_angles(cam, u, 0.0)
     return jnp.stack([cam.rc * jnp.cos(azimuth), cam.rc * jnp.sin(azimuth), jnp.zeros_like(azimuth)], -1)
 
 
-def is_visible(cam: NonCentralPanorama, xyz: Float[ArrayLike, "*batch 3"]) -> Bool[Array, "*batch"]:
+def is_visible(cam: NonCentralPanorama, xyz: Float[ArrayLike, "*#batch 3"]) -> Bool[Array, "*batch"]:
     """True where a point lies strictly outside the circle of optical centres.
 
     Only such points are seen by the panorama (see the module's visibility policy).
@@ -166,7 +166,7 @@ def is_visible(cam: NonCentralPanorama, xyz: Float[ArrayLike, "*batch 3"]) -> Bo
 
 
 def point_to_angles(
-    cam: NonCentralPanorama, xyz: Float[ArrayLike, "*batch 3"]
+    cam: NonCentralPanorama, xyz: Float[ArrayLike, "*#batch 3"]
 ) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"]]:
     """Azimuth and elevation under which a point is seen (paper eq. forward, w = 1).
 
@@ -188,7 +188,7 @@ def point_to_angles(
 
 
 def project(
-    cam: NonCentralPanorama, xyz: Float[ArrayLike, "*batch 3"]
+    cam: NonCentralPanorama, xyz: Float[ArrayLike, "*#batch 3"]
 ) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"]]:
     """Forward projection of 3D points to pixels (paper eqs. forward and img).
 

@@ -95,9 +95,9 @@ def equilibrate(a: Float[Array, "rows cols"]) -> tuple[Float[Array, "rows cols"]
     ``A_scaled = diag(1/|row|) A diag(column_scale)``; zero rows and columns
     stay zero (their scale is 1).
     """
-    row_norm = safe_norm(a, axis=1)
+    row_norm = safe_norm(a)
     a = a / jnp.where(row_norm > 0, row_norm, 1.0)[:, None]
-    column_norm = safe_norm(a, axis=0)
+    column_norm = safe_norm(a.T)
     scale = 1.0 / jnp.where(column_norm > 0, column_norm, 1.0)
     return a * scale[None, :], scale
 
