@@ -61,8 +61,8 @@ def _make_layout(directions, distances, h_c, h_f, mask, ok) -> WallLayout:
         distances=distances,
         ceiling_height=h_c,
         floor_height=h_f,
-        ceiling_lines=horizontal_wall_line(directions, distances, h_c),
-        floor_lines=horizontal_wall_line(directions, distances, h_f),
+        ceiling_lines=horizontal_wall_line(directions, distances, jnp.broadcast_to(h_c, distances.shape)),
+        floor_lines=horizontal_wall_line(directions, distances, jnp.broadcast_to(h_f, distances.shape)),
         mask=mask,
         ok=ok,
     )

@@ -55,4 +55,5 @@ def rays(room):
 
 def direction_error_deg(a, b):
     """Angle between unit 2D directions, degrees (signs must agree)."""
-    return jnp.degrees(jnp.arccos(jnp.clip(jnp.sum(a * b, -1), -1.0, 1.0)))
+    cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return jnp.degrees(jnp.arctan2(jnp.abs(cross), jnp.sum(a * b, -1)))
