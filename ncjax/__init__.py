@@ -43,14 +43,35 @@ from ._rooms import (
     room_walls,
 )
 
+# Geometric solvers (paper Sections 4.1-4.3, 5.3)
+from ._layout_solvers import (
+    WallLayout,
+    layout_corners,
+    quarter_turn,
+    ray_in_wall_frame,
+    solve_atlanta_layout,
+    solve_manhattan_layout,
+)
+from ._linalg import null_space, scaled_null_space
+from ._wall import (
+    HorizontalLine,
+    Wall,
+    solve_horizontal_line,
+    solve_wall,
+    solve_wall_minimal,
+)
+
 __version__ = "0.1.0"
 
 __all__ = [
+    "HorizontalLine",
     "NonCentralPanorama",
     "Room",
     "RoomConfig",
     "RoomLabels",
     "RoomStatus",
+    "Wall",
+    "WallLayout",
     "angles_to_pixel",
     "angles_to_ray",
     "closest_point_to_origin",
@@ -58,10 +79,12 @@ __all__ = [
     "horizontal_wall_line",
     "intersect_coplanar_lines",
     "is_visible",
+    "layout_corners",
     "line_from_point_direction",
     "line_through_points",
     "metrics",
     "normalize_line",
+    "null_space",
     "optical_centre",
     "pixel_to_angles",
     "pixel_to_ray",
@@ -69,13 +92,21 @@ __all__ = [
     "point_at",
     "point_to_angles",
     "project",
+    "quarter_turn",
     "random_room",
+    "ray_in_wall_frame",
     "room_corners_3d",
     "room_labels",
     "room_walls",
     "rotate_line_z",
     "rotation_z",
     "safe_norm",
+    "scaled_null_space",
     "side",
+    "solve_atlanta_layout",
+    "solve_horizontal_line",
+    "solve_manhattan_layout",
+    "solve_wall",
+    "solve_wall_minimal",
     "translate_line",
 ]

@@ -1,0 +1,114 @@
+"""Null spaces with well-defined derivatives (DESIGN.md section 8, "null spaces").
+
+The geometric solvers of the paper (Section 4.1-4.3) are DLT-like: they fill a
+matrix ``A`` with one row per projecting ray and take its (approximate) null
+space. This module computes that null space once, in one place:
+
+- :func:`null_space` returns the right singular vectors of the ``k`` smallest
+  singular values of ``A`` (``svd(full_matrices=False)``), each with a
+  canonical sign (its largest-magnitude entry positive).
+- Its derivative is a ``jax.custom_jvp``. JAX's own SVD derivative divides by
+  ``s_i^2 - s_j^2`` for EVERY pair of singular values, so exactly repeated
+  singular values (axis-aligned walls, padded wall columns) give NaN gradients
+  even when the null space itself is perfectly well conditioned. Here only the
+  pairs (kept vector, other vector) enter: with ``M = A^T A``, kept vectors
+  ``v_k`` (eigenvalues ``s_k^2``) and the others ``v_j``, the standard
+  first-order perturbation formula gives
+
+      dv_k = sum_j v_j (v_j^T dM v_k) / (s_k^2 - s_j^2),  dM = dA^T A + A^T dA.
+
+  The rotation of the kept vectors among themselves is left out (set to zero):
+  it is a gauge freedom, and every solver in ncjax only uses the SPAN of the
+  kept vectors (a point of that span chosen by intrinsic conditions), so its
+  outputs have the same derivative for any basis of the span.
+- :func:`scaled_null_space` equilibrates the rows and columns of ``A`` first
+  (float32 accuracy), and maps the answer back.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ._plucker import safe_norm
+
+
+def _pad_rows(a: Array) -> Array:
+    """Zero rows so that ``A`` has at least as many rows as columns (same null space)."""
+    rows, cols = a.shape
+    return a if rows >= cols else jnp.concatenate([a, jnp.zeros((cols - rows, cols), a.dtype)])
+
+
+def _sorted_svd(a: Array) -> tuple[Array, Array]:
+    """Singular values ascending and the matching right singular vectors (as columns)."""
+    _, s, vt = jnp.linalg.svd(_pad_rows(a), full_matrices=False)
+    return s[::-1], vt[::-1].T
+
+
+def _canonical_sign(vectors: Array) -> Array:
+    """Flip each column so that its largest-magnitude entry is positive."""
+    index = jnp.argmax(jnp.abs(vectors), axis=0)
+    pivot = jnp.take_along_axis(vectors, index[None], axis=0)
+    return vectors * jnp.where(pivot < 0, -1.0, 1.0)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(1,))
+def null_space(a: Float[Array, "rows cols"], k: int) -> Float[Array, "cols k"]:
+    """Orthonormal basis of the (least-squares) ``k``-dimensional null space of ``A``.
+
+    Args:
+        a: the matrix, any number of rows (zero rows are harmless).
+        k: how many vectors, static.
+
+    Returns:
+        ``(cols, k)``: column ``i`` is the right singular vector of the ``i``-th
+        smallest singular value (column 0 minimises ``|A x|``), canonical sign.
+    """
+    _, vectors = _sorted_svd(a)
+    return _canonical_sign(vectors[:, :k])
+
+
+@null_space.defjvp
+def _null_space_jvp(k: int, primals: tuple[Array], tangents: tuple[Array]) -> tuple[Array, Array]:
+    (a,), (da,) = primals, tangents
+    s, vectors = _sorted_svd(a)
+    kept = _canonical_sign(vectors[:, :k])
+    others = vectors[:, k:]
+    eig = s * s
+    gap = eig[:k][None, :] - eig[k:][:, None]  # (cols - k, k), <= 0
+    # Exactly equal eigenvalues across the split would make the null space
+    # ill-defined; give a zero (not NaN) derivative there (double where).
+    tiny = jnp.finfo(a.dtype).eps * jnp.maximum(eig[-1], jnp.finfo(a.dtype).tiny)
+    separated = jnp.abs(gap) > tiny
+    inverse_gap = jnp.where(separated, 1.0 / jnp.where(separated, gap, 1.0), 0.0)
+    dm = da.T @ a + a.T @ da
+    coefficients = (others.T @ dm @ kept) * inverse_gap
+    return kept, others @ coefficients
+
+
+def equilibrate(a: Float[Array, "rows cols"]) -> tuple[Float[Array, "rows cols"], Float[Array, " cols"]]:
+    """Unit rows, then unit columns: returns ``(A_scaled, column_scale)``.
+
+    ``A_scaled = diag(1/|row|) A diag(column_scale)``; zero rows and columns
+    stay zero (their scale is 1).
+    """
+    row_norm = safe_norm(a)
+    a = a / jnp.where(row_norm > 0, row_norm, 1.0)[:, None]
+    column_norm = safe_norm(a.T)
+    scale = 1.0 / jnp.where(column_norm > 0, column_norm, 1.0)
+    return a * scale[None, :], scale
+
+
+def scaled_null_space(a: Float[Array, "rows cols"], k: int) -> Float[Array, "cols k"]:
+    """:func:`null_space` of the equilibrated matrix, mapped back to the unknowns of ``A``.
+
+    The columns span the null space of ``A`` but are not orthonormal: column
+    ``i`` is ``D y_i`` with ``y_i`` orthonormal in the equilibrated space
+    (``D`` the column scale), so combinations ``cos t y_0 + sin t y_1`` keep
+    the metric of that well-conditioned space.
+    """
+    scaled, scale = equilibrate(a)
+    return scale[:, None] * null_space(scaled, k)

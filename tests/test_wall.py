@@ -1,0 +1,209 @@
+"""Single-wall solver, minimal solver, horizontal-line baseline (paper Section 4.1, 5.3)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from _rooms import direction_error_deg, rays, room_data, sample_room
+from hypothesis import given
+from hypothesis import strategies as st
+
+import ncjax
+from ncjax import _wall
+from ncjax._exact_rooms import boundary_rays
+
+N_ROOMS = 40  # x 5 walls = 200 walls
+
+
+def _line_of(direction, distance, height):
+    return ncjax.horizontal_wall_line(direction, distance, height)
+
+
+def test_rows_are_side():
+    """eqs. manx/many (with the corrected sign) equal side(ray, wall line)."""
+    key = jax.random.PRNGKey(0)
+    k1, k2, k3, k4 = jax.random.split(key, 4)
+    angle = jax.random.uniform(k1, (50,), maxval=7.0)
+    u = jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1)
+    d, h_c, h_f = jax.random.normal(k2, (3, 50))
+    ray = ncjax.angles_to_ray(0.4, *jax.random.uniform(k3, (2, 50), minval=-1.5, maxval=1.5))
+    ceiling, floor = _wall.wall_rows(ray, ray)
+    unknown = jnp.concatenate([u, h_c[:, None] * u, h_f[:, None] * u, d[:, None]], -1)
+    np.testing.assert_allclose(jnp.sum(ceiling * unknown, -1), ncjax.side(ray, _line_of(u, d, h_c)), atol=1e-5)
+    np.testing.assert_allclose(jnp.sum(floor * unknown, -1), ncjax.side(ray, _line_of(u, d, h_f)), atol=1e-5)
+
+
+def test_parallel_quadratic_is_cross_product():
+    a0, a1, b0, b1 = jax.random.normal(jax.random.PRNGKey(1), (4, 2))
+    p, r, t = _wall.parallel_quadratic(a0, a1, b0, b1)
+    for alpha, beta in [(0.3, -1.2), (1.0, 0.5)]:
+        a, b = alpha * a0 + beta * a1, alpha * b0 + beta * b1
+        np.testing.assert_allclose(p * alpha**2 + r * alpha * beta + t * beta**2, a[0] * b[1] - a[1] * b[0], rtol=1e-5)
+    for theta in _wall.quadratic_root_angles(jnp.array([p, r, t])):
+        alpha, beta = jnp.cos(theta), jnp.sin(theta)
+        np.testing.assert_allclose(p * alpha**2 + r * alpha * beta + t * beta**2, 0.0, atol=1e-5)
+
+
+def _all_walls(room):
+    ceiling_rays, floor_rays = rays(room)
+    masks = room["wall_index"][None, :] == jnp.arange(6)[:, None]
+    return jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m))(masks)
+
+
+@jax.jit
+def _solve_many(keys):
+    rooms = jax.vmap(lambda k: sample_room(k, "convex", capacity=6))(keys)
+    return rooms, jax.vmap(_all_walls)(rooms)
+
+
+def _errors(rooms, walls):
+    return dict(
+        direction=float(jnp.max(direction_error_deg(walls.direction, rooms["directions"]))),
+        distance=float(jnp.max(jnp.abs(walls.distance - rooms["distances"]))),
+        ceiling=float(jnp.max(jnp.abs(walls.ceiling_height - rooms["h_c"][:, None]))),
+        floor=float(jnp.max(jnp.abs(walls.floor_height - rooms["h_f"][:, None]))),
+        ok=bool(jnp.all(walls.ok)),
+    )
+
+
+def test_exact_walls_float32():
+    rooms, walls = _solve_many(jax.random.split(jax.random.PRNGKey(2), N_ROOMS))
+    assert walls.distance.dtype == jnp.float32 and walls.direction.shape == (N_ROOMS, 6, 2)
+    errors = _errors(rooms, walls)
+    assert errors["ok"]
+    assert errors["direction"] < 0.2
+    assert max(errors["distance"], errors["ceiling"], errors["floor"]) < 5e-3, errors
+
+
+def test_exact_walls_float64(x64):
+    rooms, walls = _solve_many(jax.random.split(jax.random.PRNGKey(2), N_ROOMS))
+    assert walls.distance.dtype == jnp.float64
+    errors = _errors(rooms, walls)
+    assert errors["ok"]
+    assert max(errors["distance"], errors["ceiling"], errors["floor"]) < 1e-4, errors
+    # canonical orientation: the wall runs counter-clockwise, camera on its left
+    assert bool(jnp.all(walls.distance < 0))
+
+
+def test_unconstrained_null_vector_is_exact_too(x64):
+    room = sample_room(jax.random.PRNGKey(3), "rectangle")
+    ceiling_rays, floor_rays = rays(room)
+    mask = room["wall_index"] == 0
+    wall = jax.jit(ncjax.solve_wall, static_argnames="parallel_constraint")(
+        ceiling_rays, floor_rays, mask, mask, parallel_constraint=False
+    )
+    np.testing.assert_allclose(wall.distance, room["distances"][0], atol=1e-8)
+
+
+def test_failure_is_a_value():
+    room = sample_room(jax.random.PRNGKey(4), "rectangle")
+    ceiling_rays, floor_rays = rays(room)
+    none = jnp.zeros(ceiling_rays.shape[0], bool)
+    wall = _solve_jit(ceiling_rays, floor_rays, none, none)
+    assert not bool(wall.ok)
+    assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(wall) if x.dtype != bool)
+
+
+@given(seed=st.integers(0, 2**31 - 1))
+def test_order_and_masked_rows(seed):
+    """Permuting rays changes nothing; masked-out rows (even NaN) have no effect."""
+    room = sample_room(jax.random.PRNGKey(5), "l_shape")
+    ceiling_rays, floor_rays = rays(room)
+    mask = room["wall_index"] == 1
+    reference = _solve_jit(ceiling_rays, floor_rays, mask, mask)
+    perm = jax.random.permutation(jax.random.PRNGKey(seed), ceiling_rays.shape[0])
+    garbage = jnp.where(mask[:, None], ceiling_rays, jnp.nan)
+    shuffled = _solve_jit(garbage[perm], floor_rays[perm], mask[perm], mask[perm])
+    for a, b in zip(jax.tree.leaves(reference), jax.tree.leaves(shuffled)):
+        np.testing.assert_allclose(a, b, atol=2e-4)
+
+
+_solve_jit = jax.jit(ncjax.solve_wall)
+
+
+def _wall_outputs(room, wall_id):
+    """Solver outputs as a function of the boundary ROWS (pixels -> rays -> solver)."""
+    mask = room["wall_index"] == wall_id
+
+    def f(rows):
+        ceiling_rays, floor_rays = _wall_rays(room, rows)
+        wall = ncjax.solve_wall(ceiling_rays, floor_rays, mask, mask)
+        return jnp.concatenate([wall.direction, wall.distance[None], wall.ceiling_height[None], wall.floor_height[None]])
+
+    return f
+
+
+def _wall_rays(room, rows):
+    return boundary_rays(room["cam"], rows[0], rows[1])
+
+
+def check_gradients(f, x, eps=1e-6, rtol=1e-3):
+    """jacfwd = jacrev = central finite differences, never NaN (float64)."""
+    forward = jax.jit(jax.jacfwd(f))(x)
+    reverse = jax.jit(jax.jacrev(f))(x)
+    flat = x.reshape(-1)
+    basis = jnp.eye(flat.size, dtype=x.dtype) * eps
+    g = jax.jit(jax.vmap(lambda e: (f((flat + e).reshape(x.shape)) - f((flat - e).reshape(x.shape))) / (2 * eps)))
+    numeric = g(basis).T.reshape(forward.shape)
+    assert bool(jnp.all(jnp.isfinite(forward))) and bool(jnp.all(jnp.isfinite(reverse)))
+    scale = float(jnp.max(jnp.abs(numeric)))
+    np.testing.assert_allclose(forward, reverse, atol=1e-9 * scale + 1e-12)
+    np.testing.assert_allclose(forward, numeric, atol=rtol * scale)
+    return forward
+
+
+@pytest.mark.parametrize("axis_aligned", [True, False])
+def test_wall_gradients(x64, axis_aligned):
+    if axis_aligned:
+        corners = jnp.array([[-1.5, -1.0], [2.0, -1.0], [2.0, 1.0], [-1.5, 1.0]])
+        room = room_data(corners, jnp.array(1.0), jnp.array(-1.5), jnp.array(0.5))
+    else:
+        room = sample_room(jax.random.PRNGKey(6), "rectangle")
+    rows = jnp.stack([room["ceiling_v"], room["floor_v"]])
+    jac = check_gradients(_wall_outputs(room, 0), rows)
+    # rows of other walls do not matter
+    assert float(jnp.max(jnp.abs(jac[..., room["wall_index"] != 0]))) == 0.0
+
+
+def test_null_space_gradient_with_repeated_singular_values(x64):
+    """Repeated singular values (outside the null space) give finite, correct derivatives."""
+    a = jnp.concatenate([jnp.eye(4)[:, :3] * 2.0, jnp.zeros((4, 1))], 1)  # singular values 2, 2, 2, 0
+    a = jnp.concatenate([a, jnp.ones((1, 4)) * 0.0])
+
+    def projector(m):
+        v = ncjax.null_space(m, 1)
+        return v @ v.T
+
+    check_gradients(projector, a)
+
+    def naive_projector(m):  # JAX's own SVD derivative: NaN here (why the custom JVP exists)
+        v = jnp.linalg.svd(m, full_matrices=False)[2][-1:].T
+        return v @ v.T
+
+    assert bool(jnp.any(jnp.isnan(jax.jacrev(naive_projector)(a))))
+
+
+def test_minimal_solver(x64):
+    room = sample_room(jax.random.PRNGKey(7), "convex", capacity=6)
+    ceiling_rays, floor_rays = rays(room)
+    index = jnp.nonzero(room["wall_index"] == 2, size=4)[0]
+    walls, valid = jax.jit(ncjax.solve_wall_minimal)(ceiling_rays[index[jnp.array([0, 3])]], floor_rays[index[jnp.array([1, 2])]])
+    assert walls.distance.shape == (3,) and valid.shape == (3,)
+    assert bool(jnp.any(valid))
+    error = jnp.where(valid, jnp.abs(walls.distance - room["distances"][2]) + jnp.abs(walls.ceiling_height - room["h_c"]), jnp.inf)
+    assert float(jnp.min(error)) < 1e-6
+    best = int(jnp.argmin(error))
+    assert float(direction_error_deg(walls.direction[best], room["directions"][2])) < 1e-4
+
+
+def test_horizontal_line_baseline():
+    room = sample_room(jax.random.PRNGKey(8), "rectangle")
+    ceiling_rays, floor_rays = rays(room)
+    for wall_id in range(4):
+        mask = room["wall_index"] == wall_id
+        for rays_, height in ((ceiling_rays, room["h_c"]), (floor_rays, room["h_f"])):
+            line = jax.jit(ncjax.solve_horizontal_line)(rays_, mask)
+            assert bool(line.ok)
+            assert float(direction_error_deg(line.direction, room["directions"][wall_id])) < 0.05
+            np.testing.assert_allclose(line.distance, room["distances"][wall_id], atol=2e-3)
+            np.testing.assert_allclose(line.height, height, atol=2e-3)
