@@ -23,9 +23,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-
-def _as_float(x: ArrayLike) -> Array:
-    return jnp.asarray(x, dtype=jnp.result_type(float))
+from ._plucker import _as_float
 
 
 class NonCentralPanorama(eqx.Module):

@@ -15,6 +15,11 @@ def _as_float(x: ArrayLike) -> Array:
     return jnp.asarray(x, dtype=jnp.result_type(float))
 
 
+def cross_2d(a: Array, b: Array) -> Array:
+    """z component of the cross product of 2D vectors (last axis)."""
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
 def safe_norm(x: Float[ArrayLike, "*#batch n"], axis: int = -1) -> Float[Array, "*batch"]:
     """Euclidean norm whose gradient is 0 (not NaN) at the zero vector."""
     x = _as_float(x)

@@ -26,6 +26,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
+from ._plucker import cross_2d as _cross2
 from ._plucker import horizontal_wall_line, rotation_z
 
 
@@ -161,9 +162,6 @@ class RoomLabels(eqx.Module):
 
 # --------------------------------------------------------------------------- polygons
 
-
-def _cross2(a: Array, b: Array) -> Array:
-    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
 def _next_index(mask: Bool[Array, " K"]) -> Int[Array, " K"]:

@@ -44,6 +44,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._linalg import null_space, scaled_null_space
+from ._plucker import cross_2d as _cross2
 from ._plucker import horizontal_wall_line, safe_norm
 
 
@@ -130,9 +131,6 @@ def masked_rays(rays: Float[Array, "n 6"], mask: Bool[Array, " n"]) -> Float[Arr
 # Parallelism constraint (eqs. lambda_uv, lambda_uw, quad_v, quad_w)
 # --------------------------------------------------------------------------
 
-
-def _cross2(a: Array, b: Array) -> Array:
-    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
 def _wrap_half_turn(angle: Array) -> Array:
