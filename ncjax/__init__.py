@@ -61,11 +61,17 @@ from ._wall import (
     solve_wall_minimal,
 )
 
+# Geometric pipeline (paper Section 4.4)
+from ._pipeline import Layout, LayoutStatus, PipelineConfig, layout_from_boundaries
+
 __version__ = "0.1.0"
 
 __all__ = [
     "HorizontalLine",
+    "Layout",
+    "LayoutStatus",
     "NonCentralPanorama",
+    "PipelineConfig",
     "Room",
     "RoomConfig",
     "RoomLabels",
@@ -80,6 +86,7 @@ __all__ = [
     "intersect_coplanar_lines",
     "is_visible",
     "layout_corners",
+    "layout_from_boundaries",
     "line_from_point_direction",
     "line_through_points",
     "metrics",

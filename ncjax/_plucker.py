@@ -8,7 +8,7 @@ broadcast over leading dimensions; all of them are jit/vmap/grad safe.
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 
 def _as_float(x: ArrayLike) -> Array:
@@ -160,3 +160,29 @@ def horizontal_wall_line(
     ux, uy = direction[..., 0], direction[..., 1]
     ux, uy, distance, height = jnp.broadcast_arrays(ux, uy, distance, height)
     return jnp.stack([ux, uy, jnp.zeros_like(ux), -height * uy, height * ux, -distance], -1)
+
+
+def wall_planes_meet(
+    direction_a: Float[ArrayLike, "*#batch 2"],
+    distance_a: Float[ArrayLike, "*#batch"],
+    direction_b: Float[ArrayLike, "*#batch 2"],
+    distance_b: Float[ArrayLike, "*#batch"],
+) -> tuple[Float[Array, "*batch 2"], Bool[Array, "*batch"]]:
+    """Horizontal position of the vertical edge where two wall planes meet.
+
+    Solves ``e2_a . p = d_a``, ``e2_b . p = d_b`` (``e2 = (-uy, ux)``) by
+    Cramer's rule: the same point as :func:`intersect_coplanar_lines` on the
+    walls' ceiling or floor lines, without the third coordinate.
+
+    Returns:
+        ``(point, ok)``; ``ok`` is False (and the point 0) when the walls are
+        parallel to within ``1e-6`` rad.
+    """
+    direction_a, direction_b = _as_float(direction_a), _as_float(direction_b)
+    distance_a, distance_b = _as_float(distance_a), _as_float(distance_b)
+    det = cross_2d(direction_a, direction_b)
+    ok = jnp.abs(det) > 1e-6 * safe_norm(direction_a) * safe_norm(direction_b)
+    safe_det = jnp.where(ok, det, 1.0)
+    x = (distance_a * direction_b[..., 0] - direction_a[..., 0] * distance_b) / safe_det
+    y = (distance_a * direction_b[..., 1] - direction_a[..., 1] * distance_b) / safe_det
+    return jnp.where(ok[..., None], jnp.stack([x, y], -1), 0.0), ok

@@ -1,0 +1,105 @@
+"""Corner extraction from the network's corner probability (paper Section 4.4, first step).
+
+The corner target is HorizonNet's ``0.96**d`` (DESIGN.md section 5), ``d`` the
+distance in columns to the nearest wall-wall corner. Its logarithm is a tent
+``d log 0.96`` around each corner, so three samples around a peak locate the
+corner to a fraction of a column exactly (:func:`refine_peak`).
+
+Columns wrap around: column ``W - 1`` neighbours column 0. Everything has
+fixed capacity ``C`` (corner slots) with a mask (DESIGN.md section 4).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+
+def is_peak(corner_prob: Float[Array, " W"], radius: int, threshold: float) -> Bool[Array, " W"]:
+    """Local maxima over a wrap-around window of ``2 radius + 1`` columns (non-maximum suppression).
+
+    A plateau yields its leftmost column only: a peak is strictly greater than
+    the ``radius`` columns on its left and not smaller than those on its right.
+
+    Args:
+        corner_prob: per-column corner probability.
+        radius: static half-width of the suppression window, in columns.
+        threshold: minimum probability of a peak.
+    """
+    prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, -jnp.inf)
+    peak = prob >= threshold
+    for offset in range(1, radius + 1):
+        peak &= prob > jnp.roll(prob, offset)  # the column `offset` to the left
+        peak &= prob >= jnp.roll(prob, -offset)
+    return peak
+
+
+def refine_peak(corner_prob: Float[Array, " W"], column: Int[Array, ""]) -> Float[Array, ""]:
+    """Sub-column position of a peak from the tent shape of ``log(0.96**d)``.
+
+    With ``l(x) = a - s |x - x0|`` sampled at the peak column and its two
+    neighbours, ``x0 = (l(+1) - l(-1)) / (2 (l(0) - min(l(-1), l(+1))))``,
+    exact for the target encoding and clipped to half a column for real
+    predictions.
+    """
+    width = corner_prob.shape[0]
+    tiny = jnp.finfo(corner_prob.dtype).tiny
+    logs = jnp.log(jnp.maximum(corner_prob[(column + jnp.arange(-1, 2)) % width], tiny))
+    slope = logs[1] - jnp.minimum(logs[0], logs[2])
+    offset = 0.5 * (logs[2] - logs[0]) / jnp.where(slope > 0, slope, 1.0)
+    return column + jnp.clip(jnp.where(slope > 0, offset, 0.0), -0.5, 0.5)
+
+
+def find_corners(
+    corner_prob: Float[Array, " W"], capacity: int, radius: int, threshold: float
+) -> tuple[Float[Array, " C"], Bool[Array, " C"], Bool[Array, ""]]:
+    """Corner columns: the ``capacity`` strongest peaks, refined, sorted left to right.
+
+    Args:
+        corner_prob: per-column corner probability.
+        capacity: static number of corner slots ``C``.
+        radius: static non-maximum-suppression half-width (columns).
+        threshold: minimum peak probability.
+
+    Returns:
+        ``(columns, mask, overflow)``: sub-column positions in ``[-0.5, W - 0.5)``
+        (masked slots hold ``W``, after every real column), which slots are
+        corners, and whether more peaks than ``capacity`` were found.
+    """
+    width = corner_prob.shape[0]
+    peak = is_peak(corner_prob, radius, threshold)
+    strength = jnp.where(peak, corner_prob, -jnp.inf)
+    _, strongest = jax.lax.top_k(strength, capacity)
+    mask = peak[strongest]
+    refined = jax.vmap(refine_peak, in_axes=(None, 0))(corner_prob, strongest)
+    refined = jnp.where(refined < -0.5, refined + width, refined)
+    refined = jnp.where(refined >= width - 0.5, refined - width, refined)
+    columns = jnp.where(mask, refined, float(width))
+    order = jnp.argsort(columns)
+    return columns[order], mask[order], jnp.sum(peak) > capacity
+
+
+def column_walls(
+    corner_columns: Float[Array, " C"], corner_mask: Bool[Array, " C"], width: int
+) -> Int[Array, " W"]:
+    """The wall each column belongs to: wall ``j`` runs from corner ``j`` to corner ``j + 1``.
+
+    Corners are sorted left to right; the columns left of the first corner
+    belong to the last wall (the image wraps around). -1 when there is no corner.
+    """
+    columns = jnp.arange(width, dtype=corner_columns.dtype)
+    count = jnp.sum(corner_mask)
+    passed = jnp.sum(corner_mask[None, :] & (corner_columns[None, :] <= columns[:, None]), axis=1)
+    wall = jnp.where(passed == 0, count, passed) - 1
+    return jnp.where(count > 0, wall, -1).astype(jnp.int32)
+
+
+def distance_to_corners(
+    corner_columns: Float[Array, " C"], corner_mask: Bool[Array, " C"], width: int
+) -> Float[Array, " W"]:
+    """Wrap-around distance in columns from each column to the nearest corner (inf if none)."""
+    columns = jnp.arange(width, dtype=corner_columns.dtype)
+    gap = jnp.abs(columns[:, None] - corner_columns[None, :]) % width
+    gap = jnp.minimum(gap, width - gap)
+    return jnp.min(jnp.where(corner_mask[None, :], gap, jnp.inf), axis=1)

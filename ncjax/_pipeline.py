@@ -1,0 +1,660 @@
+"""The geometric pipeline: per-column boundaries to a metric layout (paper Section 4.4, Fig. pipeline_geom).
+
+1. Corners from the corner probability (:mod:`ncjax._corners`); the columns
+   between consecutive corners are one wall.
+2. Per-wall RANSAC with the single-wall solver (:mod:`ncjax._ransac`).
+3. At each corner, the two walls' reprojected boundaries are compared at the
+   corner column: a jump of more than ``occlusion_threshold`` pixels means an
+   occlusion (the paper tests the same in 3D for Atlanta rooms; in pixels the
+   test does not depend on the single walls' noisy scale). Consecutive walls
+   of one direction without a jump are one wall split by a spurious corner:
+   they are merged.
+4. Manhattan branch: directions clustered into ``u`` / ``u_perp`` (any yaw);
+   at an occlusion between two walls of one class a perpendicular wall is
+   inserted through the occluding corner; the Manhattan layout solver.
+   Atlanta branch: RANSAC directions, a wall in the vertical plane of the
+   corner ray at each occlusion, the Atlanta layout solver.
+5. Final adjustment (:mod:`ncjax._adjust`, optimistix) of both branches: the
+   paper adjusts the Atlanta branch only; the Manhattan branch keeps one yaw.
+6. Corners where consecutive walls meet.
+
+``world="auto"`` (not in the paper) takes the Manhattan branch when every
+RANSAC wall lies within ``manhattan_tolerance`` degrees of the two
+perpendicular directions that fit them best, the Atlanta branch otherwise.
+
+Everything has fixed capacity ``K`` (DESIGN.md section 4); failures are
+status values (:class:`LayoutStatus`), never exceptions, inside traced code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
+
+from ._adjust import BoundaryObservations, adjust_layout, loop_corners, manhattan_directions
+from ._camera import NonCentralPanorama, pixel_to_angles, pixel_to_ray
+from ._corners import column_walls, distance_to_corners, find_corners
+from ._layout_solvers import solve_atlanta_layout, solve_manhattan_layout
+from ._plucker import cross_2d, horizontal_wall_line
+from ._ransac import num_hypotheses, ransac_wall
+from ._reprojection import wall_boundary_rows, wall_range
+from ._wall import Wall, canonical_orientation
+
+WORLDS = ("manhattan", "atlanta", "auto")
+
+
+class LayoutStatus(enum.IntEnum):
+    """Why a layout failed (``Layout.status``); the first failing check in this order wins."""
+
+    OK = 0
+    NO_SCALE = 1  # rc = 0: a central panorama has no metric scale
+    INVALID_INPUT = 2  # too few finite boundary rows
+    NO_CORNERS = 3  # no corner probability peak above the threshold
+    TOO_MANY_WALLS = 4  # more corners or walls than the capacity K
+    TOO_FEW_WALLS = 5  # fewer than 3 walls (4 in a Manhattan room)
+    WALL_FIT_FAILED = 6  # RANSAC fitted fewer than 2 walls
+    SOLVER_FAILED = 7  # the joint layout solver failed
+    DEGENERATE_LAYOUT = 8  # parallel consecutive walls, ceiling not above the camera, ...
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig:
+    """Parameters of the pipeline (static: hashable, changing them recompiles).
+
+    Column and pixel quantities are given for the 1024 x 512 reference
+    panorama and scaled with the camera's width and height.
+
+    Attributes:
+        capacity: K, wall and corner slots of the layout.
+        corner_threshold: minimum corner probability of a peak.
+        nms_radius: non-maximum-suppression half-width, columns.
+        corner_margin: columns this close to a corner are not used to fit walls.
+        success_probability: RANSAC's P (paper: 0.9999).
+        outlier_rate: RANSAC's epsilon (paper: 0.2).
+        sample_size: columns per RANSAC hypothesis (paper: 3).
+        inlier_threshold: row error of an inlier, pixels.
+        occlusion_threshold: boundary jump at a corner that means an occlusion, pixels.
+        merge_angle: consecutive walls closer than this (degrees) and without a
+            jump are merged (Atlanta; Manhattan merges equal labels).
+        manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
+            wall from the Manhattan frame for the Manhattan branch.
+        corner_weight: weight of the corner-plane penalty of the adjustment.
+        adjustment_steps: Levenberg-Marquardt iteration cap.
+        min_finite_fraction: fraction of columns with finite rows needed.
+    """
+
+    capacity: int = 32
+    corner_threshold: float = 0.3
+    nms_radius: float = 2.0
+    corner_margin: float = 2.0
+    success_probability: float = 0.9999
+    outlier_rate: float = 0.2
+    sample_size: int = 3
+    inlier_threshold: float = 3.0
+    occlusion_threshold: float = 4.0
+    merge_angle: float = 10.0
+    manhattan_tolerance: float = 5.0
+    corner_weight: float = 1.0
+    adjustment_steps: int = 32
+    min_finite_fraction: float = 0.5
+
+    def __post_init__(self):
+        if self.capacity < 4:
+            raise ValueError(f"capacity must be >= 4 walls, got {self.capacity}")
+        if self.sample_size < 3:
+            raise ValueError(f"sample_size must be >= 3 columns (the wall solver needs 3 rays per line), got {self.sample_size}")
+        num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
+        positive = ("nms_radius", "inlier_threshold", "occlusion_threshold", "merge_angle", "manhattan_tolerance")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0:
+            raise ValueError("corner_margin, corner_weight and adjustment_steps must be >= 0")
+
+    @property
+    def hypotheses(self) -> int:
+        """RANSAC hypotheses per wall (paper's n_hyp)."""
+        return num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)
+
+
+class Layout(eqx.Module):
+    """A room layout recovered from one panorama (DESIGN.md section 5).
+
+    All fields are traced arrays (``jax.vmap`` adds leading batch axes). Walls
+    and corners share the ``K`` slots: corner ``k`` starts wall ``k``, walls
+    run left to right in the image (decreasing azimuth) and the valid ones are
+    the first slots.
+
+    Attributes:
+        ceiling_corners: (K, 3) metres, camera frame.
+        floor_corners: (K, 3).
+        mask: (K,) which slots are corners/walls.
+        ceiling_height: ``h_c`` (m above the plane of optical centres).
+        floor_height: ``h_f`` (negative).
+        wall_directions: (K, 2) unit, canonical sign (camera on the left).
+        wall_distances: (K,) signed distances (<= 0).
+        ceiling_lines: (K, 6) Plücker lines.
+        floor_lines: (K, 6).
+        inserted: (K,) walls inserted for an occlusion (not seen in the image).
+        corner_columns: (K,) image column of each corner as detected.
+        manhattan: whether the Manhattan branch produced the layout.
+        status: :class:`LayoutStatus` code (int32).
+        ok: ``status == OK``; corners of a failed layout are finite but meaningless.
+    """
+
+    ceiling_corners: Float[Array, "*batch K 3"]
+    floor_corners: Float[Array, "*batch K 3"]
+    mask: Bool[Array, "*batch K"]
+    ceiling_height: Float[Array, "*batch"]
+    floor_height: Float[Array, "*batch"]
+    wall_directions: Float[Array, "*batch K 2"]
+    wall_distances: Float[Array, "*batch K"]
+    ceiling_lines: Float[Array, "*batch K 6"]
+    floor_lines: Float[Array, "*batch K 6"]
+    inserted: Bool[Array, "*batch K"]
+    corner_columns: Float[Array, "*batch K"]
+    manhattan: Bool[Array, "*batch"]
+    status: Int[Array, "*batch"]
+    ok: Bool[Array, "*batch"]
+
+
+class WallEvidence(eqx.Module):
+    """Steps 1-3, shared by both branches (internal; all fields traced, ``K`` slots).
+
+    Corner ``j`` starts RANSAC wall ``j``; ``previous`` is wall ``j - 1`` (cyclic).
+    ``fitted``: RANSAC found wall ``j``; ``both_fitted``: walls ``j - 1`` and ``j``;
+    ``occluded`` and ``previous_nearer`` are meaningful only where both are fitted.
+    """
+
+    ceiling_rays: Float[Array, "W 6"]
+    floor_rays: Float[Array, "W 6"]
+    finite: Bool[Array, " W"]
+    corner_columns: Float[Array, " K"]
+    corner_mask: Bool[Array, " K"]
+    corner_overflow: Bool[Array, ""]
+    column_wall: Int[Array, " W"]
+    walls: Wall
+    ceiling_inliers: Bool[Array, " W"]
+    floor_inliers: Bool[Array, " W"]
+    weights: Float[Array, " K"]
+    fitted: Bool[Array, " K"]
+    both_fitted: Bool[Array, " K"]
+    occluded: Bool[Array, " K"]
+    previous_nearer: Bool[Array, " K"]
+
+
+class FinalWalls(eqx.Module):
+    """The wall loop after merging and occlusion insertion (internal; traced, ``K`` slots).
+
+    ``observed`` walls have fitted RANSAC walls and columns; the others
+    (inserted at occlusions, or too narrow to fit) are placed from their
+    neighbours and corner rays and then held by the corner penalty.
+    """
+
+    mask: Bool[Array, " K"]
+    inserted: Bool[Array, " K"]
+    observed: Bool[Array, " K"]
+    group: Int[Array, " K"]
+    start_wall: Int[Array, " K"]
+    corner_columns: Float[Array, " K"]
+    corner_used: Bool[Array, " K"]
+    near_neighbour: Int[Array, " K"]
+    column_wall: Int[Array, " W"]
+    overflow: Bool[Array, ""]
+
+
+def _scaled(value: float, size: int, reference: int) -> float:
+    return value * size / reference
+
+
+def _gather_evidence(
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    corner_prob: Float[Array, " W"],
+    cam: NonCentralPanorama,
+    key: PRNGKeyArray,
+    config: PipelineConfig,
+) -> WallEvidence:
+    """Steps 1-3: corners, one RANSAC wall between each pair, and the boundary jump at each corner."""
+    width, capacity = cam.width, config.capacity
+    finite = jnp.isfinite(ceiling_v) & jnp.isfinite(floor_v)
+    ceiling_v = jnp.where(finite, ceiling_v, cam.height / 4)
+    floor_v = jnp.where(finite, floor_v, 3 * cam.height / 4)
+    columns = jnp.arange(width, dtype=ceiling_v.dtype)
+    ceiling_rays = pixel_to_ray(cam, columns, ceiling_v)
+    floor_rays = pixel_to_ray(cam, columns, floor_v)
+
+    radius = max(1, round(_scaled(config.nms_radius, width, 1024)))
+    corner_prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, 0.0)
+    corner_columns, corner_mask, overflow = find_corners(corner_prob, capacity, radius, config.corner_threshold)
+    column_wall = column_walls(corner_columns, corner_mask, width)
+    away = distance_to_corners(corner_columns, corner_mask, width) >= _scaled(config.corner_margin, width, 1024)
+    own = (column_wall[None, :] == jnp.arange(capacity)[:, None]) & finite[None, :]
+    # narrow walls (seen almost edge-on) keep the columns next to their corners
+    few = jnp.sum(own & away[None, :], 1) < 2 * config.sample_size
+    candidates = own & (away[None, :] | few[:, None])
+
+    pixels = _scaled(1.0, cam.height, 512)
+    walls, ceiling_inliers, floor_inliers = jax.vmap(
+        ransac_wall, in_axes=(0, None, None, None, None, None, 0, None, None, None)
+    )(
+        jax.random.split(key, capacity),
+        cam,
+        ceiling_rays,
+        floor_rays,
+        ceiling_v,
+        floor_v,
+        candidates,
+        config.hypotheses,
+        config.sample_size,
+        config.inlier_threshold * pixels,
+    )
+    weights = jnp.where(walls.ok & corner_mask, jnp.sum(ceiling_inliers, 1) + jnp.sum(floor_inliers, 1), 0)
+
+    count = jnp.maximum(jnp.sum(corner_mask), 1)
+    previous = (jnp.arange(capacity) - 1) % count
+
+    def rows_at_corners(index):
+        return wall_boundary_rows(
+            cam,
+            walls.direction[index],
+            walls.distance[index],
+            walls.ceiling_height[index],
+            walls.floor_height[index],
+            corner_columns,
+        )
+
+    ceiling_here, floor_here, seen_here = rows_at_corners(jnp.arange(capacity))
+    ceiling_before, floor_before, seen_before = rows_at_corners(previous)
+    jump = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
+    fitted = walls.ok & corner_mask
+    both_fitted = fitted & fitted[previous]
+    occluded = both_fitted & seen_here & seen_before & (jump > config.occlusion_threshold * pixels)
+    previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
+    return WallEvidence(
+        ceiling_rays=ceiling_rays,
+        floor_rays=floor_rays,
+        finite=finite,
+        corner_columns=corner_columns,
+        corner_mask=corner_mask,
+        corner_overflow=overflow,
+        column_wall=column_wall,
+        walls=walls,
+        ceiling_inliers=jnp.any(ceiling_inliers, 0),
+        floor_inliers=jnp.any(floor_inliers, 0),
+        weights=weights.astype(ceiling_v.dtype),
+        fitted=fitted,
+        both_fitted=both_fitted,
+        occluded=occluded,
+        previous_nearer=previous_nearer,
+    )
+
+
+def _previous(evidence: WallEvidence) -> Int[Array, " K"]:
+    count = jnp.maximum(jnp.sum(evidence.corner_mask), 1)
+    return (jnp.arange(evidence.corner_mask.shape[0]) - 1) % count
+
+
+def manhattan_frame(
+    directions: Float[Array, "K 2"], weights: Float[Array, " K"]
+) -> tuple[Int[Array, " K"], Float[Array, " K"]]:
+    """Cluster wall directions into ``u`` (label 0) and ``u_perp`` (label 1), any yaw.
+
+    The yaw is the weighted circular mean of ``4 theta`` (walls 90 degrees
+    apart agree there).
+
+    Returns:
+        ``(labels, deviation)``: per wall its class and its angle to the
+        nearest Manhattan direction (radians, in [0, pi/4]).
+    """
+    theta = jnp.arctan2(directions[:, 1], directions[:, 0])
+    yaw = 0.25 * jnp.arctan2(jnp.sum(weights * jnp.sin(4 * theta)), jnp.sum(weights * jnp.cos(4 * theta)))
+    quarter_turns = jnp.round((theta - yaw) / (math.pi / 2))
+    deviation = jnp.abs(theta - yaw - quarter_turns * (math.pi / 2))
+    return (quarter_turns.astype(jnp.int32) % 2), deviation
+
+
+def _final_walls(evidence: WallEvidence, merge: Bool[Array, " K"], insert: Bool[Array, " K"], manhattan: bool) -> FinalWalls:
+    """Merge the walls split by spurious corners and insert the occluded ones.
+
+    Wall groups: a corner that is not merged starts a group; walls before the
+    first start belong to the last group (the loop wraps). Slot ``2g`` holds the
+    wall inserted before group ``g`` (if any), slot ``2g + 1`` group ``g``; the
+    valid slots are then compacted to the front.
+    """
+    capacity = evidence.corner_mask.shape[0]
+    starts = evidence.corner_mask & ~merge
+    num_groups = jnp.sum(starts)
+    group_of_wall = jnp.cumsum(starts) - 1
+    group_of_wall = jnp.where(group_of_wall < 0, num_groups - 1, group_of_wall)
+    start_corner = jnp.zeros(capacity, jnp.int32).at[jnp.where(starts, group_of_wall, capacity)].set(
+        jnp.arange(capacity, dtype=jnp.int32), mode="drop"
+    )
+    group_valid = jnp.arange(capacity) < num_groups
+    insert_before = group_valid & insert[start_corner]
+    slot_valid = jnp.stack([insert_before, group_valid], 1).reshape(-1)
+    order = jnp.argsort(~slot_valid, stable=True)
+    rank = jnp.zeros_like(order).at[order].set(jnp.arange(2 * capacity, dtype=order.dtype))
+    slot = order[:capacity]
+    group = slot // 2
+    inserted = slot % 2 == 0
+    mask = slot_valid[slot]
+    corner = start_corner[group]
+    nearer_is_previous = evidence.previous_nearer[corner]
+    if manhattan:
+        # Only the occluding corner (on the nearer wall) is seen.
+        corner_used = jnp.where(
+            insert_before[group], jnp.where(inserted, nearer_is_previous, ~nearer_is_previous), True
+        )
+    else:
+        corner_used = jnp.ones(capacity, bool)
+    index = jnp.arange(capacity)
+    count = jnp.maximum(jnp.sum(mask), 1)
+    observed = mask & ~inserted & evidence.fitted[corner]
+    # an unfitted wall hangs on its predecessor; an inserted one on the nearer wall
+    near_neighbour = jnp.where(nearer_is_previous | ~inserted, (index - 1) % count, (index + 1) % count)
+    wall = evidence.column_wall
+    column_wall = jnp.where(wall >= 0, rank[2 * group_of_wall[jnp.maximum(wall, 0)] + 1], -1)
+    return FinalWalls(
+        mask=mask,
+        inserted=inserted & mask,
+        observed=observed,
+        group=group,
+        start_wall=corner,
+        corner_columns=evidence.corner_columns[corner],
+        corner_used=corner_used & mask,
+        near_neighbour=near_neighbour,
+        column_wall=jnp.where(column_wall < capacity, column_wall, -1).astype(jnp.int32),
+        overflow=jnp.sum(slot_valid) > capacity,
+    )
+
+
+def _group_directions(evidence: WallEvidence, merge: Bool[Array, " K"], final: FinalWalls) -> Float[Array, "K 2"]:
+    """Per final wall, the inlier-weighted mean direction of its merged RANSAC walls."""
+    capacity = merge.shape[0]
+    starts = evidence.corner_mask & ~merge
+    group_of_wall = jnp.cumsum(starts) - 1
+    group_of_wall = jnp.where(group_of_wall < 0, jnp.sum(starts) - 1, group_of_wall)
+    group_of_wall = jnp.where(evidence.corner_mask, group_of_wall, capacity)
+    # canonical signs (camera on the left) agree for walls of one plane
+    summed = jax.ops.segment_sum(evidence.weights[:, None] * evidence.walls.direction, group_of_wall, capacity + 1)
+    return summed[final.group]
+
+
+def _observations(evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int) -> BoundaryObservations:
+    return BoundaryObservations(
+        ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
+        floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
+        ceiling_used=evidence.ceiling_inliers & (final.column_wall >= 0),
+        floor_used=evidence.floor_inliers & (final.column_wall >= 0),
+        column_wall=final.column_wall,
+        corner_columns=final.corner_columns,
+        corner_used=final.corner_used,
+        wall_mask=final.mask,
+    )
+
+
+def _fit_index(evidence: WallEvidence, final: FinalWalls) -> Int[Array, " W"]:
+    """Columns fed to the joint solvers: both boundaries inliers of their wall."""
+    return jnp.where(evidence.ceiling_inliers & evidence.floor_inliers, final.column_wall, -1)
+
+
+def _corner_directions(cam: NonCentralPanorama, columns: Float[Array, " K"]) -> Float[Array, "K 2"]:
+    azimuth, _ = pixel_to_angles(cam, columns, 0.0)
+    return jnp.stack([jnp.cos(azimuth), jnp.sin(azimuth)], -1)
+
+
+def _point_on_wall(
+    cam: NonCentralPanorama, direction: Float[Array, "K 2"], distance: Float[Array, " K"], column: Float[Array, " K"]
+) -> Float[Array, "K 2"]:
+    """Where the vertical half-plane of ``column`` meets a wall (plan view)."""
+    t = wall_range(cam, direction, distance, column)
+    t = jnp.where(jnp.isfinite(t), t, 0.0)
+    return (cam.rc + t)[:, None] * _corner_directions(cam, column)
+
+
+def _signed_distance(direction: Float[Array, "K 2"], point: Float[Array, "K 2"]) -> Float[Array, " K"]:
+    return cross_2d(direction, point)  # e2 . p with e2 = (-uy, ux)
+
+
+def _place_manhattan_walls(
+    cam: NonCentralPanorama, final: FinalWalls, directions: Float[Array, "K 2"], distances: Float[Array, " K"]
+) -> Float[Array, " K"]:
+    """Distances of the unobserved Manhattan walls: through the corner they share with their near neighbour.
+
+    For a wall inserted at an occlusion that is the occluding corner (on the
+    nearer of the two walls around it); for an unfitted wall, its start corner.
+    """
+    near = final.near_neighbour
+    corner = _point_on_wall(cam, directions[near], distances[near], final.corner_columns)
+    return jnp.where(final.observed, distances, _signed_distance(directions, corner))
+
+
+def _place_atlanta_walls(
+    cam: NonCentralPanorama, final: FinalWalls, directions: Float[Array, "K 2"], distances: Float[Array, " K"]
+) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
+    """Unobserved Atlanta walls: occlusion walls in the corner ray's vertical plane (the paper's
+    Fig. Atocc), unfitted walls through their two corners on the neighbouring walls."""
+    count = jnp.maximum(jnp.sum(final.mask), 1)
+    index = jnp.arange(final.mask.shape[0])
+    previous, following = (index - 1) % count, (index + 1) % count
+    start = _point_on_wall(cam, directions[previous], distances[previous], final.corner_columns)
+    end = _point_on_wall(cam, directions[following], distances[following], final.corner_columns[following])
+    chord = end - start
+    length = jnp.linalg.norm(chord, axis=-1, keepdims=True)
+    through_corners = jnp.where(length > 0, chord / jnp.where(length > 0, length, 1.0), directions)
+    radial = _corner_directions(cam, final.corner_columns)
+    new_direction = jnp.where(final.inserted[:, None], radial, through_corners)
+    new_distance = jnp.where(final.inserted, 0.0, _signed_distance(through_corners, start))
+    keep = final.observed[:, None]
+    return jnp.where(keep, directions, new_direction), jnp.where(final.observed, distances, new_distance)
+
+
+def _several_corners(evidence: WallEvidence) -> Bool[Array, ""]:
+    return jnp.sum(evidence.corner_mask) > 1
+
+
+def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
+    """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
+    labels, _ = manhattan_frame(evidence.walls.direction, evidence.weights)
+    previous = _previous(evidence)
+    labels = jnp.where(evidence.fitted, labels, 1 - labels[previous])  # unfitted: alternate
+    same_class = evidence.both_fitted & (labels[previous] == labels)
+    merge = same_class & ~evidence.occluded & _several_corners(evidence)
+    insert = same_class & evidence.occluded
+    final = _final_walls(evidence, merge, insert, manhattan=True)
+    wall_labels = jnp.where(final.inserted, 1 - labels[final.start_wall], labels[final.start_wall])
+    solved = solve_manhattan_layout(
+        evidence.ceiling_rays, evidence.floor_rays, _fit_index(evidence, final), final.observed, wall_labels
+    )
+    distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
+    adjusted = adjust_layout(
+        cam,
+        _observations(evidence, final, ceiling_v, floor_v, cam.height),
+        solved.directions,
+        distances,
+        solved.ceiling_height,
+        solved.floor_height,
+        wall_labels,
+        config.corner_weight,
+        config.adjustment_steps,
+    )
+    return _assemble(cam, evidence, final, *adjusted[:4], solved.ok, True, config)
+
+
+def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
+    """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
+    directions = evidence.walls.direction
+    parallel = jnp.abs(cross_2d(directions[_previous(evidence)], directions)) < math.sin(math.radians(config.merge_angle))
+    merge = evidence.both_fitted & parallel & ~evidence.occluded & _several_corners(evidence)
+    insert = evidence.occluded
+    final = _final_walls(evidence, merge, insert, manhattan=False)
+    solved = solve_atlanta_layout(
+        evidence.ceiling_rays,
+        evidence.floor_rays,
+        _fit_index(evidence, final),
+        final.observed,
+        _group_directions(evidence, merge, final),
+    )
+    directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
+    adjusted = adjust_layout(
+        cam,
+        _observations(evidence, final, ceiling_v, floor_v, cam.height),
+        directions,
+        distances,
+        solved.ceiling_height,
+        solved.floor_height,
+        None,
+        config.corner_weight,
+        config.adjustment_steps,
+    )
+    return _assemble(cam, evidence, final, *adjusted[:4], solved.ok, False, config)
+
+
+def _assemble(
+    cam: NonCentralPanorama,
+    evidence: WallEvidence,
+    final: FinalWalls,
+    directions: Float[Array, "K 2"],
+    distances: Float[Array, " K"],
+    ceiling_height: Float[Array, ""],
+    floor_height: Float[Array, ""],
+    solver_ok: Bool[Array, ""],
+    manhattan: bool,
+    config: PipelineConfig,
+) -> Layout:
+    """Step 6: corners where consecutive walls meet, Plücker lines and the status."""
+    mask = final.mask
+    points, meet = loop_corners(directions, distances, mask)
+    directions, distances = canonical_orientation(directions, distances)
+    finite = jnp.all(jnp.isfinite(points)) & jnp.isfinite(ceiling_height) & jnp.isfinite(floor_height)
+    failed = jnp.stack(
+        [
+            ~(cam.rc > 1e-6),
+            jnp.mean(evidence.finite) < config.min_finite_fraction,
+            ~jnp.any(evidence.corner_mask),
+            evidence.corner_overflow | final.overflow,
+            jnp.sum(mask) < (4 if manhattan else 3),
+            jnp.sum(final.observed) < 2,
+            ~solver_ok,
+            ~(jnp.all(meet) & finite & (ceiling_height > 0) & (floor_height < 0)),
+        ]
+    )
+    status = jnp.where(jnp.any(failed), jnp.argmax(failed) + 1, LayoutStatus.OK).astype(jnp.int32)
+    points = jnp.where(mask[:, None] & jnp.isfinite(points), points, 0.0)
+    ceiling_height = jnp.nan_to_num(ceiling_height)
+    floor_height = jnp.nan_to_num(floor_height)
+
+    def at(height):
+        return jnp.concatenate([points, jnp.broadcast_to(height, points.shape[:1])[:, None]], -1) * mask[:, None]
+
+    return Layout(
+        ceiling_corners=at(ceiling_height),
+        floor_corners=at(floor_height),
+        mask=mask,
+        ceiling_height=ceiling_height,
+        floor_height=floor_height,
+        wall_directions=directions,
+        wall_distances=distances,
+        ceiling_lines=horizontal_wall_line(directions, distances, ceiling_height) * mask[:, None],
+        floor_lines=horizontal_wall_line(directions, distances, floor_height) * mask[:, None],
+        inserted=final.inserted,
+        corner_columns=jnp.where(mask, final.corner_columns, 0.0),
+        manhattan=jnp.array(manhattan),
+        status=status,
+        ok=status == LayoutStatus.OK,
+    )
+
+
+def layout_from_evidence(
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    corner_prob: Float[Array, " W"],
+    cam: NonCentralPanorama,
+    key: PRNGKeyArray,
+    world: str,
+    config: PipelineConfig,
+) -> Layout:
+    """The traceable pipeline for one panorama (no input checks; see :func:`layout_from_boundaries`)."""
+    evidence = _gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config)
+    if world == "manhattan":
+        return _manhattan_layout(evidence, ceiling_v, floor_v, cam, config)
+    if world == "atlanta":
+        return _atlanta_layout(evidence, ceiling_v, floor_v, cam, config)
+    _, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
+    counted = evidence.corner_mask & evidence.walls.ok
+    manhattan = jnp.all(jnp.where(counted, deviation, 0.0) < math.radians(config.manhattan_tolerance))
+    return jax.tree.map(
+        lambda m, a: jnp.where(manhattan, m, a),
+        _manhattan_layout(evidence, ceiling_v, floor_v, cam, config),
+        _atlanta_layout(evidence, ceiling_v, floor_v, cam, config),
+    )
+
+
+_layout_jit = jax.jit(layout_from_evidence, static_argnames=("world", "config"))
+
+
+def layout_from_boundaries(
+    ceiling_v: Float[ArrayLike, "*batch W"],
+    floor_v: Float[ArrayLike, "*batch W"],
+    corner_prob: Float[ArrayLike, "*batch W"],
+    cam: NonCentralPanorama,
+    world: str = "manhattan",
+    config: PipelineConfig = PipelineConfig(),
+    key: PRNGKeyArray | None = None,
+) -> Layout:
+    """Metric room layout from the per-column network outputs (paper Section 4.4).
+
+    Jitted; leading batch axes are mapped with ``jax.vmap`` (one camera for
+    the batch). Inside your own ``jax.jit``/``jax.vmap`` it traces like any
+    JAX function.
+
+    Args:
+        ceiling_v: ceiling-wall boundary row per column (pixels, sub-pixel; NaN = missing).
+        floor_v: floor-wall boundary row per column.
+        corner_prob: wall-wall corner probability per column, in [0, 1].
+        cam: the camera; ``cam.width`` must equal the number of columns.
+        world: static: "manhattan", "atlanta" or "auto".
+        config: static :class:`PipelineConfig`.
+        key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``).
+
+    Returns:
+        A :class:`Layout`; check ``ok`` / ``status``.
+
+    Raises:
+        ValueError: for an unknown ``world`` or arrays whose shapes do not match the camera.
+    """
+    if world not in WORLDS:
+        raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
+    arrays = [jnp.asarray(x) for x in (ceiling_v, floor_v, corner_prob)]
+    arrays = [x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(jnp.float32) for x in arrays]
+    shape = arrays[0].shape
+    if any(x.shape != shape for x in arrays) or not shape or shape[-1] != cam.width:
+        raise ValueError(
+            f"ceiling_v, floor_v and corner_prob must share one shape (..., W) with W = cam.width = {cam.width}; "
+            f"got {[tuple(x.shape) for x in arrays]}"
+        )
+    key = jax.random.key(0) if key is None else key
+    batch = shape[:-1]
+    if not batch:
+        return _layout_jit(*arrays, cam, key, world, config)
+    flat = [x.reshape(-1, cam.width) for x in arrays]
+    keys = jax.random.split(key, flat[0].shape[0])
+    layouts = _batched_layout_jit(*flat, cam, keys, world, config)
+    return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layouts)
+
+
+def _batched_layout(ceiling_v, floor_v, corner_prob, cam, keys, world, config):
+    def one(c, f, p, k):
+        return layout_from_evidence(c, f, p, cam, k, world, config)
+
+    return jax.vmap(one)(ceiling_v, floor_v, corner_prob, keys)
+
+
+_batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config"))

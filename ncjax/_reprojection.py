@@ -1,0 +1,67 @@
+"""Where a wall's ceiling and floor lines appear in the panorama, column by column.
+
+The rays of column ``u`` leave the optical centre ``o = rc a`` (``a`` the unit
+horizontal direction of the column's azimuth) in the vertical half-plane of
+``a`` (paper eqs. forward and pluckerray). That half-plane meets the wall
+plane ``e2 . p = d`` at horizontal range ``t = d / (e2 . a) - rc`` from
+``o``; the wall's ceiling line is then seen at elevation ``atan2(h_c, t)``
+and its floor line at ``atan2(h_f, t)``. This closed form is the forward
+model of the RANSAC inlier test and of the final adjustment (reprojection
+error in pixels, per column).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
+
+
+def wall_range(
+    cam: NonCentralPanorama,
+    direction: Float[Array, "*#batch 2"],
+    distance: Float[Array, "*#batch"],
+    column: Float[Array, "*#batch"],
+) -> Float[Array, "*batch"]:
+    """Horizontal range ``t`` from column ``column``'s optical centre to the wall plane.
+
+    ``inf`` where the column's half-plane is parallel to the wall; negative
+    where the wall is behind the optical centre.
+    """
+    azimuth, _ = pixel_to_angles(cam, column, 0.0)
+    facing = direction[..., 0] * jnp.sin(azimuth) - direction[..., 1] * jnp.cos(azimuth)  # e2 . a
+    hit = jnp.abs(facing) > 0
+    return jnp.where(hit, distance / jnp.where(hit, facing, 1.0), jnp.inf) - cam.rc
+
+
+def wall_boundary_rows(
+    cam: NonCentralPanorama,
+    direction: Float[Array, "*#batch 2"],
+    distance: Float[Array, "*#batch"],
+    ceiling_height: Float[Array, "*#batch"],
+    floor_height: Float[Array, "*#batch"],
+    column: Float[Array, "*#batch"],
+) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"], Bool[Array, "*batch"]]:
+    """Rows at which a wall's ceiling and floor lines cross column ``column``.
+
+    Args:
+        cam: the camera.
+        direction: unit wall direction ``u``.
+        distance: signed distance ``d`` along ``e2 = (-uy, ux)``.
+        ceiling_height: ``h_c``.
+        floor_height: ``h_f``.
+        column: column coordinates (pixel-centre convention).
+
+    Returns:
+        ``(ceiling_v, floor_v, seen)``; where ``seen`` is False (wall behind or
+        parallel to the column's half-plane) the rows are those of a wall at
+        1 mm, finite with finite gradients.
+    """
+    t = wall_range(cam, direction, distance, column)
+    seen = jnp.isfinite(t) & (t > 0)
+    t = jnp.where(seen, t, 1e-3)
+    azimuth, _ = pixel_to_angles(cam, column, 0.0)
+    _, ceiling_v = angles_to_pixel(cam, azimuth, jnp.arctan2(ceiling_height, t))
+    _, floor_v = angles_to_pixel(cam, azimuth, jnp.arctan2(floor_height, t))
+    return ceiling_v, floor_v, seen
