@@ -103,3 +103,33 @@ def distance_to_corners(
     gap = jnp.abs(columns[:, None] - corner_columns[None, :]) % width
     gap = jnp.minimum(gap, width - gap)
     return jnp.min(jnp.where(corner_mask[None, :], gap, jnp.inf), axis=1)
+
+
+def side_extrapolation(
+    rows: Float[Array, " W"], usable: Bool[Array, " W"], corner: Float[Array, ""], side: int, window: int, margin: float
+) -> tuple[Float[Array, ""], Bool[Array, ""]]:
+    """A boundary's row at a corner column, extrapolated by a line fitted on one side of it.
+
+    Args:
+        rows: per-column boundary rows.
+        usable: columns that may be used (finite, on the right wall).
+        corner: the corner's (sub-)column.
+        side: static, -1 for the columns left of the corner, +1 for the right.
+        window: static number of columns fitted.
+        margin: columns skipped next to the corner.
+
+    Returns:
+        ``(row, ok)``; ``ok`` is False with fewer than 3 usable columns.
+    """
+    width = rows.shape[0]
+    offsets = side * (jnp.ceil(margin) + 1 + jnp.arange(window, dtype=rows.dtype))
+    columns = jnp.round(corner) + offsets
+    index = (columns.astype(jnp.int32)) % width
+    weight = usable[index].astype(rows.dtype)
+    x = columns - corner
+    count = jnp.sum(weight)
+    mean_x = jnp.sum(weight * x) / jnp.maximum(count, 1)
+    mean_y = jnp.sum(weight * rows[index]) / jnp.maximum(count, 1)
+    spread = jnp.sum(weight * (x - mean_x) ** 2)
+    slope = jnp.sum(weight * (x - mean_x) * (rows[index] - mean_y)) / jnp.where(spread > 0, spread, 1.0)
+    return mean_y - slope * mean_x, count >= 3

@@ -37,13 +37,20 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
-from ._adjust import BoundaryObservations, adjust_layout, loop_corners, manhattan_directions
+from ._adjust import (
+    BoundaryObservations,
+    adjust_layout,
+    layout_residuals,
+    loop_corners,
+    manhattan_directions,
+    manhattan_yaw,
+)
 from ._camera import NonCentralPanorama, pixel_to_angles, pixel_to_ray
-from ._corners import column_walls, distance_to_corners, find_corners
-from ._layout_solvers import solve_atlanta_layout, solve_manhattan_layout
+from ._corners import column_walls, distance_to_corners, find_corners, side_extrapolation
+from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
-from ._ransac import num_hypotheses, ransac_wall
-from ._reprojection import wall_boundary_rows, wall_range
+from ._ransac import boundary_errors, num_hypotheses, ransac_wall
+from ._reprojection import boundary_points, fit_plan_line, wall_range
 from ._wall import Wall, canonical_orientation
 
 WORLDS = ("manhattan", "atlanta", "auto")
@@ -80,8 +87,9 @@ class PipelineConfig:
         sample_size: columns per RANSAC hypothesis (paper: 3).
         inlier_threshold: row error of an inlier, pixels.
         occlusion_threshold: boundary jump at a corner that means an occlusion, pixels.
-        merge_angle: consecutive walls closer than this (degrees) and without a
-            jump are merged (Atlanta; Manhattan merges equal labels).
+        merge_fraction: Atlanta: consecutive walls each of which explains at
+            least this fraction of the other's inlier pixels are one wall
+            (Manhattan merges consecutive walls of one class without a jump).
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             wall from the Manhattan frame for the Manhattan branch.
         corner_weight: weight of the corner-plane penalty of the adjustment.
@@ -98,7 +106,7 @@ class PipelineConfig:
     sample_size: int = 3
     inlier_threshold: float = 3.0
     occlusion_threshold: float = 4.0
-    merge_angle: float = 10.0
+    merge_fraction: float = 0.8
     manhattan_tolerance: float = 5.0
     corner_weight: float = 1.0
     adjustment_steps: int = 32
@@ -110,7 +118,7 @@ class PipelineConfig:
         if self.sample_size < 3:
             raise ValueError(f"sample_size must be >= 3 columns (the wall solver needs 3 rays per line), got {self.sample_size}")
         num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
-        positive = ("nms_radius", "inlier_threshold", "occlusion_threshold", "merge_angle", "manhattan_tolerance")
+        positive = ("nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "manhattan_tolerance")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -169,7 +177,8 @@ class WallEvidence(eqx.Module):
 
     Corner ``j`` starts RANSAC wall ``j``; ``previous`` is wall ``j - 1`` (cyclic).
     ``fitted``: RANSAC found wall ``j``; ``both_fitted``: walls ``j - 1`` and ``j``;
-    ``occluded`` and ``previous_nearer`` are meaningful only where both are fitted.
+    ``occluded``: the boundaries jump at the corner; ``same_plane``: each of walls ``j - 1`` and ``j`` explains most
+    inlier pixels of the other.
     """
 
     ceiling_rays: Float[Array, "W 6"]
@@ -180,11 +189,11 @@ class WallEvidence(eqx.Module):
     corner_overflow: Bool[Array, ""]
     column_wall: Int[Array, " W"]
     walls: Wall
-    ceiling_inliers: Bool[Array, " W"]
-    floor_inliers: Bool[Array, " W"]
+    usable: Bool[Array, " W"]
     weights: Float[Array, " K"]
     fitted: Bool[Array, " K"]
     both_fitted: Bool[Array, " K"]
+    same_plane: Bool[Array, " K"]
     occluded: Bool[Array, " K"]
     previous_nearer: Bool[Array, " K"]
 
@@ -192,8 +201,8 @@ class WallEvidence(eqx.Module):
 class FinalWalls(eqx.Module):
     """The wall loop after merging and occlusion insertion (internal; traced, ``K`` slots).
 
-    ``observed`` walls have fitted RANSAC walls and columns; the others
-    (inserted at occlusions, or too narrow to fit) are placed from their
+    ``observed`` walls have enough usable columns for the joint solvers; the
+    others (inserted at occlusions, or too narrow) are placed from their
     neighbours and corner rays and then held by the corner penalty.
     """
 
@@ -256,26 +265,40 @@ def _gather_evidence(
         config.inlier_threshold * pixels,
     )
     weights = jnp.where(walls.ok & corner_mask, jnp.sum(ceiling_inliers, 1) + jnp.sum(floor_inliers, 1), 0)
+    inliers = ceiling_inliers | floor_inliers
 
     count = jnp.maximum(jnp.sum(corner_mask), 1)
     previous = (jnp.arange(capacity) - 1) % count
 
-    def rows_at_corners(index):
-        return wall_boundary_rows(
-            cam,
-            walls.direction[index],
-            walls.distance[index],
-            walls.ceiling_height[index],
-            walls.floor_height[index],
-            corner_columns,
+    # the boundary jump at each corner, from lines fitted to the rows on either side
+    margin = _scaled(config.corner_margin, width, 1024)
+    window = max(3, round(_scaled(8.0, width, 1024)))
+
+    def extrapolate(rows, wall, side):
+        usable = finite[None, :] & (column_wall[None, :] == wall[:, None])
+        return jax.vmap(side_extrapolation, in_axes=(None, 0, 0, None, None, None))(
+            rows, usable, corner_columns, side, window, margin
         )
 
-    ceiling_here, floor_here, seen_here = rows_at_corners(jnp.arange(capacity))
-    ceiling_before, floor_before, seen_before = rows_at_corners(previous)
+    ceiling_here, seen_here = extrapolate(ceiling_v, jnp.arange(capacity), 1)
+    floor_here, _ = extrapolate(floor_v, jnp.arange(capacity), 1)
+    ceiling_before, seen_before = extrapolate(ceiling_v, previous, -1)
+    floor_before, _ = extrapolate(floor_v, previous, -1)
     jump = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
     fitted = walls.ok & corner_mask
     both_fitted = fitted & fitted[previous]
-    occluded = both_fitted & seen_here & seen_before & (jump > config.occlusion_threshold * pixels)
+    ceiling_error, floor_error = jax.vmap(boundary_errors, in_axes=(None, 0, None, None))(cam, walls, ceiling_v, floor_v)
+    explains = (ceiling_error < config.inlier_threshold * pixels) & (floor_error < config.inlier_threshold * pixels)
+
+    def explained_fraction(explaining, explained):
+        own = inliers[explained]
+        return jnp.sum(own & explains[explaining], 1) / jnp.maximum(jnp.sum(own, 1), 1)
+
+    index = jnp.arange(capacity)
+    same_plane = (explained_fraction(previous, index) >= config.merge_fraction) & (
+        explained_fraction(index, previous) >= config.merge_fraction
+    )
+    occluded = corner_mask & seen_here & seen_before & (jump > config.occlusion_threshold * pixels)
     previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
     return WallEvidence(
         ceiling_rays=ceiling_rays,
@@ -286,11 +309,11 @@ def _gather_evidence(
         corner_overflow=overflow,
         column_wall=column_wall,
         walls=walls,
-        ceiling_inliers=jnp.any(ceiling_inliers, 0),
-        floor_inliers=jnp.any(floor_inliers, 0),
+        usable=jnp.any(candidates, 0),
         weights=weights.astype(ceiling_v.dtype),
         fitted=fitted,
         both_fitted=both_fitted,
+        same_plane=both_fitted & same_plane,
         occluded=occluded,
         previous_nearer=previous_nearer,
     )
@@ -320,13 +343,38 @@ def manhattan_frame(
     return (quarter_turns.astype(jnp.int32) % 2), deviation
 
 
-def _final_walls(evidence: WallEvidence, merge: Bool[Array, " K"], insert: Bool[Array, " K"], manhattan: bool) -> FinalWalls:
+def manhattan_labels(evidence: WallEvidence) -> Int[Array, " K"]:
+    """Manhattan class of each RANSAC wall.
+
+    Walls turn by 90 degrees at every corner that is neither an occlusion nor
+    a split of one plane, so the classes follow from the corner types alone
+    (topology, robust to the noisy directions of single walls). When the
+    turns do not close the loop (an odd count) the classes come from the
+    directions (:func:`manhattan_frame`) instead. Unfitted walls alternate
+    with their predecessor.
+    """
+    mask = evidence.corner_mask
+    by_direction, _ = manhattan_frame(evidence.walls.direction, evidence.weights)
+    previous = _previous(evidence)
+    by_direction = jnp.where(evidence.fitted, by_direction, 1 - by_direction[previous])
+    turns = mask & ~evidence.occluded & ~evidence.same_plane
+    parity = (jnp.cumsum(turns) - turns[0]) % 2  # wall 0 has class 0
+    agree = jnp.sum(evidence.weights * (parity == by_direction)) >= jnp.sum(evidence.weights * (parity != by_direction))
+    by_parity = jnp.where(agree, parity, 1 - parity)
+    closes = jnp.sum(turns) % 2 == 0
+    return jnp.where(closes, by_parity, by_direction).astype(jnp.int32)
+
+
+def _final_walls(
+    evidence: WallEvidence, merge: Bool[Array, " K"], insert: Bool[Array, " K"], manhattan: bool, min_columns: int
+) -> FinalWalls:
     """Merge the walls split by spurious corners and insert the occluded ones.
 
     Wall groups: a corner that is not merged starts a group; walls before the
     first start belong to the last group (the loop wraps). Slot ``2g`` holds the
     wall inserted before group ``g`` (if any), slot ``2g + 1`` group ``g``; the
-    valid slots are then compacted to the front.
+    valid slots are then compacted to the front. A wall is observed with at
+    least ``min_columns`` usable columns.
     """
     capacity = evidence.corner_mask.shape[0]
     starts = evidence.corner_mask & ~merge
@@ -356,11 +404,13 @@ def _final_walls(evidence: WallEvidence, merge: Bool[Array, " K"], insert: Bool[
         corner_used = jnp.ones(capacity, bool)
     index = jnp.arange(capacity)
     count = jnp.maximum(jnp.sum(mask), 1)
-    observed = mask & ~inserted & evidence.fitted[corner]
     # an unfitted wall hangs on its predecessor; an inserted one on the nearer wall
     near_neighbour = jnp.where(nearer_is_previous | ~inserted, (index - 1) % count, (index + 1) % count)
     wall = evidence.column_wall
     column_wall = jnp.where(wall >= 0, rank[2 * group_of_wall[jnp.maximum(wall, 0)] + 1], -1)
+    column_wall = jnp.where(column_wall < capacity, column_wall, -1).astype(jnp.int32)
+    columns_seen = jax.ops.segment_sum(evidence.usable.astype(jnp.int32), jnp.where(column_wall >= 0, column_wall, capacity), capacity + 1)
+    observed = mask & ~inserted & (columns_seen[:capacity] >= min_columns)
     return FinalWalls(
         mask=mask,
         inserted=inserted & mask,
@@ -370,7 +420,7 @@ def _final_walls(evidence: WallEvidence, merge: Bool[Array, " K"], insert: Bool[
         corner_columns=evidence.corner_columns[corner],
         corner_used=corner_used & mask,
         near_neighbour=near_neighbour,
-        column_wall=jnp.where(column_wall < capacity, column_wall, -1).astype(jnp.int32),
+        column_wall=column_wall,
         overflow=jnp.sum(slot_valid) > capacity,
     )
 
@@ -391,8 +441,8 @@ def _observations(evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v,
     return BoundaryObservations(
         ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
         floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
-        ceiling_used=evidence.ceiling_inliers & (final.column_wall >= 0),
-        floor_used=evidence.floor_inliers & (final.column_wall >= 0),
+        ceiling_used=evidence.usable & (final.column_wall >= 0),
+        floor_used=evidence.usable & (final.column_wall >= 0),
         column_wall=final.column_wall,
         corner_columns=final.corner_columns,
         corner_used=final.corner_used,
@@ -401,8 +451,28 @@ def _observations(evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v,
 
 
 def _fit_index(evidence: WallEvidence, final: FinalWalls) -> Int[Array, " W"]:
-    """Columns fed to the joint solvers: both boundaries inliers of their wall."""
-    return jnp.where(evidence.ceiling_inliers & evidence.floor_inliers, final.column_wall, -1)
+    """Columns fed to the joint solvers: all usable columns (single-wall RANSAC inliers
+    are not trusted for this: a single wall's scale is weak, see :func:`ncjax._ransac.plausible_wall`)."""
+    return jnp.where(evidence.usable, final.column_wall, -1)
+
+
+def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
+    """Step 5: adjust on all usable columns, keep the inliers of that layout, adjust again."""
+    observations = _observations(evidence, final, ceiling_v, floor_v, cam.height)
+    adjusted = adjust_layout(
+        cam, observations, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps
+    )
+    errors = layout_residuals(*adjusted[:4], cam, observations, 0.0)
+    threshold = config.inlier_threshold * _scaled(1.0, cam.height, 512)
+    inliers = eqx.tree_at(
+        lambda o: (o.ceiling_used, o.floor_used),
+        observations,
+        (
+            observations.ceiling_used & (jnp.abs(errors[: cam.width]) < threshold),
+            observations.floor_used & (jnp.abs(errors[cam.width : 2 * cam.width]) < threshold),
+        ),
+    )
+    return adjust_layout(cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps)
 
 
 def _corner_directions(cam: NonCentralPanorama, columns: Float[Array, " K"]) -> Float[Array, "K 2"]:
@@ -462,59 +532,66 @@ def _several_corners(evidence: WallEvidence) -> Bool[Array, ""]:
 
 def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
-    labels, _ = manhattan_frame(evidence.walls.direction, evidence.weights)
-    previous = _previous(evidence)
-    labels = jnp.where(evidence.fitted, labels, 1 - labels[previous])  # unfitted: alternate
-    same_class = evidence.both_fitted & (labels[previous] == labels)
-    merge = same_class & ~evidence.occluded & _several_corners(evidence)
-    insert = same_class & evidence.occluded
-    final = _final_walls(evidence, merge, insert, manhattan=True)
+    labels = manhattan_labels(evidence)
+    same_class = labels[_previous(evidence)] == labels
+    merge = evidence.corner_mask & same_class & evidence.same_plane & ~evidence.occluded & _several_corners(evidence)
+    insert = evidence.corner_mask & same_class & evidence.occluded
+    final = _final_walls(evidence, merge, insert, True, config.sample_size)
     wall_labels = jnp.where(final.inserted, 1 - labels[final.start_wall], labels[final.start_wall])
-    solved = solve_manhattan_layout(
-        evidence.ceiling_rays, evidence.floor_rays, _fit_index(evidence, final), final.observed, wall_labels
+    fit_index = _fit_index(evidence, final)
+    fitted = final.observed & evidence.fitted[final.start_wall]
+    yaw = manhattan_yaw(evidence.walls.direction[final.start_wall], wall_labels, fitted)
+    heights = solve_atlanta_layout(
+        evidence.ceiling_rays, evidence.floor_rays, fit_index, fitted, manhattan_directions(yaw, wall_labels)
+    )
+    plan = _plan_lines(cam, evidence, final, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
+    yaw = manhattan_yaw(plan, wall_labels, final.observed)
+    solved = solve_atlanta_layout(
+        evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, manhattan_directions(yaw, wall_labels)
     )
     distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
-    adjusted = adjust_layout(
-        cam,
-        _observations(evidence, final, ceiling_v, floor_v, cam.height),
-        solved.directions,
-        distances,
-        solved.ceiling_height,
-        solved.floor_height,
-        wall_labels,
-        config.corner_weight,
-        config.adjustment_steps,
+    adjusted = _refine(
+        cam, evidence, final, ceiling_v, floor_v, solved.directions, distances,
+        solved.ceiling_height, solved.floor_height, wall_labels, config,
     )
-    return _assemble(cam, evidence, final, *adjusted[:4], solved.ok, True, config)
+    return _assemble(cam, evidence, final, *adjusted[:4], heights.ok & solved.ok, True, config)
+
+
+def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Array, "K 2"]:
+    """Per final wall, the direction of the plan line through its boundary points at heights ``h_c``, ``h_f``."""
+    columns = jnp.arange(cam.width, dtype=ceiling_v.dtype)
+    ceiling, ceiling_ok = boundary_points(cam, columns, jnp.where(evidence.finite, ceiling_v, 0.0), h_c)
+    floor, floor_ok = boundary_points(cam, columns, jnp.where(evidence.finite, floor_v, 0.0), h_f)
+    points = jnp.concatenate([ceiling, floor])
+    ok = jnp.concatenate([ceiling_ok, floor_ok]) & jnp.tile(evidence.usable, 2)
+    wall = jnp.tile(final.column_wall, 2)
+    weights = (wall[None, :] == jnp.arange(final.mask.shape[0])[:, None]) & ok[None, :]
+    directions, _ = jax.vmap(fit_plan_line, in_axes=(None, 0))(points, weights.astype(points.dtype))
+    return directions
 
 
 def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
-    directions = evidence.walls.direction
-    parallel = jnp.abs(cross_2d(directions[_previous(evidence)], directions)) < math.sin(math.radians(config.merge_angle))
-    merge = evidence.both_fitted & parallel & ~evidence.occluded & _several_corners(evidence)
+    merge = evidence.same_plane & ~evidence.occluded & _several_corners(evidence)
     insert = evidence.occluded
-    final = _final_walls(evidence, merge, insert, manhattan=False)
-    solved = solve_atlanta_layout(
+    final = _final_walls(evidence, merge, insert, False, config.sample_size)
+    fit_index = _fit_index(evidence, final)
+    heights = solve_atlanta_layout(
         evidence.ceiling_rays,
         evidence.floor_rays,
-        _fit_index(evidence, final),
-        final.observed,
+        fit_index,
+        final.observed & evidence.fitted[final.start_wall],
         _group_directions(evidence, merge, final),
     )
+    # every observed wall's direction from its boundary points at those heights
+    directions = _plan_lines(cam, evidence, final, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
+    solved = solve_atlanta_layout(evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, directions)
     directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
-    adjusted = adjust_layout(
-        cam,
-        _observations(evidence, final, ceiling_v, floor_v, cam.height),
-        directions,
-        distances,
-        solved.ceiling_height,
-        solved.floor_height,
-        None,
-        config.corner_weight,
-        config.adjustment_steps,
+    adjusted = _refine(
+        cam, evidence, final, ceiling_v, floor_v, directions, distances,
+        solved.ceiling_height, solved.floor_height, None, config,
     )
-    return _assemble(cam, evidence, final, *adjusted[:4], solved.ok, False, config)
+    return _assemble(cam, evidence, final, *adjusted[:4], heights.ok & solved.ok, False, config)
 
 
 def _assemble(

@@ -73,6 +73,7 @@ def ransac_wall(
     num_hypotheses: int,
     sample_size: int,
     inlier_threshold: float,
+    min_height: float = 0.1,
 ) -> tuple[Wall, Bool[Array, " W"], Bool[Array, " W"]]:
     """The wall that best explains the boundaries of the candidate columns.
 
@@ -87,6 +88,8 @@ def ransac_wall(
         num_hypotheses: static number of hypotheses (:func:`num_hypotheses`).
         sample_size: static number of columns per hypothesis (>= 3).
         inlier_threshold: maximum row error of an inlier, pixels.
+        min_height: static; walls whose ceiling or floor is closer than this
+            to the camera's plane are rejected (:func:`plausible_wall`).
 
     Returns:
         ``(wall, ceiling_inliers, floor_inliers)``; the wall refitted on the
@@ -104,12 +107,28 @@ def ransac_wall(
     )
     ceiling_in = candidates & (ceiling_error < inlier_threshold)
     floor_in = candidates & (floor_error < inlier_threshold)
-    score = jnp.where(hypotheses.ok, jnp.sum(ceiling_in, 1) + jnp.sum(floor_in, 1), -1)
+    valid = jax.vmap(plausible_wall, in_axes=(0, None))(hypotheses, min_height)
+    score = jnp.where(valid, jnp.sum(ceiling_in, 1) + jnp.sum(floor_in, 1), -1)
     best = jnp.argmax(score)
-    wall = solve_wall(ceiling_rays, floor_rays, ceiling_in[best], floor_in[best])
+    refit = solve_wall(ceiling_rays, floor_rays, ceiling_in[best], floor_in[best])
+    # the algebraic refit can slide to the degenerate tiny wall; keep the hypothesis then
+    wall = jax.tree.map(
+        lambda r, h: jnp.where(plausible_wall(refit, min_height), r, h[best]), refit, hypotheses
+    )
     ceiling_error, floor_error = boundary_errors(cam, wall, ceiling_v, floor_v)
     ceiling_in = candidates & (ceiling_error < inlier_threshold)
     floor_in = candidates & (floor_error < inlier_threshold)
     enough = jnp.sum(candidates) >= sample_size
-    ok = wall.ok & enough & (score[best] >= 0)
+    ok = plausible_wall(wall, min_height) & enough & (score[best] >= 0)
     return eqx.tree_at(lambda w: w.ok, wall, ok), ceiling_in, floor_in
+
+
+def plausible_wall(wall: Wall, min_height: float) -> Bool[Array, ""]:
+    """A solved wall that can bound a room: ceiling above and floor below the camera by ``min_height``.
+
+    With little parallax (small ``rc``, far walls) and noise, the algebraic
+    solution can shrink towards the degenerate wall of height 0 that touches
+    the circle of optical centres; its rows still look plausible, so it is
+    rejected here.
+    """
+    return wall.ok & (wall.ceiling_height > min_height) & (wall.floor_height < -min_height)

@@ -65,3 +65,41 @@ def wall_boundary_rows(
     _, ceiling_v = angles_to_pixel(cam, azimuth, jnp.arctan2(ceiling_height, t))
     _, floor_v = angles_to_pixel(cam, azimuth, jnp.arctan2(floor_height, t))
     return ceiling_v, floor_v, seen
+
+
+def boundary_points(
+    cam: NonCentralPanorama, column: Float[Array, "*#batch"], row: Float[Array, "*#batch"], height: Float[Array, "*#batch"]
+) -> tuple[Float[Array, "*batch 2"], Bool[Array, "*batch"]]:
+    """Plan-view point of a boundary pixel whose 3D point lies at a known height (inverse of the above).
+
+    The pixel's ray rises at elevation ``phi`` from ``rc a``; it reaches
+    ``z = height`` at range ``t = height / tan(phi)``, i.e. at ``(rc + t) a``.
+
+    Returns:
+        ``(point, ok)``; ``ok`` is False where the ray never reaches that height.
+    """
+    azimuth, elevation = pixel_to_angles(cam, column, row)
+    slope = jnp.tan(elevation)
+    ok = (slope * height > 0) & jnp.isfinite(slope)
+    t = height / jnp.where(ok, slope, 1.0)
+    radius = jnp.where(ok, cam.rc + t, 0.0)
+    return jnp.stack([radius * jnp.cos(azimuth), radius * jnp.sin(azimuth)], -1), ok
+
+
+def fit_plan_line(
+    points: Float[Array, "n 2"], weights: Float[Array, " n"]
+) -> tuple[Float[Array, " 2"], Float[Array, ""]]:
+    """Total-least-squares line through weighted plan points: ``(direction, distance)``.
+
+    The direction is the principal axis of the weighted scatter (closed form
+    for 2 x 2); ``distance = e2 . centroid`` with ``e2 = (-uy, ux)``.
+    """
+    total = jnp.maximum(jnp.sum(weights), jnp.finfo(points.dtype).tiny)
+    centroid = jnp.sum(weights[:, None] * points, 0) / total
+    centred = points - centroid
+    sxx = jnp.sum(weights * centred[:, 0] ** 2)
+    syy = jnp.sum(weights * centred[:, 1] ** 2)
+    sxy = jnp.sum(weights * centred[:, 0] * centred[:, 1])
+    angle = 0.5 * jnp.arctan2(2 * sxy, sxx - syy)
+    direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+    return direction, direction[0] * centroid[1] - direction[1] * centroid[0]
