@@ -1,0 +1,192 @@
+"""The geometric pipeline (paper Section 4.4): corners, RANSAC, branches, adjustment, failure codes."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+import ncjax
+from ncjax import metrics
+from ncjax._corners import column_walls, find_corners, is_peak
+from ncjax._plucker import wall_planes_meet
+from ncjax._ransac import num_hypotheses
+from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
+
+WIDTH, HEIGHT = 512, 256
+
+
+@functools.cache
+def rooms(world: str, occlusion: str, count: int = 6):
+    config = ncjax.RoomConfig(world=world, occlusion=occlusion, room_tries=2, camera_tries=64)
+    batch = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(11), count))
+    labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(batch)
+    return batch, labels
+
+
+def pick(tree, i):
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def target(width: int, corners) -> np.ndarray:
+    columns = np.arange(width)
+    gap = np.abs(columns[:, None] - np.asarray(corners)[None, :]) % width
+    return 0.96 ** np.min(np.minimum(gap, width - gap), axis=1)
+
+
+# --- corner extraction -------------------------------------------------------------------------
+
+
+@given(st.lists(st.floats(0.0, 511.0), min_size=1, max_size=6, unique=True))
+def test_find_corners_recovers_sub_column_positions(corners):
+    corners = sorted(corners)
+    if len(corners) > 1 and min(np.diff(corners + [corners[0] + WIDTH])) < 4:
+        return  # closer than the suppression window
+    columns, mask, overflow = find_corners(jnp.asarray(target(WIDTH, corners), jnp.float32), 8, 2, 0.3)
+    found = np.sort(np.asarray(columns)[np.asarray(mask)] % WIDTH)
+    assert not overflow and len(found) == len(corners)
+    gap = np.abs(found - np.sort(np.asarray(corners) % WIDTH))
+    np.testing.assert_array_less(np.minimum(gap, WIDTH - gap), 2e-3)
+
+
+def test_plateau_gives_one_peak_and_wrap_around():
+    prob = jnp.zeros(16).at[jnp.array([15, 0])].set(0.9)  # a plateau across the seam
+    peak = is_peak(prob, 2, 0.5)
+    assert int(peak.sum()) == 1 and bool(peak[15])
+    walls = column_walls(jnp.array([3.0, 9.0, 16.0]), jnp.array([True, True, False]), 16)
+    np.testing.assert_array_equal(walls, [1, 1, 1, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1])
+
+
+def test_capacity_overflow_is_reported():
+    _, mask, overflow = find_corners(jnp.asarray(target(WIDTH, np.arange(10) * 50.0), jnp.float32), 4, 2, 0.3)
+    assert bool(overflow) and int(mask.sum()) == 4
+
+
+def test_paper_number_of_hypotheses():
+    assert num_hypotheses(0.9999, 0.2, 3) == 13  # paper: 12.84
+    assert num_hypotheses(0.9999, 0.6, 6) == 2244  # paper's edge-based count
+    with pytest.raises(ValueError):
+        num_hypotheses(1.0, 0.2, 3)
+
+
+# --- forward model of the boundaries ------------------------------------------------------------
+
+
+def test_wall_rows_match_exact_labels():
+    batch, labels = rooms("atlanta", "any")
+    for i in range(3):
+        room, label = pick(batch, i), pick(labels, i)
+        directions, distances = ncjax.room_walls(room)[:2]
+        wall = label.wall_index
+        columns = jnp.arange(WIDTH, dtype=jnp.float32)
+        ceiling, floor, seen = wall_boundary_rows(
+            room.camera(WIDTH, HEIGHT), directions[wall], distances[wall], room.ceiling_height, room.floor_height, columns
+        )
+        assert bool(jnp.all(seen))
+        np.testing.assert_allclose(ceiling, label.ceiling_v, atol=2e-3)
+        np.testing.assert_allclose(floor, label.floor_v, atol=2e-3)
+
+
+def test_boundary_points_invert_the_rows_and_fit_the_wall_line():
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
+    direction, distance = jnp.array([0.6, 0.8]), jnp.array(-2.5)
+    columns = jnp.arange(200.0, 260.0)
+    ceiling, _, _ = wall_boundary_rows(cam, direction, distance, 1.2, -1.5, columns)
+    points, ok = boundary_points(cam, columns, ceiling, 1.2)
+    assert bool(jnp.all(ok))
+    np.testing.assert_allclose(points @ jnp.array([-0.8, 0.6]), -2.5, atol=1e-4)
+    fitted, offset = fit_plan_line(points, jnp.ones(len(columns)))
+    assert abs(abs(float(fitted @ direction)) - 1) < 1e-6
+    np.testing.assert_allclose(offset * jnp.sign(fitted @ direction), -2.5, atol=1e-4)
+
+
+def test_wall_planes_meet_like_plucker_lines():
+    a, b = jnp.array([1.0, 0.0]), jnp.array([0.6, 0.8])
+    point, ok = wall_planes_meet(a, -2.0, b, -1.0)
+    lines = ncjax.horizontal_wall_line(jnp.stack([a, b]), jnp.array([-2.0, -1.0]), 1.0)
+    np.testing.assert_allclose(point, ncjax.intersect_coplanar_lines(lines[0], lines[1])[:2], atol=1e-5)
+    assert bool(ok) and not bool(wall_planes_meet(a, -2.0, a, -1.0)[1])
+
+
+# --- the pipeline on exact boundaries --------------------------------------------------------------
+
+
+@pytest.mark.parametrize("world,occlusion", [("manhattan", "none"), ("atlanta", "none"), ("manhattan", "required")])
+def test_exact_boundaries_give_the_room(world, occlusion):
+    batch, labels = rooms(world, occlusion)
+    good = 0
+    for i in range(4):
+        room, label = pick(batch, i), pick(labels, i)
+        layout = ncjax.layout_from_boundaries(
+            label.ceiling_v, label.floor_v, label.corner_target, room.camera(WIDTH, HEIGHT), world=world
+        )
+        if not bool(layout.ok):
+            continue
+        result = metrics.evaluate_layout(layout, room if world == "manhattan" else label)
+        assert math.isfinite(result["ce"]) and result["ce"] < 0.02, result
+        assert result["iou3d"] > 0.98
+        if occlusion == "required":
+            assert bool(jnp.any(layout.inserted))
+        good += 1
+    assert good >= 3  # 512 x 256: corners a few columns apart may merge
+
+
+def test_batch_auto_world_and_shapes():
+    batch, labels = rooms("manhattan", "none")
+    room = pick(batch, 0)
+    label = pick(labels, 0)
+    stacked = [jnp.stack([x, x]) for x in (label.ceiling_v, label.floor_v, label.corner_target)]
+    layout = ncjax.layout_from_boundaries(*stacked, room.camera(WIDTH, HEIGHT), world="auto")
+    assert layout.ceiling_corners.shape == (2, 32, 3) and layout.mask.shape == (2, 32) and layout.ok.shape == (2,)
+    assert bool(jnp.all(layout.ok)) and bool(jnp.all(layout.manhattan))
+    np.testing.assert_allclose(layout.ceiling_corners[0], layout.ceiling_corners[1], atol=1e-5)
+
+
+def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
+    batch, labels = rooms("manhattan", "none")
+    room, label = pick(batch, 0), pick(labels, 0)
+    cam = room.camera(WIDTH, HEIGHT)
+    nan = jnp.full(WIDTH, jnp.nan)
+    cases = {
+        ncjax.LayoutStatus.INVALID_INPUT: (nan, nan, label.corner_target, cam),
+        ncjax.LayoutStatus.NO_CORNERS: (label.ceiling_v, label.floor_v, jnp.zeros(WIDTH), cam),
+        ncjax.LayoutStatus.NO_SCALE: (label.ceiling_v, label.floor_v, label.corner_target, ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.0)),
+    }
+    for status, args in cases.items():
+        layout = ncjax.layout_from_boundaries(*args)
+        assert int(layout.status) == status and not bool(layout.ok)
+        assert bool(jnp.all(jnp.isfinite(layout.ceiling_corners)))
+
+
+def test_bad_arguments_raise():
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.5)
+    rows = jnp.zeros(WIDTH)
+    with pytest.raises(ValueError, match="world"):
+        ncjax.layout_from_boundaries(rows, rows, rows, cam, world="gothic")
+    with pytest.raises(ValueError, match="cam.width"):
+        ncjax.layout_from_boundaries(rows[:-1], rows[:-1], rows[:-1], cam)
+    with pytest.raises(ValueError, match="capacity"):
+        ncjax.PipelineConfig(capacity=2)
+
+
+def test_gradients_through_the_adjustment_are_finite():
+    batch, labels = rooms("manhattan", "none")
+    room, label = pick(batch, 1), pick(labels, 1)
+    cam = room.camera(WIDTH, HEIGHT)
+
+    def height(ceiling_v):
+        return ncjax.layout_from_boundaries(ceiling_v, label.floor_v, label.corner_target, cam).ceiling_height
+
+    gradient = jax.grad(height)(label.ceiling_v)
+    assert bool(jnp.all(jnp.isfinite(gradient))) and float(jnp.abs(gradient).sum()) > 0
+    # raising every ceiling row (moving the boundary down) lowers the recovered ceiling
+    step = 0.5
+    finite_difference = (height(label.ceiling_v + step) - height(label.ceiling_v - step)) / (2 * step)
+    assert float(jnp.sum(gradient)) < 0 and float(finite_difference) < 0
+    np.testing.assert_allclose(float(jnp.sum(gradient)), float(finite_difference), rtol=0.2)
