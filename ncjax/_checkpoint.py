@@ -30,7 +30,7 @@ _MODEL_STATE = nnx.Any(nnx.Param, nnx.BatchStat)
 _OPTIMIZER_STATE = nnx.OptState
 
 
-def _flat_arrays(state: nnx.State, prefix: str) -> dict[str, np.ndarray]:
+def _flat_arrays(state, prefix: str) -> dict[str, np.ndarray]:
     return {
         prefix + "/".join(str(part) for part in path): np.asarray(variable.get_value())
         for path, variable in nnx.to_flat_state(state)

@@ -43,7 +43,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 from flax import nnx
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 
@@ -145,7 +145,7 @@ def column_feature_size(config: HorizonNetConfig) -> int:
 # ----------------------------------------------------------------------------- wrap-aware ops
 
 
-def circular_pad_width(x: Float[Array, "*batch H W C"], pad: int) -> Float[Array, "*batch H W+2*pad C"]:
+def circular_pad_width(x: Float[Array, "*batch H W C"], pad: int) -> Float[Array, "*batch H _ C"]:
     """Pad the width (axis -2) with the opposite edge of the 360-degree panorama."""
     if pad == 0:
         return x
@@ -434,12 +434,12 @@ def count_parameters(config: HorizonNetConfig) -> int:
 # ----------------------------------------------------------------------------- encoding
 
 
-def elevation_to_row(elevation: Float[Array, "*batch"], height: int) -> Float[Array, "*batch"]:
+def elevation_to_row(elevation: Float[ArrayLike, "*batch"], height: int) -> Float[Array, "*batch"]:
     """Sub-pixel row of an elevation in a full-sphere panorama of ``height`` rows (DESIGN.md 2)."""
     return angles_to_pixel(NonCentralPanorama(2 * height, height), 0.0, elevation)[1]
 
 
-def row_to_elevation(row: Float[Array, "*batch"], height: int) -> Float[Array, "*batch"]:
+def row_to_elevation(row: Float[ArrayLike, "*batch"], height: int) -> Float[Array, "*batch"]:
     """Elevation (radians) of a sub-pixel row, inverse of :func:`elevation_to_row`."""
     return pixel_to_angles(NonCentralPanorama(2 * height, height), 0.0, row)[1]
 

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from flax import nnx
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
 
 from ._checkpoint import load_checkpoint, save_checkpoint
 from ._network import BoundaryPrediction, HorizonNet, HorizonNetConfig, init_model, row_to_elevation
@@ -120,9 +120,9 @@ def _adamw(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
 
 def horizonnet_loss(
     prediction: BoundaryPrediction,
-    ceiling_v: Float[Array, "B W"],
-    floor_v: Float[Array, "B W"],
-    corner_target: Float[Array, "B W"],
+    ceiling_v: Float[ArrayLike, "B W"],
+    floor_v: Float[ArrayLike, "B W"],
+    corner_target: Float[ArrayLike, "B W"],
     image_height: int,
 ) -> dict[str, Float[Array, ""]]:
     """HorizonNet's loss: L1 on the boundary elevations (radians) + BCE with logits on the corners.
@@ -161,7 +161,7 @@ def flip_panorama(sample: dict[str, Array]) -> dict[str, Array]:
 
 
 def adjust_photometric(
-    image: Float[Array, "H W 3"], gamma: Float[Array, ""], brightness: Float[Array, ""], greyscale: Array
+    image: Float[Array, "H W 3"], gamma: Float[ArrayLike, ""], brightness: Float[ArrayLike, ""], greyscale: Bool[ArrayLike, ""]
 ) -> Float[Array, "H W 3"]:
     """Gamma, then a brightness factor, then optionally greyscale (Rec. 601 luma); clipped to [0, 1]."""
     image = jnp.clip(image, 0.0, 1.0) ** gamma * brightness
