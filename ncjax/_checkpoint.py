@@ -12,7 +12,6 @@ statistics) and ``optimizer/`` (the optax state and step of an
 
 from __future__ import annotations
 
-import json
 import os
 import pathlib
 

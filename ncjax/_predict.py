@@ -13,7 +13,6 @@ the input width.
 from __future__ import annotations
 
 import functools
-import os
 import pathlib
 
 import jax
