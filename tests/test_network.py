@@ -183,9 +183,17 @@ def test_augmented_images_match_augmented_labels():
         out = augment(jax.random.PRNGKey(i), sample, geometric_only)
         repainted = _train.paint_panorama(out["ceiling_v"], out["floor_v"], jnp.zeros(128, int), 64, colours)
         np.testing.assert_allclose(out["image"], repainted, atol=1e-6)
-        np.testing.assert_allclose(np.sort(out["corner_target"]), np.sort(sample["corner_target"]))
-        flips.append(not np.allclose(np.roll(out["ceiling_v"], 1), np.roll(sample["ceiling_v"], 1)))
-    assert len(set(flips)) > 0
+        # The labels are the original ones rolled, possibly after a flip: find which.
+        ceiling = np.asarray(sample["ceiling_v"])
+        candidates = [(f, s) for f in (False, True) for s in range(128)
+                      if np.array_equal(np.roll(ceiling[::-1] if f else ceiling, s), out["ceiling_v"])]
+        assert len(candidates) == 1
+        flip, shift = candidates[0]
+        for key in ("floor_v", "corner_target"):
+            original = np.asarray(sample[key])
+            np.testing.assert_array_equal(np.roll(original[::-1] if flip else original, shift), out[key])
+        flips.append(flip)
+    assert set(flips) == {False, True}
 
 
 def test_flip_is_the_mirrored_room():
