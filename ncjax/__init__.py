@@ -64,9 +64,25 @@ from ._wall import (
 # Geometric pipeline (paper Section 4.4)
 from ._pipeline import Layout, LayoutStatus, PipelineConfig, layout_from_boundaries
 
+# Non-central HorizonNet (paper Section "Non-central HorizonNet", Table netcorExp)
+from ._checkpoint import load_model, save_model
+from ._network import (
+    BoundaryPrediction,
+    HorizonNet,
+    HorizonNetConfig,
+    count_parameters,
+    init_model,
+)
+from ._network_metrics import boundary_pixel_error, corner_confusion, corner_scores, network_table
+from ._predict import predict_boundaries
+from ._train import TrainConfig, horizonnet_loss, train
+
 __version__ = "0.1.0"
 
 __all__ = [
+    "BoundaryPrediction",
+    "HorizonNet",
+    "HorizonNetConfig",
     "HorizontalLine",
     "Layout",
     "LayoutStatus",
@@ -76,20 +92,29 @@ __all__ = [
     "RoomConfig",
     "RoomLabels",
     "RoomStatus",
+    "TrainConfig",
     "Wall",
     "WallLayout",
     "angles_to_pixel",
     "angles_to_ray",
+    "boundary_pixel_error",
     "closest_point_to_origin",
     "closest_points",
+    "corner_confusion",
+    "corner_scores",
+    "count_parameters",
+    "horizonnet_loss",
     "horizontal_wall_line",
+    "init_model",
     "intersect_coplanar_lines",
     "is_visible",
     "layout_corners",
     "layout_from_boundaries",
     "line_from_point_direction",
     "line_through_points",
+    "load_model",
     "metrics",
+    "network_table",
     "normalize_line",
     "null_space",
     "optical_centre",
@@ -98,6 +123,7 @@ __all__ = [
     "plucker_constraint",
     "point_at",
     "point_to_angles",
+    "predict_boundaries",
     "project",
     "quarter_turn",
     "random_room",
@@ -108,6 +134,7 @@ __all__ = [
     "rotate_line_z",
     "rotation_z",
     "safe_norm",
+    "save_model",
     "scaled_null_space",
     "side",
     "solve_atlanta_layout",
@@ -115,5 +142,6 @@ __all__ = [
     "solve_manhattan_layout",
     "solve_wall",
     "solve_wall_minimal",
+    "train",
     "translate_line",
 ]

@@ -1,0 +1,75 @@
+"""``ncjax.predict_boundaries``: per-column boundaries of RGB panoramas with the shipped model.
+
+The image is resized to the model's input size (``jax.image.resize``,
+bilinear with antialiasing when shrinking), the network runs in eval mode,
+and its per-column outputs are resampled back to the input width
+(wrap-aware linear interpolation) with the elevations converted to rows of
+the input height. Rows and columns follow DESIGN.md (pixel centres at
+integers, row 0 at the top). The corner probability is the network's
+``0.96**d`` estimate with ``d`` in columns of the *model* width, stretched to
+the input width.
+"""
+
+from __future__ import annotations
+
+import functools
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Float, Shaped
+
+from ._checkpoint import load_model
+from ._network import HorizonNet, prediction_to_rows
+
+DEFAULT_MODEL_PATH = pathlib.Path(__file__).parent / "models" / "compact.safetensors"
+
+
+@functools.cache
+def _load_cached(path: str) -> HorizonNet:
+    return load_model(path)
+
+
+def default_model() -> HorizonNet:
+    """The shipped model (``ncjax/models/compact.safetensors``), loaded once."""
+    if not DEFAULT_MODEL_PATH.is_file():
+        raise FileNotFoundError(
+            f"the default network weights are missing ({DEFAULT_MODEL_PATH}); train a model with "
+            "ncjax._train.main (ncjax train) and save it there with ncjax.save_model, or pass "
+            "model=ncjax.load_model(path)"
+        )
+    return _load_cached(str(DEFAULT_MODEL_PATH))
+
+
+@nnx.jit(static_argnames=("height", "width"))
+def _predict(model: HorizonNet, images, height: int, width: int):
+    size = (images.shape[0], model.config.input_height, model.config.input_width, 3)
+    resized = jax.image.resize(images.astype(jnp.float32) / 255.0, size, method="linear")
+    return prediction_to_rows(model(resized), height, width)
+
+
+def predict_boundaries(
+    image: Shaped[np.ndarray, "*batch H W 3"], model: HorizonNet | None = None
+) -> tuple[Float[np.ndarray, "*batch W"], Float[np.ndarray, "*batch W"], Float[np.ndarray, "*batch W"]]:
+    """Ceiling row, floor row and corner probability per column of RGB panoramas.
+
+    Args:
+        image: RGB uint8, (H, W, 3) or a batch (B, H, W, 3), any size.
+        model: a :class:`HorizonNet` (put in eval mode here); None for the
+            shipped default model.
+
+    Returns:
+        ``(ceiling_v, floor_v, corner_prob)``, numpy float32 arrays of shape
+        (W,) (or (B, W)): sub-pixel rows in the input image and probabilities.
+    """
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim not in (3, 4) or image.shape[-1] != 3:
+        raise ValueError(f"expected an RGB uint8 image (H, W, 3) or batch (B, H, W, 3), got {image.dtype}{image.shape}")
+    model = default_model() if model is None else model
+    model.eval()
+    batch = image if image.ndim == 4 else image[None]
+    rows = _predict(model, jnp.asarray(batch), height=batch.shape[1], width=batch.shape[2])
+    rows = tuple(np.asarray(r) for r in rows)
+    return rows if image.ndim == 4 else tuple(r[0] for r in rows)
