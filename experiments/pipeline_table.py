@@ -24,6 +24,7 @@ CE and IoU are means over the rooms that did not fail.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import time
@@ -46,11 +47,20 @@ WIDTH, HEIGHT = 1024, 512
 CAPACITY = 32
 
 
-def room_batch(world: str, occlusion: str, count: int, seed: int):
+@functools.cache
+def room_generator(world: str, occlusion: str):
+    """One compiled generator of rooms and their labels per configuration."""
     config = ncjax.RoomConfig(world=world, occlusion=occlusion, capacity=CAPACITY, room_tries=4, camera_tries=128)
-    rooms = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(seed), count))
-    labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(rooms)
-    return rooms, labels
+
+    def generate(keys):
+        rooms = jax.vmap(lambda k: ncjax.random_room(k, config))(keys)
+        return rooms, jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT)))(rooms)
+
+    return jax.jit(generate)
+
+
+def room_batch(world: str, occlusion: str, count: int, seed: int):
+    return room_generator(world, occlusion)(jax.random.split(jax.random.key(seed), count))
 
 
 def noisy_rows(labels, sigma: float, seed: int):
@@ -97,37 +107,41 @@ def evaluate(layouts, rooms, labels, world: str):
     return np.array(ce), np.array(iou), np.array(failed)
 
 
-def run_pipeline(world: str, ceiling_v, floor_v, corner_prob, rooms):
+@functools.cache
+def compiled(method: str, world: str):
+    """One jit(vmap) per method and world."""
+    if method == "pipeline":
+        config = PipelineConfig()
+        return jax.jit(jax.vmap(lambda c, f, p, cam, k: layout_from_evidence(c, f, p, cam, k, world, config)))
+    return jax.jit(jax.vmap(lambda c, f, p, cam, k: solvers_only(c, f, p, cam, world)))
+
+
+def run(method: str, world: str, ceiling_v, floor_v, corner_prob, rooms):
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(rooms)
     keys = jax.random.split(jax.random.key(0), ceiling_v.shape[0])
-    fn = jax.jit(jax.vmap(lambda c, f, p, cam, k: layout_from_evidence(c, f, p, cam, k, world, PipelineConfig())))
-    return fn(ceiling_v, floor_v, corner_prob, cams, keys)
-
-
-def run_solvers(world: str, ceiling_v, floor_v, corner_prob, rooms):
-    cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(rooms)
-    return jax.jit(jax.vmap(lambda c, f, p, cam: solvers_only(c, f, p, cam, world)))(ceiling_v, floor_v, corner_prob, cams)
+    return compiled(method, world)(ceiling_v, floor_v, corner_prob, cams, keys)
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rooms", type=int, default=30, help="rooms per row")
-    parser.add_argument("--small", action="store_true", help="4 rooms per row, fewer rows (CI)")
+    parser.add_argument("--small", action="store_true", help="3 Manhattan rooms, 2 rows (CI)")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
-    count = 4 if args.small else args.rooms
-    sigmas = (1.0,) if args.small else (0.5, 1.0, 2.0)
     rows = []
     start = time.time()
-    plan = [(world, method, "none", 0.0) for world in ("manhattan", "atlanta") for method in ("solvers", "pipeline")]
-    plan += [(world, "pipeline", "none", s) for world in ("manhattan", "atlanta") for s in sigmas]
-    plan += [(world, "pipeline", "required", 0.0) for world in ("manhattan", "atlanta")]
+    if args.small:  # one room generator and one pipeline compilation
+        count, plan = 3, [("manhattan", "pipeline", "none", 0.0), ("manhattan", "pipeline", "none", 1.0)]
+    else:
+        count = args.rooms
+        plan = [(w, m, "none", 0.0) for w in ("manhattan", "atlanta") for m in ("solvers", "pipeline")]
+        plan += [(w, "pipeline", "none", s) for w in ("manhattan", "atlanta") for s in (0.5, 1.0, 2.0)]
+        plan += [(w, "pipeline", "required", 0.0) for w in ("manhattan", "atlanta")]
     for world, method, occlusion, sigma in tqdm(plan, desc="rows"):
         seed = 7 if occlusion == "none" else 8
         rooms, labels = room_batch(world, occlusion, count, seed)
         ceiling_v, floor_v = noisy_rows(labels, sigma, seed) if sigma > 0 else (labels.ceiling_v, labels.floor_v)
-        runner = run_pipeline if method == "pipeline" else run_solvers
-        layouts = runner(world, ceiling_v, floor_v, labels.corner_target, rooms)
+        layouts = run(method, world, ceiling_v, floor_v, labels.corner_target, rooms)
         ce, iou, failed = evaluate(layouts, rooms, labels, world)
         rows.append((world, method, occlusion, sigma, count, np.nanmean(ce) if (~failed).any() else math.nan,
                      100 * np.nanmean(iou) if (~failed).any() else math.nan, 100 * failed.mean()))

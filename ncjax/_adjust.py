@@ -26,7 +26,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import optimistix as optx
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel
 from ._plucker import wall_planes_meet
@@ -84,12 +84,12 @@ def wrap_columns(offset: Float[Array, "*batch"], width: int) -> Float[Array, "*b
 def layout_residuals(
     directions: Float[Array, "K 2"],
     distances: Float[Array, " K"],
-    ceiling_height: Float[Array, ""],
-    floor_height: Float[Array, ""],
+    ceiling_height: Float[ArrayLike, ""],
+    floor_height: Float[ArrayLike, ""],
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
     corner_weight: float,
-) -> Float[Array, " 2W+K"]:
+) -> Float[Array, " residuals"]:
     """Row errors of the ceiling and floor boundaries and weighted corner column errors (pixels)."""
     wall = jnp.maximum(observations.column_wall, 0)
     columns = jnp.arange(cam.width, dtype=distances.dtype)
@@ -123,8 +123,8 @@ def adjust_layout(
     observations: BoundaryObservations,
     directions: Float[Array, "K 2"],
     distances: Float[Array, " K"],
-    ceiling_height: Float[Array, ""],
-    floor_height: Float[Array, ""],
+    ceiling_height: Float[ArrayLike, ""],
+    floor_height: Float[ArrayLike, ""],
     labels: Int[Array, " K"] | None,
     corner_weight: float = 1.0,
     max_steps: int = 32,

@@ -13,16 +13,16 @@ error in pixels, per column).
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 
 
 def wall_range(
     cam: NonCentralPanorama,
-    direction: Float[Array, "*#batch 2"],
-    distance: Float[Array, "*#batch"],
-    column: Float[Array, "*#batch"],
+    direction: Float[ArrayLike, "*#batch 2"],
+    distance: Float[ArrayLike, "*#batch"],
+    column: Float[ArrayLike, "*#batch"],
 ) -> Float[Array, "*batch"]:
     """Horizontal range ``t`` from column ``column``'s optical centre to the wall plane.
 
@@ -37,11 +37,11 @@ def wall_range(
 
 def wall_boundary_rows(
     cam: NonCentralPanorama,
-    direction: Float[Array, "*#batch 2"],
-    distance: Float[Array, "*#batch"],
-    ceiling_height: Float[Array, "*#batch"],
-    floor_height: Float[Array, "*#batch"],
-    column: Float[Array, "*#batch"],
+    direction: Float[ArrayLike, "*#batch 2"],
+    distance: Float[ArrayLike, "*#batch"],
+    ceiling_height: Float[ArrayLike, "*#batch"],
+    floor_height: Float[ArrayLike, "*#batch"],
+    column: Float[ArrayLike, "*#batch"],
 ) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"], Bool[Array, "*batch"]]:
     """Rows at which a wall's ceiling and floor lines cross column ``column``.
 
@@ -68,7 +68,7 @@ def wall_boundary_rows(
 
 
 def boundary_points(
-    cam: NonCentralPanorama, column: Float[Array, "*#batch"], row: Float[Array, "*#batch"], height: Float[Array, "*#batch"]
+    cam: NonCentralPanorama, column: Float[ArrayLike, "*#batch"], row: Float[ArrayLike, "*#batch"], height: Float[ArrayLike, "*#batch"]
 ) -> tuple[Float[Array, "*batch 2"], Bool[Array, "*batch"]]:
     """Plan-view point of a boundary pixel whose 3D point lies at a known height (inverse of the above).
 
