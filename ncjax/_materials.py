@@ -1,0 +1,155 @@
+"""Procedural materials: colours as pure functions of surface coordinates.
+
+A material is a pattern kind, two colours and a scale (:class:`Material`);
+:func:`material_albedo` turns 2D surface coordinates (metres, e.g. along a wall
+and up it) into an albedo. Patterns are built from a 32-bit integer hash, so they
+are identical on every run and every backend that implements uint32 arithmetic.
+Variety matters more than photorealism here: the point is to keep a layout
+network from learning the texture of a handful of rooms (paper Section 5.1
+draws materials from pools).
+"""
+
+from __future__ import annotations
+
+import enum
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+
+class Pattern(enum.IntEnum):
+    """Pattern kinds of :func:`material_albedo`."""
+
+    PAINT = 0  # flat colour with a faint mottle
+    PLASTER = 1  # low-frequency blotches
+    PLANKS = 2  # wooden floor boards in staggered rows, with grain
+    TILES = 3  # square tiles with grout lines, alternating shades
+    CARPET = 4  # fine fibre noise
+    STRIPES = 5  # wallpaper stripes
+    DIAMONDS = 6  # wallpaper lattice
+    WOOD = 7  # furniture wood grain
+    FABRIC = 8  # woven fabric
+
+
+class Material(eqx.Module):
+    """A procedural material (all fields traced, batchable).
+
+    Attributes:
+        pattern: a :class:`Pattern` value.
+        colour_a, colour_b: the two linear RGB colours the pattern mixes, in [0, 1].
+        scale: the pattern's period in metres (plank width, tile side, stripe period...).
+    """
+
+    pattern: Int[Array, ""]
+    colour_a: Float[Array, "3"]
+    colour_b: Float[Array, "3"]
+    scale: Float[Array, ""]
+
+
+def hash_uniform(seed: Int[Array, "..."], i: Int[Array, "..."], j: Int[Array, "..."]) -> Float[Array, "..."]:
+    """A uniform number in [0, 1) from three integers (a murmur3-style finaliser)."""
+    h = jnp.asarray(seed).astype(jnp.uint32) * jnp.uint32(0x9E3779B1)
+    for value in (i, j):
+        h = (h ^ jnp.asarray(value).astype(jnp.uint32)) * jnp.uint32(0x85EBCA6B)
+        h = h ^ (h >> 13)
+        h = h * jnp.uint32(0xC2B2AE35)
+        h = h ^ (h >> 16)
+    return (h >> 8).astype(jnp.float32) / jnp.float32(1 << 24)
+
+
+def value_noise(seed: Int[Array, "..."], a: Float[Array, "..."], b: Float[Array, "..."]) -> Float[Array, "..."]:
+    """Smooth noise in [0, 1]: hashed values at integer lattice points, interpolated."""
+    ia, ib = jnp.floor(a), jnp.floor(b)
+    fa, fb = a - ia, b - ib
+    fa, fb = fa * fa * (3 - 2 * fa), fb * fb * (3 - 2 * fb)
+    ia, ib = ia.astype(jnp.int32), ib.astype(jnp.int32)
+    v00, v10 = hash_uniform(seed, ia, ib), hash_uniform(seed, ia + 1, ib)
+    v01, v11 = hash_uniform(seed, ia, ib + 1), hash_uniform(seed, ia + 1, ib + 1)
+    return (v00 * (1 - fa) + v10 * fa) * (1 - fb) + (v01 * (1 - fa) + v11 * fa) * fb
+
+
+def _seam(fraction: Float[Array, "..."], width: Float[Array, "..."]) -> Float[Array, "..."]:
+    """1 on a thin line at the integer boundaries of a coordinate's fractional part."""
+    return ((fraction < width) | (fraction > 1 - width)).astype(fraction.dtype)
+
+
+def material_albedo(
+    material: Material, seed: Int[Array, ""], a: Float[Array, "..."], b: Float[Array, "..."]
+) -> Float[Array, "... 3"]:
+    """Albedo of ``material`` at surface coordinates ``(a, b)`` metres.
+
+    Every pattern is evaluated and the material's one is selected: under ``vmap``
+    over scenes the kind is a traced value, so the branches would be evaluated
+    anyway; they share the noise lattice to stay cheap.
+
+    Args:
+        material: the material (one instance, fields of shape () or (3,)).
+        seed: an integer that decorrelates the patterns of different surfaces.
+        a, b: surface coordinates, same shape.
+
+    Returns:
+        Linear RGB albedo of shape ``a.shape + (3,)``.
+    """
+    u, v = a / material.scale, b / material.scale
+    fine = value_noise(seed, 37.0 * u, 37.0 * v)
+    coarse = value_noise(seed + 1, 1.7 * u, 1.7 * v)
+    # Planks: rows of width `scale` along b, boards of 4-7 widths along a, staggered per row.
+    row = jnp.floor(v)
+    board_length = 4.0 + 3.0 * hash_uniform(seed + 2, row.astype(jnp.int32), 0)
+    along = u / board_length + hash_uniform(seed + 3, row.astype(jnp.int32), 1)
+    board = jnp.floor(along)
+    board_shade = hash_uniform(seed + 4, row.astype(jnp.int32), board.astype(jnp.int32))
+    grain = 0.5 + 0.5 * jnp.sin(40.0 * v + 6.0 * coarse + 9.0 * board_shade)
+    seams = jnp.maximum(_seam(v - row, 0.025), _seam(along - board, 0.004))
+    planks = (0.55 * board_shade + 0.3 * grain + 0.15 * fine) * (1 - 0.6 * seams)
+    # Tiles: unit squares, grout lines, checker of two shades with a small jitter.
+    cell_u, cell_v = jnp.floor(u), jnp.floor(v)
+    checker = jnp.mod(cell_u + cell_v, 2.0)
+    tile_jitter = hash_uniform(seed + 5, cell_u.astype(jnp.int32), cell_v.astype(jnp.int32))
+    grout = jnp.maximum(_seam(u - cell_u, 0.03), _seam(v - cell_v, 0.03))
+    tiles = (0.8 * checker + 0.1 * tile_jitter + 0.1 * fine) * (1 - grout) + 0.5 * grout
+    # Wallpapers.
+    stripes = jnp.where(jnp.mod(u, 1.0) < 0.5, 0.9, 0.1) + 0.1 * fine
+    du, dv = jnp.abs(jnp.mod(u, 1.0) - 0.5), jnp.abs(jnp.mod(0.5 * v, 1.0) - 0.5)
+    diamonds = jnp.where(du + dv < 0.3, 0.9, 0.15) + 0.1 * fine
+    # Furniture.
+    wood = 0.5 + 0.35 * jnp.sin(25.0 * u + 8.0 * value_noise(seed + 6, 3 * u, 0.3 * v)) + 0.15 * fine
+    weave = 0.5 + 0.25 * jnp.sin(300.0 * a) * jnp.sin(300.0 * b)
+    patterns = jnp.stack(
+        [
+            0.08 * fine,
+            0.7 * coarse + 0.1 * fine,
+            planks,
+            tiles,
+            0.25 * coarse + 0.75 * fine,
+            stripes,
+            diamonds,
+            wood,
+            0.6 * weave + 0.4 * fine,
+        ]
+    )
+    pattern = jnp.broadcast_to(material.pattern, patterns.shape[1:])
+    mix = jnp.take_along_axis(patterns, pattern[None], axis=0)[0]
+    mix = jnp.clip(mix, 0.0, 1.0)[..., None]
+    return material.colour_a * (1 - mix) + material.colour_b * mix
+
+
+def hsv_to_rgb(hsv: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+    """HSV in [0, 1]^3 to RGB in [0, 1]^3."""
+    h, s, v = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+    k = jnp.mod(jnp.array([5.0, 3.0, 1.0]) + 6.0 * h[..., None], 6.0)
+    return v[..., None] - v[..., None] * s[..., None] * jnp.clip(jnp.minimum(k, 4.0 - k), 0.0, 1.0)
+
+
+def random_colour(
+    key: PRNGKeyArray,
+    hue: tuple[float, float] = (0.0, 1.0),
+    saturation: tuple[float, float] = (0.0, 1.0),
+    value: tuple[float, float] = (0.0, 1.0),
+) -> Float[Array, "3"]:
+    """A colour drawn uniformly in an HSV box."""
+    low = jnp.array([hue[0], saturation[0], value[0]])
+    high = jnp.array([hue[1], saturation[1], value[1]])
+    return hsv_to_rgb(jax.random.uniform(key, (3,), minval=low, maxval=high))
