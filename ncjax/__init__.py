@@ -43,6 +43,20 @@ from ._rooms import (
     room_walls,
 )
 
+# Synthetic data (paper Section 5.1): scenes, rendering, augmentation
+from ._materials import Material, Pattern
+from ._render import (
+    RenderConfig,
+    Rendering,
+    Semantic,
+    SynthConfig,
+    render,
+    synthesize,
+    synthesize_batch,
+    synthesize_scene,
+)
+from ._scene import Boxes, Lights, Openings, Scene, SceneConfig, random_scene
+
 # Geometric solvers (paper Sections 4.1-4.3, 5.3)
 from ._layout_solvers import (
     WallLayout,
@@ -64,12 +78,23 @@ from ._wall import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "Boxes",
     "HorizontalLine",
+    "Lights",
+    "Material",
     "NonCentralPanorama",
+    "Openings",
+    "Pattern",
+    "RenderConfig",
+    "Rendering",
     "Room",
     "RoomConfig",
     "RoomLabels",
     "RoomStatus",
+    "Scene",
+    "SceneConfig",
+    "Semantic",
+    "SynthConfig",
     "Wall",
     "WallLayout",
     "angles_to_pixel",
@@ -94,7 +119,9 @@ __all__ = [
     "project",
     "quarter_turn",
     "random_room",
+    "random_scene",
     "ray_in_wall_frame",
+    "render",
     "room_corners_3d",
     "room_labels",
     "room_walls",
@@ -108,5 +135,8 @@ __all__ = [
     "solve_manhattan_layout",
     "solve_wall",
     "solve_wall_minimal",
+    "synthesize",
+    "synthesize_batch",
+    "synthesize_scene",
     "translate_line",
 ]

@@ -16,7 +16,7 @@ import enum
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Float, Int
 
 
 class Pattern(enum.IntEnum):
@@ -143,13 +143,14 @@ def hsv_to_rgb(hsv: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     return v[..., None] - v[..., None] * s[..., None] * jnp.clip(jnp.minimum(k, 4.0 - k), 0.0, 1.0)
 
 
-def random_colour(
-    key: PRNGKeyArray,
+def colour_in_hsv_box(
+    uniform: Float[Array, "3"],
     hue: tuple[float, float] = (0.0, 1.0),
     saturation: tuple[float, float] = (0.0, 1.0),
     value: tuple[float, float] = (0.0, 1.0),
 ) -> Float[Array, "3"]:
-    """A colour drawn uniformly in an HSV box."""
+    """The colour at relative position ``uniform`` in [0, 1]^3 of an HSV box (a
+    uniform draw gives a uniform colour in the box)."""
     low = jnp.array([hue[0], saturation[0], value[0]])
     high = jnp.array([hue[1], saturation[1], value[1]])
-    return hsv_to_rgb(jax.random.uniform(key, (3,), minval=low, maxval=high))
+    return hsv_to_rgb(low + uniform * (high - low))

@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ._camera import NonCentralPanorama, pixel_to_angles
 from ._materials import Material, material_albedo
@@ -55,18 +56,23 @@ class RenderConfig:
             they stay exactly consistent with the labels.
         shadows: cast a shadow ray per pixel and light against the furniture.
         rows_per_chunk: image rows rendered together (bounds memory: per chunk
-            the work is rows x W x B).
+            the work is rows x W x boxes_per_column).
+        boxes_per_column: M, the boxes each column tests, the nearest whose
+            footprints its horizontal ray crosses (a farther one is dropped when
+            more than M are crossed: :func:`box_overflow` counts such columns).
     """
 
     supersampling: int = 1
     shadows: bool = False
     rows_per_chunk: int = 16
+    boxes_per_column: int = 12
 
     def __post_init__(self):
         if int(self.supersampling) != self.supersampling or self.supersampling < 1 or self.supersampling % 2 == 0:
             raise ValueError(f"supersampling must be an odd positive integer (1, 3, ...), got {self.supersampling!r}")
-        if int(self.rows_per_chunk) != self.rows_per_chunk or self.rows_per_chunk < 1:
-            raise ValueError(f"rows_per_chunk must be a positive integer, got {self.rows_per_chunk!r}")
+        for name in ("rows_per_chunk", "boxes_per_column"):
+            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
 
 
 class Rendering(eqx.Module):
@@ -159,7 +165,7 @@ def _opening_appearance(scene: Scene, index, along, height):
     return albedo, emission
 
 
-def _columns(scene: Scene, cam: NonCentralPanorama):
+def _columns(scene: Scene, cam: NonCentralPanorama, boxes_per_column: int):
     """Everything that depends on the column only: the horizontal ray, the wall
     it meets and where, the opening there, and the box footprints it crosses."""
     room, boxes = scene.room, scene.boxes
@@ -183,6 +189,13 @@ def _columns(scene: Scene, cam: NonCentralPanorama):
     t_in, t_out, box_normal = jax.vmap(
         jax.vmap(box_interval_2d, in_axes=(None, None, 0, 0, 0)), in_axes=(0, 0, None, None, None)
     )(origin, direction, boxes.centre[:, :2], boxes.half_size[:, :2], boxes.rotation)
+    # Keep, per column, the nearest boxes whose footprint the column's ray crosses
+    # in front of the wall: pixels then test only those (boxes_per_column of them,
+    # box axis first so that the per-pixel work vectorises along the row).
+    crossed = boxes.mask[None, :] & (t_in < t_out) & (t_out > 0) & (t_in < t_wall[:, None])
+    _, nearest = jax.lax.top_k(jnp.where(crossed, -t_in, -jnp.inf), boxes_per_column)
+    kept = jnp.take_along_axis(crossed, nearest, 1)
+    pick = lambda x: jnp.take_along_axis(x, nearest, 1).T  # noqa: E731
     return dict(
         origin=origin,
         direction=direction,
@@ -192,9 +205,11 @@ def _columns(scene: Scene, cam: NonCentralPanorama):
         wall_normal=_perpendicular(wall_direction[wall]),
         opening=jnp.argmax(in_span, axis=1),
         has_opening=jnp.any(in_span, axis=1),
-        t_in=jnp.where(boxes.mask[None, :], t_in, jnp.inf),
-        t_out=t_out,
-        box_normal=box_normal,
+        box=nearest.T,
+        t_in=jnp.where(kept, jnp.take_along_axis(t_in, nearest, 1), jnp.inf).T,
+        t_out=pick(t_out),
+        box_normal=jnp.stack([pick(box_normal[..., 0]), pick(box_normal[..., 1])], -1),
+        overflow=jnp.sum(crossed, 1) > boxes_per_column,
     )
 
 
@@ -209,13 +224,15 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     is_ceiling, is_floor = z_wall > room.ceiling_height, z_wall < room.floor_height
     t_room = jnp.where(is_ceiling, room.ceiling_height * cotangent, jnp.where(is_floor, room.floor_height * cotangent, t_wall))
     # Boxes: the column's footprint interval intersected with the row's height interval.
-    bottom = (boxes.centre[:, 2] - boxes.half_size[:, 2]) * cotangent
-    top = (boxes.centre[:, 2] + boxes.half_size[:, 2]) * cotangent
+    kept = columns["box"]  # (M, W) box indices
+    bottom = (boxes.centre[kept, 2] - boxes.half_size[kept, 2]) * cotangent
+    top = (boxes.centre[kept, 2] + boxes.half_size[kept, 2]) * cotangent
     enter = jnp.maximum(columns["t_in"], jnp.minimum(bottom, top))
     leave = jnp.minimum(columns["t_out"], jnp.maximum(bottom, top))
     t_boxes = jnp.where((enter < leave) & (leave > 0), enter, jnp.inf)
-    box = jnp.argmin(t_boxes, axis=1)
-    t_box = jnp.min(t_boxes, axis=1)
+    nearest = jnp.argmin(t_boxes, axis=0)
+    t_box = jnp.min(t_boxes, axis=0)
+    box = jnp.take_along_axis(kept, nearest[None], 0)[0]
     on_box = t_box < t_room
     t = jnp.where(on_box, t_box, t_room)
     xy = columns["origin"] + t[:, None] * columns["direction"]
@@ -224,8 +241,8 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
 
     # Surface frame, texture coordinates and material of each pixel.
     world_xy = xy + room.camera_position[:2]
-    side_face = on_box & (t_box == jnp.take_along_axis(columns["t_in"], box[:, None], 1)[:, 0])
-    box_side_normal = jnp.take_along_axis(columns["box_normal"], box[:, None, None], 1)[:, 0]
+    side_face = on_box & (t_box == jnp.take_along_axis(columns["t_in"], nearest[None], 0)[0])
+    box_side_normal = jnp.take_along_axis(columns["box_normal"], nearest[None, :, None], 0)[0]
     box_normal = jnp.where(side_face[:, None], jnp.concatenate([box_side_normal, jnp.zeros_like(t)[:, None]], -1),
                            jnp.stack([jnp.zeros_like(t), jnp.zeros_like(t), -jnp.sign(slope) * jnp.ones_like(t)], -1))
     rotation = boxes.rotation[box]
@@ -267,7 +284,10 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     # Light: ambient darkened near the room's edges, plus point lights.
     to_edge = jnp.where(on_floor_or_ceiling, t_wall - t, jnp.minimum(height_above_floor, room.ceiling_height - z))
     occlusion = 1.0 - 0.35 * jnp.exp(-jnp.maximum(to_edge, 0.0) / 0.3)
-    irradiance = scene.ambient * jnp.where(on_box, 0.85, occlusion)[:, None]
+    # A hemispherical ambient (brighter from one side, as daylight from a window)
+    # shades walls of different orientations differently, as in real rooms.
+    facing = 0.7 + 0.3 * jnp.sum(normal * scene.ambient_direction, -1)
+    irradiance = scene.ambient * (facing * jnp.where(on_box, 0.85, occlusion))[:, None]
     lights = scene.lights
     casts_shadow = jnp.all(boxes.emission == 0, -1) & boxes.mask
     for index in range(lights.position.shape[0]):
@@ -283,7 +303,7 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
             lit = jnp.where(blocked, 0.0, lit)
         irradiance = irradiance + lit[:, None] * lights.colour[index]
     radiance = albedo * irradiance + emission
-    rgb = (1.0 - jnp.exp(-1.8 * radiance)) ** (1.0 / 2.2)
+    rgb = (1.0 - jnp.exp(-1.5 * radiance)) ** (1.0 / 2.2)
     semantic = jnp.where(
         on_box, Semantic.OBJECT,
         jnp.where(is_ceiling, Semantic.CEILING, jnp.where(is_floor, Semantic.FLOOR, jnp.where(in_opening, Semantic.OPENING, Semantic.WALL))),
@@ -305,7 +325,7 @@ def render(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderC
     """
     s = config.supersampling
     fine = NonCentralPanorama(cam.width * s, cam.height * s, cam.rc, cam.fov_horizontal, cam.fov_vertical)
-    columns = _columns(scene, fine)
+    columns = _columns(scene, fine, min(config.boxes_per_column, scene.boxes.mask.shape[-1]))
     _, elevation = pixel_to_angles(fine, 0.0, jnp.arange(fine.height, dtype=columns["t_wall"].dtype))
     rgb, depth, semantic = jax.lax.map(
         lambda e: _row(scene, columns, e, config.shadows), elevation, batch_size=config.rows_per_chunk * s
@@ -317,6 +337,12 @@ def render(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderC
         depth=depth.reshape(cam.height, s, cam.width, s)[:, centre, :, centre],
         semantic=semantic.reshape(cam.height, s, cam.width, s)[:, centre, :, centre],
     )
+
+
+def box_overflow(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderConfig()) -> Bool[Array, " W"]:
+    """Columns whose ray crosses more box footprints than ``config.boxes_per_column``
+    (where :func:`render` may miss a box behind the nearest ones)."""
+    return _columns(scene, cam, min(config.boxes_per_column, scene.boxes.mask.shape[-1]))["overflow"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -334,14 +360,46 @@ class SynthConfig:
             raise ValueError(f"image size must be at least 4 x 8 pixels (H x W), got {self.height} x {self.width}")
 
 
-def synthesize(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, Rendering, RoomLabels]:
-    """One synthetic training sample: a random furnished room, its panorama and its exact labels.
-
-    The labels come from :func:`~ncjax.room_labels` (furniture ignored: the
-    layout a network must predict). Jit with ``config`` static, vmap over keys.
-    """
+def synthesize_scene(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, RoomLabels]:
+    """A random furnished room and its exact labels (:func:`~ncjax.room_labels`:
+    furniture ignored, the layout a network must predict)."""
     key_room, key_scene = jax.random.split(key)
     room = random_room(key_room, config.room)
     scene = random_scene(key_scene, room, config.scene)
-    cam = room.camera(config.width, config.height)
-    return scene, render(scene, cam, config.render), room_labels(room, cam)
+    return scene, room_labels(room, room.camera(config.width, config.height))
+
+
+def synthesize(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, Rendering, RoomLabels]:
+    """One synthetic training sample: a random furnished room, its panorama and its exact labels.
+
+    Jit with ``config`` static, vmap over keys; or use :func:`synthesize_batch`,
+    which compiles much faster.
+    """
+    scene, labels = synthesize_scene(key, config)
+    return scene, render(scene, scene.room.camera(config.width, config.height), config.render), labels
+
+
+# Scene generation is branchy code whose run time is negligible next to
+# rendering; XLA's backend optimisations cost it minutes of compilation for
+# nothing, so it is compiled without them.
+_FAST_COMPILE = {"xla_backend_optimization_level": 0}
+
+
+@functools.cache
+def _batched_scenes(config: SynthConfig):
+    return jax.jit(jax.vmap(lambda key: synthesize_scene(key, config)), compiler_options=_FAST_COMPILE)
+
+
+@functools.cache
+def _batched_render(config: SynthConfig):
+    return jax.jit(jax.vmap(lambda scene: render(scene, scene.room.camera(config.width, config.height), config.render)))
+
+
+def synthesize_batch(keys: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, Rendering, RoomLabels]:
+    """:func:`synthesize` for a batch of keys (leading axis N), two cached jitted calls.
+
+    Compiled once per ``config`` and batch size; keep the batch size fixed
+    (pad the last batch) to avoid recompiling.
+    """
+    scenes, labels = _batched_scenes(config)(keys)
+    return scenes, _batched_render(config)(scenes), labels

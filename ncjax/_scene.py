@@ -31,8 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from ._materials import Material, Pattern, random_colour
-from ._plucker import cross_2d
+from ._materials import Material, Pattern, colour_in_hsv_box
 from ._rooms import Room, _segments_cross, distance_to_walls, point_in_polygon, polygon_edges, room_walls
 
 
@@ -133,7 +132,7 @@ def _template_arrays():
         size_high=np.array([t.size_high for t in FURNITURE_TYPES], np.float32),
         against_wall=np.array([t.against_wall for t in FURNITURE_TYPES]),
         fabric=np.array([t.fabric for t in FURNITURE_TYPES]),
-        log_weight=np.log(np.array([t.weight for t in FURNITURE_TYPES], np.float32)),
+        weight=np.array([t.weight for t in FURNITURE_TYPES], np.float32),
         may_cover_camera=np.array([t.may_cover_camera for t in FURNITURE_TYPES]),
     )
 
@@ -243,6 +242,7 @@ class Scene(eqx.Module):
         skirting_height: height of the skirting boards above the floor (0: none), metres.
         skirting_colour: (3,).
         ambient: (3,) ambient radiance.
+        ambient_direction: (3,) unit vector the ambient light comes from most.
         seed: integer that decorrelates the texture noise of different scenes.
     """
 
@@ -256,6 +256,7 @@ class Scene(eqx.Module):
     skirting_height: Float[Array, ""]
     skirting_colour: Float[Array, "3"]
     ambient: Float[Array, "3"]
+    ambient_direction: Float[Array, "3"]
     seed: Int[Array, ""]
 
 
@@ -367,11 +368,24 @@ def _pack(candidates: _Footprints, capacity: int, obstacles: _Footprints, gap: f
 
 
 # ---------------------------------------------------------------- generation
+# Each generator draws ONE array of uniforms and reads its numbers from it: every
+# jax.random call adds a threefry instance to the compiled program, and dozens of
+# them made the scene generator take a minute to compile.
+
+
+def _between(uniform: Array, low, high) -> Array:
+    return low + uniform * (jnp.asarray(high) - low)
+
+
+def _categorical(uniform: Float[Array, ""], weights: Float[Array, " n"]) -> Int[Array, ""]:
+    """Index drawn with probability proportional to ``weights`` (inverse CDF)."""
+    cumulative = jnp.cumsum(weights)
+    return jnp.minimum(jnp.sum(uniform * cumulative[-1] >= cumulative), weights.shape[0] - 1)
 
 
 def _room_frame(room: Room):
-    """Wall starts, unit directions, inward normals and lengths (K each), the
-    room's bounding box and its main direction (wall 0)."""
+    """Wall starts, unit directions, inward normals and lengths (K each), and the
+    room's bounding box."""
     direction, _, _, _ = room_walls(room)
     edges = polygon_edges(room.corners, room.mask)
     length = jnp.where(room.mask, jnp.linalg.norm(edges[:, 1] - edges[:, 0], axis=-1), 0.0)
@@ -381,37 +395,33 @@ def _room_frame(room: Room):
     return edges[:, 0], direction, normal, length, jnp.min(valid, 0), jnp.max(valid, 0)
 
 
-def _wall_position(key, room: Room, width: Float[Array, ""], margin: float):
+def _wall_position(uniform: Float[Array, "2"], room: Room, width: Float[Array, ""], margin: float):
     """A wall (chosen with probability proportional to its length) and a start
-    position along it that fits ``width`` with ``margin`` at both ends."""
+    position along it that fits ``width`` with ``margin`` at both ends.
+
+    Returns ``(wall, along, fits, wall_start, wall_direction, inward_normal)``.
+    """
     start, direction, normal, length, _, _ = _room_frame(room)
-    key_wall, key_along = jax.random.split(key)
-    wall = jax.random.categorical(key_wall, jnp.where(length > 0, jnp.log(jnp.maximum(length, 1e-9)), -jnp.inf))
+    wall = _categorical(uniform[0], length)
     room_left = length[wall] - width - 2 * margin
-    along = margin + jax.random.uniform(key_along) * jnp.maximum(room_left, 0.0)
+    along = margin + uniform[1] * jnp.maximum(room_left, 0.0)
     return wall, along, room_left >= 0, start[wall], direction[wall], normal[wall]
 
 
 def _furniture_candidate(key, room: Room, config: SceneConfig):
     """One random piece: (type, size (3,), centre (2,), rotation (2,), valid)."""
-    keys = jax.random.split(key, 6)
-    kind = jax.random.categorical(keys[0], jnp.asarray(_TEMPLATES["log_weight"]))
-    low, high = jnp.asarray(_TEMPLATES["size_low"])[kind], jnp.asarray(_TEMPLATES["size_high"])[kind]
-    size = jax.random.uniform(keys[1], (3,), minval=low, maxval=high)
+    u = jax.random.uniform(key, (11,))
+    kind = _categorical(u[0], jnp.asarray(_TEMPLATES["weight"]))
+    size = _between(u[1:4], jnp.asarray(_TEMPLATES["size_low"])[kind], jnp.asarray(_TEMPLATES["size_high"])[kind])
     size = size.at[2].min(room.ceiling_height - room.floor_height - 0.25)
     # Against a wall: the back 1 cm off the wall, the piece's x axis along it.
-    wall, along, fits, start, direction, normal = _wall_position(keys[2], room, size[0], 0.05)
+    wall, along, fits, start, direction, normal = _wall_position(u[4:6], room, size[0], 0.05)
     wall_centre = start + (along + size[0] / 2) * direction + (size[1] / 2 + 0.01) * normal
-    # Free-standing: anywhere, aligned with the room more often than not.
-    _, main_direction, _, _, low_xy, high_xy = _room_frame(room)
-    free_centre = jax.random.uniform(keys[3], (2,), minval=low_xy, maxval=high_xy)
-    quarter = jax.random.randint(keys[4], (), 0, 4) * (math.pi / 2)
-    key_aligned, key_angle = jax.random.split(keys[5])
-    angle = jnp.where(
-        jax.random.bernoulli(key_aligned, 0.6),
-        jnp.arctan2(main_direction[0, 1], main_direction[0, 0]) + quarter,
-        jax.random.uniform(key_angle, (), maxval=2 * math.pi),
-    )
+    # Free-standing: anywhere, aligned with the room (wall 0) more often than not.
+    _, room_direction, _, _, low_xy, high_xy = _room_frame(room)
+    free_centre = _between(u[6:8], low_xy, high_xy)
+    aligned = jnp.arctan2(room_direction[0, 1], room_direction[0, 0]) + jnp.floor(4 * u[8]) * (math.pi / 2)
+    angle = jnp.where(u[9] < 0.6, aligned, 2 * math.pi * u[10])
     free_rotation = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
     against_wall = jnp.asarray(_TEMPLATES["against_wall"])[kind]
     centre = jnp.where(against_wall, wall_centre, free_centre)
@@ -428,17 +438,16 @@ def _furniture_candidate(key, room: Room, config: SceneConfig):
 
 def _piece_materials(key, fabric: Bool[Array, ""]):
     """Primary and secondary materials of a piece of furniture."""
-    keys = jax.random.split(key, 6)
-    wood = random_colour(keys[0], (0.04, 0.11), (0.3, 0.75), (0.2, 0.75))
-    painted = random_colour(keys[1], (0.0, 1.0), (0.0, 0.6), (0.15, 0.95))
-    cloth = random_colour(keys[2], (0.0, 1.0), (0.1, 0.8), (0.15, 0.85))
-    is_wood = jax.random.bernoulli(keys[3], 0.6)
+    u = jax.random.uniform(key, (13,))
+    wood = colour_in_hsv_box(u[0:3], (0.04, 0.11), (0.3, 0.75), (0.2, 0.75))
+    painted = colour_in_hsv_box(u[3:6], (0.0, 1.0), (0.0, 0.6), (0.15, 0.95))
+    cloth = colour_in_hsv_box(u[6:9], (0.0, 1.0), (0.1, 0.8), (0.15, 0.85))
+    is_wood = u[9] < 0.6
     primary_colour = jnp.where(fabric, cloth, jnp.where(is_wood, wood, painted))
     primary_pattern = jnp.where(fabric, Pattern.FABRIC, jnp.where(is_wood, Pattern.WOOD, Pattern.PAINT))
-    secondary_colour = jnp.where(jax.random.bernoulli(keys[4], 0.5), 0.6 * primary_colour, painted)
+    secondary_colour = jnp.where(fabric, wood, jnp.where(u[10] < 0.5, 0.6 * primary_colour, painted))
     secondary_pattern = jnp.where(fabric, Pattern.WOOD, Pattern.PAINT)
-    secondary_colour = jnp.where(fabric, wood, secondary_colour)
-    shade = jax.random.uniform(keys[5], (2,), minval=0.6, maxval=0.9)
+    shade = _between(u[11:13], 0.6, 0.9)
     return (
         Material(primary_pattern.astype(jnp.int32), primary_colour, shade[0] * primary_colour, jnp.array(0.3)),
         Material(secondary_pattern.astype(jnp.int32), secondary_colour, shade[1] * secondary_colour, jnp.array(0.3)),
@@ -452,7 +461,9 @@ def _piece_boxes(kind, size, centre, rotation, floor_height, primary: Material, 
     local = (low + high) / 2 - jnp.array([size[0] / 2, size[1] / 2, 0.0])
     xy = centre + local[:, :1] * rotation + local[:, 1:2] * _perpendicular(rotation)
     secondary_part = jnp.asarray(_TEMPLATES["secondary"])[kind]
-    material = jax.tree.map(lambda a, b: jnp.where(secondary_part.reshape((-1,) + (1,) * a.ndim), b, a), primary, secondary)
+    material = jax.tree.map(
+        lambda a, b: jnp.where(secondary_part.reshape((-1,) + (1,) * a.ndim), b, a), primary, secondary
+    )
     return Boxes(
         centre=jnp.concatenate([xy, floor_height + local[:, 2:]], -1),
         half_size=(high - low) / 2,
@@ -463,77 +474,79 @@ def _piece_boxes(kind, size, centre, rotation, floor_height, primary: Material, 
     )
 
 
-def _openings(key, room: Room, config: SceneConfig):
-    """Doors and windows on the walls, not overlapping; returns them and the
-    keep-out footprints in front of the doors."""
-    n = config.opening_slots * config.candidates_per_slot
-    keys = jax.random.split(key, 3)
-    room_height = room.ceiling_height - room.floor_height
+def _nothing() -> _Footprints:
+    return _Footprints(jnp.zeros((1, 2)), jnp.ones((1, 2)), jnp.array([[1.0, 0.0]]), jnp.zeros(1, bool))
 
-    def candidate(key):
-        k = jax.random.split(key, 6)
-        is_window = ~jax.random.bernoulli(k[0], config.door_probability)
-        door = jnp.stack([jax.random.uniform(k[1], minval=0.75, maxval=1.0), 0.0, jax.random.uniform(k[2], minval=1.95, maxval=2.15)])
-        window = jnp.stack(
-            [jax.random.uniform(k[1], minval=0.6, maxval=2.2), jax.random.uniform(k[2], minval=0.5, maxval=1.1),
-             jax.random.uniform(k[3], minval=0.8, maxval=1.6)]
-        )
-        width, bottom, height = jnp.where(is_window, window, door)
-        height = jnp.minimum(height, room_height - 0.15 - bottom)
-        wall, along, fits, start, direction, normal = _wall_position(k[4], room, width, 0.15)
-        centre = start + (along + width / 2) * direction + 0.05 * normal
-        colour = jnp.where(
-            is_window,
-            random_colour(k[5], (0.55, 0.62), (0.1, 0.45), (0.75, 1.0)),
-            random_colour(k[5], (0.0, 1.0), (0.0, 0.5), (0.25, 0.95)),
-        )
-        frame = jnp.where(jax.random.bernoulli(k[3], 0.5), jnp.full(3, 0.9), 0.7 * colour)
-        return dict(
-            wall=wall, span=jnp.stack([along, along + width]), z_range=room.floor_height + jnp.stack([bottom, bottom + height]),
-            is_window=is_window, colour=colour, frame_colour=frame, valid=fits & (height > 0.5),
-            footprint=(centre, jnp.stack([width / 2 + 0.1, 0.05]), direction),
-            keep_out=(centre + 0.45 * normal, jnp.stack([width / 2, 0.45]), direction),
-        )
 
-    c = jax.vmap(candidate)(jax.random.split(keys[0], n))
-    wanted = jax.random.randint(keys[1], (), 1, config.opening_slots + 1)
-    nothing = _Footprints(jnp.zeros((1, 2)), jnp.ones((1, 2)), jnp.array([[1.0, 0.0]]), jnp.zeros(1, bool))
-    chosen, filled = _pack(_Footprints(*c["footprint"], c["valid"]), config.opening_slots, nothing, 0.3)
-    filled = filled & (jnp.arange(config.opening_slots) < wanted)
-    openings = Openings(
-        wall=c["wall"][chosen].astype(jnp.int32), span=c["span"][chosen], z_range=c["z_range"][chosen],
-        is_window=c["is_window"][chosen], colour=c["colour"][chosen], frame_colour=c["frame_colour"][chosen], mask=filled,
+def _opening_candidate(key, room: Room, config: SceneConfig):
+    """One door or window: its fields, its footprint on the wall and (doors) the
+    keep-out area in front of it."""
+    u = jax.random.uniform(key, (10,))
+    is_window = u[0] >= config.door_probability
+    door = jnp.stack([_between(u[1], 0.75, 1.0), 0.0, _between(u[2], 1.95, 2.15)])
+    window = jnp.stack([_between(u[1], 0.6, 2.2), _between(u[2], 0.5, 1.1), _between(u[3], 0.8, 1.6)])
+    width, bottom, height = jnp.where(is_window, window, door)
+    height = jnp.minimum(height, room.ceiling_height - room.floor_height - 0.15 - bottom)
+    wall, along, fits, start, direction, normal = _wall_position(u[4:6], room, width, 0.15)
+    centre = start + (along + width / 2) * direction + 0.05 * normal
+    colour = jnp.where(
+        is_window,
+        colour_in_hsv_box(u[6:9], (0.55, 0.62), (0.1, 0.45), (0.75, 1.0)),
+        colour_in_hsv_box(u[6:9], (0.0, 1.0), (0.0, 0.5), (0.25, 0.95)),
     )
-    keep_out = _Footprints(*(x[chosen] for x in c["keep_out"]), filled & ~openings.is_window)
-    return openings, keep_out
+    fields = dict(
+        wall=wall.astype(jnp.int32),
+        span=jnp.stack([along, along + width]),
+        z_range=room.floor_height + jnp.stack([bottom, bottom + height]),
+        is_window=is_window,
+        colour=colour,
+        frame_colour=jnp.where(u[9] < 0.5, jnp.full(3, 0.9), 0.7 * colour),
+    )
+    footprint = _Footprints(centre, jnp.stack([width / 2 + 0.1, 0.05]), direction, fits & (height > 0.5))
+    keep_out = _Footprints(centre + 0.45 * normal, jnp.stack([width / 2, 0.45]), direction, ~is_window)
+    return fields, footprint, keep_out
+
+
+def _openings(key, room: Room, config: SceneConfig):
+    """Doors and windows on the walls, apart; and the keep-out footprints in front of the doors."""
+    key_candidates, key_count = jax.random.split(key)
+    n = config.opening_slots * config.candidates_per_slot
+    fields, footprints, keep_out = jax.vmap(lambda k: _opening_candidate(k, room, config))(
+        jax.random.split(key_candidates, n)
+    )
+    chosen, filled = _pack(footprints, config.opening_slots, _nothing(), 0.3)
+    wanted = 1 + jnp.floor(jax.random.uniform(key_count) * config.opening_slots)
+    filled = filled & (jnp.arange(config.opening_slots) < wanted)
+    openings = Openings(**{name: value[chosen] for name, value in fields.items()}, mask=filled)
+    keep_out = jax.tree.map(lambda x: x[chosen], keep_out)
+    return openings, eqx.tree_at(lambda f: f.mask, keep_out, keep_out.mask & filled)
 
 
 def _lamps(key, room: Room, config: SceneConfig):
     """Ceiling lamps (boxes) and their point lights, away from walls and apart."""
     n = config.lamp_slots * config.candidates_per_slot * 2
-    keys = jax.random.split(key, 6)
-    _, main_direction, _, _, low_xy, high_xy = _room_frame(room)
-    centre = jax.random.uniform(keys[0], (n, 2), minval=low_xy, maxval=high_xy)
-    half = jax.random.uniform(keys[1], (n, 1), minval=0.12, maxval=0.3) * jnp.ones((1, 2))
-    rotation = jnp.broadcast_to(main_direction[0], (n, 2))
+    slots = config.lamp_slots
+    u = jax.random.uniform(key, (n, 3))
+    v = jax.random.uniform(jax.random.fold_in(key, 1), (slots, 2 + 3 + 1))
+    _, room_direction, _, _, low_xy, high_xy = _room_frame(room)
+    centre = _between(u[:, :2], low_xy, high_xy)
+    half = _between(u[:, 2:3], 0.12, 0.3) * jnp.ones((1, 2))
+    rotation = jnp.broadcast_to(room_direction[0], (n, 2))
     inside = jax.vmap(point_in_polygon, in_axes=(0, None, None))(centre, room.corners, room.mask)
-    away = jax.vmap(distance_to_walls, in_axes=(0, None, None))(centre, room.corners, room.mask) > 0.6 + half[:, 0] * 1.5
-    nothing = _Footprints(jnp.zeros((1, 2)), jnp.ones((1, 2)), jnp.array([[1.0, 0.0]]), jnp.zeros(1, bool))
-    chosen, filled = _pack(_Footprints(centre, half, rotation, inside & away), config.lamp_slots, nothing, 0.8)
-    filled = filled & (jnp.arange(config.lamp_slots) < jax.random.randint(keys[2], (), 1, config.lamp_slots + 1))
-    thickness = jax.random.uniform(keys[3], (config.lamp_slots,), minval=0.04, maxval=0.12)
-    tint = random_colour(keys[4], (0.05, 0.15), (0.0, 0.35), (1.0, 1.0))
-    power = jax.random.uniform(keys[5], (config.lamp_slots, 1), minval=1.5, maxval=5.0)
-    lamp_z = room.ceiling_height - thickness / 2
+    away = jax.vmap(distance_to_walls, in_axes=(0, None, None))(centre, room.corners, room.mask) > 0.6 + 1.5 * half[:, 0]
+    chosen, filled = _pack(_Footprints(centre, half, rotation, inside & away), slots, _nothing(), 0.8)
+    filled = filled & (jnp.arange(slots) <= jnp.floor(v[0, 5] * slots))
+    thickness = _between(v[:, 0], 0.04, 0.12)
+    power = _between(v[:, 1:2], 1.5, 5.0)
+    tint = jax.vmap(lambda w: colour_in_hsv_box(w, (0.05, 0.15), (0.0, 0.35), (1.0, 1.0)))(v[:, 2:5])
     boxes = Boxes(
-        centre=jnp.concatenate([centre[chosen], lamp_z[:, None]], -1),
+        centre=jnp.concatenate([centre[chosen], (room.ceiling_height - thickness / 2)[:, None]], -1),
         half_size=jnp.concatenate([half[chosen], thickness[:, None] / 2], -1),
         rotation=rotation[chosen],
         material=Material(
-            jnp.full(config.lamp_slots, Pattern.PAINT, jnp.int32), jnp.ones((config.lamp_slots, 3)),
-            jnp.ones((config.lamp_slots, 3)), jnp.ones(config.lamp_slots),
+            jnp.full(slots, Pattern.PAINT, jnp.int32), jnp.ones((slots, 3)), jnp.ones((slots, 3)), jnp.ones(slots)
         ),
-        emission=jnp.broadcast_to(2.0 * tint, (config.lamp_slots, 3)),
+        emission=2.0 * tint,
         mask=filled,
     )
     lights = Lights(
@@ -544,11 +557,6 @@ def _lamps(key, room: Room, config: SceneConfig):
     return boxes, lights
 
 
-def _pick(key, options: list[tuple[float, Pattern]]) -> Int[Array, ""]:
-    weights = jnp.log(jnp.array([w for w, _ in options]))
-    return jnp.array([int(p) for _, p in options], jnp.int32)[jax.random.categorical(key, weights)]
-
-
 # Range of the pattern period (metres) per Pattern, indexed by its value.
 _SCALE_RANGE = np.array(
     [[1.0, 1.0], [0.6, 2.0], [0.12, 0.22], [0.3, 0.7], [0.6, 1.0], [0.1, 0.4], [0.15, 0.35], [0.3, 0.3], [0.3, 0.3]],
@@ -556,34 +564,44 @@ _SCALE_RANGE = np.array(
 )
 
 
-def _random_scale(key, pattern: Int[Array, ""]) -> Float[Array, ""]:
+def _surface_material(uniform: Float[Array, "9"], pool: list[tuple[float, Pattern]], colour_a, colour_b) -> Material:
+    """A material from a weighted pool of patterns, with its period drawn in the pattern's range.
+
+    ``colour_a`` and ``colour_b`` map (pattern, uniforms (3,)) to a colour."""
+    pattern = jnp.array([int(p) for _, p in pool], jnp.int32)[_categorical(uniform[0], jnp.array([w for w, _ in pool]))]
     low, high = jnp.asarray(_SCALE_RANGE)[pattern]
-    return jax.random.uniform(key, minval=low, maxval=high)
+    a = colour_a(pattern, uniform[2:5])
+    return Material(pattern, a, jnp.clip(colour_b(pattern, a, uniform[5:9]), 0.0, 1.0), _between(uniform[1], low, high))
 
 
 def _surface_materials(key):
     """Floor, ceiling and wall materials drawn from pools (paper Section 5.1)."""
-    k = jax.random.split(key, 12)
-    floor_pattern = _pick(k[0], [(0.45, Pattern.PLANKS), (0.25, Pattern.TILES), (0.15, Pattern.CARPET), (0.15, Pattern.PAINT)])
-    wood = random_colour(k[1], (0.04, 0.11), (0.3, 0.8), (0.2, 0.8))
-    generic = random_colour(k[2], (0.0, 1.0), (0.0, 0.5), (0.15, 0.9))
-    floor_a = jnp.where(floor_pattern == Pattern.PLANKS, wood, generic)
-    floor_b = floor_a * jax.random.uniform(k[3], minval=0.45, maxval=1.4)
-    floor_scale = _random_scale(k[4], floor_pattern)
-    wall_pattern = _pick(k[5], [(0.35, Pattern.PAINT), (0.25, Pattern.PLASTER), (0.2, Pattern.STRIPES), (0.2, Pattern.DIAMONDS)])
-    wall_a = random_colour(k[6], (0.0, 1.0), (0.0, 0.4), (0.55, 0.95))
-    wall_b = jnp.where(
-        jax.random.bernoulli(k[7], 0.5), wall_a * jax.random.uniform(k[8], minval=0.6, maxval=0.9),
-        random_colour(k[8], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95)),
+    u = jax.random.uniform(key, (3, 9))
+    floor = _surface_material(
+        u[0],
+        [(0.45, Pattern.PLANKS), (0.25, Pattern.TILES), (0.15, Pattern.CARPET), (0.15, Pattern.PAINT)],
+        lambda pattern, w: jnp.where(
+            pattern == Pattern.PLANKS,
+            colour_in_hsv_box(w, (0.04, 0.11), (0.3, 0.8), (0.2, 0.8)),
+            colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.5), (0.15, 0.9)),
+        ),
+        lambda pattern, a, w: a * _between(w[0], 0.45, 1.4),
     )
-    wall_scale = _random_scale(k[9], wall_pattern)
-    ceiling_pattern = _pick(k[10], [(0.5, Pattern.PAINT), (0.3, Pattern.PLASTER), (0.2, Pattern.TILES)])
-    ceiling_a = random_colour(k[11], (0.0, 1.0), (0.0, 0.1), (0.8, 0.98))
-    return (
-        Material(floor_pattern, floor_a, jnp.clip(floor_b, 0.0, 1.0), floor_scale),
-        Material(ceiling_pattern, ceiling_a, 0.85 * ceiling_a, jnp.array(0.6)),
-        Material(wall_pattern, wall_a, wall_b, wall_scale),
+    walls = _surface_material(
+        u[1],
+        [(0.35, Pattern.PAINT), (0.25, Pattern.PLASTER), (0.2, Pattern.STRIPES), (0.2, Pattern.DIAMONDS)],
+        lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.05, 0.55), (0.45, 0.9)),
+        lambda pattern, a, w: jnp.where(
+            w[0] < 0.5, a * _between(w[1], 0.6, 0.9), colour_in_hsv_box(w[1:4], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95))
+        ),
     )
+    ceiling = _surface_material(
+        u[2],
+        [(0.5, Pattern.PAINT), (0.3, Pattern.PLASTER), (0.2, Pattern.TILES)],
+        lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.1), (0.8, 0.98)),
+        lambda pattern, a, w: 0.85 * a,
+    )
+    return floor, ceiling, walls
 
 
 def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfig()) -> Scene:
@@ -597,13 +615,15 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
     Returns:
         A :class:`Scene`. Jit with ``config`` static, vmap over keys and rooms.
     """
-    keys = jax.random.split(key, 9)
+    keys = jax.random.split(key, 6)
     openings, keep_out = _openings(keys[0], room, config)
     n = config.furniture_slots * config.candidates_per_slot
-    kind, size, centre, rotation, valid = jax.vmap(lambda k: _furniture_candidate(k, room, config))(jax.random.split(keys[1], n))
-    wanted = jax.random.bernoulli(keys[2], config.furniture_probability, (config.furniture_slots,))
+    kind, size, centre, rotation, valid = jax.vmap(lambda k: _furniture_candidate(k, room, config))(
+        jax.random.split(keys[1], n)
+    )
     chosen, filled = _pack(_Footprints(centre, size[:, :2] / 2, rotation, valid), config.furniture_slots, keep_out, 0.1)
-    filled = filled & wanted
+    u = jax.random.uniform(keys[2], (config.furniture_slots + 9,))
+    filled = filled & (u[: config.furniture_slots] < config.furniture_probability)
     fabric = jnp.asarray(_TEMPLATES["fabric"])[kind[chosen]]
     primary, secondary = jax.vmap(_piece_materials)(jax.random.split(keys[3], config.furniture_slots), fabric)
     pieces = jax.vmap(_piece_boxes, in_axes=(0, 0, 0, 0, None, 0, 0))(
@@ -612,22 +632,19 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
     pieces = eqx.tree_at(lambda b: b.mask, pieces, pieces.mask & filled[:, None])
     pieces = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), pieces)
     lamps, lights = _lamps(keys[4], room, config)
-    boxes = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, lamps)
     floor, ceiling, walls = _surface_materials(keys[5])
-    has_skirting = jax.random.bernoulli(keys[6], 0.75)
-    k_skirt, k_ambient = jax.random.split(keys[7])
-    skirting_colour = jnp.where(jax.random.bernoulli(k_skirt, 0.5), jnp.full(3, 0.92), 0.8 * floor.colour_a)
-    ambient = random_colour(k_ambient, (0.05, 0.6), (0.0, 0.15), (0.25, 0.7))
+    extra = u[config.furniture_slots :]
     return Scene(
         room=room,
-        boxes=boxes,
+        boxes=jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, lamps),
         openings=openings,
         lights=lights,
         floor=floor,
         ceiling=ceiling,
         walls=walls,
-        skirting_height=jnp.where(has_skirting, jax.random.uniform(keys[8], minval=0.05, maxval=0.14), 0.0),
-        skirting_colour=skirting_colour,
-        ambient=ambient,
-        seed=jax.random.randint(keys[8], (), 0, 2**30),
+        skirting_height=jnp.where(extra[0] < 0.75, _between(extra[1], 0.05, 0.14), 0.0),
+        skirting_colour=jnp.where(extra[2] < 0.5, jnp.full(3, 0.92), 0.8 * floor.colour_a),
+        ambient=colour_in_hsv_box(extra[3:6], (0.05, 0.6), (0.0, 0.15), (0.2, 0.5)),
+        ambient_direction=jnp.array([jnp.cos(2 * math.pi * extra[7]), jnp.sin(2 * math.pi * extra[7]), 0.3]) / 1.044,
+        seed=jnp.floor(extra[6] * 2**24).astype(jnp.int32),
     )
