@@ -365,6 +365,8 @@ def synthesize_scene(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> 
     furniture ignored, the layout a network must predict)."""
     key_room, key_scene = jax.random.split(key)
     room = random_room(key_room, config.room)
+    # rc to 0.1 mm, so that the file names of the dataset (``..._R06101``) hold it exactly.
+    room = eqx.tree_at(lambda r: r.rc, room, jnp.round(room.rc * 1e4) / 1e4)
     scene = random_scene(key_scene, room, config.scene)
     return scene, room_labels(room, room.camera(config.width, config.height))
 
