@@ -1,7 +1,8 @@
 """ncjax: metric room layouts from single non-central circular panoramas, in JAX.
 
 Modules mirror the paper's pipeline: the camera (Section 3), Plücker geometry
-(Section 3.1), synthetic rooms with exact labels (Section 5.1).
+(Section 3.1), synthetic rooms with exact labels, furnished scenes, their
+rendering and the dataset files (Section 5.1).
 """
 
 from ._camera import (
@@ -43,13 +44,35 @@ from ._rooms import (
     room_walls,
 )
 
-# Synthetic data (paper Section 5.1): scenes, rendering, augmentation
+# Synthetic data (paper Section 5.1): scenes, rendering, augmentation, dataset files
+from ._augment import (
+    AugmentConfig,
+    add_sensor_noise,
+    adjust_exposure,
+    adjust_gamma,
+    gaussian_blur,
+    random_augment,
+    to_greyscale,
+    white_balance,
+)
+from ._dataset import (
+    DatasetSample,
+    labels_from_corners,
+    list_samples,
+    rc_from_name,
+    read_dataset,
+    read_sample,
+    read_split,
+    sample_name,
+    write_dataset,
+)
 from ._materials import Material, Pattern
 from ._render import (
     RenderConfig,
     Rendering,
     Semantic,
     SynthConfig,
+    box_overflow,
     render,
     synthesize,
     synthesize_batch,
@@ -78,7 +101,9 @@ from ._wall import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "AugmentConfig",
     "Boxes",
+    "DatasetSample",
     "HorizontalLine",
     "Lights",
     "Material",
@@ -97,16 +122,23 @@ __all__ = [
     "SynthConfig",
     "Wall",
     "WallLayout",
+    "add_sensor_noise",
+    "adjust_exposure",
+    "adjust_gamma",
     "angles_to_pixel",
     "angles_to_ray",
+    "box_overflow",
     "closest_point_to_origin",
     "closest_points",
+    "gaussian_blur",
     "horizontal_wall_line",
     "intersect_coplanar_lines",
     "is_visible",
+    "labels_from_corners",
     "layout_corners",
     "line_from_point_direction",
     "line_through_points",
+    "list_samples",
     "metrics",
     "normalize_line",
     "null_space",
@@ -118,9 +150,14 @@ __all__ = [
     "point_to_angles",
     "project",
     "quarter_turn",
+    "random_augment",
     "random_room",
     "random_scene",
     "ray_in_wall_frame",
+    "rc_from_name",
+    "read_dataset",
+    "read_sample",
+    "read_split",
     "render",
     "room_corners_3d",
     "room_labels",
@@ -128,6 +165,7 @@ __all__ = [
     "rotate_line_z",
     "rotation_z",
     "safe_norm",
+    "sample_name",
     "scaled_null_space",
     "side",
     "solve_atlanta_layout",
@@ -138,5 +176,8 @@ __all__ = [
     "synthesize",
     "synthesize_batch",
     "synthesize_scene",
+    "to_greyscale",
     "translate_line",
+    "white_balance",
+    "write_dataset",
 ]

@@ -16,7 +16,7 @@ import enum
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 
 class Pattern(enum.IntEnum):
@@ -34,7 +34,7 @@ class Pattern(enum.IntEnum):
 
 
 class Material(eqx.Module):
-    """A procedural material (all fields traced, batchable).
+    """A procedural material (all fields traced; any leading batch shape, e.g. per box).
 
     Attributes:
         pattern: a :class:`Pattern` value.
@@ -42,13 +42,15 @@ class Material(eqx.Module):
         scale: the pattern's period in metres (plank width, tile side, stripe period...).
     """
 
-    pattern: Int[Array, ""]
-    colour_a: Float[Array, "3"]
-    colour_b: Float[Array, "3"]
-    scale: Float[Array, ""]
+    pattern: Int[Array, "*batch"]
+    colour_a: Float[Array, "*batch 3"]
+    colour_b: Float[Array, "*batch 3"]
+    scale: Float[Array, "*batch"]
 
 
-def hash_uniform(seed: Int[Array, "..."], i: Int[Array, "..."], j: Int[Array, "..."]) -> Float[Array, "..."]:
+def hash_uniform(
+    seed: Int[ArrayLike, "*#batch"], i: Int[ArrayLike, "*#batch"], j: Int[ArrayLike, "*#batch"]
+) -> Float[Array, "*batch"]:
     """A uniform number in [0, 1) from three integers (a murmur3-style finaliser)."""
     h = jnp.asarray(seed).astype(jnp.uint32) * jnp.uint32(0x9E3779B1)
     for value in (i, j):
@@ -59,7 +61,9 @@ def hash_uniform(seed: Int[Array, "..."], i: Int[Array, "..."], j: Int[Array, ".
     return (h >> 8).astype(jnp.float32) / jnp.float32(1 << 24)
 
 
-def value_noise(seed: Int[Array, "..."], a: Float[Array, "..."], b: Float[Array, "..."]) -> Float[Array, "..."]:
+def value_noise(
+    seed: Int[ArrayLike, "*#batch"], a: Float[Array, "*#batch"], b: Float[Array, "*#batch"]
+) -> Float[Array, "*batch"]:
     """Smooth noise in [0, 1]: hashed values at integer lattice points, interpolated."""
     ia, ib = jnp.floor(a), jnp.floor(b)
     fa, fb = a - ia, b - ib
@@ -70,14 +74,14 @@ def value_noise(seed: Int[Array, "..."], a: Float[Array, "..."], b: Float[Array,
     return (v00 * (1 - fa) + v10 * fa) * (1 - fb) + (v01 * (1 - fa) + v11 * fa) * fb
 
 
-def _seam(fraction: Float[Array, "..."], width: Float[Array, "..."]) -> Float[Array, "..."]:
+def _seam(fraction: Float[Array, "*batch"], width: float) -> Float[Array, "*batch"]:
     """1 on a thin line at the integer boundaries of a coordinate's fractional part."""
     return ((fraction < width) | (fraction > 1 - width)).astype(fraction.dtype)
 
 
 def material_albedo(
-    material: Material, seed: Int[Array, ""], a: Float[Array, "..."], b: Float[Array, "..."]
-) -> Float[Array, "... 3"]:
+    material: Material, seed: Int[Array, "*#batch"], a: Float[Array, "*#batch"], b: Float[Array, "*#batch"]
+) -> Float[Array, "*batch 3"]:
     """Albedo of ``material`` at surface coordinates ``(a, b)`` metres.
 
     Every pattern is evaluated and the material's one is selected: under ``vmap``
@@ -85,12 +89,12 @@ def material_albedo(
     anyway; they share the noise lattice to stay cheap.
 
     Args:
-        material: the material (one instance, fields of shape () or (3,)).
-        seed: an integer that decorrelates the patterns of different surfaces.
-        a, b: surface coordinates, same shape.
+        material: the material, one or one per point (fields of shape batch or batch + (3,)).
+        seed: integers that decorrelate the patterns of different surfaces.
+        a, b: surface coordinates.
 
     Returns:
-        Linear RGB albedo of shape ``a.shape + (3,)``.
+        Linear RGB albedo of the broadcast shape + (3,).
     """
     u, v = a / material.scale, b / material.scale
     fine = value_noise(seed, 37.0 * u, 37.0 * v)

@@ -28,7 +28,7 @@ import functools
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, Key, PRNGKeyArray
 
 from ._camera import NonCentralPanorama, pixel_to_angles
 from ._materials import Material, material_albedo
@@ -119,8 +119,8 @@ def box_interval_2d(
 
 
 def box_segment_blocked(
-    start: Float[Array, "3"], end: Float[Array, "3"], boxes: Boxes, casts_shadow: Float[Array, " B"]
-) -> Float[Array, ""]:
+    start: Float[Array, "3"], end: Float[Array, "3"], boxes: Boxes, casts_shadow: Bool[Array, " B"]
+) -> Bool[Array, ""]:
     """Whether the segment from ``start`` to ``end`` passes through a box (3D slab test)."""
     axes = jnp.stack([boxes.rotation, _perpendicular(boxes.rotation)], -2)  # (B, 2, 2)
     offset = start[None] - boxes.centre
@@ -397,7 +397,7 @@ def _batched_render(config: SynthConfig):
     return jax.jit(jax.vmap(lambda scene: render(scene, scene.room.camera(config.width, config.height), config.render)))
 
 
-def synthesize_batch(keys: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, Rendering, RoomLabels]:
+def synthesize_batch(keys: Key[Array, " N"], config: SynthConfig = SynthConfig()) -> tuple[Scene, Rendering, RoomLabels]:
     """:func:`synthesize` for a batch of keys (leading axis N), two cached jitted calls.
 
     Compiled once per ``config`` and batch size; keep the batch size fixed

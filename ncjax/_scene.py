@@ -320,10 +320,12 @@ def rectangle_in_room(
 
 
 class _Footprints(eqx.Module):
-    centre: Float[Array, "N 2"]
-    half_size: Float[Array, "N 2"]
-    rotation: Float[Array, "N 2"]
-    mask: Bool[Array, " N"]
+    """Rotated rectangles (one, or a leading batch axis) and which are valid."""
+
+    centre: Float[Array, "*n 2"]
+    half_size: Float[Array, "*n 2"]
+    rotation: Float[Array, "*n 2"]
+    mask: Bool[Array, "*n"]
 
 
 def _pack(candidates: _Footprints, capacity: int, obstacles: _Footprints, gap: float):
