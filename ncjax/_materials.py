@@ -51,13 +51,14 @@ class Material(eqx.Module):
 def hash_uniform(
     seed: Int[ArrayLike, "*#batch"], i: Int[ArrayLike, "*#batch"], j: Int[ArrayLike, "*#batch"]
 ) -> Float[Array, "*batch"]:
-    """A uniform number in [0, 1) from three integers (a murmur3-style finaliser)."""
-    h = jnp.asarray(seed).astype(jnp.uint32) * jnp.uint32(0x9E3779B1)
-    for value in (i, j):
-        h = (h ^ jnp.asarray(value).astype(jnp.uint32)) * jnp.uint32(0x85EBCA6B)
-        h = h ^ (h >> 13)
-        h = h * jnp.uint32(0xC2B2AE35)
-        h = h ^ (h >> 16)
+    """A uniform number in [0, 1) from three integers: the inputs multiplied by
+    odd constants and xor-ed, then one xorshift-multiply avalanche round (cheap:
+    the renderer evaluates several per pixel)."""
+    as_uint = lambda x: jnp.asarray(x).astype(jnp.uint32)  # noqa: E731
+    h = as_uint(seed) * jnp.uint32(0x9E3779B1) ^ as_uint(i) * jnp.uint32(0x85EBCA6B) ^ as_uint(j) * jnp.uint32(0xC2B2AE35)
+    h = h ^ (h >> 15)
+    h = h * jnp.uint32(0x2C1B3C6D)
+    h = h ^ (h >> 12)
     return (h >> 8).astype(jnp.float32) / jnp.float32(1 << 24)
 
 
@@ -74,6 +75,12 @@ def value_noise(
     return (v00 * (1 - fa) + v10 * fa) * (1 - fb) + (v01 * (1 - fa) + v11 * fa) * fb
 
 
+def _wave(x: Float[Array, "*batch"]) -> Float[Array, "*batch"]:
+    """A smooth periodic wave in [0, 1] of period 1 (a cheap stand-in for a sine)."""
+    triangle = jnp.abs(2 * (x - jnp.floor(x)) - 1)
+    return triangle * triangle * (3 - 2 * triangle)
+
+
 def _seam(fraction: Float[Array, "*batch"], width: float) -> Float[Array, "*batch"]:
     """1 on a thin line at the integer boundaries of a coordinate's fractional part."""
     return ((fraction < width) | (fraction > 1 - width)).astype(fraction.dtype)
@@ -86,7 +93,7 @@ def material_albedo(
 
     Every pattern is evaluated and the material's one is selected: under ``vmap``
     over scenes the kind is a traced value, so the branches would be evaluated
-    anyway; they share the noise lattice to stay cheap.
+    anyway; they share their noise to stay cheap (this is most of a pixel's cost).
 
     Args:
         material: the material, one or one per point (fields of shape batch or batch + (3,)).
@@ -97,45 +104,45 @@ def material_albedo(
         Linear RGB albedo of the broadcast shape + (3,).
     """
     u, v = a / material.scale, b / material.scale
-    fine = value_noise(seed, 37.0 * u, 37.0 * v)
+    fine = hash_uniform(seed, jnp.floor(37.0 * u).astype(jnp.int32), jnp.floor(37.0 * v).astype(jnp.int32))
     coarse = value_noise(seed + 1, 1.7 * u, 1.7 * v)
     # Planks: rows of width `scale` along b, boards of 4-7 widths along a, staggered per row.
     row = jnp.floor(v)
-    board_length = 4.0 + 3.0 * hash_uniform(seed + 2, row.astype(jnp.int32), 0)
-    along = u / board_length + hash_uniform(seed + 3, row.astype(jnp.int32), 1)
+    row_random = hash_uniform(seed + 2, row.astype(jnp.int32), 0)
+    along = u / (4.0 + 3.0 * row_random) + 7.13 * row_random
     board = jnp.floor(along)
-    board_shade = hash_uniform(seed + 4, row.astype(jnp.int32), board.astype(jnp.int32))
-    grain = 0.5 + 0.5 * jnp.sin(40.0 * v + 6.0 * coarse + 9.0 * board_shade)
+    board_shade = hash_uniform(seed + 3, row.astype(jnp.int32), board.astype(jnp.int32))
+    grain = _wave(6.0 * v + coarse + 1.4 * board_shade)
     seams = jnp.maximum(_seam(v - row, 0.025), _seam(along - board, 0.004))
     planks = (0.55 * board_shade + 0.3 * grain + 0.15 * fine) * (1 - 0.6 * seams)
     # Tiles: unit squares, grout lines, checker of two shades with a small jitter.
     cell_u, cell_v = jnp.floor(u), jnp.floor(v)
     checker = jnp.mod(cell_u + cell_v, 2.0)
-    tile_jitter = hash_uniform(seed + 5, cell_u.astype(jnp.int32), cell_v.astype(jnp.int32))
+    tile_jitter = hash_uniform(seed + 4, cell_u.astype(jnp.int32), cell_v.astype(jnp.int32))
     grout = jnp.maximum(_seam(u - cell_u, 0.03), _seam(v - cell_v, 0.03))
     tiles = (0.8 * checker + 0.1 * tile_jitter + 0.1 * fine) * (1 - grout) + 0.5 * grout
     # Wallpapers.
-    stripes = jnp.where(jnp.mod(u, 1.0) < 0.5, 0.9, 0.1) + 0.1 * fine
-    du, dv = jnp.abs(jnp.mod(u, 1.0) - 0.5), jnp.abs(jnp.mod(0.5 * v, 1.0) - 0.5)
+    stripes = jnp.where(u - cell_u < 0.5, 0.9, 0.1) + 0.1 * fine
+    du, dv = jnp.abs(u - cell_u - 0.5), jnp.abs(0.5 * v - jnp.floor(0.5 * v) - 0.5)
     diamonds = jnp.where(du + dv < 0.3, 0.9, 0.15) + 0.1 * fine
     # Furniture.
-    wood = 0.5 + 0.35 * jnp.sin(25.0 * u + 8.0 * value_noise(seed + 6, 3 * u, 0.3 * v)) + 0.15 * fine
-    weave = 0.5 + 0.25 * jnp.sin(300.0 * a) * jnp.sin(300.0 * b)
-    patterns = jnp.stack(
-        [
-            0.08 * fine,
-            0.7 * coarse + 0.1 * fine,
-            planks,
-            tiles,
-            0.25 * coarse + 0.75 * fine,
-            stripes,
-            diamonds,
-            wood,
-            0.6 * weave + 0.4 * fine,
-        ]
-    )
-    pattern = jnp.broadcast_to(material.pattern, patterns.shape[1:])
-    mix = jnp.take_along_axis(patterns, pattern[None], axis=0)[0]
+    wood = 0.15 + 0.7 * _wave(4.0 * u + 1.3 * coarse) + 0.15 * fine
+    weave = _wave(48.0 * a) * _wave(48.0 * b)
+    patterns = [
+        0.08 * fine,
+        0.7 * coarse + 0.1 * fine,
+        planks,
+        tiles,
+        0.25 * coarse + 0.75 * fine,
+        stripes,
+        diamonds,
+        wood,
+        0.5 * weave + 0.5 * fine,
+    ]
+    # A chain of selects, not a gather: XLA's CPU gathers are far slower here.
+    mix = patterns[0]
+    for kind in range(1, len(patterns)):
+        mix = jnp.where(material.pattern == kind, patterns[kind], mix)
     mix = jnp.clip(mix, 0.0, 1.0)[..., None]
     return material.colour_a * (1 - mix) + material.colour_b * mix
 

@@ -65,7 +65,7 @@ class RenderConfig:
     supersampling: int = 1
     shadows: bool = False
     rows_per_chunk: int = 16
-    boxes_per_column: int = 12
+    boxes_per_column: int = 8
 
     def __post_init__(self):
         if int(self.supersampling) != self.supersampling or self.supersampling < 1 or self.supersampling % 2 == 0:
@@ -139,15 +139,12 @@ def _select_material(condition: Array, a: Material, b: Material) -> Material:
     return jax.tree.map(lambda x, y: jnp.where(condition.reshape(condition.shape + (1,) * (x.ndim - condition.ndim)), x, y), a, b)
 
 
-def _opening_appearance(scene: Scene, index, along, height):
-    """Albedo and emission of a door or window at coordinates inside it (metres
-    from its bottom-left): a frame, inset door panels with a handle, or glass
+def _opening_appearance(opening: dict, along, height):
+    """Albedo and emission of a door or window (fields of ``opening`` per column)
+    at coordinates inside it: a frame, inset door panels with a handle, or glass
     panes split by mullions that glow with daylight."""
-    openings = scene.openings
-    x, y = along - openings.span[index, 0], height - openings.z_range[index, 0]
-    width = openings.span[index, 1] - openings.span[index, 0]
-    tall = openings.z_range[index, 1] - openings.z_range[index, 0]
-    window = openings.is_window[index]
+    x, y = along - opening["start"], height - opening["bottom"]
+    width, tall, window = opening["width"], opening["tall"], opening["is_window"]
     frame = 0.06
     on_frame = (x < frame) | (x > width - frame) | (y > tall - frame) | (window & (y < frame))
     mullion = window & ((jnp.abs(x - width / 2) < 0.025) | (jnp.abs(y - 0.6 * tall) < 0.025))
@@ -157,17 +154,18 @@ def _opening_appearance(scene: Scene, index, along, height):
         | (jnp.abs(y - 0.5 * tall) < 0.02) | (jnp.abs(y - tall + 0.14) < 0.02)
     )
     handle = ~window & ((x - (width - 0.1)) ** 2 + (y - 1.0) ** 2 < 0.035**2)
-    leaf = openings.colour[index] * jnp.where(panel_edge, 0.55, 1.0)[..., None] * jnp.where(handle, 0.2, 1.0)[..., None]
-    sky = openings.colour[index] * (0.75 + 0.35 * y / tall)[..., None]
+    leaf = opening["colour"] * (jnp.where(panel_edge, 0.55, 1.0) * jnp.where(handle, 0.2, 1.0))[..., None]
+    sky = opening["colour"] * (0.75 + 0.35 * y / tall)[..., None]
     framed = (on_frame | mullion)[..., None]
-    albedo = jnp.where(framed, openings.frame_colour[index], jnp.where(window[..., None], 0.0, leaf))
+    albedo = jnp.where(framed, opening["frame_colour"], jnp.where(window[..., None], 0.0, leaf))
     emission = jnp.where(framed | ~window[..., None], 0.0, 1.6 * sky)
     return albedo, emission
 
 
 def _columns(scene: Scene, cam: NonCentralPanorama, boxes_per_column: int):
     """Everything that depends on the column only: the horizontal ray, the wall
-    it meets and where, the opening there, and the box footprints it crosses."""
+    it meets and where, the door or window there, and the boxes whose footprints
+    it crosses with all their attributes (so that the per-pixel code gathers nothing)."""
     room, boxes = scene.room, scene.boxes
     azimuth, _ = pixel_to_angles(cam, jnp.arange(cam.width, dtype=room.corners.dtype), 0.0)
     direction = jnp.stack([jnp.cos(azimuth), jnp.sin(azimuth)], -1)
@@ -186,31 +184,73 @@ def _columns(scene: Scene, cam: NonCentralPanorama, boxes_per_column: int):
         & (along[:, None] <= openings.span[None, :, 1])
         & openings.mask[None, :]
     )
+    index = jnp.argmax(in_span, axis=1)
+    opening = dict(
+        present=jnp.any(in_span, axis=1),
+        start=openings.span[index, 0],
+        width=openings.span[index, 1] - openings.span[index, 0],
+        bottom=openings.z_range[index, 0],
+        tall=openings.z_range[index, 1] - openings.z_range[index, 0],
+        is_window=openings.is_window[index],
+        colour=openings.colour[index],
+        frame_colour=openings.frame_colour[index],
+    )
     t_in, t_out, box_normal = jax.vmap(
         jax.vmap(box_interval_2d, in_axes=(None, None, 0, 0, 0)), in_axes=(0, 0, None, None, None)
     )(origin, direction, boxes.centre[:, :2], boxes.half_size[:, :2], boxes.rotation)
     # Keep, per column, the nearest boxes whose footprint the column's ray crosses
-    # in front of the wall: pixels then test only those (boxes_per_column of them,
-    # box axis first so that the per-pixel work vectorises along the row).
+    # in front of the wall: pixels then test only those (box axis first, so that
+    # the per-pixel work vectorises along the row).
     crossed = boxes.mask[None, :] & (t_in < t_out) & (t_out > 0) & (t_in < t_wall[:, None])
     _, nearest = jax.lax.top_k(jnp.where(crossed, -t_in, -jnp.inf), boxes_per_column)
-    kept = jnp.take_along_axis(crossed, nearest, 1)
-    pick = lambda x: jnp.take_along_axis(x, nearest, 1).T  # noqa: E731
+    nearest = nearest.T  # (M, W)
+    column = jnp.arange(cam.width)[None, :]
+    candidates = dict(
+        box=nearest,
+        t_in=jnp.where(crossed.T[nearest, column], t_in.T[nearest, column], jnp.inf),
+        t_out=t_out.T[nearest, column],
+        normal_x=box_normal[..., 0].T[nearest, column],
+        normal_y=box_normal[..., 1].T[nearest, column],
+        bottom=boxes.centre[nearest, 2] - boxes.half_size[nearest, 2],
+        top=boxes.centre[nearest, 2] + boxes.half_size[nearest, 2],
+        centre_x=boxes.centre[nearest, 0],
+        centre_y=boxes.centre[nearest, 1],
+        cos=boxes.rotation[nearest, 0],
+        sin=boxes.rotation[nearest, 1],
+        emission=boxes.emission[nearest],
+        material=jax.tree.map(lambda x: x[nearest], boxes.material),
+    )
     return dict(
         origin=origin,
         direction=direction,
-        wall=wall,
         t_wall=t_wall,
         along=along,
         wall_normal=_perpendicular(wall_direction[wall]),
-        opening=jnp.argmax(in_span, axis=1),
-        has_opening=jnp.any(in_span, axis=1),
-        box=nearest.T,
-        t_in=jnp.where(kept, jnp.take_along_axis(t_in, nearest, 1), jnp.inf).T,
-        t_out=pick(t_out),
-        box_normal=jnp.stack([pick(box_normal[..., 0]), pick(box_normal[..., 1])], -1),
+        opening=opening,
+        candidates=candidates,
         overflow=jnp.sum(crossed, 1) > boxes_per_column,
     )
+
+
+def _nearest_box(candidates: dict, cotangent: Float[Array, ""]):
+    """Per pixel of a row: the distance to the nearest candidate box (inf if
+    none) and that box's attributes: a running minimum over the M candidates,
+    each a slab test of the column's footprint interval against the row's
+    height interval."""
+    best = jnp.full(candidates["t_in"].shape[1:], jnp.inf)
+    index = jnp.zeros(best.shape, jnp.int32)
+    for m in range(candidates["t_in"].shape[0]):
+        low, high = candidates["bottom"][m] * cotangent, candidates["top"][m] * cotangent
+        enter = jnp.maximum(candidates["t_in"][m], jnp.minimum(low, high))
+        leave = jnp.minimum(candidates["t_out"][m], jnp.maximum(low, high))
+        t = jnp.where((enter < leave) & (leave > 0), enter, jnp.inf)
+        closer = t < best
+        best = jnp.where(closer, t, best)
+        index = jnp.where(closer, m, index)
+    chosen = jax.tree.map(
+        lambda x: jnp.take_along_axis(x, index.reshape((1,) + index.shape + (1,) * (x.ndim - 2)), 0)[0], candidates
+    )
+    return best, chosen
 
 
 def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool):
@@ -223,85 +263,74 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     z_wall = slope * t_wall
     is_ceiling, is_floor = z_wall > room.ceiling_height, z_wall < room.floor_height
     t_room = jnp.where(is_ceiling, room.ceiling_height * cotangent, jnp.where(is_floor, room.floor_height * cotangent, t_wall))
-    # Boxes: the column's footprint interval intersected with the row's height interval.
-    kept = columns["box"]  # (M, W) box indices
-    bottom = (boxes.centre[kept, 2] - boxes.half_size[kept, 2]) * cotangent
-    top = (boxes.centre[kept, 2] + boxes.half_size[kept, 2]) * cotangent
-    enter = jnp.maximum(columns["t_in"], jnp.minimum(bottom, top))
-    leave = jnp.minimum(columns["t_out"], jnp.maximum(bottom, top))
-    t_boxes = jnp.where((enter < leave) & (leave > 0), enter, jnp.inf)
-    nearest = jnp.argmin(t_boxes, axis=0)
-    t_box = jnp.min(t_boxes, axis=0)
-    box = jnp.take_along_axis(kept, nearest[None], 0)[0]
+    t_box, box = _nearest_box(columns["candidates"], cotangent)
     on_box = t_box < t_room
     t = jnp.where(on_box, t_box, t_room)
-    xy = columns["origin"] + t[:, None] * columns["direction"]
+    # Points and normals as separate coordinate arrays (structure of arrays):
+    # the per-light arithmetic below then vectorises along the row.
+    x = columns["origin"][:, 0] + t * columns["direction"][:, 0]
+    y = columns["origin"][:, 1] + t * columns["direction"][:, 1]
     z = slope * t
-    point = jnp.concatenate([xy, z[:, None]], -1)
+    on_floor_or_ceiling = is_ceiling | is_floor
 
     # Surface frame, texture coordinates and material of each pixel.
-    world_xy = xy + room.camera_position[:2]
-    side_face = on_box & (t_box == jnp.take_along_axis(columns["t_in"], nearest[None], 0)[0])
-    box_side_normal = jnp.take_along_axis(columns["box_normal"], nearest[None, :, None], 0)[0]
-    box_normal = jnp.where(side_face[:, None], jnp.concatenate([box_side_normal, jnp.zeros_like(t)[:, None]], -1),
-                           jnp.stack([jnp.zeros_like(t), jnp.zeros_like(t), -jnp.sign(slope) * jnp.ones_like(t)], -1))
-    rotation = boxes.rotation[box]
-    local = jnp.stack([jnp.sum((xy - boxes.centre[box, :2]) * rotation, -1),
-                       jnp.sum((xy - boxes.centre[box, :2]) * _perpendicular(rotation), -1)], -1)
-    facing_x = jnp.abs(jnp.sum(box_side_normal * rotation, -1)) > 0.5
-    box_a = jnp.where(side_face, jnp.where(facing_x, local[:, 1], local[:, 0]), local[:, 0])
-    box_b = jnp.where(side_face, z, local[:, 1])
-    wall_normal = jnp.concatenate([columns["wall_normal"], jnp.zeros_like(t)[:, None]], -1)
-    up = jnp.stack([jnp.zeros_like(t), jnp.zeros_like(t), jnp.ones_like(t)], -1)
-    normal = jnp.where(on_box[:, None], box_normal, jnp.where(is_ceiling[:, None], -up, jnp.where(is_floor[:, None], up, wall_normal)))
-    on_floor_or_ceiling = is_ceiling | is_floor
+    side_face = on_box & (t_box == box["t_in"])
+    wall_normal = columns["wall_normal"]
+    normal_x = jnp.where(on_box, jnp.where(side_face, box["normal_x"], 0.0), jnp.where(on_floor_or_ceiling, 0.0, wall_normal[:, 0]))
+    normal_y = jnp.where(on_box, jnp.where(side_face, box["normal_y"], 0.0), jnp.where(on_floor_or_ceiling, 0.0, wall_normal[:, 1]))
+    normal_z = jnp.where(
+        on_box, jnp.where(side_face, 0.0, -jnp.sign(slope)), jnp.where(is_ceiling, -1.0, jnp.where(is_floor, 1.0, 0.0))
+    )
+    offset_x, offset_y = x - box["centre_x"], y - box["centre_y"]
+    local_x = offset_x * box["cos"] + offset_y * box["sin"]
+    local_y = offset_y * box["cos"] - offset_x * box["sin"]
+    facing_x = jnp.abs(box["normal_x"] * box["cos"] + box["normal_y"] * box["sin"]) > 0.5
+    box_a = jnp.where(side_face & facing_x, local_y, local_x)
+    box_b = jnp.where(side_face, z, local_y)
     height_above_floor = z - room.floor_height
-    a = jnp.where(on_box, box_a, jnp.where(on_floor_or_ceiling, world_xy[:, 0], columns["along"]))
-    b = jnp.where(on_box, box_b, jnp.where(on_floor_or_ceiling, world_xy[:, 1], height_above_floor))
-    box_material = jax.tree.map(lambda x: x[box], boxes.material)
+    world_x, world_y = x + room.camera_position[0], y + room.camera_position[1]
+    a = jnp.where(on_box, box_a, jnp.where(on_floor_or_ceiling, world_x, columns["along"]))
+    b = jnp.where(on_box, box_b, jnp.where(on_floor_or_ceiling, world_y, height_above_floor))
     per_pixel = lambda material: jax.tree.map(lambda x: jnp.broadcast_to(x, t.shape + x.shape), material)  # noqa: E731
     surface = _select_material(
         is_ceiling, per_pixel(scene.ceiling), _select_material(is_floor, per_pixel(scene.floor), per_pixel(scene.walls))
     )
-    material = _select_material(on_box, box_material, surface)
-    seed = scene.seed + jnp.where(on_box, 100 + 13 * box, jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3)))
+    material = _select_material(on_box, box["material"], surface)
+    seed = scene.seed + jnp.where(on_box, 100 + 13 * box["box"], jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3)))
     albedo = material_albedo(material, seed, a, b)
 
     # Details on walls: skirting boards, doors and windows.
     on_wall = ~on_box & ~on_floor_or_ceiling
     opening = columns["opening"]
-    in_opening = (
-        on_wall & columns["has_opening"]
-        & (z >= scene.openings.z_range[opening, 0]) & (z <= scene.openings.z_range[opening, 1])
-    )
-    opening_albedo, opening_emission = _opening_appearance(scene, opening, columns["along"], z)
+    in_opening = on_wall & opening["present"] & (z >= opening["bottom"]) & (z <= opening["bottom"] + opening["tall"])
+    opening_albedo, opening_emission = _opening_appearance(opening, columns["along"], z)
     skirting = on_wall & ~in_opening & (height_above_floor < scene.skirting_height)
     skirting_lip = skirting & (height_above_floor > scene.skirting_height - 0.012)
     albedo = jnp.where(skirting[:, None], scene.skirting_colour * jnp.where(skirting_lip, 0.7, 1.0)[:, None], albedo)
     albedo = jnp.where(in_opening[:, None], opening_albedo, albedo)
-    emission = jnp.where(on_box[:, None], boxes.emission[box], jnp.where(in_opening[:, None], opening_emission, 0.0))
+    emission = jnp.where(on_box[:, None], box["emission"], jnp.where(in_opening[:, None], opening_emission, 0.0))
 
     # Light: ambient darkened near the room's edges, plus point lights.
     to_edge = jnp.where(on_floor_or_ceiling, t_wall - t, jnp.minimum(height_above_floor, room.ceiling_height - z))
     occlusion = 1.0 - 0.35 * jnp.exp(-jnp.maximum(to_edge, 0.0) / 0.3)
     # A hemispherical ambient (brighter from one side, as daylight from a window)
     # shades walls of different orientations differently, as in real rooms.
-    facing = 0.7 + 0.3 * jnp.sum(normal * scene.ambient_direction, -1)
-    irradiance = scene.ambient * (facing * jnp.where(on_box, 0.85, occlusion))[:, None]
+    direction = scene.ambient_direction
+    facing = 0.7 + 0.3 * (normal_x * direction[0] + normal_y * direction[1] + normal_z * direction[2])
+    irradiance = (facing * jnp.where(on_box, 0.85, occlusion))[:, None] * scene.ambient
     lights = scene.lights
     casts_shadow = jnp.all(boxes.emission == 0, -1) & boxes.mask
     for index in range(lights.position.shape[0]):
-        to_light = lights.position[index] - point
-        distance2 = jnp.sum(to_light**2, -1)
-        cosine = jnp.maximum(jnp.sum(normal * to_light, -1), 0.0) / jnp.sqrt(distance2)
-        lit = cosine / (1.0 + distance2) * lights.mask[index]
+        light = lights.position[index]
+        dx, dy, dz = light[0] - x, light[1] - y, light[2] - z
+        distance2 = dx * dx + dy * dy + dz * dz
+        cosine = jnp.maximum(normal_x * dx + normal_y * dy + normal_z * dz, 0.0) * jax.lax.rsqrt(distance2)
+        received = cosine / (1.0 + distance2) * lights.mask[index]
         if shadows:
-            start = point + 1e-3 * normal
-            blocked = jax.vmap(box_segment_blocked, in_axes=(0, None, None, None))(
-                start, lights.position[index], boxes, casts_shadow
-            )
-            lit = jnp.where(blocked, 0.0, lit)
-        irradiance = irradiance + lit[:, None] * lights.colour[index]
+            start = jnp.stack([x + 1e-3 * normal_x, y + 1e-3 * normal_y, z + 1e-3 * normal_z], -1)
+            blocked = jax.vmap(box_segment_blocked, in_axes=(0, None, None, None))(start, light, boxes, casts_shadow)
+            received = jnp.where(blocked, 0.0, received)
+        irradiance = irradiance + received[:, None] * lights.colour[index]
     radiance = albedo * irradiance + emission
     rgb = (1.0 - jnp.exp(-1.5 * radiance)) ** (1.0 / 2.2)
     semantic = jnp.where(
