@@ -29,7 +29,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ._materials import Material, Pattern, colour_in_hsv_box
 from ._rooms import Room, _segments_cross, distance_to_walls, point_in_polygon, polygon_edges, room_walls
@@ -283,7 +283,7 @@ def rectangles_overlap(
     centre_b: Float[Array, "2"],
     half_b: Float[Array, "2"],
     rotation_b: Float[Array, "2"],
-    gap: float = 0.0,
+    gap: Float[ArrayLike, ""] = 0.0,
 ) -> Bool[Array, ""]:
     """Whether two rotated rectangles come closer than ``gap`` along some axis
     (separating-axis theorem on the four edge normals)."""

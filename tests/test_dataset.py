@@ -40,10 +40,14 @@ def test_written_files_are_mutually_consistent(dataset):
         n = len(points) // 2
         # label_cor alternates ceiling and floor; 3D_gt holds the N ceiling corners then the N floor ones.
         ordered = np.stack([points[:n], points[n:]], 1).reshape(-1, 3)
-        u, v = ncjax.project(cam, ordered - pose)
-        du = np.abs(np.asarray(u) - label_cor[:, 0])
-        du = np.minimum(du, WIDTH - du)
-        assert np.all(du <= 1.0) and np.all(np.abs(np.asarray(v) - label_cor[:, 1]) <= 1.0)
+        local = ordered - pose
+        # Both ncjax.project and the formulas of DESIGN.md section 2 written out here.
+        numpy_u = (np.pi - np.arctan2(local[:, 1], local[:, 0])) / (2 * np.pi) * WIDTH - 0.5
+        numpy_v = (np.pi / 2 - np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1]) - meta["rc"])) / np.pi * HEIGHT - 0.5
+        for u, v in (ncjax.project(cam, local), (numpy_u, numpy_v)):
+            du = np.abs(np.asarray(u) - label_cor[:, 0])
+            du = np.minimum(du, WIDTH - du)
+            assert np.all(du <= 1.0) and np.all(np.abs(np.asarray(v) - label_cor[:, 1]) <= 1.0)
         assert np.allclose(points[:n, 2], meta["room_height"], atol=1e-5) and np.allclose(points[n:, 2], 0.0, atol=1e-5)
         assert pose[0, 2] == pytest.approx(meta["camera_height"], abs=1e-6)
         assert meta["world"] in ("manhattan", "atlanta") and name.startswith(meta["world"])

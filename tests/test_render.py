@@ -9,6 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import shapely
+from hypothesis import assume, given
+from hypothesis import strategies as st
 
 import ncjax
 from ncjax._scene import PARTS_PER_PIECE
@@ -194,3 +196,55 @@ def test_random_augment_is_a_pure_batched_function():
     np.testing.assert_array_equal(first, second)
     assert np.all((first >= 0) & (first <= 1))
     assert not np.allclose(first[0], first[1])
+
+
+# ------------------------------------------------------------- geometry helpers
+
+_coordinate = st.floats(-3.0, 3.0)
+_half = st.floats(0.05, 1.5)
+_angle = st.floats(0.0, 2 * np.pi)
+
+
+def _rectangle(centre, half, angle):
+    rotation = np.array([np.cos(angle), np.sin(angle)])
+    corners = np.asarray(ncjax._scene.rectangle_corners(jnp.asarray(centre), jnp.asarray(half), jnp.asarray(rotation)))
+    return rotation, shapely.Polygon(corners)
+
+
+@functools.cache
+def _overlap():
+    return jax.jit(ncjax._scene.rectangles_overlap)
+
+
+@given(_coordinate, _coordinate, _half, _half, _angle, _coordinate, _coordinate, _half, _half, _angle)
+def test_rectangle_overlap_agrees_with_shapely(x1, y1, w1, h1, a1, x2, y2, w2, h2, a2):
+    rotation_a, polygon_a = _rectangle((x1, y1), (w1, h1), a1)
+    rotation_b, polygon_b = _rectangle((x2, y2), (w2, h2), a2)
+    distance = polygon_a.distance(polygon_b)
+    assume(abs(distance) > 1e-3 or polygon_a.intersection(polygon_b).area > 1e-3)
+    overlap = bool(_overlap()(jnp.array([x1, y1]), jnp.array([w1, h1]), jnp.asarray(rotation_a),
+                              jnp.array([x2, y2]), jnp.array([w2, h2]), jnp.asarray(rotation_b), 0.0))
+    assert overlap == (distance == 0.0)
+
+
+@functools.cache
+def _interval():
+    return jax.jit(ncjax._render.box_interval_2d)
+
+
+@given(_coordinate, _coordinate, _half, _half, _angle, _angle)
+def test_box_interval_agrees_with_shapely(x, y, w, h, yaw, heading):
+    rotation, polygon = _rectangle((x, y), (w, h), yaw)
+    assume(polygon.distance(shapely.Point(0, 0)) > 1e-3)
+    direction = np.array([np.cos(heading), np.sin(heading)])
+    t_in, t_out, normal = (np.asarray(a) for a in _interval()(
+        jnp.zeros(2), jnp.asarray(direction), jnp.array([x, y]), jnp.array([w, h]), jnp.asarray(rotation)))
+    ray = shapely.LineString([(0, 0), tuple(100 * direction)])
+    crossing = ray.intersection(polygon)
+    hit = t_in < t_out and t_out > 0
+    assume(crossing.length > 1e-3 or crossing.is_empty)
+    assert hit == (not crossing.is_empty)
+    if hit:
+        along = sorted(np.dot(np.asarray(crossing.coords), direction))
+        np.testing.assert_allclose([t_in, t_out], along, atol=1e-4)
+        assert np.dot(normal, direction) < 0  # the entry side faces the ray
