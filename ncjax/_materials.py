@@ -14,7 +14,6 @@ from __future__ import annotations
 import enum
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Int
 

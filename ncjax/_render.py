@@ -15,8 +15,14 @@ pixel cost O(B) comparisons. ``rc = 0`` is the central equirectangular panorama.
 Shading: procedural albedo (``ncjax._materials``), an ambient term darkened
 near the room's edges, Lambertian point lights with ``1 / (1 + d^2)`` falloff,
 optional hard shadows from the furniture, emissive lamps and windows, then an
-exponential tone curve and gamma 2.2. Walls cast no shadows and nothing is
-reflected.
+exponential tone curve and gamma 2.2.
+
+Not modelled (yet): shadows cast by walls, inter-reflections and specular
+surfaces; geometry of doors, windows and skirting boards (they are textures on
+the wall, so the layout labels stay exact); views through doors and windows;
+furniture other than boxes (no curved shapes, no clutter on tables, nothing on
+carpets); lamps other than ceiling lamps; the capture rig itself; lens and
+sensor effects beyond the photometric augmentations of ``ncjax._augment``.
 """
 
 from __future__ import annotations
