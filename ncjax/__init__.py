@@ -1,7 +1,8 @@
 """ncjax: metric room layouts from single non-central circular panoramas, in JAX.
 
 Modules mirror the paper's pipeline: the camera (Section 3), Plücker geometry
-(Section 3.1), synthetic rooms with exact labels (Section 5.1).
+(Section 3.1), synthetic rooms with exact labels, furnished scenes, their
+rendering and the dataset files (Section 5.1).
 """
 
 from ._camera import (
@@ -43,6 +44,42 @@ from ._rooms import (
     room_walls,
 )
 
+# Synthetic data (paper Section 5.1): scenes, rendering, augmentation, dataset files
+from ._augment import (
+    AugmentConfig,
+    add_sensor_noise,
+    adjust_exposure,
+    adjust_gamma,
+    gaussian_blur,
+    random_augment,
+    to_greyscale,
+    white_balance,
+)
+from ._dataset import (
+    DatasetSample,
+    labels_from_corners,
+    list_samples,
+    rc_from_name,
+    read_dataset,
+    read_sample,
+    read_split,
+    sample_name,
+    write_dataset,
+)
+from ._materials import Material, Pattern
+from ._render import (
+    RenderConfig,
+    Rendering,
+    Semantic,
+    SynthConfig,
+    box_overflow,
+    render,
+    synthesize,
+    synthesize_batch,
+    synthesize_scene,
+)
+from ._scene import Boxes, Lights, Openings, Scene, SceneConfig, random_scene
+
 # Geometric solvers (paper Sections 4.1-4.3, 5.3)
 from ._layout_solvers import (
     WallLayout,
@@ -80,38 +117,58 @@ from ._train import TrainConfig, horizonnet_loss, train
 __version__ = "0.1.0"
 
 __all__ = [
+    "AugmentConfig",
     "BoundaryPrediction",
+    "Boxes",
+    "DatasetSample",
     "HorizonNet",
     "HorizonNetConfig",
     "HorizontalLine",
     "Layout",
     "LayoutStatus",
+    "Lights",
+    "Material",
     "NonCentralPanorama",
+    "Openings",
+    "Pattern",
     "PipelineConfig",
+    "RenderConfig",
+    "Rendering",
     "Room",
     "RoomConfig",
     "RoomLabels",
     "RoomStatus",
+    "Scene",
+    "SceneConfig",
+    "Semantic",
+    "SynthConfig",
     "TrainConfig",
     "Wall",
     "WallLayout",
+    "add_sensor_noise",
+    "adjust_exposure",
+    "adjust_gamma",
     "angles_to_pixel",
     "angles_to_ray",
     "boundary_pixel_error",
+    "box_overflow",
     "closest_point_to_origin",
     "closest_points",
     "corner_confusion",
     "corner_scores",
     "count_parameters",
+    "gaussian_blur",
     "horizonnet_loss",
     "horizontal_wall_line",
     "init_model",
     "intersect_coplanar_lines",
     "is_visible",
+    "labels_from_corners",
     "layout_corners",
     "layout_from_boundaries",
     "line_from_point_direction",
     "line_through_points",
+    "list_samples",
     "load_model",
     "metrics",
     "network_table",
@@ -126,14 +183,22 @@ __all__ = [
     "predict_boundaries",
     "project",
     "quarter_turn",
+    "random_augment",
     "random_room",
+    "random_scene",
     "ray_in_wall_frame",
+    "rc_from_name",
+    "read_dataset",
+    "read_sample",
+    "read_split",
+    "render",
     "room_corners_3d",
     "room_labels",
     "room_walls",
     "rotate_line_z",
     "rotation_z",
     "safe_norm",
+    "sample_name",
     "save_model",
     "scaled_null_space",
     "side",
@@ -142,6 +207,12 @@ __all__ = [
     "solve_manhattan_layout",
     "solve_wall",
     "solve_wall_minimal",
+    "synthesize",
+    "synthesize_batch",
+    "synthesize_scene",
+    "to_greyscale",
     "train",
     "translate_line",
+    "white_balance",
+    "write_dataset",
 ]

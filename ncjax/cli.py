@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import math
+import re
 import sys
 
 CONVENTIONS = """\
@@ -26,6 +28,52 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_size(text: str) -> tuple[int, int]:
+    match = re.fullmatch(r"(\d+)x(\d+)", text)
+    if not match:
+        raise ValueError(f"--size must be HxW, e.g. 512x1024, got {text!r}")
+    height, width = int(match.group(1)), int(match.group(2))
+    if height < 4 or width < 8 or width % 2 or height % 2:
+        raise ValueError(f"--size must be even sizes of at least 4x8 (HxW), got {text!r}")
+    return height, width
+
+
+def _parse_rc(text: str) -> tuple[float, float]:
+    parts = text.split(":")
+    try:
+        low, high = (float(parts[0]), float(parts[-1])) if len(parts) in (1, 2) else (None, None)
+    except ValueError:
+        low = high = None
+    if low is None or not (math.isfinite(low) and math.isfinite(high) and 0 <= low <= high):
+        raise ValueError(f"--rc must be MIN:MAX (or one value) in metres with 0 <= MIN <= MAX, got {text!r}")
+    return low, high
+
+
+def _synth(args: argparse.Namespace) -> int:
+    height, width = _parse_size(args.size)
+    rc_range = _parse_rc(args.rc)
+    if args.n < 1:
+        raise ValueError(f"--n must be >= 1, got {args.n}")
+    if args.batch < 1:
+        raise ValueError(f"--batch must be >= 1, got {args.batch}")
+    from tqdm import tqdm
+
+    import ncjax
+    from ncjax._dataset import _check_output_directory, write_dataset
+
+    config = ncjax.SynthConfig(
+        room=ncjax.RoomConfig(world=args.world, rc_range=rc_range),
+        render=ncjax.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
+        width=width,
+        height=height,
+    )
+    _check_output_directory(args.out, args.overwrite)
+    with tqdm(total=args.n, unit="pano", desc=f"ncjax synth {height}x{width}") as bar:
+        names = write_dataset(args.out, args.n, args.seed, config, args.batch, args.overwrite, progress=bar.update)
+    print(f"wrote {len(names)} samples to {args.out} (img, label_cor, 3D_gt, cam_pose, depth, semantic, json, split.json)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ncjax`` console script."""
     from ncjax import __version__
@@ -35,8 +83,27 @@ def main(argv: list[str] | None = None) -> int:
     commands = parser.add_subparsers(dest="command", required=True)
     info = commands.add_parser("info", help="versions, devices and the camera conventions")
     info.set_defaults(run=_info)
+    synth = commands.add_parser(
+        "synth",
+        help="render a synthetic dataset of non-central panoramas (authors' layout plus depth, semantics, json)",
+    )
+    synth.add_argument("--n", type=int, required=True, help="number of panoramas")
+    synth.add_argument("--out", required=True, help="output folder (must be new or empty)")
+    synth.add_argument("--seed", type=int, default=0, help="random seed: same seed, same bytes")
+    synth.add_argument("--world", choices=("manhattan", "atlanta", "mix"), default="mix")
+    synth.add_argument("--size", default="512x1024", help="HxW in pixels (default 512x1024)")
+    synth.add_argument("--rc", default="0.3:1.0", help="range of the radius rc in metres, MIN:MAX (0:0 is central)")
+    synth.add_argument("--supersampling", type=int, default=1, help="odd s: s x s rays per pixel for the RGB image")
+    synth.add_argument("--shadows", action="store_true", help="cast shadows from the furniture")
+    synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")
+    synth.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
+    synth.set_defaults(run=_synth)
     args = parser.parse_args(argv)
-    return args.run(args)
+    try:
+        return args.run(args)
+    except ValueError as error:
+        print(f"ncjax {args.command}: error: {error}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

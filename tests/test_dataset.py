@@ -1,0 +1,145 @@
+"""The dataset files (authors' layout plus ours), the reader, the split and ``ncjax synth``."""
+
+import filecmp
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+import ncjax
+from ncjax import cli
+
+from _synth import CLI_ARGS, HEIGHT, WIDTH
+
+N = 6
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = str(tmp_path_factory.mktemp("synth") / "data")
+    assert cli.main(["synth", "--n", str(N), "--out", out, "--seed", "7"] + CLI_ARGS) == 0
+    return out
+
+
+def test_written_files_are_mutually_consistent(dataset):
+    names = ncjax.list_samples(dataset)
+    assert len(names) == N
+    for name in names:
+        with open(os.path.join(dataset, "json", f"{name}.json")) as file:
+            meta = json.load(file)
+        assert meta["rc"] == pytest.approx(ncjax.rc_from_name(name), abs=1e-6)
+        cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=meta["rc"])
+        points = np.load(os.path.join(dataset, "3D_gt", f"{name}.npy"))
+        pose = np.load(os.path.join(dataset, "cam_pose", f"{name}.npy"))
+        label_cor = np.loadtxt(os.path.join(dataset, "label_cor", f"{name}.txt"), dtype=int, ndmin=2)
+        assert pose.shape == (1, 3) and points.shape[1] == 3 and len(points) == len(label_cor)
+        assert np.all(np.diff(label_cor[:, 0]) >= 0)  # sorted by x
+        assert np.all(label_cor[0::2, 0] == label_cor[1::2, 0])  # ceiling/floor pairs share x
+        n = len(points) // 2
+        # label_cor alternates ceiling and floor; 3D_gt holds the N ceiling corners then the N floor ones.
+        ordered = np.stack([points[:n], points[n:]], 1).reshape(-1, 3)
+        local = ordered - pose
+        # Both ncjax.project and the formulas of DESIGN.md section 2 written out here.
+        numpy_u = (np.pi - np.arctan2(local[:, 1], local[:, 0])) / (2 * np.pi) * WIDTH - 0.5
+        numpy_v = (np.pi / 2 - np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1]) - meta["rc"])) / np.pi * HEIGHT - 0.5
+        for u, v in (ncjax.project(cam, local), (numpy_u, numpy_v)):
+            du = np.abs(np.asarray(u) - label_cor[:, 0])
+            du = np.minimum(du, WIDTH - du)
+            assert np.all(du <= 1.0) and np.all(np.abs(np.asarray(v) - label_cor[:, 1]) <= 1.0)
+        assert np.allclose(points[:n, 2], meta["room_height"], atol=1e-5) and np.allclose(points[n:, 2], 0.0, atol=1e-5)
+        assert pose[0, 2] == pytest.approx(meta["camera_height"], abs=1e-6)
+        assert meta["world"] in ("manhattan", "atlanta") and name.startswith(meta["world"])
+
+
+def test_reader_round_trip(dataset):
+    for sample in ncjax.read_dataset(dataset):
+        assert sample.image.shape == (HEIGHT, WIDTH, 3) and sample.image.dtype == np.uint8
+        assert sample.depth.shape == sample.semantic.shape == (HEIGHT, WIDTH)
+        assert sample.ceiling_v.shape == sample.floor_v.shape == (WIDTH,)
+        assert np.all(sample.ceiling_v < sample.floor_v)
+        # The depth of the ceiling pixels right above the boundary is the distance to the wall-ceiling edge.
+        assert np.all((sample.depth > 0.3) & (sample.depth < 40))
+        assert sample.rc == sample.metadata["rc"]
+        np.testing.assert_allclose(sample.ceiling_corners, np.asarray(sample.metadata["ceiling_corners"]), atol=1e-5)
+
+
+def test_reader_reads_the_authors_layout(dataset, tmp_path):
+    """Without json/depth/semantic (the authors' release) rc comes from the file
+    name and the boundaries are recomputed from 3D_gt; they match ours."""
+    authors = tmp_path / "authors"
+    for folder in ("img", "label_cor", "3D_gt", "cam_pose"):
+        shutil.copytree(os.path.join(dataset, folder), authors / folder)
+    names = ncjax.list_samples(str(authors))
+    assert names == ncjax.list_samples(dataset)
+    for name in names:
+        ours, theirs = ncjax.read_sample(dataset, name), ncjax.read_sample(str(authors), name)
+        assert theirs.metadata is None and theirs.depth is None and theirs.rc == pytest.approx(ours.rc, abs=1e-9)
+        np.testing.assert_array_equal(theirs.image, ours.image)
+        for mine, recomputed in ((ours.ceiling_v, theirs.ceiling_v), (ours.floor_v, theirs.floor_v)):
+            assert np.mean(np.abs(mine - recomputed) < 1e-2) >= 0.99
+    # A name without _R<rc> needs an explicit rc.
+    renamed = authors / "img" / "room.png"
+    os.rename(authors / "img" / f"{names[0]}.png", renamed)
+    for folder, ext in (("label_cor", ".txt"), ("3D_gt", ".npy"), ("cam_pose", ".npy")):
+        os.rename(authors / folder / f"{names[0]}{ext}", authors / folder / f"room{ext}")
+    with pytest.raises(ValueError, match="rc"):
+        ncjax.read_sample(str(authors), "room")
+    assert ncjax.read_sample(str(authors), "room", rc=0.5).rc == 0.5
+
+
+def test_split_never_shares_a_layout(dataset):
+    split = ncjax.read_split(dataset)
+    assert set(split) == {"train", "valid", "test"}
+    everything = [name for names in split.values() for name in names]
+    assert sorted(everything) == ncjax.list_samples(dataset) and len(set(everything)) == len(everything)
+    layouts = {}
+    for part, names in split.items():
+        for name in names:
+            layout = tuple(np.round(np.load(os.path.join(dataset, "3D_gt", f"{name}.npy")), 3).ravel())
+            assert layouts.setdefault(layout, part) == part
+
+
+def test_same_seed_same_bytes(dataset, tmp_path):
+    again = str(tmp_path / "again")
+    assert cli.main(["synth", "--n", str(N), "--out", again, "--seed", "7"] + CLI_ARGS) == 0
+    for folder in ("img", "label_cor", "3D_gt", "cam_pose", "depth", "semantic", "json"):
+        files = sorted(os.listdir(os.path.join(dataset, folder)))
+        assert files == sorted(os.listdir(os.path.join(again, folder)))
+        _, mismatch, errors = filecmp.cmpfiles(os.path.join(dataset, folder), os.path.join(again, folder), files, shallow=False)
+        assert not mismatch and not errors
+    assert filecmp.cmp(os.path.join(dataset, "split.json"), os.path.join(again, "split.json"), shallow=False)
+    assert not any(name.startswith(".") for name in os.listdir(os.path.join(again, "img")))  # no temporary files left
+
+
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["--n", "0"], "--n"),
+        (["--size", "64x127"], "--size"),
+        (["--size", "big"], "--size"),
+        (["--rc", "1.0:0.5"], "--rc"),
+        (["--rc=-1:0"], "--rc"),
+        (["--supersampling", "2"], "odd"),
+    ],
+)
+def test_bad_arguments_give_clear_errors_and_write_nothing(tmp_path, capsys, arguments, message):
+    out = tmp_path / "never"
+    base = ["synth", "--n", "2", "--out", str(out)]
+    assert cli.main(base + arguments) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_non_empty_output_folder_is_refused(tmp_path, capsys):
+    (tmp_path / "precious.txt").write_text("keep")
+    assert cli.main(["synth", "--n", "1", "--out", str(tmp_path)]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert os.listdir(tmp_path) == ["precious.txt"]
+
+
+def test_unknown_world_is_an_argparse_error(tmp_path):
+    with pytest.raises(SystemExit) as excinfo:
+        cli.main(["synth", "--n", "1", "--out", str(tmp_path / "x"), "--world", "paris"])
+    assert excinfo.value.code == 2
