@@ -168,9 +168,16 @@ def adjust_layout(
 
         y0 = (yaw, distances * jnp.where(aligned == 0, 1.0, aligned), jnp.stack([ceiling_height, floor_height]))
 
+    absent = ~observations.wall_mask
+
     def residuals(y, args):
         u, d, h = unpack(y)
-        return layout_residuals(u, d, h[0], h[1], cam, observations, corner_weight)
+        # pin the parameters of empty slots so that the Jacobian has full column rank
+        # (the implicit adjoint solves with it); zero at the solution, so the fit is unchanged
+        pins = [jnp.where(absent, d - y0[1], 0.0)]
+        if labels is None:
+            pins.append(jnp.where(absent, y[0] - y0[0], 0.0))
+        return jnp.concatenate([layout_residuals(u, d, h[0], h[1], cam, observations, corner_weight), *pins])
 
     def cost(y):
         r = residuals(y, None)
