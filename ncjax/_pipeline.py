@@ -43,6 +43,7 @@ from ._adjust import (
     layout_residuals,
     loop_corners,
     manhattan_directions,
+    previous_walls,
     manhattan_yaw,
 )
 from ._camera import NonCentralPanorama, pixel_to_angles, pixel_to_ray
@@ -267,8 +268,7 @@ def _gather_evidence(
     weights = jnp.where(walls.ok & corner_mask, jnp.sum(ceiling_inliers, 1) + jnp.sum(floor_inliers, 1), 0)
     inliers = ceiling_inliers | floor_inliers
 
-    count = jnp.maximum(jnp.sum(corner_mask), 1)
-    previous = (jnp.arange(capacity) - 1) % count
+    previous = previous_walls(corner_mask)
 
     # the boundary jump at each corner, from lines fitted to the rows on either side
     margin = _scaled(config.corner_margin, width, 1024)
@@ -320,8 +320,19 @@ def _gather_evidence(
 
 
 def _previous(evidence: WallEvidence) -> Int[Array, " K"]:
-    count = jnp.maximum(jnp.sum(evidence.corner_mask), 1)
-    return (jnp.arange(evidence.corner_mask.shape[0]) - 1) % count
+    return previous_walls(evidence.corner_mask)
+
+
+def wall_groups(corner_mask: Bool[Array, " K"], merge: Bool[Array, " K"]) -> tuple[Int[Array, " K"], Int[Array, ""]]:
+    """Group of each RANSAC wall after merging, and the number of groups.
+
+    A corner that is not merged starts a group; walls before the first start
+    belong to the last group (the loop wraps).
+    """
+    starts = corner_mask & ~merge
+    num_groups = jnp.sum(starts)
+    group = jnp.cumsum(starts) - 1
+    return jnp.where(group < 0, num_groups - 1, group), num_groups
 
 
 def manhattan_frame(
@@ -378,9 +389,7 @@ def _final_walls(
     """
     capacity = evidence.corner_mask.shape[0]
     starts = evidence.corner_mask & ~merge
-    num_groups = jnp.sum(starts)
-    group_of_wall = jnp.cumsum(starts) - 1
-    group_of_wall = jnp.where(group_of_wall < 0, num_groups - 1, group_of_wall)
+    group_of_wall, num_groups = wall_groups(evidence.corner_mask, merge)
     start_corner = jnp.zeros(capacity, jnp.int32).at[jnp.where(starts, group_of_wall, capacity)].set(
         jnp.arange(capacity, dtype=jnp.int32), mode="drop"
     )
@@ -428,9 +437,7 @@ def _final_walls(
 def _group_directions(evidence: WallEvidence, merge: Bool[Array, " K"], final: FinalWalls) -> Float[Array, "K 2"]:
     """Per final wall, the inlier-weighted mean direction of its merged RANSAC walls."""
     capacity = merge.shape[0]
-    starts = evidence.corner_mask & ~merge
-    group_of_wall = jnp.cumsum(starts) - 1
-    group_of_wall = jnp.where(group_of_wall < 0, jnp.sum(starts) - 1, group_of_wall)
+    group_of_wall, _ = wall_groups(evidence.corner_mask, merge)
     group_of_wall = jnp.where(evidence.corner_mask, group_of_wall, capacity)
     # canonical signs (camera on the left) agree for walls of one plane
     summed = jax.ops.segment_sum(evidence.weights[:, None] * evidence.walls.direction, group_of_wall, capacity + 1)
