@@ -304,6 +304,9 @@ def read_split(directory: str) -> dict[str, list[str]]:
         return json.load(file)
 
 
+_room_labels = jax.jit(room_labels, static_argnames="corner_capacity")
+
+
 def labels_from_corners(
     ceiling_corners: np.ndarray, floor_corners: np.ndarray, cam: NonCentralPanorama, capacity: int = 32
 ) -> RoomLabels:
@@ -330,7 +333,7 @@ def labels_from_corners(
         is_atlanta=jnp.array(False),
         status=jnp.array(RoomStatus.OK, jnp.int32),
     )
-    return room_labels(room, cam)
+    return _room_labels(room, cam)
 
 
 def read_sample(directory: str, name: str, rc: float | None = None) -> DatasetSample:

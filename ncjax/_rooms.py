@@ -23,7 +23,7 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 from ._plucker import cross_2d as _cross2
@@ -502,6 +502,21 @@ def room_corners_3d(room: Room) -> tuple[Float[Array, "K 3"], Float[Array, "K 3"
     return points[0], points[1]
 
 
+def corner_target(
+    corner_u: Float[ArrayLike, " C"], corner_mask: Bool[ArrayLike, " C"], width: int
+) -> Float[Array, " {width}"]:
+    """HorizonNet's corner target ``0.96**d`` per column, d the wrap-around column distance to the nearest corner.
+
+    Zero everywhere when no corner is given.
+    """
+    corner_u = jnp.asarray(corner_u)
+    columns = jnp.arange(width, dtype=corner_u.dtype)
+    distance = jnp.abs(columns[:, None] - corner_u[None, :]) % width
+    distance = jnp.minimum(distance, width - distance)
+    nearest = jnp.min(jnp.where(jnp.asarray(corner_mask)[None, :], distance, jnp.inf), axis=1)
+    return jnp.where(jnp.isfinite(nearest), 0.96**nearest, 0.0)
+
+
 def room_labels(room: Room, cam: NonCentralPanorama, corner_capacity: int | None = None) -> RoomLabels:
     """Exact per-column labels of ``room`` seen by ``cam`` (``cam.rc`` is used).
 
@@ -551,9 +566,6 @@ def room_labels(room: Room, cam: NonCentralPanorama, corner_capacity: int | None
     order = jnp.argsort(sort_key, stable=True)[:capacity]
     columns_of = jnp.concatenate([corner_u, corner_u])[order]
     corner_mask = valid[order]
-    distance_to_corner = jnp.abs(columns[:, None] - columns_of[None, :])
-    distance_to_corner = jnp.minimum(distance_to_corner, cam.width - distance_to_corner)
-    nearest = jnp.min(jnp.where(corner_mask[None, :], distance_to_corner, jnp.inf), axis=1)
     ok = room.ok & jnp.all(seen) & (jnp.sum(valid) <= capacity) & jnp.any(corner_mask)
     return RoomLabels(
         ceiling_v=ceiling_v,
@@ -566,6 +578,6 @@ def room_labels(room: Room, cam: NonCentralPanorama, corner_capacity: int | None
         corner_is_occlusion=jnp.concatenate([occluding, occluding])[order] & corner_mask,
         ceiling_corners=jnp.where(corner_mask[:, None], at_height(points_2d[order], room.ceiling_height), 0.0),
         floor_corners=jnp.where(corner_mask[:, None], at_height(points_2d[order], room.floor_height), 0.0),
-        corner_target=jnp.where(jnp.isfinite(nearest), 0.96**nearest, 0.0),
+        corner_target=corner_target(columns_of, corner_mask, cam.width),
         ok=ok,
     )

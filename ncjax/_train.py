@@ -27,6 +27,7 @@ import argparse
 import dataclasses
 import functools
 import json
+import os
 import pathlib
 import time
 from collections.abc import Callable, Iterator
@@ -34,13 +35,24 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import cv2
 import numpy as np
 import optax
 from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
 
 from ._checkpoint import load_checkpoint, save_checkpoint
-from ._network import BoundaryPrediction, HorizonNet, HorizonNetConfig, init_model, row_to_elevation
+from ._camera import NonCentralPanorama
+from ._dataset import DatasetSample, labels_from_corners, list_samples, read_sample, read_split
+from ._network import (
+    BoundaryPrediction,
+    HorizonNet,
+    HorizonNetConfig,
+    init_model,
+    prediction_to_rows,
+    row_to_elevation,
+)
+from ._network_metrics import network_table
 
 CORNER_BASE = 0.96
 
@@ -414,29 +426,139 @@ def painted_batches(seed: int, batch_size: int, height: int, width: int) -> Call
     return from_step
 
 
+# ----------------------------------------------------------------------------- dataset folders
+
+
+def sample_arrays(sample: DatasetSample, height: int, width: int) -> dict[str, np.ndarray]:
+    """One dataset sample at the network's input size: uint8 image and exact labels in its pixels.
+
+    The image is shrunk with pixel-area averaging (``cv2.INTER_AREA``); the
+    labels (boundary rows and the ``0.96**d`` corner target) are recomputed
+    exactly for a camera of that size from the sample's 3D corners
+    (:func:`~ncjax._dataset.labels_from_corners`), so no interpolation blurs
+    the occlusion jumps.
+    """
+    image = cv2.resize(sample.image, (width, height), interpolation=cv2.INTER_AREA)
+    camera = NonCentralPanorama(width, height, rc=sample.rc)
+    labels = labels_from_corners(sample.ceiling_corners, sample.floor_corners, camera)
+    return {
+        "image": image,
+        "ceiling_v": np.asarray(labels.ceiling_v, np.float32),
+        "floor_v": np.asarray(labels.floor_v, np.float32),
+        "corner_target": np.asarray(labels.corner_target, np.float32),
+    }
+
+
+def load_split(
+    directory: str, split: str, height: int, width: int, limit: int | None = None, progress: bool = True
+) -> dict[str, np.ndarray]:
+    """Stack the samples of one split of a dataset folder (``split.json``) with :func:`sample_arrays`.
+
+    Folders without ``split.json`` (e.g. the authors') are used whole for any split.
+
+    Raises:
+        ValueError: not a dataset folder, an unknown split, or an empty one.
+    """
+    from tqdm.auto import tqdm
+
+    names = list_samples(directory)
+    if os.path.exists(os.path.join(directory, "split.json")):
+        splits = read_split(directory)
+        if split not in splits:
+            raise ValueError(f"{directory}: split {split!r} not in split.json (has {', '.join(splits)})")
+        kept = set(splits[split])
+        names = [name for name in names if name in kept]
+    names = names[:limit] if limit else names
+    if not names:
+        raise ValueError(f"{directory}: no complete samples in split {split!r}")
+    arrays = [
+        sample_arrays(read_sample(directory, name), height, width)
+        for name in tqdm(names, desc=f"load {split}", disable=not progress)
+    ]
+    return {key: np.stack([a[key] for a in arrays]) for key in arrays[0]}
+
+
+def folder_batches(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Callable[[int], Iterator[dict]]:
+    """``start_step -> iterator`` of batches drawn from :func:`load_split` arrays.
+
+    Batch ``i`` holds distinct samples chosen by a generator seeded with
+    ``(seed, i)``, so a resumed run sees the same batches.
+    """
+    count = len(arrays["image"])
+    if batch_size > count:
+        raise ValueError(f"batch size {batch_size} exceeds the {count} samples")
+
+    def from_step(start: int) -> Iterator[dict]:
+        step = start
+        while True:
+            chosen = np.random.default_rng((seed, step)).choice(count, batch_size, replace=False)
+            batch = {key: value[chosen] for key, value in arrays.items()}
+            yield {**batch, "image": batch["image"].astype(np.float32) / 255.0}
+            step += 1
+
+    return from_step
+
+
+def evaluate_arrays(model: HorizonNet, arrays: dict[str, np.ndarray], batch_size: int = 8) -> dict[str, float]:
+    """Table netcorExp's row (:func:`~ncjax.network_table`) of a model on :func:`load_split` arrays."""
+    model.eval()
+    count, height, width = arrays["image"].shape[:3]
+    outputs = []
+    for start in range(0, count, batch_size):
+        images = arrays["image"][start : start + batch_size]
+        padded = np.concatenate([images, np.repeat(images[-1:], batch_size - len(images), 0)])
+        prediction = _forward(model, jnp.asarray(padded, jnp.float32) / 255.0)
+        rows = prediction_to_rows(prediction, height, width)
+        outputs.append([np.asarray(r)[: len(images)] for r in rows])
+    ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*outputs))
+    table = network_table(
+        ceiling_v, floor_v, corner_prob, arrays["ceiling_v"], arrays["floor_v"], arrays["corner_target"]
+    )
+    return {key: float(value) for key, value in table.items()}
+
+
+@nnx.jit
+def _forward(model: HorizonNet, images: Float[Array, "B H W 3"]) -> BoundaryPrediction:
+    return model(images)
+
+
 # ----------------------------------------------------------------------------- command line
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``ncjax train``: train a preset on the painted stand-in data (rendered data comes with the renderer)."""
-    parser = argparse.ArgumentParser(prog="ncjax train", description="Train Non-central HorizonNet.")
+def add_train_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``ncjax train``."""
+    parser.add_argument("--data", default="painted", help="a dataset folder (ncjax synth or the authors'), or 'painted'")
     parser.add_argument("--preset", default="compact", help="paper, resnet18 or compact")
-    parser.add_argument("--data", default="painted", choices=["painted"], help="data source")
-    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--steps", type=int, default=1000, help="total optimisation steps (a resumed run does the rest)")
     parser.add_argument("--batch-size", type=int, default=4)
     parser.add_argument("--checkpoint-dir", default="checkpoints/horizonnet")
     parser.add_argument("--checkpoint-every", type=int, default=250)
+    parser.add_argument("--validate-every", type=int, default=500, help="steps between validations (0: only at the end)")
+    parser.add_argument("--validation-limit", type=int, default=64, help="validation images (the 'valid' split)")
     parser.add_argument("--learning-rate", type=float, default=TrainConfig.peak_learning_rate)
     parser.add_argument("--warmup-steps", type=int, default=TrainConfig.warmup_steps)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--no-resume", action="store_true")
+    parser.add_argument("--no-resume", action="store_true", help="start afresh even if checkpoints exist")
+    parser.add_argument("--history", help="write the loss and validation history to this json file")
     parser.add_argument("--export", help="also save the final weights (model only) to this .safetensors file")
-    args = parser.parse_args(argv)
+
+
+def run_train(args: argparse.Namespace) -> int:
+    """``ncjax train``: train (or resume) a preset on a dataset folder or the painted stand-in data."""
+    if args.steps < 1 or args.batch_size < 1:
+        raise ValueError(f"--steps and --batch-size must be positive, got {args.steps} and {args.batch_size}")
     config = HorizonNetConfig.preset(args.preset)
+    height, width = config.input_height, config.input_width
     train_config = TrainConfig(
         peak_learning_rate=args.learning_rate, warmup_steps=args.warmup_steps, total_steps=args.steps
     )
-    data = painted_batches(args.seed, args.batch_size, config.input_height, config.input_width)
+    validate = None
+    if args.data == "painted":
+        data = painted_batches(args.seed, args.batch_size, height, width)
+    else:
+        data = folder_batches(load_split(args.data, "train", height, width), args.batch_size, args.seed)
+        valid = load_split(args.data, "valid", height, width, limit=args.validation_limit)
+        validate = lambda model, step: evaluate_arrays(model, valid)  # noqa: E731
     result = train(
         config,
         data,
@@ -444,13 +566,31 @@ def main(argv: list[str] | None = None) -> int:
         args.checkpoint_dir,
         train_config=train_config,
         checkpoint_every=args.checkpoint_every,
+        validate=validate,
+        validate_every=args.validate_every,
         seed=args.seed,
         resume=not args.no_resume,
     )
-    if result.history:
-        print(f"step {result.step}: loss {np.mean([h['loss'] for h in result.history[-20:] if 'loss' in h]):.4f}")
+    losses = [h["loss"] for h in result.history if "loss" in h]
+    if losses:
+        print(f"step {result.step}: mean loss of the last 20 steps {np.mean(losses[-20:]):.4f}")
+    for record in (h for h in result.history if "val_pe_mean" in h):
+        print(
+            f"step {record['step']}: valid PE {record['val_pe_mean']:.2f} px, corner precision "
+            f"{record['val_precision']:.3f}, recall {record['val_recall']:.3f}"
+        )
+    if args.history:
+        pathlib.Path(args.history).write_text(json.dumps(result.history) + "\n")
     if args.export:
         from ._checkpoint import save_model
 
         save_model(result.model, args.export)
+        print(f"saved the model to {args.export}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone ``ncjax train`` (same as the console script's sub-command)."""
+    parser = argparse.ArgumentParser(prog="ncjax train", description="Train Non-central HorizonNet.")
+    add_train_arguments(parser)
+    return run_train(parser.parse_args(argv))

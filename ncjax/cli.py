@@ -74,6 +74,35 @@ def _synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train(args: argparse.Namespace) -> int:
+    from ncjax._train import run_train
+
+    return run_train(args)
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    import json
+
+    from ncjax._checkpoint import load_model
+    from ncjax._predict import DEFAULT_MODEL_PATH, default_model
+    from ncjax._train import evaluate_arrays, load_split
+
+    model = load_model(args.model) if args.model else default_model()
+    config = model.config
+    arrays = load_split(args.data, args.split, config.input_height, config.input_width, limit=args.limit)
+    row = evaluate_arrays(model, arrays)
+    print(f"model {args.model or DEFAULT_MODEL_PATH}, {len(arrays['image'])} images of {args.data} ({args.split})")
+    print(f"PE {row['pe_mean']:.3f} +- {row['pe_std']:.3f} px (1024-wide)")
+    print(
+        f"corners: precision {row['precision']:.3f}, recall {row['recall']:.3f}, "
+        f"accuracy {row['accuracy']:.3f}, IoU {row['iou']:.3f}"
+    )
+    if args.json:
+        with open(args.json, "w") as file:
+            json.dump({"images": len(arrays["image"]), "data": args.data, "split": args.split, **row}, file, indent=1)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ncjax`` console script."""
     from ncjax import __version__
@@ -98,10 +127,22 @@ def main(argv: list[str] | None = None) -> int:
     synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")
     synth.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
     synth.set_defaults(run=_synth)
+    from ncjax._train import add_train_arguments
+
+    train = commands.add_parser("train", help="train Non-central HorizonNet (checkpoints, resume, validation)")
+    add_train_arguments(train)
+    train.set_defaults(run=_train)
+    evaluate = commands.add_parser("evaluate", help="Table netcorExp of a model on a dataset split")
+    evaluate.add_argument("--data", required=True, help="dataset folder (ncjax synth or the authors')")
+    evaluate.add_argument("--split", default="test", help="split of split.json (default test)")
+    evaluate.add_argument("--model", help=".safetensors weights (default: the shipped model)")
+    evaluate.add_argument("--limit", type=int, help="evaluate the first N images only")
+    evaluate.add_argument("--json", help="also write the row to this json file")
+    evaluate.set_defaults(run=_evaluate)
     args = parser.parse_args(argv)
     try:
         return args.run(args)
-    except ValueError as error:
+    except (ValueError, FileNotFoundError) as error:
         print(f"ncjax {args.command}: error: {error}", file=sys.stderr)
         return 2
 

@@ -143,3 +143,67 @@ def test_unknown_world_is_an_argparse_error(tmp_path):
     with pytest.raises(SystemExit) as excinfo:
         cli.main(["synth", "--n", "1", "--out", str(tmp_path / "x"), "--world", "paris"])
     assert excinfo.value.code == 2
+
+
+# ----------------------------------------------------------------------------- training data from a folder
+
+
+def test_folder_samples_at_the_network_size_keep_exact_labels(dataset):
+    from ncjax._train import load_split
+
+    for split, members in list_split_names(dataset).items():
+        if not members:
+            continue
+        same = load_split(dataset, split, HEIGHT, WIDTH, progress=False)
+        half = load_split(dataset, split, HEIGHT // 2, WIDTH // 2, progress=False)
+        assert half["image"].shape == (len(members), HEIGHT // 2, WIDTH // 2, 3) and half["image"].dtype == np.uint8
+        for index, name in enumerate(sorted(members)):
+            sample = ncjax.read_sample(dataset, name)
+            # Same size: the renderer's own labels (json), computed from the true room.
+            np.testing.assert_allclose(same["ceiling_v"][index], sample.ceiling_v, atol=2e-3)
+            np.testing.assert_allclose(same["floor_v"][index], sample.floor_v, atol=2e-3)
+            np.testing.assert_allclose(same["image"][index], sample.image)
+            peaks = np.flatnonzero(same["corner_target"][index] == 1.0)
+            assert set(peaks) <= set(np.round(sample.metadata["corner_u"]).astype(int))
+            # Half size: the pixel-centre map of the rows, away from occlusion jumps.
+            for key in ("ceiling_v", "floor_v"):
+                pairs = sample.__getattribute__(key).reshape(-1, 2)
+                smooth = np.abs(pairs[:, 1] - pairs[:, 0]) < 0.5
+                expected = (pairs.mean(axis=1) + 0.5) / 2 - 0.5
+                # Averaging two columns across a corner's kink differs from the centre value by < 0.2 px.
+                np.testing.assert_allclose(half[key][index][smooth], expected[smooth], atol=0.2)
+                assert np.mean(np.abs(half[key][index][smooth] - expected[smooth])) < 0.01
+
+
+def list_split_names(directory):
+    with open(os.path.join(directory, "split.json")) as file:
+        return json.load(file)
+
+
+def test_folder_batches_are_reproducible_and_resumable(dataset):
+    from ncjax._train import folder_batches, load_split
+
+    arrays = load_split(dataset, "train", HEIGHT, WIDTH, progress=False)
+    batches = folder_batches(arrays, 2, seed=3)
+    from_start, resumed = batches(0), batches(2)
+    first_three = [next(from_start) for _ in range(3)]
+    np.testing.assert_array_equal(first_three[2]["image"], next(resumed)["image"])
+    assert first_three[0]["image"].dtype == np.float32 and first_three[0]["image"].max() <= 1.0
+    with pytest.raises(ValueError, match="exceeds"):
+        folder_batches(arrays, len(arrays["image"]) + 1, seed=0)
+    with pytest.raises(ValueError, match="split"):
+        load_split(dataset, "holdout", HEIGHT, WIDTH, progress=False)
+
+
+def test_evaluate_command_prints_the_network_table(dataset, tmp_path, capsys):
+    config = ncjax.HorizonNetConfig(depth=10, width=8, input_height=32, input_width=64, lstm_hidden=8, lstm_layers=1)
+    path = str(tmp_path / "tiny.safetensors")
+    ncjax.save_model(ncjax.init_model(config, seed=0), path)
+    out = str(tmp_path / "row.json")
+    assert cli.main(["evaluate", "--data", dataset, "--split", "train", "--model", path, "--json", out]) == 0
+    printed = capsys.readouterr().out
+    assert "PE" in printed and "precision" in printed
+    with open(out) as file:
+        row = json.load(file)
+    assert row["images"] == len(list_split_names(dataset)["train"]) and np.isfinite(row["pe_mean"])
+    assert cli.main(["evaluate", "--data", str(tmp_path / "missing"), "--model", path]) == 2
