@@ -71,22 +71,29 @@ def null_space(a: Float[Array, "rows cols"], k: int) -> Float[Array, "cols k"]:
     return _canonical_sign(vectors[:, :k])
 
 
+def _kept_tangent(eig: Array, vectors: Array, dm: Array, k: int) -> Array:
+    """First-order change of the eigenvectors of the ``k`` smallest eigenvalues of ``M``.
+
+    ``dv_k = sum_j v_j (v_j^T dM v_k) / (e_k - e_j)`` over the OTHER
+    eigenvectors ``j`` only (rotation within the kept span is gauge).
+    Exactly equal eigenvalues across the split would make the span
+    ill-defined; they get a zero (not NaN) derivative (double where).
+    """
+    kept, others = vectors[:, :k], vectors[:, k:]
+    gap = eig[:k][None, :] - eig[k:][:, None]  # (cols - k, k), <= 0
+    tiny = jnp.finfo(dm.dtype).eps * jnp.maximum(jnp.max(jnp.abs(eig)), jnp.finfo(dm.dtype).tiny)
+    separated = jnp.abs(gap) > tiny
+    inverse_gap = jnp.where(separated, 1.0 / jnp.where(separated, gap, 1.0), 0.0)
+    return others @ ((others.T @ dm @ kept) * inverse_gap)
+
+
 @null_space.defjvp
 def _null_space_jvp(k: int, primals: tuple[Array], tangents: tuple[Array]) -> tuple[Array, Array]:
     (a,), (da,) = primals, tangents
     s, vectors = _sorted_svd(a)
     kept = _canonical_sign(vectors[:, :k])
-    others = vectors[:, k:]
-    eig = s * s
-    gap = eig[:k][None, :] - eig[k:][:, None]  # (cols - k, k), <= 0
-    # Exactly equal eigenvalues across the split would make the null space
-    # ill-defined; give a zero (not NaN) derivative there (double where).
-    tiny = jnp.finfo(a.dtype).eps * jnp.maximum(eig[-1], jnp.finfo(a.dtype).tiny)
-    separated = jnp.abs(gap) > tiny
-    inverse_gap = jnp.where(separated, 1.0 / jnp.where(separated, gap, 1.0), 0.0)
-    dm = da.T @ a + a.T @ da
-    coefficients = (others.T @ dm @ kept) * inverse_gap
-    return kept, others @ coefficients
+    vectors = jnp.concatenate([kept, vectors[:, k:]], 1)
+    return kept, _kept_tangent(s * s, vectors, da.T @ a + a.T @ da, k)
 
 
 def equilibrate(a: Float[Array, "rows cols"]) -> tuple[Float[Array, "rows cols"], Float[Array, " cols"]]:
