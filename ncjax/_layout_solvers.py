@@ -4,9 +4,12 @@
 Inputs are per image column: the ceiling and floor Plücker rays (W, 6), the
 index of the wall the column sees (W,) int (-1: none), and per wall (fixed
 capacity K, DESIGN.md section 4) a mask plus either a Manhattan label or a
-known direction. Masked-out walls get a pinning row ``d_k = 0`` so that the
-null space stays the one of the present walls; a wall in the mask that no
-column sees makes ``ok`` False.
+known direction. The default ("refined") solvers share
+:mod:`ncjax._wall_fit` with the single-wall solver (linear solve with the
+distances eliminated, then the maximum-likelihood fit); the paper's literal
+matrices (``method="paper"``) get a pinning row ``d_k = 0`` per masked-out
+wall so that the null space stays the one of the present walls. A wall in the
+mask that no column sees makes ``ok`` False.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._linalg import scaled_null_space
-from ._plucker import horizontal_wall_line, intersect_coplanar_lines, safe_norm
+from ._plucker import cross_2d, horizontal_wall_line, intersect_coplanar_lines, safe_norm
 from ._wall import (
     canonical_orientation,
     check_method,
@@ -249,21 +252,35 @@ def solve_atlanta_layout(
     return _make_layout(units, jnp.where(present, vector[3:], 0.0), h_c, h_f, present, ok)
 
 
-def layout_corners(lines: Float[Array, "K 6"], mask: Bool[Array, " K"]) -> Float[Array, "K 3"]:
+def layout_corners(
+    lines: Float[Array, "K 6"], mask: Bool[Array, " K"], return_valid: bool = False
+) -> Float[Array, "K 3"] | tuple[Float[Array, "K 3"], Bool[Array, " K"]]:
     """Corner ``k`` = start of wall ``k`` = meeting point with the previous present wall.
 
     "Previous" is cyclic over the present walls in index order (for a
     counter-clockwise room with walls in order, corner ``k`` is ``P_k``).
-    Uses :func:`ncjax.intersect_coplanar_lines`; masked corners are zero.
+    Uses :func:`ncjax.intersect_coplanar_lines`. Two consecutive walls that
+    are parallel (within ``sqrt(eps)`` radians; also a wall alone) have no
+    corner: it is zero and invalid, never inf or NaN. Masked corners are
+    zero and invalid.
 
     Args:
         lines: ceiling (or floor) lines of the walls, in order.
         mask: which walls are present.
+        return_valid: static; also return which corners are valid.
+
+    Returns:
+        The corners (K, 3), and with ``return_valid`` the validity mask (K,).
     """
     capacity = mask.shape[0]
     index = jnp.arange(capacity)
     # steps back from k to j, in 1..K (j = k itself counts K: the last resort)
     steps = (index[:, None] - index[None, :] - 1) % capacity + 1
-    previous = jnp.argmin(jnp.where(mask[None, :], steps, 2 * capacity), axis=1)
-    corners = intersect_coplanar_lines(lines[previous], lines)
-    return jnp.where(mask[:, None], corners, 0.0)
+    previous = lines[jnp.argmin(jnp.where(mask[None, :], steps, 2 * capacity), axis=1)]
+    sine = cross_2d(previous[:, :2], lines[:, :2]) / jnp.maximum(safe_norm(previous[:, :2]) * safe_norm(lines[:, :2]), jnp.finfo(lines.dtype).tiny)
+    valid = mask & (jnp.abs(sine) > jnp.sqrt(jnp.finfo(lines.dtype).eps))
+    # parallel pairs get a harmless perpendicular stand-in (double where: finite values and gradients)
+    stand_in = jnp.concatenate([jnp.stack([-lines[:, 1], lines[:, 0], lines[:, 2]], -1), jnp.zeros_like(lines[:, 3:])], -1)
+    corners = intersect_coplanar_lines(jnp.where(valid[:, None], previous, stand_in), lines)
+    corners = jnp.where(valid[:, None], corners, 0.0)
+    return (corners, valid) if return_valid else corners

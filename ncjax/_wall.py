@@ -270,24 +270,28 @@ def solve_wall(
     floor_rays: Float[Array, "m 6"],
     ceiling_mask: Bool[Array, " n"],
     floor_mask: Bool[Array, " m"],
-    method: str = "refined",
+    method: str = "paper",
 ) -> Wall:
     """One vertical wall from the projecting rays of its ceiling and floor lines (Section 4.1).
 
     Builds ``A W = 0`` from eqs. manx and many, ``W = (u, v, w, d)``. Methods:
 
-    - ``"refined"`` (default): the least-squares null vector (equilibrated,
+    - ``"paper"`` (default): the paper's two smallest singular vectors of the
+      equilibrated ``A`` and the parallelism quadratics quad_v / quad_w
+      (:func:`constrained_null_vector`).
+    - ``"refined"``: the least-squares null vector (distance eliminated,
       :func:`ncjax._wall_fit.linear_walls`) gives the yaw of ``u``, ``h_c``,
       ``h_f`` and ``d``; Gauss-Newton on the angular (row) residuals then
-      fits the exact 4-dof wall (:func:`ncjax._wall_fit.refine_walls`): the
+      fits the exact 4-dof wall (:func:`ncjax._wall_fit.refine_walls`), the
       maximum-likelihood wall under row noise.
-    - ``"paper"``: the paper's two smallest singular vectors and the
-      parallelism quadratics quad_v / quad_w (:func:`constrained_null_vector`).
     - ``"null_vector"``: the unconstrained least-squares null vector ``W0``
       (the ablation of Section 5.3).
 
-    All three are exact on exact rays; under noise "refined" is several
-    times more accurate (experiments/RESULTS.md).
+    All three are exact on exact rays. For ONE wall under noise the scale is
+    only weakly observable (through ``rc``) and the maximum-likelihood fit
+    has a heavier tail than the paper's constrained solution, which is the
+    best of the three there (experiments/RESULTS.md); for layouts the shared
+    heights make "refined" by far the best, see :func:`ncjax.solve_manhattan_layout`.
 
     Args:
         ceiling_rays: Plücker rays of the ceiling boundary (fixed capacity).

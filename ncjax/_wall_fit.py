@@ -14,7 +14,7 @@ stages they share.
    with 3 or 6 columns instead of 3 + K or 6 + K).
 
 2. :func:`refine_walls` -- Gauss-Newton on the ANGULAR residuals
-   (:func:`wall_residuals`): the elevation of the observed boundary ray minus
+   (:func:`angular_residual`): the elevation of the observed boundary ray minus
    the elevation at which the wall model predicts it, in the ray's own
    column. With Gaussian noise on the boundary rows (the network's output,
    and the paper's noise model in Section 5.3) this least squares is the

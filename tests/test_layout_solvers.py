@@ -19,7 +19,7 @@ from test_wall import (
 
 import ncjax
 
-N_ROOMS = 100  # per world
+N_ROOMS = 40  # per world (experiments/solver_accuracy.py checks 1000)
 
 
 def _manhattan(room):
@@ -156,3 +156,19 @@ def test_layout_gradients(x64):
     for solver in (_manhattan_from, _atlanta_from):
         rows = jnp.stack([room["ceiling_v"], room["floor_v"]])
         check_gradients(_layout_outputs(room, solver), rows)
+
+
+def test_layout_corners_of_parallel_walls_are_invalid_not_nan():
+    """Consecutive parallel walls (and a lone wall) have no corner: zero, flagged invalid, finite gradients."""
+    directions = jnp.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [1.0, 0.0]])
+    distances = jnp.array([-1.0, -2.0, -1.5, -1.0, -1.0])
+    lines = ncjax.horizontal_wall_line(directions, distances, jnp.full(5, 1.2))
+    mask = jnp.array([True, True, True, True, False])
+    corners, valid = ncjax.layout_corners(lines, mask, return_valid=True)
+    np.testing.assert_array_equal(valid, [False, False, True, True, False])  # 3 -> 0 and 0 -> 1 are parallel
+    np.testing.assert_allclose(corners[2], [1.5, -2.0, 1.2], atol=1e-6)  # wall 1 (y = -2) meets wall 2 (x = 1.5)
+    assert bool(jnp.all(corners[~valid] == 0))
+    grad = jax.grad(lambda x: jnp.sum(ncjax.layout_corners(x, mask)))(lines)
+    assert bool(jnp.all(jnp.isfinite(grad)))
+    lone, lone_valid = ncjax.layout_corners(lines, jnp.arange(5) == 2, return_valid=True)
+    assert not bool(jnp.any(lone_valid)) and bool(jnp.all(lone == 0))
