@@ -1,15 +1,19 @@
 """Sensitivity of the geometric solvers to boundary noise (paper Section 5.3, Fig. Geomcomparison).
 
-Gaussian noise of standard deviation sigma (pixels) is added to the exact
-ceiling and floor boundary ROWS of synthetic rooms without occlusion; the
-rays are back-projected and fed, with the true wall labels / directions, to
-our Manhattan and Atlanta layout solvers and to the single-line baseline
-[bermudez2016line] (each ceiling and floor line alone). Metrics as in the
-paper: corner error (m, mean L2 over ceiling and floor corners), direction
-error (deg, arccos(l . l_gt)) and depth error (m, | |lbar| - |lbar_gt| |).
+Rooms come from ``ncjax.random_room`` without occlusion (Manhattan rooms at a
+random yaw and Atlanta rooms, 4-8 Manhattan walls before clipping), with
+exact per-column labels from ``ncjax.room_labels``. Gaussian noise of
+standard deviation sigma (pixels) is added to the exact ceiling and floor
+boundary ROWS; the rays are back-projected and fed, with the true wall
+labels / directions, to the Manhattan layout solver (Manhattan rooms), the
+Atlanta layout solver and the single-line baseline [bermudez2016line] (each
+ceiling and floor line alone; all rooms). Metrics as in the paper: corner
+error (m, mean L2 over ceiling and floor corners), direction error (deg,
+arccos |l . l_gt|) and depth error (m, | |lbar| - |lbar_gt| |).
 
 Each sweep of each method is ONE jitted call (``lax.map`` over chunks of a
-``vmap``: no Python loop over rooms or draws).
+``vmap``: no Python loop over rooms or draws); the rooms and their exact
+labels (one set per rc) are generated once before.
 
     uv run python experiments/noise_sweep.py            # the full sweep
     uv run python experiments/noise_sweep.py --small    # quick check (CI)
@@ -28,49 +32,69 @@ from pathlib import Path
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 
+import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import ncjax  # noqa: E402
-from ncjax import _exact_rooms  # noqa: E402
 
 OUT = Path(__file__).parent / "out"
-CAPACITY = 6
+MIN_COLUMNS = 3  # every wall seen by at least this many columns (else it is not measurable)
 
 
-def room_source(key, rc, width, height):
-    """ONE synthetic Manhattan room without occlusion (half rectangles, half L-shapes).
+def room_config(world: str) -> ncjax.RoomConfig:
+    """Rooms of 4-8 Manhattan walls (Atlanta: plus clipped corners), no occlusion."""
+    return ncjax.RoomConfig(world=world, max_walls=8, capacity=16, occlusion="none", rc_range=(1.0, 1.0))
 
-    The single place to swap in ``ncjax.random_room`` + ``ncjax.room_labels``.
-    Returns a dict of fixed-shape arrays (capacity 6 walls).
+
+def generate_rooms(n_rooms: int, seed: int = 0) -> tuple[ncjax.Room, np.ndarray]:
+    """``n_rooms // 2`` Manhattan and ``n_rooms - n_rooms // 2`` Atlanta rooms (batched Room), and ``is_manhattan``.
+
+    Generated with rc = 1 m (the largest of the sweep, so the camera keeps its
+    clearance when rc is lowered); rooms that fail are replaced by the next key.
     """
-    k_kind, k_room, k_h = jax.random.split(key, 3)
-    rectangle = jnp.concatenate([_exact_rooms.rectangle_room(k_room, rc), jnp.zeros((2, 2))])
-    l_shape = _exact_rooms.l_shaped_room(k_room, rc)
-    is_l = jax.random.bernoulli(k_kind)
-    n = jnp.where(is_l, 6, 4)
-    corners = jnp.where(is_l, l_shape, rectangle)
-    mask = jnp.arange(CAPACITY) < n
-    # close the rectangle's polygon: repeat corner 0 after the last real corner
-    closed = jnp.where(mask[:, None], corners, corners[0])
-    h_c, h_f = _exact_rooms.random_heights(k_h)
-    cam = ncjax.NonCentralPanorama(width, height, rc=rc)
-    ceiling_v, floor_v, wall_index = _exact_rooms.exact_boundaries(cam, closed, h_c, h_f)
-    directions, distances = _exact_rooms.wall_parameters(closed)
-    directions = jnp.where(mask[:, None], directions, jnp.array([1.0, 0.0]))
+    parts = []
+    for world, count, offset in (("manhattan", n_rooms // 2, 0), ("atlanta", n_rooms - n_rooms // 2, 1)):
+        keys = jax.random.split(jax.random.PRNGKey(seed + offset), 2 * count)
+        rooms = jax.jit(jax.vmap(lambda k, w=world: ncjax.random_room(k, room_config(w))))(keys)
+        index = np.nonzero(np.asarray(rooms.ok))[0][:count]
+        parts.append(jax.tree.map(lambda x: x[index], rooms))
+    rooms = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), *parts)
+    return rooms, np.arange(n_rooms) < n_rooms // 2
+
+
+def room_arrays(room: ncjax.Room, rc, width: int, height: int) -> dict:
+    """Exact labels of ``room`` seen with radius ``rc``, and the truth, as fixed-shape arrays."""
+    room = eqx.tree_at(lambda r: r.rc, room, jnp.asarray(rc, room.rc.dtype))
+    labels = ncjax.room_labels(room, ncjax.NonCentralPanorama(width, height, rc=room.rc))
+    directions, distances, _, _ = ncjax.room_walls(room)
+    capacity = room.mask.shape[0]
+    columns = jnp.sum(labels.wall_index[:, None] == jnp.arange(capacity), 0)
+    usable = labels.ok & ~jnp.any(labels.corner_is_occlusion) & jnp.all(~room.mask | (columns >= MIN_COLUMNS))
     return dict(
-        cam=cam, ceiling_v=ceiling_v, floor_v=floor_v, wall_index=wall_index, mask=mask, corners=corners,
-        directions=directions, distances=jnp.where(mask, distances, 0.0), h_c=h_c, h_f=h_f,
-        labels=jnp.where(mask, _exact_rooms.manhattan_labels(directions), 0),
+        rc=room.rc,
+        ceiling_v=labels.ceiling_v,
+        floor_v=labels.floor_v,
+        wall_index=labels.wall_index,
+        mask=room.mask,
+        corners=room.corners,
+        directions=directions,
+        distances=jnp.where(room.mask, distances, 0.0),
+        labels=jnp.where(room.mask & (jnp.abs(directions @ directions[0]) < 0.5), 1, 0),
+        h_c=room.ceiling_height,
+        h_f=room.floor_height,
+        usable=usable,
     )
 
 
-def _noisy_rays(room, sigma, key):
+def _noisy_rays(room, sigma, key, width, height):
+    cam = ncjax.NonCentralPanorama(width, height, rc=room["rc"])
+    columns = jnp.arange(width, dtype=room["ceiling_v"].dtype)
     k_c, k_f = jax.random.split(key)
-    ceiling_v = room["ceiling_v"] + sigma * jax.random.normal(k_c, room["ceiling_v"].shape)
-    floor_v = room["floor_v"] + sigma * jax.random.normal(k_f, room["floor_v"].shape)
-    return _exact_rooms.boundary_rays(room["cam"], ceiling_v, floor_v)
+    ceiling_v = room["ceiling_v"] + sigma * jax.random.normal(k_c, (width,))
+    floor_v = room["floor_v"] + sigma * jax.random.normal(k_f, (width,))
+    return ncjax.pixel_to_ray(cam, columns, ceiling_v), ncjax.pixel_to_ray(cam, columns, floor_v)
 
 
 def _direction_error(a, b):
@@ -88,8 +112,9 @@ def _masked_mean(x, mask):
 
 
 def _gt_lines(room):
-    h = lambda height: ncjax.horizontal_wall_line(room["directions"], room["distances"], jnp.full(CAPACITY, height))  # noqa: E731
-    return h(room["h_c"]), h(room["h_f"])
+    capacity = room["mask"].shape[0]
+    line = lambda h: ncjax.horizontal_wall_line(room["directions"], room["distances"], jnp.full(capacity, h))  # noqa: E731
+    return line(room["h_c"]), line(room["h_f"])
 
 
 def _layout_metrics(room, layout):
@@ -98,7 +123,7 @@ def _layout_metrics(room, layout):
     corner = 0.0
     for lines, height in ((layout.ceiling_lines, room["h_c"]), (layout.floor_lines, room["h_f"])):
         corners = ncjax.layout_corners(lines, layout.mask)
-        truth = jnp.concatenate([room["corners"], jnp.full((CAPACITY, 1), height)], -1)
+        truth = jnp.concatenate([room["corners"], jnp.full((mask.shape[0], 1), height)], -1)
         corner = corner + 0.5 * _masked_mean(jnp.linalg.norm(corners - truth, axis=-1), mask)
     depth = 0.5 * (
         _masked_mean(jnp.abs(_depth(layout.ceiling_lines) - _depth(gt_ceiling)), mask)
@@ -108,21 +133,20 @@ def _layout_metrics(room, layout):
     return dict(corner=corner, direction=direction, depth=depth, ok=layout.ok.astype(jnp.float32))
 
 
-def manhattan(room, ceiling_rays, floor_rays, constrained=True):
-    layout = ncjax.solve_manhattan_layout(
-        ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"], parallel_constraint=constrained
-    )
+def manhattan(room, ceiling_rays, floor_rays, method="refined"):
+    layout = ncjax.solve_manhattan_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"], method=method)
     return _layout_metrics(room, layout)
 
 
-def atlanta(room, ceiling_rays, floor_rays):
-    layout = ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"])
+def atlanta(room, ceiling_rays, floor_rays, method="refined"):
+    layout = ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], method=method)
     return _layout_metrics(room, layout)
 
 
 def baseline(room, ceiling_rays, floor_rays):
     """[bermudez2016line]: every ceiling and floor line fitted alone."""
-    masks = room["wall_index"][None, :] == jnp.arange(CAPACITY)[:, None]
+    capacity = room["mask"].shape[0]
+    masks = room["wall_index"][None, :] == jnp.arange(capacity)[:, None]
     gt_ceiling, gt_floor = _gt_lines(room)
     direction, depth = 0.0, 0.0
     for rays, truth in ((ceiling_rays, gt_ceiling), (floor_rays, gt_floor)):
@@ -132,53 +156,65 @@ def baseline(room, ceiling_rays, floor_rays):
     return dict(corner=jnp.nan, direction=direction, depth=depth, ok=jnp.float32(1.0))
 
 
-def single_walls(room, ceiling_rays, floor_rays, constrained=True):
-    """Every wall with the single-wall solver (for the constrained vs unconstrained ablation)."""
-    masks = room["wall_index"][None, :] == jnp.arange(CAPACITY)[:, None]
-    walls = jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m, parallel_constraint=constrained))(masks)
+def single_walls(room, ceiling_rays, floor_rays, method="refined"):
+    """Every wall with the single-wall solver (the ablation of the parallelism constraint)."""
+    capacity = room["mask"].shape[0]
+    masks = room["wall_index"][None, :] == jnp.arange(capacity)[:, None]
+    walls = jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m, method=method))(masks)
     gt_ceiling, _ = _gt_lines(room)
     return dict(
         corner=jnp.nan,
         direction=_masked_mean(_direction_error(walls.direction, room["directions"]), room["mask"]),
         depth=_masked_mean(jnp.abs(_depth(walls.ceiling_line) - _depth(gt_ceiling)), room["mask"]),
-        ok=jnp.mean(walls.ok.astype(jnp.float32)),
+        ok=_masked_mean(walls.ok.astype(jnp.float32), room["mask"]),
     )
 
 
-def sweep(method, keys, sigmas, rcs, width, height, draws, batch_size=256):
-    """All (sigma or rc, draw, room) cases of one method in ONE jitted call.
+def sweep(method, rooms, room_ids, sigmas, rc_level, draws, width, height, batch_size=128):
+    """All (level, draw, room) cases of one method in ONE jitted call.
 
-    Returns a dict of arrays shaped (len(sigmas), draws * rooms).
+    ``rooms`` holds the room arrays per rc level (leading axis); level ``i``
+    uses noise ``sigmas[i]`` and the rooms of rc level ``rc_level[i]``.
+    Returns a dict of arrays shaped (levels, draws * len(room_ids)); cases of
+    unusable rooms are NaN.
     """
+    n_levels, n_rooms = len(sigmas), len(room_ids)
+    level = np.repeat(np.arange(n_levels), draws * n_rooms)
+    cases = (
+        jnp.asarray(np.asarray(rc_level)[level]),
+        jnp.asarray(np.tile(room_ids, n_levels * draws)),
+        jax.random.split(jax.random.PRNGKey(12345), n_levels * draws * n_rooms),
+        jnp.asarray(np.asarray(sigmas, np.float32)[level]),
+    )
 
     def one(case):
-        room_key, noise_key, sigma, rc = case
-        room = room_source(room_key, rc, width, height)
-        return method(room, *_noisy_rays(room, sigma, noise_key))
+        rc_index, room_index, key, sigma = case
+        room = jax.tree.map(lambda x: x[rc_index, room_index], rooms)
+        result = method(room, *_noisy_rays(room, sigma, key, width, height))
+        return {k: jnp.where(room["usable"], v, jnp.nan) for k, v in result.items()}
 
-    n_levels, n_rooms = sigmas.shape[0], keys.shape[0]
-    room_keys = jnp.broadcast_to(keys[None, None], (n_levels, draws, n_rooms, *keys.shape[1:]))
-    noise_keys = jax.random.split(jax.random.PRNGKey(12345), n_levels * draws * n_rooms)
-    cases = (
-        room_keys.reshape(-1, *keys.shape[1:]),
-        noise_keys,
-        jnp.repeat(sigmas, draws * n_rooms),
-        jnp.repeat(rcs, draws * n_rooms),
-    )
     run = jax.jit(lambda c: jax.lax.map(one, c, batch_size=batch_size))
     result = run(cases)
     return {k: np.asarray(v).reshape(n_levels, draws * n_rooms) for k, v in result.items()}
 
 
+def _stat(values, fn):
+    values = values[np.isfinite(values)]
+    return float(fn(values)) if values.size else float("nan")
+
+
 def _write(path, x_name, xs, results):
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(["method", x_name, "metric", "mean", "median", "ok_rate"])
+        writer.writerow(["method", x_name, "metric", "mean", "median", "ok_rate", "cases"])
         for method, res in results.items():
             for i, x in enumerate(xs):
                 for metric in ("corner", "direction", "depth"):
                     values = res[metric][i]
-                    writer.writerow([method, f"{x:.4f}", metric, np.nanmean(values), np.nanmedian(values), res["ok"][i].mean()])
+                    writer.writerow(
+                        [method, f"{x:.4f}", metric, _stat(values, np.mean), _stat(values, np.median),
+                         _stat(res["ok"][i], np.mean), int(np.isfinite(res["ok"][i]).sum())]
+                    )
 
 
 def _plot(path, x_name, xs, results):
@@ -192,15 +228,17 @@ def _plot(path, x_name, xs, results):
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     for ax, metric in zip(axes, ("corner", "direction", "depth")):
         for method, res in results.items():
-            values = np.nanmean(res[metric], axis=1)
-            if np.all(np.isnan(values)) or (metric == "direction" and method == "atlanta"):
+            base = method.split("/")[0]
+            values = np.array([_stat(v, np.mean) for v in res[metric]])
+            if np.all(np.isnan(values)) or (metric == "direction" and base == "atlanta"):
                 continue  # Atlanta directions are the prior (error 0); the baseline has no corners
-            ax.plot(xs, np.maximum(values, 1e-12), "o-", color=colours[method], label=method)
+            style = "o-" if "paper" not in method else "x--"
+            ax.plot(xs, np.maximum(values, 1e-12), style, color=colours[base], label=method)
         ax.set_yscale("log")
         ax.set_xlabel(x_name)
         ax.set_ylabel(labels[metric])
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend()
+        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -210,59 +248,97 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--small", action="store_true", help="quick version (CI)")
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--rooms", type=int, default=200, help="rooms of the full sweep (half Manhattan)")
+    parser.add_argument("--draws", type=int, default=20, help="noise draws per room and sigma (full sweep)")
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore", category=RuntimeWarning)  # nan-means of the baseline's (absent) corners
     if args.small:
-        n_rooms, draws, sigmas, rcs, width, height = 8, 2, np.linspace(0, 2, 3), np.array([0.2, 1.0]), 256, 128
+        n_rooms, draws, rc_draws, ablation_draws = 8, 2, 1, 1
+        sigmas, rcs, width, height = np.linspace(0, 2, 3), np.array([0.2, 1.0]), 256, 128
     else:
-        n_rooms, draws, sigmas, rcs, width, height = 200, 20, np.linspace(0, 2, 9), np.linspace(0.1, 1.0, 10), 1024, 512
-    args.out.mkdir(parents=True, exist_ok=True)
-    keys = jax.random.split(jax.random.PRNGKey(0), n_rooms)
-    methods = {"manhattan": manhattan, "atlanta": atlanta, "baseline": baseline}
+        n_rooms, draws, rc_draws, ablation_draws = args.rooms, args.draws, 5, 2
+        sigmas, rcs, width, height = np.linspace(0, 2, 9), np.linspace(0.1, 1.0, 10), 1024, 512
     rc_default = 0.5
-
+    args.out.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    rooms, is_manhattan = generate_rooms(n_rooms)
+    levels = np.concatenate([[rc_default], rcs])
+    per_rc = jax.jit(jax.vmap(jax.vmap(room_arrays, (0, None, None, None)), (None, 0, None, None)), static_argnums=(2, 3))
+    arrays = jax.block_until_ready(per_rc(rooms, jnp.asarray(levels, jnp.float32), width, height))
+    generation_time = time.perf_counter() - start
+    usable = np.asarray(arrays["usable"])
+    manhattan_ids, all_ids = np.nonzero(is_manhattan)[0], np.arange(n_rooms)
+    methods = {  # name: (function, rooms)
+        "manhattan": (manhattan, manhattan_ids),
+        "atlanta": (atlanta, all_ids),
+        "baseline": (baseline, all_ids),
+    }
     results, timings = {}, {}
-    for name, method in methods.items():
-        start = time.perf_counter()
-        results[name] = sweep(method, keys, jnp.asarray(sigmas, jnp.float32), jnp.full(len(sigmas), rc_default), width, height, draws)
-        timings[name] = time.perf_counter() - start
+    for name, (method, ids) in methods.items():
+        t0 = time.perf_counter()
+        results[name] = sweep(method, arrays, ids, sigmas, np.zeros(len(sigmas), int), draws, width, height)
+        timings[name] = time.perf_counter() - t0
+        print(f"{name}: {timings[name]:.1f} s", flush=True)
     _write(args.out / "noise_sweep.csv", "sigma_px", sigmas, results)
     _plot(args.out / "noise_sweep.png", "sigma (px)", sigmas, results)
 
-    rc_results = {
-        name: sweep(method, keys, jnp.ones(len(rcs), jnp.float32), jnp.asarray(rcs, jnp.float32), width, height, draws)
-        for name, method in methods.items()
-    }
+    rc_results = {}
+    for name, (method, ids) in methods.items():
+        t0 = time.perf_counter()
+        rc_results[name] = sweep(method, arrays, ids, np.ones(len(rcs)), np.arange(1, len(levels)), rc_draws, width, height)
+        timings[f"{name} (rc sweep)"] = time.perf_counter() - t0
+        print(f"{name} (rc sweep): {timings[f'{name} (rc sweep)']:.1f} s", flush=True)
     _write(args.out / "rc_sweep.csv", "rc_m", rcs, rc_results)
     _plot(args.out / "rc_sweep.png", "rc (m) at sigma = 1 px", rcs, rc_results)
 
-    # constrained (parallelism via quad_v/quad_w) vs unconstrained null vector, sigma = 1 px
-    one_px = jnp.ones(1, jnp.float32)
+    # refined vs the paper's solutions (parallelism quadratics; Atlanta: the literal null vector)
+    # vs the unconstrained null vector, sigma = 1 px, Manhattan rooms (Atlanta solver: all rooms)
     ablation = {}
-    for label, constrained in (("constrained", True), ("unconstrained", False)):
-        for solver_name, solver in (("manhattan", manhattan), ("single_wall", single_walls)):
+    t0 = time.perf_counter()
+    for solver_name, solver, labels, ids in (
+        ("manhattan", manhattan, ("refined", "paper", "null_vector"), manhattan_ids),
+        ("atlanta", atlanta, ("refined", "paper"), all_ids),
+        ("single_wall", single_walls, ("refined", "paper", "null_vector"), manhattan_ids),
+    ):
+        for label in labels:
             res = sweep(
-                lambda r, c, f, s=solver, k=constrained: s(r, c, f, constrained=k),
-                keys, one_px, jnp.full(1, rc_default), width, height, draws,
+                lambda r, c, f, s=solver, m=label: s(r, c, f, method=m),
+                arrays, ids, np.ones(1), np.zeros(1, int), ablation_draws, width, height,
             )
-            ablation[f"{solver_name}/{label}"] = {m: float(np.nanmedian(res[m])) for m in ("corner", "direction", "depth")}
+            ablation[f"{solver_name}/{label}"] = {
+                f"{m}_{stat}": _stat(res[m], fn) for m in ("corner", "direction", "depth") for stat, fn in (("mean", np.mean), ("median", np.median))
+            }
+            ablation[f"{solver_name}/{label}"].update({m: ablation[f"{solver_name}/{label}"][f"{m}_median"] for m in ("corner", "direction", "depth")})
+    timings["ablation"] = time.perf_counter() - t0
 
-    print(f"rooms {n_rooms} x draws {draws}, {width}x{height}, rc = {rc_default} m (sigma sweep)")
-    for name in methods:
-        print(f"  {name:10s} sweep wall time {timings[name]:.1f} s")
+    total = generation_time + sum(timings.values())
+    print(f"rooms {n_rooms} ({len(manhattan_ids)} Manhattan), usable at rc = {rc_default}: {usable[0].sum()}, "
+          f"draws {draws}, {width}x{height}, rc = {rc_default} m (sigma sweep)")
+    print(f"wall time (2 cores, incl. compilation): total {total:.1f} s (room generation and labels {generation_time:.1f} s); "
+          + ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()))
+    for name, res in results.items():
+        print(f"  {name}")
         for i, sigma in enumerate(sigmas):
-            r = results[name]
             print(
-                f"    sigma {sigma:4.2f} px: corner {np.nanmean(r['corner'][i]):.4f} m, direction "
-                f"{np.nanmean(r['direction'][i]):.4f} deg, depth {np.nanmean(r['depth'][i]):.4f} m, ok {r['ok'][i].mean():.3f}"
+                f"    sigma {sigma:4.2f} px: corner {_stat(res['corner'][i], np.mean):.4f} / {_stat(res['corner'][i], np.median):.4f} m, "
+                f"direction {_stat(res['direction'][i], np.mean):.4f} / {_stat(res['direction'][i], np.median):.4f} deg, "
+                f"depth {_stat(res['depth'][i], np.mean):.4f} / {_stat(res['depth'][i], np.median):.4f} m (mean / median), "
+                f"ok {_stat(res['ok'][i], np.mean):.3f}"
             )
-    print("rc sweep at sigma = 1 px (mean):")
-    for name in methods:
-        r = rc_results[name]
-        print(f"  {name:10s} " + " ".join(f"rc {rc:.1f}: corner {np.nanmean(r['corner'][i]):.3f} depth {np.nanmean(r['depth'][i]):.3f}" for i, rc in enumerate(rcs)))
-    print("medians at sigma = 1 px, constrained vs unconstrained null vector:")
-    for key, value in ablation.items():
-        print(f"  {key:28s} corner {value['corner']:.4f} m  direction {value['direction']:.4f} deg  depth {value['depth']:.4f} m")
+    print("rc sweep at sigma = 1 px (mean / median):")
+    for name, res in rc_results.items():
+        print(f"  {name}")
+        for i, rc in enumerate(rcs):
+            print(
+                f"    rc {rc:.1f} m: corner {_stat(res['corner'][i], np.mean):.4f} / {_stat(res['corner'][i], np.median):.4f} m, "
+                f"depth {_stat(res['depth'][i], np.mean):.4f} / {_stat(res['depth'][i], np.median):.4f} m"
+            )
+    print("sigma = 1 px, mean / median: refined vs paper vs unconstrained null vector")
+    for key, v in ablation.items():
+        print(
+            f"  {key:24s} corner {v['corner_mean']:.4f} / {v['corner_median']:.4f} m  direction {v['direction_mean']:.4f} / "
+            f"{v['direction_median']:.4f} deg  depth {v['depth_mean']:.4f} / {v['depth_median']:.4f} m"
+        )
     return results, rc_results, ablation
 
 

@@ -4,9 +4,12 @@
 Inputs are per image column: the ceiling and floor Plücker rays (W, 6), the
 index of the wall the column sees (W,) int (-1: none), and per wall (fixed
 capacity K, DESIGN.md section 4) a mask plus either a Manhattan label or a
-known direction. Masked-out walls get a pinning row ``d_k = 0`` so that the
-null space stays the one of the present walls; a wall in the mask that no
-column sees makes ``ok`` False.
+known direction. The default ("refined") solvers share
+:mod:`ncjax._wall_fit` with the single-wall solver (linear solve with the
+distances eliminated, then the maximum-likelihood fit); the paper's literal
+matrices (``method="paper"``) get a pinning row ``d_k = 0`` per masked-out
+wall so that the null space stays the one of the present walls. A wall in the
+mask that no column sees makes ``ok`` False.
 """
 
 from __future__ import annotations
@@ -17,15 +20,16 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._linalg import scaled_null_space
-from ._plucker import horizontal_wall_line, intersect_coplanar_lines, safe_norm
+from ._plucker import cross_2d, horizontal_wall_line, intersect_coplanar_lines, safe_norm
 from ._wall import (
     canonical_orientation,
+    check_method,
     constrained_null_vector,
-    heights_of,
     masked_rays,
     side_coefficients,
     wall_rows,
 )
+from ._wall_fit import heights_of, linear_walls, refine_walls, yaw_parameters
 
 
 class WallLayout(eqx.Module):
@@ -78,13 +82,6 @@ def _column_bookkeeping(wall_index: Array, wall_mask: Array) -> tuple[Array, Arr
     return column_used, one_hot & column_used[:, None], present, jnp.all(seen | ~wall_mask)
 
 
-def _distance_columns(a_d: Array, one_hot: Array, present: Array) -> tuple[Array, Array]:
-    """The ``d_k`` columns of the ray rows, and the pinning rows ``d_k = 0`` of absent walls."""
-    columns = a_d[:, None] * one_hot.astype(a_d.dtype)
-    pins = jnp.diag(jnp.where(present, 0.0, 1.0).astype(a_d.dtype))
-    return columns, pins
-
-
 def quarter_turn(ray: Float[Array, "*batch 6"]) -> Float[Array, "*batch 6"]:
     """Rotate a Plücker line by -90 degrees about z: ``(x, y, z) -> (y, -x, z)`` for both halves.
 
@@ -109,22 +106,45 @@ def ray_in_wall_frame(ray: Float[Array, "*batch 6"], direction: Float[Array, "*b
     return jnp.concatenate([rotate(ray[..., :3]), rotate(ray[..., 3:])], -1)
 
 
+def _manhattan_matrix(ceiling_rays, floor_rays, column_used, turned):
+    """Rows of eqs. manx/many (label 0) and manPx/manPy (label 1): ``(shared (2W, 6), distance (2W,))``."""
+    rows = [jnp.where(turned[:, None], quarter_turn(r), r) for r in (masked_rays(ceiling_rays, column_used), masked_rays(floor_rays, column_used))]
+    a = jnp.concatenate(wall_rows(*rows))
+    return a[:, :6], a[:, 6]
+
+
+def _full_matrix(shared, distance, one_hot, present):
+    """``[shared | d_k columns]`` plus a pinning row ``d_k = 0`` per absent wall (the paper's literal ``A``)."""
+    columns = distance[:, None] * one_hot.astype(distance.dtype)
+    pins = jnp.diag(jnp.where(present, 0.0, 1.0).astype(distance.dtype))
+    return jnp.concatenate(
+        [jnp.concatenate([shared, columns], 1), jnp.concatenate([jnp.zeros((pins.shape[0], shared.shape[1]), pins.dtype), pins], 1)]
+    )
+
+
+def _stacked(ceiling, floor):
+    return jnp.concatenate([ceiling, floor])
+
+
 def solve_manhattan_layout(
     ceiling_rays: Float[Array, "W 6"],
     floor_rays: Float[Array, "W 6"],
     wall_index: Int[Array, " W"],
     wall_mask: Bool[Array, " K"],
     labels: Int[Array, " K"],
-    parallel_constraint: bool = True,
+    method: str = "refined",
 ) -> WallLayout:
     """Manhattan layout solver (Section 4.2): ``A (u, v, w, d_1..d_K) = 0``.
 
     Walls labelled 0 have direction ``u`` and contribute eqs. manx/many;
     walls labelled 1 have ``u_perp = (-uy, ux)`` and contribute
     eqs. manPx/manPy (the same rows for the ray turned by -90 degrees,
-    :func:`quarter_turn`). The two smallest (equilibrated) null vectors and
-    the parallelism quadratics give the solution as for one wall
-    (:func:`ncjax.solve_wall`); any yaw of the room is fine.
+    :func:`quarter_turn`); any yaw of the room is fine. Methods as for
+    :func:`ncjax.solve_wall`: ``"refined"`` (default; the linear solution
+    with the distances eliminated, then the maximum-likelihood fit of the yaw,
+    ``h_c``, ``h_f`` and all ``d_k``), ``"paper"`` (two smallest singular
+    vectors of the equilibrated ``A`` and the parallelism quadratics) or
+    ``"null_vector"`` (the least-squares null vector alone).
 
     Args:
         ceiling_rays: per-column ceiling rays.
@@ -132,40 +152,40 @@ def solve_manhattan_layout(
         wall_index: the wall each column sees, -1 for none.
         wall_mask: which of the K walls exist.
         labels: per wall, 0 for ``u`` and 1 for ``u_perp``.
-        parallel_constraint: static; False keeps the least-squares null vector.
+        method: static, see above.
 
     Returns:
         The :class:`WallLayout` (canonical orientation per wall).
     """
+    check_method(method)
     column_used, one_hot, present, all_seen = _column_bookkeeping(wall_index, wall_mask)
     turned = labels[jnp.maximum(wall_index, 0)] == 1
-    rows = []
-    for rays in (ceiling_rays, floor_rays):
-        rays = masked_rays(rays, column_used)
-        rays = jnp.where(turned[:, None], quarter_turn(rays), rays)
-        rows.append(rays)
-    ceiling, floor = wall_rows(*rows)
-    ceiling_d, pins = _distance_columns(ceiling[:, 6], one_hot, present)
-    floor_d, _ = _distance_columns(floor[:, 6], one_hot, present)
-    a = jnp.concatenate(
-        [
-            jnp.concatenate([ceiling[:, :6], ceiling_d], 1),
-            jnp.concatenate([floor[:, :6], floor_d], 1),
-            jnp.concatenate([jnp.zeros((pins.shape[0], 6), pins.dtype), pins], 1),
-        ]
-    )
-    basis = scaled_null_space(a, 2)
-    if parallel_constraint:
-        vector, ok = constrained_null_vector(basis)
+    shared, distance = _manhattan_matrix(ceiling_rays, floor_rays, column_used, turned)
+    rows_one_hot = _stacked(one_hot, one_hot)
+    if method == "refined":
+        x, d = linear_walls(shared, distance, rows_one_hot)
+        params, ok = yaw_parameters(jnp.concatenate([x, d]))
+        base = jnp.where(turned[:, None], jnp.array([0.0, 1.0], shared.dtype), jnp.array([1.0, 0.0], shared.dtype))
+        is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
+        params = refine_walls(params, _stacked(ceiling_rays, floor_rays), _stacked(base, base), rows_one_hot, is_floor, refine_yaw=True)
+        u = jnp.stack([jnp.cos(params[0]), jnp.sin(params[0])])
+        h_c, h_f, distances = params[1], params[2], params[3:]
+        ok = ok & jnp.all(jnp.isfinite(params))
     else:
-        vector, ok = basis[:, 0], jnp.array(True)
-    norm, h_c, h_f = heights_of(vector)
-    safe = jnp.where(norm > 0, norm, 1.0)
-    u = jnp.where(norm > 0, vector[0:2] / safe, jnp.array([1.0, 0.0], vector.dtype))
+        basis = scaled_null_space(_full_matrix(shared, distance, rows_one_hot, present), 2)
+        if method == "paper":
+            vector, ok = constrained_null_vector(basis)
+        else:
+            vector, ok = basis[:, 0], jnp.array(True)
+        norm, h_c, h_f = heights_of(vector)
+        safe = jnp.where(norm > 0, norm, 1.0)
+        u = jnp.where(norm > 0, vector[0:2] / safe, jnp.array([1.0, 0.0], vector.dtype))
+        distances = vector[6:] / safe
+        ok = ok & (norm > 0)
     u_perp = jnp.stack([-u[1], u[0]])
     directions = jnp.where((labels == 1)[:, None], u_perp, u)
-    ok = ok & all_seen & (norm > 0) & (h_c > h_f) & jnp.any(present)
-    return _make_layout(directions, vector[6:] / safe, h_c, h_f, present, ok)
+    ok = ok & all_seen & (h_c > h_f) & jnp.any(present)
+    return _make_layout(directions, jnp.where(present, distances, 0.0), h_c, h_f, present, ok)
 
 
 def solve_atlanta_layout(
@@ -174,13 +194,18 @@ def solve_atlanta_layout(
     wall_index: Int[Array, " W"],
     wall_mask: Bool[Array, " K"],
     directions: Float[Array, "K 2"],
+    method: str = "refined",
 ) -> WallLayout:
     """Atlanta layout solver (Section 4.3): ``A (1, h_c, h_f, d_1..d_K) = 0`` for known directions.
 
     Each ray is first expressed in its wall's frame (:func:`ray_in_wall_frame`);
     eqs. genx/geny are then eq. iter1/iter2 with ``u = (1, 0)``:
-    ``xibar'_1 + h_c xi'_2 - d xi'_3 = 0``. The (equilibrated) least-squares
-    null vector is scaled so that its first entry is 1.
+    ``xibar'_1 + h_c xi'_2 - d xi'_3 = 0``. Methods: ``"paper"``: the
+    (equilibrated) least-squares null vector of ``A``, scaled so that its
+    first entry is 1; ``"refined"`` (default): the same linear solution (with
+    the distances eliminated in closed form) followed by the
+    maximum-likelihood fit of ``h_c``, ``h_f`` and the ``d_k`` (directions
+    stay the given ones).
 
     Args:
         ceiling_rays: per-column ceiling rays.
@@ -188,45 +213,74 @@ def solve_atlanta_layout(
         wall_index: the wall each column sees, -1 for none.
         wall_mask: which of the K walls exist.
         directions: per-wall horizontal directions (any length and sign).
+        method: static, "refined" or "paper".
 
     Returns:
         The :class:`WallLayout`; output directions are the inputs normalised
         and oriented canonically (camera on the left).
     """
+    check_method(method, ("refined", "paper"))
     column_used, one_hot, present, all_seen = _column_bookkeeping(wall_index, wall_mask)
     norm = safe_norm(directions)
     units = jnp.where((norm > 0)[:, None], directions / jnp.where(norm > 0, norm, 1.0)[:, None], jnp.array([1.0, 0.0], directions.dtype))
     column_direction = units[jnp.maximum(wall_index, 0)]
-    blocks = []
+    blocks, distance = [], []
     for height_column, rays in ((0, ceiling_rays), (1, floor_rays)):
         a_u, a_h, a_d = side_coefficients(ray_in_wall_frame(masked_rays(rays, column_used), column_direction))
         heights = jnp.zeros((rays.shape[0], 2), rays.dtype).at[:, height_column].set(a_h[:, 0])
-        d_columns, pins = _distance_columns(a_d, one_hot, present)
-        blocks.append(jnp.concatenate([a_u[:, :1], heights, d_columns], 1))
-    blocks.append(jnp.concatenate([jnp.zeros((pins.shape[0], 3), pins.dtype), pins], 1))
-    vector = scaled_null_space(jnp.concatenate(blocks), 1)[:, 0]
+        blocks.append(jnp.concatenate([a_u[:, :1], heights], 1))
+        distance.append(a_d)
+    shared, distance = jnp.concatenate(blocks), jnp.concatenate(distance)
+    rows_one_hot = _stacked(one_hot, one_hot)
+    if method == "refined":
+        x, d = linear_walls(shared, distance, rows_one_hot)
+        vector = jnp.concatenate([x, d])
+    else:
+        vector = scaled_null_space(_full_matrix(shared, distance, rows_one_hot, present), 1)[:, 0]
     scale_ok = jnp.abs(vector[0]) > 1e3 * jnp.finfo(vector.dtype).eps * safe_norm(vector)
     vector = vector / jnp.where(scale_ok, vector[0], 1.0)
+    if method == "refined":
+        is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
+        params = jnp.concatenate([jnp.zeros(1, vector.dtype), vector[1:]])
+        params = refine_walls(
+            params, _stacked(ceiling_rays, floor_rays), _stacked(column_direction, column_direction), rows_one_hot, is_floor, refine_yaw=False
+        )
+        vector = params.at[0].set(1.0)
+        scale_ok = scale_ok & jnp.all(jnp.isfinite(params))
     h_c, h_f = vector[1], vector[2]
     ok = scale_ok & all_seen & (h_c > h_f) & jnp.any(present)
-    return _make_layout(units, vector[3:], h_c, h_f, present, ok)
+    return _make_layout(units, jnp.where(present, vector[3:], 0.0), h_c, h_f, present, ok)
 
 
-def layout_corners(lines: Float[Array, "K 6"], mask: Bool[Array, " K"]) -> Float[Array, "K 3"]:
+def layout_corners(
+    lines: Float[Array, "K 6"], mask: Bool[Array, " K"], return_valid: bool = False
+) -> Float[Array, "K 3"] | tuple[Float[Array, "K 3"], Bool[Array, " K"]]:
     """Corner ``k`` = start of wall ``k`` = meeting point with the previous present wall.
 
     "Previous" is cyclic over the present walls in index order (for a
     counter-clockwise room with walls in order, corner ``k`` is ``P_k``).
-    Uses :func:`ncjax.intersect_coplanar_lines`; masked corners are zero.
+    Uses :func:`ncjax.intersect_coplanar_lines`. Two consecutive walls that
+    are parallel (within ``sqrt(eps)`` radians; also a wall alone) have no
+    corner: it is zero and invalid, never inf or NaN. Masked corners are
+    zero and invalid.
 
     Args:
         lines: ceiling (or floor) lines of the walls, in order.
         mask: which walls are present.
+        return_valid: static; also return which corners are valid.
+
+    Returns:
+        The corners (K, 3), and with ``return_valid`` the validity mask (K,).
     """
     capacity = mask.shape[0]
     index = jnp.arange(capacity)
     # steps back from k to j, in 1..K (j = k itself counts K: the last resort)
     steps = (index[:, None] - index[None, :] - 1) % capacity + 1
-    previous = jnp.argmin(jnp.where(mask[None, :], steps, 2 * capacity), axis=1)
-    corners = intersect_coplanar_lines(lines[previous], lines)
-    return jnp.where(mask[:, None], corners, 0.0)
+    previous = lines[jnp.argmin(jnp.where(mask[None, :], steps, 2 * capacity), axis=1)]
+    sine = cross_2d(previous[:, :2], lines[:, :2]) / jnp.maximum(safe_norm(previous[:, :2]) * safe_norm(lines[:, :2]), jnp.finfo(lines.dtype).tiny)
+    valid = mask & (jnp.abs(sine) > jnp.sqrt(jnp.finfo(lines.dtype).eps))
+    # parallel pairs get a harmless perpendicular stand-in (double where: finite values and gradients)
+    stand_in = jnp.concatenate([jnp.stack([-lines[:, 1], lines[:, 0], lines[:, 2]], -1), jnp.zeros_like(lines[:, 3:])], -1)
+    corners = intersect_coplanar_lines(jnp.where(valid[:, None], previous, stand_in), lines)
+    corners = jnp.where(valid[:, None], corners, 0.0)
+    return (corners, valid) if return_valid else corners

@@ -5,8 +5,9 @@ matrix ``A`` with one row per projecting ray and take its (approximate) null
 space. This module computes that null space once, in one place:
 
 - :func:`null_space` returns the right singular vectors of the ``k`` smallest
-  singular values of ``A`` (``svd(full_matrices=False)``), each with a
-  canonical sign (its largest-magnitude entry positive).
+  singular values of ``A`` (a Householder reduction to ``n x n``, then
+  ``svd``; see :func:`_sorted_svd`), each with a canonical sign (its
+  largest-magnitude entry positive).
 - Its derivative is a ``jax.custom_jvp``. JAX's own SVD derivative divides by
   ``s_i^2 - s_j^2`` for EVERY pair of singular values, so exactly repeated
   singular values (axis-aligned walls, padded wall columns) give NaN gradients
@@ -42,10 +43,36 @@ def _pad_rows(a: Array) -> Array:
     return a if rows >= cols else jnp.concatenate([a, jnp.zeros((cols - rows, cols), a.dtype)])
 
 
+def _triangular_factor(a: Array) -> Array:
+    """``R`` (cols x cols) of ``A = Q R`` by Householder reflections, in plain jnp.
+
+    One reflection per column (a static loop of vector operations), so a
+    ``vmap`` over a batch stays vectorised; backward stable like LAPACK's QR.
+    ``R`` has the singular values and right singular vectors of ``A``.
+    """
+    a = _pad_rows(a)
+    rows, cols = a.shape
+    index = jnp.arange(rows)
+    for j in range(cols):
+        x = jnp.where(index >= j, a[:, j], 0.0)
+        norm = safe_norm(x)
+        alpha = jnp.where(x[j] >= 0, -norm, norm)
+        v = x.at[j].add(-alpha)
+        vv = jnp.dot(v, v)
+        a = a - jnp.outer(v, 2.0 * (v @ a) / jnp.where(vv > 0, vv, 1.0))
+    return a[:cols]
+
+
 def _sorted_svd(a: Array) -> tuple[Array, Array]:
-    """Singular values ascending and the matching right singular vectors (as columns)."""
-    _, s, vt = jnp.linalg.svd(_pad_rows(a), full_matrices=False)
-    return s[::-1], vt[::-1].T
+    """Squared singular values ascending and the matching right singular vectors (as columns).
+
+    The tall ``A`` is first reduced to its triangular factor (batched LAPACK
+    SVDs and QRs of ``2W x n`` matrices cost milliseconds each on CPU, the
+    vectorised Householder reduction microseconds), then the small ``R`` is
+    decomposed by ``svd``.
+    """
+    _, s, vt = jnp.linalg.svd(_triangular_factor(a), full_matrices=False)
+    return (s * s)[::-1], vt[::-1].T
 
 
 def _canonical_sign(vectors: Array) -> Array:
@@ -71,22 +98,29 @@ def null_space(a: Float[Array, "rows cols"], k: int) -> Float[Array, "cols k"]:
     return _canonical_sign(vectors[:, :k])
 
 
+def _kept_tangent(eig: Array, vectors: Array, dm: Array, k: int) -> Array:
+    """First-order change of the eigenvectors of the ``k`` smallest eigenvalues of ``M``.
+
+    ``dv_k = sum_j v_j (v_j^T dM v_k) / (e_k - e_j)`` over the OTHER
+    eigenvectors ``j`` only (rotation within the kept span is gauge).
+    Exactly equal eigenvalues across the split would make the span
+    ill-defined; they get a zero (not NaN) derivative (double where).
+    """
+    kept, others = vectors[:, :k], vectors[:, k:]
+    gap = eig[:k][None, :] - eig[k:][:, None]  # (cols - k, k), <= 0
+    tiny = jnp.finfo(dm.dtype).eps * jnp.maximum(jnp.max(jnp.abs(eig)), jnp.finfo(dm.dtype).tiny)
+    separated = jnp.abs(gap) > tiny
+    inverse_gap = jnp.where(separated, 1.0 / jnp.where(separated, gap, 1.0), 0.0)
+    return others @ ((others.T @ dm @ kept) * inverse_gap)
+
+
 @null_space.defjvp
 def _null_space_jvp(k: int, primals: tuple[Array], tangents: tuple[Array]) -> tuple[Array, Array]:
     (a,), (da,) = primals, tangents
-    s, vectors = _sorted_svd(a)
+    eig, vectors = _sorted_svd(a)
     kept = _canonical_sign(vectors[:, :k])
-    others = vectors[:, k:]
-    eig = s * s
-    gap = eig[:k][None, :] - eig[k:][:, None]  # (cols - k, k), <= 0
-    # Exactly equal eigenvalues across the split would make the null space
-    # ill-defined; give a zero (not NaN) derivative there (double where).
-    tiny = jnp.finfo(a.dtype).eps * jnp.maximum(eig[-1], jnp.finfo(a.dtype).tiny)
-    separated = jnp.abs(gap) > tiny
-    inverse_gap = jnp.where(separated, 1.0 / jnp.where(separated, gap, 1.0), 0.0)
-    dm = da.T @ a + a.T @ da
-    coefficients = (others.T @ dm @ kept) * inverse_gap
-    return kept, others @ coefficients
+    vectors = jnp.concatenate([kept, vectors[:, k:]], 1)
+    return kept, _kept_tangent(eig, vectors, da.T @ a + a.T @ da, k)
 
 
 def equilibrate(a: Float[Array, "rows cols"]) -> tuple[Float[Array, "rows cols"], Float[Array, " cols"]]:

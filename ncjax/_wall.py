@@ -44,6 +44,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._linalg import null_space, scaled_null_space
+from ._wall_fit import heights_of, linear_walls, refine_walls, yaw_parameters
 from ._plucker import cross_2d as _cross2
 from ._plucker import horizontal_wall_line, safe_norm
 
@@ -187,14 +188,6 @@ def pair_roots(theta_v: Float[Array, "2"], theta_w: Float[Array, "2"]) -> Float[
     return theta_v + 0.5 * _wrap_half_turn(partner - theta_v)
 
 
-def heights_of(vector: Float[Array, " n"]) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
-    """``(|u|, h_c, h_f)`` of ``W = (u, v, w, ...)`` by least squares ``v ~ h_c u``, ``w ~ h_f u``."""
-    u, v, w = vector[0:2], vector[2:4], vector[4:6]
-    norm = safe_norm(u)
-    squared = jnp.where(norm > 0, norm * norm, 1.0)
-    return norm, jnp.dot(u, v) / squared, jnp.dot(u, w) / squared
-
-
 def constrained_null_vector(basis: Float[Array, "n 2"]) -> tuple[Float[Array, " n"], Bool[Array, ""]]:
     """The paper's constrained solution in the span of two null vectors (Section 4.1).
 
@@ -263,42 +256,80 @@ def _unit_direction(u: Array, norm: Array) -> Array:
 # --------------------------------------------------------------------------
 
 
+SOLVER_METHODS = ("refined", "paper", "null_vector")
+
+
+def check_method(method: str, allowed: tuple[str, ...] = SOLVER_METHODS) -> None:
+    """ValueError for an unknown ``method`` (a static Python argument)."""
+    if method not in allowed:
+        raise ValueError(f"method must be one of {allowed}, got {method!r}")
+
+
 def solve_wall(
     ceiling_rays: Float[Array, "n 6"],
     floor_rays: Float[Array, "m 6"],
     ceiling_mask: Bool[Array, " n"],
     floor_mask: Bool[Array, " m"],
-    parallel_constraint: bool = True,
+    method: str = "paper",
 ) -> Wall:
     """One vertical wall from the projecting rays of its ceiling and floor lines (Section 4.1).
 
-    Builds ``A W = 0`` from eqs. manx and many (equilibrated), takes the two
-    smallest right singular vectors and imposes ``u || v || w`` through
-    eqs. quad_v / quad_w (:func:`constrained_null_vector`).
+    Builds ``A W = 0`` from eqs. manx and many, ``W = (u, v, w, d)``. Methods:
+
+    - ``"paper"`` (default): the paper's two smallest singular vectors of the
+      equilibrated ``A`` and the parallelism quadratics quad_v / quad_w
+      (:func:`constrained_null_vector`).
+    - ``"refined"``: the least-squares null vector (distance eliminated,
+      :func:`ncjax._wall_fit.linear_walls`) gives the yaw of ``u``, ``h_c``,
+      ``h_f`` and ``d``; Gauss-Newton on the angular (row) residuals then
+      fits the exact 4-dof wall (:func:`ncjax._wall_fit.refine_walls`), the
+      maximum-likelihood wall under row noise.
+    - ``"null_vector"``: the unconstrained least-squares null vector ``W0``
+      (the ablation of Section 5.3).
+
+    All three are exact on exact rays. For ONE wall under noise the scale is
+    only weakly observable (through ``rc``) and the maximum-likelihood fit
+    has a heavier tail than the paper's constrained solution, which is the
+    best of the three there (experiments/RESULTS.md); for layouts the shared
+    heights make "refined" by far the best, see :func:`ncjax.solve_manhattan_layout`.
 
     Args:
         ceiling_rays: Plücker rays of the ceiling boundary (fixed capacity).
         floor_rays: Plücker rays of the floor boundary.
         ceiling_mask: which ceiling rays are used (others add zero rows).
         floor_mask: which floor rays are used.
-        parallel_constraint: static; False returns the unconstrained
-            least-squares null vector ``W0`` (ablation, Section 5.3).
+        method: static, see above.
 
     Returns:
         The :class:`Wall` (canonical orientation); ``ok`` is False when fewer
-        rays than needed or no solution with ``h_c > h_f``.
+        than 3 rays per line or no solution with ``h_c > h_f``.
     """
+    check_method(method)
     ceiling, floor = wall_rows(masked_rays(ceiling_rays, ceiling_mask), masked_rays(floor_rays, floor_mask))
-    basis = scaled_null_space(jnp.concatenate([ceiling, floor]), 2)
-    if parallel_constraint:
-        vector, ok = constrained_null_vector(basis)
+    rows = jnp.concatenate([ceiling, floor])
+    if method == "refined":
+        used = jnp.concatenate([ceiling_mask, floor_mask])
+        x, d = linear_walls(rows[:, :6], rows[:, 6], used[:, None])
+        params, ok = yaw_parameters(jnp.concatenate([x, d]))
+        rays = jnp.concatenate([ceiling_rays, floor_rays])
+        is_floor = jnp.arange(rays.shape[0]) >= ceiling_rays.shape[0]
+        base = jnp.broadcast_to(jnp.array([1.0, 0.0], rays.dtype), (rays.shape[0], 2))
+        params = refine_walls(params, rays, base, used[:, None], is_floor, refine_yaw=True)
+        yaw, h_c, h_f, distance = params
+        direction = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
+        ok = ok & jnp.all(jnp.isfinite(params))
     else:
-        vector, ok = basis[:, 0], jnp.array(True)
-    norm, h_c, h_f = heights_of(vector)
+        basis = scaled_null_space(rows, 2)
+        if method == "paper":
+            vector, ok = constrained_null_vector(basis)
+        else:
+            vector, ok = basis[:, 0], jnp.array(True)
+        norm, h_c, h_f = heights_of(vector)
+        ok = ok & (norm > 0)
+        distance = vector[6] / jnp.where(norm > 0, norm, 1.0)
+        direction = _unit_direction(vector[0:2], norm)
     enough = (jnp.sum(ceiling_mask) >= 3) & (jnp.sum(floor_mask) >= 3)  # the paper's over-determined case
-    ok = ok & enough & (h_c > h_f) & (norm > 0)
-    distance = vector[6] / jnp.where(norm > 0, norm, 1.0)
-    return make_wall(_unit_direction(vector[0:2], norm), distance, h_c, h_f, ok)
+    return make_wall(direction, distance, h_c, h_f, ok & enough & (h_c > h_f))
 
 
 def solve_horizontal_line(

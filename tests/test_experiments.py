@@ -3,6 +3,8 @@
 import importlib.util
 from pathlib import Path
 
+import numpy as np
+
 
 def test_noise_sweep_small(tmp_path):
     path = Path(__file__).parents[1] / "experiments" / "noise_sweep.py"
@@ -12,9 +14,18 @@ def test_noise_sweep_small(tmp_path):
     results, rc_results, ablation = module.main(["--small", "--out", str(tmp_path)])
     for name in ("noise_sweep.csv", "noise_sweep.png", "rc_sweep.csv", "rc_sweep.png"):
         assert (tmp_path / name).stat().st_size > 0
-    for res in results.values():
-        assert res["depth"][0].max() < 1e-3  # sigma = 0: exact
-    assert ablation["manhattan/constrained"]["direction"] < ablation["manhattan/unconstrained"]["direction"]
+    for name in ("manhattan", "atlanta"):
+        assert np.nanmax(results[name]["depth"][0]) < 1e-3  # sigma = 0: exact
+    # the baseline too, but lines seen by few columns are ill-conditioned in float32 (see RESULTS.md)
+    assert np.nanmedian(results["baseline"]["depth"][0]) < 1e-3
+    # the paper's finding: the proposed solvers beat the baseline in depth at every sigma > 0
+    # (medians: at 256 px, 2 px of noise is 2.8 degrees and the Manhattan fit has rare outliers)
+    for i in range(1, len(results["baseline"]["depth"])):
+        for name in ("manhattan", "atlanta"):
+            assert np.nanmedian(results[name]["depth"][i]) < np.nanmedian(results["baseline"]["depth"][i])
+    # the refined (maximum-likelihood) layout beats the paper's constrained and the unconstrained null vector
+    for other in ("paper", "null_vector"):
+        assert ablation["manhattan/refined"]["corner"] < ablation[f"manhattan/{other}"]["corner"]
 
 
 def test_pipeline_table_small(tmp_path):

@@ -17,7 +17,7 @@ import pytest
 from flax import nnx
 
 import ncjax
-from ncjax import _exact_rooms, _network, _predict, _train
+from ncjax import _network, _predict, _train
 from ncjax._checkpoint import load_checkpoint, read_metadata, save_checkpoint
 from ncjax._rooms import Room
 
@@ -32,7 +32,11 @@ def tiny_model():
 
 
 def convex_room(key, rc=0.5, n=6):
-    corners = _exact_rooms.convex_room(key, n, rc)
+    """n corners around the camera at radii 2.5-3.5 m, evenly spaced counter-clockwise, randomly turned."""
+    k_turn, k_radius = jax.random.split(key)
+    angles = jax.random.uniform(k_turn, (), maxval=2 * jnp.pi) + jnp.arange(n) * (2 * jnp.pi / n)
+    radii = jax.random.uniform(k_radius, (n,), minval=2.5, maxval=3.5)
+    corners = radii[:, None] * jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1)
     return Room(
         corners=corners,
         mask=jnp.ones(n, bool),

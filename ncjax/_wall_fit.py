@@ -1,0 +1,261 @@
+"""Walls sharing ceiling and floor heights: linear initial solve and maximum-likelihood refinement.
+
+Every solver of paper Sections 4.1-4.3 fits walls ``(u_k, d_k)`` sharing
+``h_c`` and ``h_f``, with the wall directions either known (Atlanta, eqs.
+genx/geny) or all given by ONE yaw ``t`` (``u = (cos t, sin t)``: a single
+wall, or the Manhattan walls ``u`` / ``u_perp``). This module holds the two
+stages they share.
+
+1. :func:`linear_walls` -- the DLT-like linear solve: the rows are split into
+   the columns of the few shared unknowns ``B`` (``(1, h_c, h_f)`` or
+   ``(u, v, w)``) and one distance column per wall; the distances are
+   eliminated in closed form (each touches only its own wall's rows), and
+   the shared unknowns are the null vector of the projected rows (an SVD
+   with 3 or 6 columns instead of 3 + K or 6 + K).
+
+2. :func:`refine_walls` -- Gauss-Newton on the ANGULAR residuals
+   (:func:`angular_residual`): the elevation of the observed boundary ray minus
+   the elevation at which the wall model predicts it, in the ray's own
+   column. With Gaussian noise on the boundary rows (the network's output,
+   and the paper's noise model in Section 5.3) this least squares is the
+   maximum-likelihood fit of the 4 + K degrees of freedom. The algebraic
+   linear solutions weigh far rays more and, for the paper's two-vector
+   null space, mix in a second singular vector that is pure noise (with
+   ``rc > 0`` the noise-free null space of eqs. manx/many is ONE-dimensional),
+   which is why they are several times less accurate under noise (see
+   experiments/RESULTS.md). On exact data both stages are exact.
+
+The Gauss-Newton step uses the structure of the problem: each residual
+depends on ``t``, one height and one distance, so the normal equations are
+assembled with per-wall sums and solved through the 3 x 3 Schur complement
+of the (diagonal) distance block.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ._linalg import scaled_null_space
+from ._plucker import safe_norm
+
+
+def rotate_2d(vector: Float[Array, "*batch 2"], angle: Float[Array, "*#batch"]) -> Float[Array, "*batch 2"]:
+    """Counter-clockwise rotation of 2D vectors by ``angle``."""
+    c, s = jnp.cos(angle)[..., None], jnp.sin(angle)[..., None]
+    x, y = vector[..., 0:1], vector[..., 1:2]
+    return jnp.concatenate([c * x - s * y, s * x + c * y], -1)
+
+
+# --------------------------------------------------------------------------
+# Linear initial solve
+# --------------------------------------------------------------------------
+
+
+def _inverse_or_zero(x: Array) -> Array:
+    positive = x > 0
+    return jnp.where(positive, 1.0 / jnp.where(positive, x, 1.0), 0.0)
+
+
+def linear_walls(
+    shared: Float[Array, "m n"], distance: Float[Array, " m"], one_hot: Bool[Array, "m K"]
+) -> tuple[Float[Array, " n"], Float[Array, " K"]]:
+    """Least-squares null vector of ``[shared | distance columns]`` with the distances eliminated.
+
+    The matrix has row ``i`` equal to ``shared[i]`` in the shared unknowns and
+    ``distance[i]`` in the column of its wall (``one_hot[i]``). After unit
+    rows, each wall's distance column is projected out of its own rows
+    (``B_k - a_k (a_k^T B_k) / (a_k^T a_k)``: the distances minimise each
+    wall's rows in closed form); the shared unknowns ``x`` are the
+    least-squares null vector of the projected rows (:func:`scaled_null_space`,
+    an SVD of ``m x n`` instead of ``m x (n + K)``; the scale is fixed on the
+    shared unknowns, ``|x| = 1`` after column equilibration), and
+    ``d_k = -(a_k^T B_k x) / (a_k^T a_k)``. The projection never forms
+    ``B^T B``, so float32 keeps its accuracy.
+
+    Args:
+        shared: coefficients of the shared unknowns, one row per ray (zero rows unused).
+        distance: coefficient of the row's wall distance.
+        one_hot: the row's wall (all False for unused rows).
+
+    Returns:
+        ``(x, d)``: shared unknowns and distances (0 for walls without rows), one homogeneous scale.
+    """
+    row_scale = _inverse_or_zero(safe_norm(jnp.concatenate([shared, distance[:, None]], -1)))
+    shared = shared * row_scale[:, None]
+    distance = distance * row_scale
+    weights = one_hot.astype(shared.dtype) * distance[:, None]  # (m, K)
+    inverse = _inverse_or_zero(jnp.sum(weights * weights, 0))  # 1 / (a_k^T a_k)
+    coupling = inverse[:, None] * (weights.T @ shared)  # (K, n)
+    projected = shared - weights @ coupling
+    x = scaled_null_space(projected, 1)[:, 0]
+    return x, -(coupling @ x)
+
+
+def heights_of(vector: Float[Array, " n"]) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
+    """``(|u|, h_c, h_f)`` of ``W = (u, v, w, ...)`` by least squares ``v ~ h_c u``, ``w ~ h_f u``."""
+    u, v, w = vector[0:2], vector[2:4], vector[4:6]
+    norm = safe_norm(u)
+    squared = jnp.where(norm > 0, norm * norm, 1.0)
+    return norm, jnp.dot(u, v) / squared, jnp.dot(u, w) / squared
+
+
+def yaw_parameters(vector: Float[Array, " n"]) -> tuple[Float[Array, " P"], Bool[Array, ""]]:
+    """``(t, h_c, h_f, d_1..)`` of a linear solution ``W = (u, v, w, d_1..)``, and whether ``u != 0``.
+
+    ``t`` is the angle of ``u``, heights by :func:`heights_of`, distances ``d_k / |u|``.
+    """
+    norm, h_c, h_f = heights_of(vector)
+    ok = norm > 0
+    yaw = jnp.arctan2(vector[1], jnp.where(ok, vector[0], 1.0))
+    distances = vector[6:] / jnp.where(ok, norm, 1.0)
+    return jnp.concatenate([jnp.stack([yaw, h_c, h_f]), distances]), ok
+
+
+# --------------------------------------------------------------------------
+# Maximum-likelihood refinement
+# --------------------------------------------------------------------------
+
+
+def column_geometry(rays: Float[Array, "m 6"]) -> tuple[Float[Array, "m 2"], Float[Array, " m"], Float[Array, "m 2"]]:
+    """Per ray: horizontal unit azimuth ``a``, radius ``rc`` of its optical centre, and ``(cos phi, sin phi)``.
+
+    A panorama ray (DESIGN.md section 2) is ``xi = (cos phi a, sin phi)`` from
+    the optical centre ``rc a``, so ``xibar = rc sin phi (a_y, -a_x, 0)``.
+    ``rc`` is read where ``|sin phi|`` is not tiny (boundary rays never look
+    at the horizon: the wall would be at infinity), 0 elsewhere.
+    """
+    cos_phi = safe_norm(rays[:, 0:2])
+    sin_phi = rays[:, 2]
+    a = rays[:, 0:2] * _inverse_or_zero(cos_phi)[:, None]
+    readable = jnp.abs(sin_phi) > jnp.sqrt(jnp.finfo(rays.dtype).eps)
+    moment = rays[:, 3] * a[:, 1] - rays[:, 4] * a[:, 0]
+    rc = jnp.where(readable, moment / jnp.where(readable, sin_phi, 1.0), 0.0)
+    return a, rc, jnp.stack([cos_phi, sin_phi], -1)
+
+
+def angular_residual(
+    yaw: Float[Array, ""],
+    height: Float[Array, ""],
+    distance: Float[Array, ""],
+    base_direction: Float[Array, "2"],
+    azimuth: Float[Array, "2"],
+    rc: Float[Array, ""],
+    observed: Float[Array, "2"],
+) -> Float[Array, ""]:
+    """Elevation error (radians) of one boundary ray against the wall line ``(u, d, h)``.
+
+    With ``u = rotate(base_direction, yaw)``, ``e2 = (-uy, ux)``, the column's
+    vertical half-plane from the optical centre ``c = rc a`` meets the wall at
+    horizontal distance ``s = g / q`` (``q = e2 . a``, ``g = d - e2 . c``), so the
+    boundary is predicted in the in-plane direction ``(s, h)``; the residual is
+    its signed angle to the observed ``(cos phi, sin phi)``. ``(g q, h q^2)`` is
+    used for ``(s, h)``: the same direction without a division.
+    """
+    u = rotate_2d(base_direction, yaw)
+    q = jnp.dot(jnp.stack([-u[1], u[0]]), azimuth)
+    g = distance - rc * q
+    predicted = jnp.stack([g * q, height * q * q])
+    cross = observed[0] * predicted[1] - observed[1] * predicted[0]
+    dot = jnp.dot(observed, predicted)
+    defined = (cross != 0) | (dot != 0)
+    return jnp.where(defined, jnp.arctan2(cross, jnp.where(defined, dot, 1.0)), 0.0)
+
+
+def _row_arguments(params, geometry, base_directions, one_hot, is_floor):
+    """The per-row arguments of :func:`angular_residual`, and which rows are used."""
+    azimuth, rc, observed = geometry
+    used = jnp.any(one_hot, 1)
+    heights = jnp.where(is_floor, params[2], params[1])
+    distances = params[3:][jnp.argmax(one_hot, 1)]
+    return (jnp.broadcast_to(params[0], heights.shape), heights, distances, base_directions, azimuth, rc, observed), used
+
+
+def residuals_of(
+    params: Float[Array, " P"],
+    geometry: tuple[Array, Array, Array],
+    base_directions: Float[Array, "m 2"],
+    one_hot: Bool[Array, "m K"],
+    is_floor: Bool[Array, " m"],
+) -> Float[Array, " m"]:
+    """:func:`angular_residual` of every row (0 for unused rows)."""
+    arguments, used = _row_arguments(params, geometry, base_directions, one_hot, is_floor)
+    return jnp.where(used, jax.vmap(angular_residual)(*arguments), 0.0)
+
+
+def gauss_newton_step(
+    params: Float[Array, " P"],
+    geometry: tuple[Array, Array, Array],
+    base_directions: Float[Array, "m 2"],
+    one_hot: Bool[Array, "m K"],
+    is_floor: Bool[Array, " m"],
+    refine_yaw: bool,
+) -> Float[Array, " P"]:
+    """One Gauss-Newton step on the angular residuals of all used rows.
+
+    ``params = (t, h_c, h_f, d_1..d_K)``. Rows with an all-False ``one_hot``
+    are unused. Parameters that no row constrains (absent walls, the yaw when
+    not refined) do not move.
+    """
+    arguments, used = _row_arguments(params, geometry, base_directions, one_hot, is_floor)
+    residual = jax.vmap(angular_residual)(*arguments)
+    d_yaw, d_height, d_distance = jax.vmap(jax.grad(angular_residual, argnums=(0, 1, 2)))(*arguments)
+    mask = used.astype(params.dtype)
+    residual = residual * mask
+    d_yaw = d_yaw * mask if refine_yaw else jnp.zeros_like(d_yaw)
+    shared = jnp.stack([d_yaw, jnp.where(is_floor, 0.0, d_height), jnp.where(is_floor, d_height, 0.0)], -1) * mask[:, None]
+    weights = one_hot.astype(params.dtype) * d_distance[:, None]  # (m, K)
+    # normal equations [[A, C], [C^T, diag(D)]] delta = -[b, e]
+    a = shared.T @ shared
+    c = shared.T @ weights
+    inverse = _inverse_or_zero(jnp.sum(weights * weights, 0))
+    b = shared.T @ residual
+    e = weights.T @ residual
+    complement = a - (c * inverse[None, :]) @ c.T
+    rhs = b - c @ (inverse * e)
+    diagonal = jnp.diagonal(complement)
+    free = diagonal > 1e3 * jnp.finfo(params.dtype).eps * jnp.max(jnp.abs(diagonal))
+    scale = jnp.where(free, 1.0 / jnp.sqrt(jnp.where(free, diagonal, 1.0)), 0.0)
+    scaled = scale[:, None] * complement * scale[None, :] + jnp.diag(jnp.where(free, 0.0, 1.0))
+    delta_shared = -scale * jnp.linalg.solve(scaled, scale * rhs)
+    delta_distances = -inverse * (e + c.T @ delta_shared)
+    return params + jnp.concatenate([delta_shared, delta_distances])
+
+
+def refine_walls(
+    params: Float[Array, " P"],
+    rays: Float[Array, "m 6"],
+    base_directions: Float[Array, "m 2"],
+    one_hot: Bool[Array, "m K"],
+    is_floor: Bool[Array, " m"],
+    refine_yaw: bool,
+    steps: int = 3,
+) -> Float[Array, " P"]:
+    """Gauss-Newton on the angular residuals (:func:`angular_residual`) from ``params``.
+
+    Args:
+        params: initial ``(t, h_c, h_f, d_1..d_K)`` (from a linear solver).
+        rays: the rays, one per row.
+        base_directions: per row, its wall's direction at yaw 0.
+        one_hot: per row, its wall (all False: the row is unused).
+        is_floor: per row, floor (True) or ceiling ray.
+        refine_yaw: static; False keeps ``t`` (Atlanta: known directions).
+        steps: static number of Gauss-Newton steps (3: converged to float
+            precision from the linear solutions in our experiments).
+
+    Returns:
+        The refined ``(t, h_c, h_f, d_1..d_K)``.
+    """
+    used = jnp.any(one_hot, 1)
+    geometry = column_geometry(jnp.where(used[:, None], rays, 0.0))
+    cost = lambda p: jnp.sum(residuals_of(p, geometry, base_directions, one_hot, is_floor) ** 2)  # noqa: E731
+    current = cost(params)
+    for _ in range(steps):
+        candidate = gauss_newton_step(params, geometry, base_directions, one_hot, is_floor, refine_yaw)
+        candidate_cost = cost(candidate)
+        # a step that does not decrease the cost (far from the optimum, degenerate data) is refused
+        better = candidate_cost <= current
+        params = jnp.where(better, candidate, params)
+        current = jnp.where(better, candidate_cost, current)
+    return params
