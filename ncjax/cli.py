@@ -139,6 +139,16 @@ def main(argv: list[str] | None = None) -> int:
     evaluate.add_argument("--limit", type=int, help="evaluate the first N images only")
     evaluate.add_argument("--json", help="also write the row to this json file")
     evaluate.set_defaults(run=_evaluate)
+    from ncjax._app import add_demo_arguments, add_reconstruct_arguments, run_demo, run_reconstruct
+
+    reconstruct = commands.add_parser(
+        "reconstruct", help="metric layouts of panoramas: json, mesh (obj/ply/glb), overlay and floor-plan png"
+    )
+    add_reconstruct_arguments(reconstruct)
+    reconstruct.set_defaults(run=run_reconstruct)
+    demo = commands.add_parser("demo", help="reconstruct the built-in sample and compare it with its ground truth")
+    add_demo_arguments(demo)
+    demo.set_defaults(run=run_demo)
     args = parser.parse_args(argv)
     try:
         return args.run(args)

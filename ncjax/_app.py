@@ -1,0 +1,199 @@
+"""The user-facing commands ``ncjax reconstruct`` and ``ncjax demo``.
+
+``reconstruct`` reads panoramas, groups them by size into fixed-size batches
+(the last one padded, so each size compiles once), runs
+:func:`~ncjax._reconstruct.reconstruct_batch` and writes per image
+``<name>.json``, ``<name>.obj/.ply/.glb`` (when a layout was found),
+``<name>_overlay.png`` and ``<name>_plan.png``. Every file is written to a
+temporary name and renamed, so an interrupted run leaves no half-written
+file. A bad image is reported and skipped; the command ends with exit code
+1 and the list of failures if any image failed, 2 for bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import math
+import os
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+from ._dataset import rc_from_name
+from ._images import PanoramaError, read_panorama
+
+MAX_RC = 3.0  # metres; the capture rigs have radii of tens of centimetres
+DEMO_DIR = pathlib.Path(__file__).parent / "data" / "demo"
+
+
+def parse_rc(text: str) -> float | None:
+    """``--rc``: a radius in metres (0, MAX_RC], or None for "auto" (read from each file name)."""
+    if text == "auto":
+        return None
+    try:
+        rc = float(text)
+    except ValueError:
+        rc = math.nan
+    if not (math.isfinite(rc) and 0.0 < rc <= MAX_RC):
+        raise ValueError(
+            f"--rc must be 'auto' or the radius of the circle of optical centres in metres, "
+            f"0 < rc <= {MAX_RC}; got {text!r}"
+        )
+    return rc
+
+
+def radius_of(path: str, rc: float | None) -> float:
+    """The radius of one image: the ``--rc`` value, or the ``_R<rc in 1e-4 m>`` of its name."""
+    if rc is not None:
+        return rc
+    from_name = rc_from_name(pathlib.Path(path).stem)
+    if from_name is None:
+        raise PanoramaError(
+            f"{path}: --rc auto needs the radius in the file name, e.g. L101_R06101.png for rc = 0.6101 m; "
+            "pass --rc RADIUS instead"
+        )
+    if not 0.0 < from_name <= MAX_RC:
+        raise PanoramaError(f"{path}: the radius in the file name, {from_name} m, is not in (0, {MAX_RC}] m")
+    return from_name
+
+
+def write_outputs(out: str, name: str, image: np.ndarray, result, rc: float, world: str, extra: dict | None = None):
+    """All files of one image; returns the JSON record."""
+    from ._camera import NonCentralPanorama
+    from ._export import draw_overlay, draw_plan, layout_record, write_json, write_mesh, write_png
+
+    layout, ceiling_v, floor_v, corner_prob = result
+    cam = NonCentralPanorama(image.shape[1], image.shape[0], rc=rc)
+    record = layout_record(layout, cam, name=name, world=world, extra=extra)
+    stem = os.path.join(out, name)
+    if record["ok"]:
+        write_mesh(stem, layout)
+    overlay = draw_overlay(image, layout, cam, ceiling_v=ceiling_v, floor_v=floor_v, corner_prob=corner_prob)
+    write_png(f"{stem}_overlay.png", overlay)
+    write_png(f"{stem}_plan.png", draw_plan(layout, title=name, rc=rc))
+    write_json(f"{stem}.json", record)
+    return record
+
+
+def _reconstruct_group(model, items, batch_size, world, out, on_done):
+    """Reconstruct same-size images in fixed-size batches; ``on_done(path, record)`` after each image."""
+    import jax
+
+    from ._reconstruct import reconstruct_batch
+
+    for start in range(0, len(items), batch_size):
+        chunk = items[start : start + batch_size]
+        padding = [chunk[-1]] * (batch_size - len(chunk))
+        images = np.stack([image for _, _, image, _ in chunk + padding])
+        radii = np.array([rc for *_, rc in chunk + padding], np.float32)
+        result = jax.device_get(reconstruct_batch(images, radii, world, model=model))
+        for index, (path, name, image, rc) in enumerate(chunk):
+            one = jax.tree.map(lambda x: x[index], tuple(result))
+            on_done(path, write_outputs(out, name, image, one, float(rc), world))
+
+
+def run_reconstruct(args: argparse.Namespace) -> int:
+    """``ncjax reconstruct IMAGES... --rc RC|auto --out DIR``."""
+    from tqdm import tqdm
+
+    from ._checkpoint import load_model
+    from ._predict import default_model
+
+    rc = parse_rc(args.rc)
+    if args.batch < 1:
+        raise ValueError(f"--batch must be >= 1, got {args.batch}")
+    names = [pathlib.Path(path).stem for path in args.images]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise ValueError(f"several images would write the same outputs: {', '.join(repeated)} (rename them)")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ValueError(f"--out {args.out!r} exists and is not a folder")
+    model = load_model(args.model) if args.model else default_model()
+    os.makedirs(args.out, exist_ok=True)
+
+    failures: dict[str, str] = {}
+    groups: dict[tuple[int, int], list] = collections.defaultdict(list)
+    bar = tqdm(total=len(args.images), unit="image", desc="ncjax reconstruct")
+
+    def done(path, record):
+        if not record["ok"]:
+            failures[path] = f"no layout found ({record['status']}); see its _overlay.png"
+        bar.update()
+
+    for path, name in zip(args.images, names):
+        try:
+            image = read_panorama(path)
+            radius = radius_of(path, rc)
+        except PanoramaError as error:
+            failures[path] = str(error)
+            bar.update()
+            continue
+        group = groups[image.shape[:2]]
+        group.append((path, name, image, radius))
+        if len(group) == args.batch:
+            _reconstruct_group(model, group, args.batch, args.world, args.out, done)
+            group.clear()
+    for group in groups.values():
+        if group:
+            _reconstruct_group(model, group, args.batch, args.world, args.out, done)
+    bar.close()
+    succeeded = len(args.images) - len(failures)
+    print(f"{succeeded} of {len(args.images)} images reconstructed into {args.out}")
+    if failures:
+        print(f"{len(failures)} failed:", file=sys.stderr)
+        for path, reason in failures.items():
+            print(f"  {path}: {reason}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    """``ncjax demo``: reconstruct the shipped sample and compare it with its ground truth."""
+    import jax
+
+    from . import metrics
+    from ._reconstruct import reconstruct_batch
+
+    start = time.perf_counter()
+    with open(DEMO_DIR / "ground_truth.json") as file:
+        truth = json.load(file)
+    path = DEMO_DIR / truth["image"]
+    image = read_panorama(path)
+    rc = radius_of(str(path), None)
+    os.makedirs(args.out, exist_ok=True)
+    print(f"ncjax demo: {truth['image']} ({image.shape[1]} x {image.shape[0]}, rc = {rc} m from its name, "
+          f"a {truth['world']} room rendered by ncjax synth and never seen in training)")
+    result = jax.device_get(reconstruct_batch(image[None], [rc], args.world))
+    one = jax.tree.map(lambda x: x[0], tuple(result))
+    record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world)
+    elapsed = time.perf_counter() - start
+    if not record["ok"]:
+        print(f"no layout found: {record['status']}", file=sys.stderr)
+        return 1
+    scores = metrics.evaluate_layout(one[0], truth)
+    true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
+    print(f"layout: {len(record['ceiling_corners'])} corners ({record['branch']} branch), "
+          f"room height {record['room_height']:.3f} m (true {true_height:.3f} m), "
+          f"floor area {record['floor_area']:.2f} m^2")
+    print(f"error against the ground truth: corner error {scores['ce']:.3f} m, 3D IoU {100 * scores['iou3d']:.1f}%, "
+          f"2D IoU {100 * scores['iou2d']:.1f}%, height error {scores['height_error']:.3f} m")
+    print(f"outputs in {os.path.abspath(args.out)}/ (json, obj/ply/glb mesh, overlay and plan png); {elapsed:.0f} s")
+    return 0
+
+
+def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("images", nargs="+", help="panorama files (full 360 x 180 degrees, width = 2 x height)")
+    parser.add_argument("--rc", required=True, help="radius in metres, or 'auto' to read it from the names (_R06101)")
+    parser.add_argument("--out", required=True, help="output folder (created if needed)")
+    parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto")
+    parser.add_argument("--model", help="network weights (.safetensors); default: the shipped model")
+    parser.add_argument("--batch", type=int, default=4, help="images per jitted call")
+
+
+def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="ncjax_demo", help="output folder (default ./ncjax_demo)")
+    parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto")

@@ -1,0 +1,82 @@
+"""Reading panoramas from files for ``ncjax reconstruct``: every way a file can be wrong gets a clear message.
+
+Accepted: anything OpenCV decodes (PNG, JPEG, TIFF, BMP, WebP, ...) as 8- or
+16-bit greyscale, RGB or RGBA. 16-bit images are scaled to 8 bits
+(``round(x / 257)``), greyscale is repeated into three channels and the alpha
+channel is dropped (panoramas have no transparency; the colour is kept as
+stored). The panorama must be full (360 x 180 degrees, width = 2 x height).
+"""
+
+from __future__ import annotations
+
+import os
+
+import cv2
+import numpy as np
+
+_JPEG_END = b"\xff\xd9"
+_PNG_END = b"IEND\xaeB`\x82"
+
+
+class PanoramaError(ValueError):
+    """A panorama file that cannot be used (the message says why)."""
+
+
+def _truncation(data: bytes) -> str | None:
+    """Why a JPEG or PNG file is cut short, or None (OpenCV may decode a truncated JPEG silently)."""
+    if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(_JPEG_END):
+        return "the JPEG data ends before its end marker (truncated file?)"
+    if data.startswith(b"\x89PNG") and not data.endswith(_PNG_END):
+        return "the PNG data ends before its IEND chunk (truncated file?)"
+    return None
+
+
+def to_rgb8(image: np.ndarray) -> np.ndarray:
+    """An OpenCV-decoded array (BGR order, 8/16 bit, 1/3/4 channels) as RGB uint8 (H, W, 3)."""
+    if image.dtype == np.uint16:
+        image = np.round(image.astype(np.float32) / 257.0).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise PanoramaError(f"unsupported pixel type {image.dtype} (8- or 16-bit images only)")
+    if image.ndim == 2:
+        image = image[..., None]
+    channels = image.shape[-1]
+    if channels == 1:
+        return np.repeat(image, 3, axis=-1)
+    if channels == 3:
+        return image[..., ::-1].copy()
+    if channels == 4:
+        return image[..., 2::-1].copy()
+    raise PanoramaError(f"unsupported number of channels: {channels}")
+
+
+def read_panorama(path: str | os.PathLike) -> np.ndarray:
+    """Read a full panorama as RGB uint8 (H, W, 3).
+
+    Raises:
+        PanoramaError: missing, unreadable, truncated, not an image, an
+            unsupported pixel format, or not 2:1.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise PanoramaError(f"{path}: no such file")
+    with open(path, "rb") as file:
+        data = file.read()
+    if not data:
+        raise PanoramaError(f"{path}: the file is empty")
+    truncated = _truncation(data)
+    if truncated:
+        raise PanoramaError(f"{path}: {truncated}")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise PanoramaError(f"{path}: not an image OpenCV can decode (corrupt or unsupported format)")
+    try:
+        image = to_rgb8(image)
+    except PanoramaError as error:
+        raise PanoramaError(f"{path}: {error}") from None
+    height, width = image.shape[:2]
+    if width != 2 * height or height < 32:
+        raise PanoramaError(
+            f"{path}: {width} x {height} pixels is not a full 360 x 180 degree panorama "
+            "(width must be 2 x height, at least 64 x 32)"
+        )
+    return image

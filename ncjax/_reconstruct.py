@@ -1,0 +1,152 @@
+"""``ncjax.reconstruct``: panorama -> Non-central HorizonNet -> geometric pipeline -> metric Layout.
+
+The two blocks of the paper's Fig. pipeline in ONE jitted function: the image
+is resized to the network's input size, the network's per-column outputs are
+brought back to the image's columns and rows (:func:`~ncjax._network.prediction_to_rows`),
+and the geometric pipeline (:func:`~ncjax._pipeline.layout_from_evidence`)
+runs on them with each image's own camera radius. Nothing leaves the device
+between the two blocks, and a batch of images is one call.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray, Shaped
+
+from ._camera import NonCentralPanorama
+from ._network import HorizonNet, prediction_to_rows
+from ._pipeline import WORLDS, Layout, PipelineConfig, layout_from_evidence
+from ._predict import default_model
+
+
+class Reconstruction(NamedTuple):
+    """What :func:`reconstruct_batch` returns: the layouts and the network's boundaries they came from.
+
+    Attributes:
+        layout: :class:`~ncjax.Layout` with a leading batch axis B.
+        ceiling_v, floor_v: (B, W) the network's boundary rows in image pixels.
+        corner_prob: (B, W) the network's corner probability.
+    """
+
+    layout: Layout
+    ceiling_v: Float[Array, "B W"]
+    floor_v: Float[Array, "B W"]
+    corner_prob: Float[Array, "B W"]
+
+
+@functools.partial(nnx.jit, static_argnames=("world", "config"))
+def _reconstruct(
+    model: HorizonNet,
+    images: Shaped[Array, "B H W 3"],
+    rc: Float[Array, " B"],
+    keys: PRNGKeyArray,
+    world: str,
+    config: PipelineConfig,
+) -> Reconstruction:
+    batch, height, width = images.shape[:3]
+    size = (batch, model.config.input_height, model.config.input_width, 3)
+    resized = jax.image.resize(images.astype(jnp.float32) / 255.0, size, method="linear")
+    ceiling_v, floor_v, corner_prob = prediction_to_rows(model(resized), height, width)
+
+    def one(ceiling, floor, probability, radius, key):
+        cam = NonCentralPanorama(width, height, rc=radius)
+        return layout_from_evidence(ceiling, floor, probability, cam, key, world, config)
+
+    layouts = jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, keys)
+    return Reconstruction(layouts, ceiling_v, floor_v, corner_prob)
+
+
+def check_panorama(images: np.ndarray) -> None:
+    """Raise ValueError unless ``images`` is RGB uint8 (H, W, 3) or (B, H, W, 3) with W = 2 H.
+
+    The network and the camera model read the image as a full 360 x 180
+    degree panorama, so the aspect ratio must be 2:1.
+    """
+    if images.dtype != np.uint8 or images.ndim not in (3, 4) or images.shape[-1] != 3:
+        raise ValueError(f"expected an RGB uint8 image (H, W, 3) or batch (B, H, W, 3), got {images.dtype}{images.shape}")
+    height, width = images.shape[-3:-1]
+    if width != 2 * height or height < 32:
+        raise ValueError(
+            f"expected a full 360 x 180 degree panorama, width = 2 x height >= 64 pixels; got {width} x {height}"
+        )
+
+
+def reconstruct_batch(
+    images: Shaped[np.ndarray, "B H W 3"],
+    rc: Float[ArrayLike, " B"],
+    world: str = "manhattan",
+    *,
+    model: HorizonNet | None = None,
+    config: PipelineConfig = PipelineConfig(),
+    key: PRNGKeyArray | None = None,
+) -> Reconstruction:
+    """Metric layouts of a batch of panoramas of one size, each with its own radius.
+
+    Args:
+        images: RGB uint8 (B, H, W, 3), W = 2 H.
+        rc: (B,) radius of each panorama's circle of optical centres, metres.
+        world: static: "manhattan", "atlanta" or "auto".
+        model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
+        config: static :class:`~ncjax.PipelineConfig`.
+        key: RANSAC key (default ``jax.random.key(0)``), split over the batch.
+
+    Returns:
+        :class:`Reconstruction` (check ``layout.ok`` per image).
+
+    Raises:
+        ValueError: bad image array, world or rc (negative or not finite; rc = 0
+            is accepted and gives ``LayoutStatus.NO_SCALE``).
+        FileNotFoundError: no model given and the shipped weights are missing.
+    """
+    images = np.asarray(images)
+    check_panorama(images)
+    if images.ndim != 4:
+        raise ValueError(f"reconstruct_batch takes a batch (B, H, W, 3), got {images.shape}; use reconstruct")
+    if world not in WORLDS:
+        raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
+    rc = np.broadcast_to(np.asarray(rc, np.float32), images.shape[:1])
+    if not np.all(np.isfinite(rc)) or np.any(rc < 0):
+        raise ValueError(f"rc must be finite radii >= 0 in metres, got {rc}")
+    model = default_model() if model is None else model
+    model.eval()
+    keys = jax.random.split(jax.random.key(0) if key is None else key, images.shape[0])
+    return _reconstruct(model, jnp.asarray(images), jnp.asarray(rc), keys, world, config)
+
+
+def reconstruct(
+    image: Shaped[np.ndarray, "H W 3"],
+    cam: NonCentralPanorama,
+    world: str = "manhattan",
+    *,
+    model: HorizonNet | None = None,
+    config: PipelineConfig = PipelineConfig(),
+    key: PRNGKeyArray | None = None,
+) -> Layout:
+    """Metric room layout of one RGB panorama: network, then geometry (paper Fig. pipeline).
+
+    Args:
+        image: RGB uint8 (H, W, 3), a full panorama (W = 2 H).
+        cam: its camera; ``cam.width`` and ``cam.height`` must be the image's.
+        world: "manhattan", "atlanta" or "auto".
+        model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
+        config: :class:`~ncjax.PipelineConfig`.
+        key: RANSAC key (default ``jax.random.key(0)``).
+
+    Returns:
+        An unbatched :class:`~ncjax.Layout`; check ``ok`` / ``status``.
+    """
+    image = np.asarray(image)
+    check_panorama(image)
+    if image.ndim != 3:
+        raise ValueError(f"reconstruct takes one image (H, W, 3), got {image.shape}; use reconstruct_batch")
+    if (cam.width, cam.height) != image.shape[1::-1]:
+        raise ValueError(f"the camera is {cam.width} x {cam.height} but the image {image.shape[1]} x {image.shape[0]}")
+    result = reconstruct_batch(image[None], jnp.reshape(cam.rc, (1,)), world, model=model, config=config, key=key)
+    return jax.tree.map(lambda x: x[0], result.layout)
+
