@@ -114,11 +114,15 @@ from ._network_metrics import boundary_pixel_error, corner_confusion, corner_sco
 from ._predict import predict_boundaries
 from ._train import TrainConfig, horizonnet_loss, train
 
+# The whole method: panorama -> network -> geometry (paper Fig. pipeline)
+from ._reconstruct import Reconstruction, reconstruct, reconstruct_batch
+
 __version__ = "0.1.0"
 
 __all__ = [
     "AugmentConfig",
     "BoundaryPrediction",
+    "Reconstruction",
     "Boxes",
     "DatasetSample",
     "HorizonNet",
@@ -181,6 +185,8 @@ __all__ = [
     "point_at",
     "point_to_angles",
     "predict_boundaries",
+    "reconstruct",
+    "reconstruct_batch",
     "project",
     "quarter_turn",
     "random_augment",

@@ -454,7 +454,8 @@ def load_split(
 ) -> dict[str, np.ndarray]:
     """Stack the samples of one split of a dataset folder (``split.json``) with :func:`sample_arrays`.
 
-    Folders without ``split.json`` (e.g. the authors') are used whole for any split.
+    ``split="all"`` takes every sample; folders without ``split.json`` (e.g.
+    the authors') are used whole for any split.
 
     Raises:
         ValueError: not a dataset folder, an unknown split, or an empty one.
@@ -462,7 +463,7 @@ def load_split(
     from tqdm.auto import tqdm
 
     names = list_samples(directory)
-    if os.path.exists(os.path.join(directory, "split.json")):
+    if split != "all" and os.path.exists(os.path.join(directory, "split.json")):
         splits = read_split(directory)
         if split not in splits:
             raise ValueError(f"{directory}: split {split!r} not in split.json (has {', '.join(splits)})")

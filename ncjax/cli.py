@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     train.set_defaults(run=_train)
     evaluate = commands.add_parser("evaluate", help="Table netcorExp of a model on a dataset split")
     evaluate.add_argument("--data", required=True, help="dataset folder (ncjax synth or the authors')")
-    evaluate.add_argument("--split", default="test", help="split of split.json (default test)")
+    evaluate.add_argument("--split", default="test", help="split of split.json (default test), or all")
     evaluate.add_argument("--model", help=".safetensors weights (default: the shipped model)")
     evaluate.add_argument("--limit", type=int, help="evaluate the first N images only")
     evaluate.add_argument("--json", help="also write the row to this json file")

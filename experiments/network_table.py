@@ -1,0 +1,205 @@
+"""Table netcorExp (the network) and the "Network predictions" tables (pipeExp, comparison) on fixed test renders.
+
+Test set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` at 512 x 1024
+with seeds 99 (Manhattan) and 98 (Atlanta); the shipped model was trained on
+seed 11 only, so none of these rooms, scenes or images was seen in training.
+They are rendered once into ``experiments/out/test_renders_<world>/`` and reused.
+
+1. Table netcorExp: boundary pixel error (PE, in pixels of a 1024-wide image)
+   mean and std over images, corner precision / recall / accuracy / IoU with
+   the probability and the ``0.96**d`` target binarised at 0.5
+   (:mod:`ncjax._network_metrics`).
+2. Table pipeExp, "Network predictions": the network's boundaries through the
+   paper's "Solvers" route and through the full pipeline
+   (``ncjax.reconstruct_batch``), CE and 3D IoU, Manhattan and Atlanta, on the
+   rooms without occlusion (as the paper) and on all rooms.
+3. Table comparison, ncjax rows: 3D IoU, up-to-scale 3D IoU, CEN, CE.
+
+Ground truth: for Manhattan the true room (the pipeline recovers the hidden
+wall at an occlusion), for Atlanta the visible layout (its inserted walls lie
+in the corner rays' planes). A layout that is not ok, or whose corner count
+differs from the ground truth, is a failure: CE and CEN are averaged over the
+other rooms, IoU over all rooms with failures counted as 0 ("IoU, all") and
+over the successes.
+
+    uv run python experiments/network_table.py                # 128 rooms per world
+    uv run python experiments/network_table.py --small        # 8 rooms per world
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from tqdm import tqdm
+
+import ncjax
+from ncjax import metrics
+from ncjax._checkpoint import load_model
+from ncjax._dataset import list_samples, read_sample, write_dataset
+from ncjax._predict import default_model
+from ncjax._reconstruct import reconstruct_batch
+from ncjax._train import evaluate_arrays, load_split
+
+sys.path.insert(0, str(Path(__file__).parent))
+from pipeline_table import compiled  # noqa: E402  (the paper's "Solvers" route, shared)
+
+OUT = Path(__file__).parent / "out"
+SEEDS = {"manhattan": 99, "atlanta": 98}
+BATCH = 8
+PAPER = {
+    "netcorExp": {"precision": 0.934, "recall": 0.962, "accuracy": 0.986, "iou": 0.901, "pe_mean": 1.167, "pe_std": 0.490},
+    "pipeExp": {
+        ("solvers", "manhattan"): (0.5569, 81.7364),
+        ("solvers", "atlanta"): (1.2860, 42.6701),
+        ("pipeline", "manhattan"): (0.2109, 86.8104),
+        ("pipeline", "atlanta"): (0.4811, 76.0218),
+    },
+    "comparison": {"manhattan": (93.87, 86.16, 0.78, 0.223), "atlanta": (90.46, 76.02, 1.5, 0.481)},
+}
+
+
+def test_renders(world: str, count: int, out: Path) -> Path:
+    """The folder of ``count`` test renders of ``world`` (rendered on first use)."""
+    folder = out / f"test_renders_{world}_{count}"
+    if folder.is_dir() and len(list_samples(str(folder))) == count:
+        return folder
+    config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
+    with tqdm(total=count, desc=f"render {world} test set") as bar:
+        write_dataset(str(folder), count, SEEDS[world], config, batch_size=BATCH, overwrite=True, progress=bar.update)
+    return folder
+
+
+def ground_truth(sample, world: str) -> dict:
+    """Manhattan: the true room in image order; Atlanta: the visible layout (see the module docstring)."""
+    meta = sample.metadata
+    if world == "atlanta":
+        return {"ceiling_corners": meta["ceiling_corners"], "floor_corners": meta["floor_corners"]}
+    plan = np.asarray(meta["room_corners"])[::-1]  # rooms are counter-clockwise, layouts clockwise
+    ones = np.ones((len(plan), 1))
+    return {
+        "ceiling_corners": np.hstack([plan, meta["ceiling_height"] * ones]),
+        "floor_corners": np.hstack([plan, meta["floor_height"] * ones]),
+    }
+
+
+def layouts_of(samples, world: str, model):
+    """Full-pipeline reconstructions and the network's boundaries of the samples, in fixed-size batches."""
+    layouts, boundaries = [], []
+    for start in tqdm(range(0, len(samples), BATCH), desc=f"reconstruct {world}"):
+        chunk = samples[start : start + BATCH]
+        chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
+        images = np.stack([s.image for s in chunk])
+        result = jax.device_get(reconstruct_batch(images, [s.rc for s in chunk], world, model=model))
+        for index in range(min(BATCH, len(samples) - start)):
+            layouts.append(jax.tree.map(lambda x: x[index], result.layout))
+            boundaries.append((result.ceiling_v[index], result.floor_v[index], result.corner_prob[index]))
+    return layouts, boundaries
+
+
+def solver_layouts(samples, boundaries, world: str):
+    """The paper's "Solvers" route on the network's boundaries."""
+    width, height = samples[0].image.shape[1], samples[0].image.shape[0]
+    rows = [np.stack(parts) for parts in zip(*boundaries)]
+    radii = np.array([s.rc for s in samples], np.float32)
+    cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(radii)
+    keys = jax.random.split(jax.random.key(0), len(samples))
+    result = jax.device_get(compiled("solvers", world)(*rows, cams, keys))
+    return [jax.tree.map(lambda x: x[i], result) for i in range(len(samples))]
+
+
+def scores(layouts, truths) -> list[dict]:
+    out = []
+    for layout, truth in zip(layouts, truths):
+        ok = bool(layout["ok"] if isinstance(layout, dict) else layout.ok)
+        result = metrics.evaluate_layout(layout, truth) if ok else None
+        failed = result is None or not math.isfinite(result["ce"])
+        out.append({"failed": failed, **({} if result is None else result)})
+    return out
+
+
+def summary(results: list[dict]) -> dict:
+    good = [r for r in results if not r["failed"]]
+    mean = lambda key: float(np.mean([r[key] for r in good])) if good else math.nan  # noqa: E731
+    return {
+        "rooms": len(results),
+        "failed": 100.0 * (1 - len(good) / len(results)),
+        "ce": mean("ce"),
+        "cen": 100 * mean("cen"),
+        "iou3d": 100 * mean("iou3d"),
+        "iou3d_all": 100 * float(np.sum([r["iou3d"] for r in good]) / len(results)),
+        "iou3d_u2s": 100 * mean("iou3d_up_to_scale"),
+        "height_error": mean("height_error"),
+    }
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rooms", type=int, default=128, help="test renders per world")
+    parser.add_argument("--small", action="store_true", help="8 rooms per world")
+    parser.add_argument("--model", help="weights (.safetensors); default: the shipped model")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args(argv)
+    count = 8 if args.small else args.rooms
+    model = load_model(args.model) if args.model else default_model()
+    start = time.time()
+    lines, record = [], {"rooms_per_world": count}
+
+    arrays = {}
+    for world in SEEDS:
+        folder = str(test_renders(world, count, args.out))
+        arrays[world] = load_split(folder, "all", model.config.input_height, model.config.input_width)
+    pooled = {key: np.concatenate([a[key] for a in arrays.values()]) for key in arrays["manhattan"]}
+    lines += ["### Table netcorExp (network)", "", "| test set | images | precision | recall | accuracy | IoU | PE mean (px) | PE std (px) |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for name, data in [*arrays.items(), ("all", pooled)]:
+        row = evaluate_arrays(model, data)
+        record[f"network_{name}"] = row
+        lines.append(f"| {name} | {len(data['image'])} | {row['precision']:.3f} | {row['recall']:.3f} | {row['accuracy']:.3f} | "
+                     f"{row['iou']:.3f} | {row['pe_mean']:.3f} | {row['pe_std']:.3f} |")
+    p = PAPER["netcorExp"]
+    lines.append(f"| paper (its test set) | 499 | {p['precision']} | {p['recall']} | {p['accuracy']} | {p['iou']} | {p['pe_mean']} | {p['pe_std']} |")
+
+    lines += ["", "### Table pipeExp, network predictions", "",
+              "| method | world | rooms | occluded rooms | failed (%) | CE (m) | 3D IoU ok (%) | 3D IoU all (%) | paper CE / IoU |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    comparison = {}
+    for world in SEEDS:
+        folder = str(args.out / f"test_renders_{world}_{count}")
+        samples = [read_sample(folder, name) for name in list_samples(folder)]
+        truths = [ground_truth(s, world) for s in samples]
+        clear = np.array([not any(s.metadata["corner_is_occlusion"]) for s in samples])
+        layouts, boundaries = layouts_of(samples, world, model)
+        results = {"pipeline": scores(layouts, truths), "solvers": scores(solver_layouts(samples, boundaries, world), truths)}
+        for method, per_room in results.items():
+            for subset, keep in (("no occlusion", clear), ("all", np.ones_like(clear))):
+                s = summary([r for r, k in zip(per_room, keep) if k])
+                record[f"{method}_{world}_{subset}"] = s
+                paper = PAPER["pipeExp"][(method, world)] if subset == "no occlusion" else ("", "")
+                lines.append(f"| {method} | {world} | {s['rooms']} | {subset} | {s['failed']:.1f} | {s['ce']:.3f} | "
+                             f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {paper[0]} / {paper[1]} |")
+        comparison[world] = summary(results["pipeline"])
+    lines += ["", "### Table comparison, ncjax rows (pipeline, all test rooms)", "",
+              "| world | 3D IoU u2s (%) | 3D IoU (%) | CEN (% of diagonal) | CE (m) | failed (%) | paper: u2s / IoU / CEN / CE |",
+              "| --- | --- | --- | --- | --- | --- | --- |"]
+    for world, s in comparison.items():
+        p = PAPER["comparison"][world]
+        lines.append(f"| {world} | {s['iou3d_u2s']:.1f} | {s['iou3d']:.1f} | {s['cen']:.2f} | {s['ce']:.3f} | {s['failed']:.1f} | "
+                     f"{p[0]} / {p[1]} / {p[2]} / {p[3]} |")
+    table = "\n".join(lines)
+    print(table)
+    print(f"total time {time.time() - start:.0f} s")
+    suffix = "_small" if args.small else ""
+    (args.out / f"network_table{suffix}.md").write_text(table + "\n")
+    (args.out / f"network_table{suffix}.json").write_text(json.dumps(record, indent=1) + "\n")
+    return record
+
+
+if __name__ == "__main__":
+    main()
