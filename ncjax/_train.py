@@ -350,7 +350,8 @@ def train(
         if checkpoint_every and (step + 1) % checkpoint_every == 0:
             save(step + 1)
         if validate is not None and validate_every and (step + 1) % validate_every == 0:
-            run_validation(step + 1)
+            metrics = run_validation(step + 1)
+            bar.write(f"step {step + 1}: " + ", ".join(f"{k} {float(v):.4g}" for k, v in metrics.items()))
     if steps > start:
         save(steps)
         if validate is not None and not (validate_every and steps % validate_every == 0):

@@ -83,3 +83,66 @@ def test_images_that_would_overwrite_each_other_are_refused(tmp_path, capsys):
     images = [write_png(tmp_path / folder / "room.png", demo_image(SMALL)) for folder in "ab"]
     assert cli.main(["reconstruct", *images, "--rc", "0.5", "--out", str(tmp_path / "out")]) == 2
     assert "room" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- with the shipped model
+
+
+@pytest.fixture(scope="module")
+def batch_run(tmp_path_factory):
+    """ONE ``ncjax reconstruct`` over good and bad files at 512 x 256 (one compilation for all the checks)."""
+    import contextlib
+    import io
+
+    folder = tmp_path_factory.mktemp("reconstruct")
+    rgb = demo_image(SMALL)
+    files = {
+        "room_R06825": write_png(folder / "room_R06825.png", rgb),
+        "grey16_R06825": write_png(folder / "grey16_R06825.png", rgb[..., 1].astype(np.uint16) * 257),
+        "rgba_R06825": write_png(folder / "rgba_R06825.png", np.dstack([rgb, np.full(rgb.shape[:2], 200, np.uint8)])),
+        "cut_R06825": str(folder / "cut_R06825.png"),
+        "noradius": write_png(folder / "noradius.png", rgb),
+        "wide_R06825": write_png(folder / "wide_R06825.png", demo_image((600, 256))),
+    }
+    (folder / "cut_R06825.png").write_bytes(cv2.imencode(".png", rgb)[1].tobytes()[:20000])
+    out = folder / "out"
+    errors = io.StringIO()
+    with contextlib.redirect_stderr(errors):
+        code = cli.main(["reconstruct", *files.values(), "--rc", "auto", "--out", str(out), "--batch", "2",
+                         "--world", "manhattan"])
+    return code, out, errors.getvalue()
+
+
+def test_reconstruct_writes_every_output_of_good_images(batch_run):
+    _, out, _ = batch_run
+    for name in ("room_R06825", "grey16_R06825", "rgba_R06825"):
+        record = json.loads((out / f"{name}.json").read_text())
+        assert record["ok"] and record["status"] == "OK" and record["schema_version"] == 1, record["status"]
+        assert record["rc"] == pytest.approx(0.6825) and record["image_size"] == list(SMALL)
+        assert 2.0 < record["room_height"] < 4.0 and len(record["ceiling_corners"]) >= 4
+        for suffix in (".obj", ".ply", ".glb", "_overlay.png", "_plan.png"):
+            assert (out / f"{name}{suffix}").stat().st_size > 0
+    # The greyscale and transparent versions of one room give about the same layout.
+    heights = [json.loads((out / f"{n}.json").read_text())["room_height"] for n in ("room_R06825", "rgba_R06825")]
+    assert heights[0] == pytest.approx(heights[1], abs=1e-6)
+
+
+def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
+    code, out, errors = batch_run
+    assert code == 1
+    assert "3 failed" in errors
+    assert "cut_R06825.png: the PNG data ends before its IEND chunk" in errors
+    assert "noradius.png: --rc auto needs the radius in the file name" in errors
+    assert "wide_R06825.png: 600 x 256 pixels is not a full 360 x 180 degree panorama" in errors
+    written = {path.name for path in out.iterdir()}
+    assert not any(name.startswith(("cut", "noradius", "wide")) for name in written)
+    assert not any(".tmp" in name or name.startswith(".") for name in written), written
+
+
+def test_demo_reconstructs_the_shipped_sample(tmp_path, capsys):
+    assert cli.main(["demo", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    ce = float(printed.split("corner error ")[1].split(" m")[0])
+    iou = float(printed.split("3D IoU ")[1].split("%")[0])
+    assert ce < DEMO_LIMITS["ce"] and iou > DEMO_LIMITS["iou"], printed
+    assert (tmp_path / f"{pathlib.Path(DEMO_TRUTH['image']).stem}_plan.png").stat().st_size > 0

@@ -1,0 +1,70 @@
+"""End-to-end speed of ``ncjax.reconstruct_batch`` (network + geometry), split into its two blocks.
+
+Images: the shipped demo panorama (512 x 1024) repeated. For each batch size:
+the whole jitted call, the network alone (resize + forward + rows) and the
+geometry alone (``layout_from_boundaries`` on the network's output), after
+compilation, median of ``--repeats`` runs; latency per image and images per second.
+
+    uv run python benchmarks/bench_reconstruct.py [--batches 1 8] [--world manhattan] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import jax
+import numpy as np
+
+import ncjax
+from ncjax._app import DEMO_DIR
+from ncjax._images import read_panorama
+from ncjax._predict import _predict, default_model
+from ncjax._reconstruct import reconstruct_batch
+
+
+def timed(function, repeats: int) -> tuple[float, float]:
+    """(compile + first run, median of the next ``repeats`` runs), seconds."""
+    start = time.perf_counter()
+    jax.block_until_ready(function())
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(function())
+        times.append(time.perf_counter() - start)
+    return first, statistics.median(times)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 8])
+    parser.add_argument("--world", default="manhattan", choices=("manhattan", "atlanta", "auto"))
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    name = next(p for p in os.listdir(DEMO_DIR) if p.endswith(".png"))
+    image = read_panorama(DEMO_DIR / name)
+    rc = ncjax._dataset.rc_from_name(name)
+    model = default_model()
+    model.eval()
+    height, width = image.shape[:2]
+    print(f"{jax.devices()[0]}, {os.cpu_count()} CPUs, world {args.world}, image {width} x {height}")
+    print("| batch | end to end: compile (s) | per call (s) | images/s | network per call (s) | geometry per call (s) |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for batch in args.batches:
+        images = np.repeat(image[None], batch, axis=0)
+        radii = np.full(batch, rc, np.float32)
+        compile_time, total = timed(lambda: reconstruct_batch(images, radii, args.world, model=model), args.repeats)
+        _, network = timed(lambda: _predict(model, images, height=height, width=width), args.repeats)
+        ceiling_v, floor_v, corner_prob = _predict(model, images, height=height, width=width)
+        cam = ncjax.NonCentralPanorama(width, height, rc=rc)
+        _, geometry = timed(
+            lambda: ncjax.layout_from_boundaries(ceiling_v, floor_v, corner_prob, cam, world=args.world), args.repeats
+        )
+        print(f"| {batch} | {compile_time:.1f} | {total:.3f} | {batch / total:.2f} | {network:.3f} | {geometry:.3f} |")
+
+
+if __name__ == "__main__":
+    main()
