@@ -183,7 +183,7 @@ def run_demo(args: argparse.Namespace) -> int:
     os.makedirs(args.out, exist_ok=True)
     print(f"ncjax demo: {truth['image']} ({image.shape[1]} x {image.shape[0]}, rc = {rc} m from its name, "
           f"a {truth['world']} room rendered by ncjax synth and never seen in training)")
-    result = jax.device_get(reconstruct_batch(image[None], [rc], args.world))
+    result = jax.device_get(reconstruct_batch(image[None], np.array([rc], np.float32), args.world))
     one = jax.tree.map(lambda x: x[0], tuple(result))
     record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world)
     elapsed = time.perf_counter() - start

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray, Shaped
+from jaxtyping import Array, ArrayLike, Float, Key, PRNGKeyArray, Shaped
 
 from ._camera import NonCentralPanorama
 from ._network import HorizonNet, prediction_to_rows
@@ -45,7 +45,7 @@ def _reconstruct(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
     rc: Float[Array, " B"],
-    keys: PRNGKeyArray,
+    keys: Key[Array, " B"],
     world: str,
     config: PipelineConfig,
 ) -> Reconstruction:

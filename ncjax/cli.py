@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 import sys
 
@@ -105,6 +106,9 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``ncjax`` console script."""
+    # OpenBLAS worker threads busy-wait for each other, which can stall small LAPACK
+    # calls for seconds on a busy machine; it must be set before jax loads OpenBLAS.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from ncjax import __version__
 
     parser = argparse.ArgumentParser(prog="ncjax", description="Metric room layouts from non-central panoramas.")

@@ -9,6 +9,9 @@
 import os
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# OpenBLAS worker threads busy-wait for each other: on a loaded 2-core machine one
+# small LAPACK call can then take seconds. Must be set before jax loads OpenBLAS.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

@@ -15,6 +15,7 @@ from ncjax._images import PanoramaError, read_panorama
 
 DEMO_TRUTH = json.loads((DEMO_DIR / "ground_truth.json").read_text())
 SMALL = (512, 256)  # (W, H) of the small reconstruct tests: one compilation for all of them
+DEMO_LIMITS = {"ce": 2.0, "iou": 40.0}  # the shipped model + pipeline on the demo: CE 1.32 m, IoU 59.3% (see RESULTS.md)
 
 
 def demo_image(size=None):
@@ -109,7 +110,7 @@ def batch_run(tmp_path_factory):
     errors = io.StringIO()
     with contextlib.redirect_stderr(errors):
         code = cli.main(["reconstruct", *files.values(), "--rc", "auto", "--out", str(out), "--batch", "2",
-                         "--world", "manhattan"])
+                         "--world", "auto"])
     return code, out, errors.getvalue()
 
 
@@ -119,10 +120,10 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
         record = json.loads((out / f"{name}.json").read_text())
         assert record["ok"] and record["status"] == "OK" and record["schema_version"] == 1, record["status"]
         assert record["rc"] == pytest.approx(0.6825) and record["image_size"] == list(SMALL)
-        assert 2.0 < record["room_height"] < 4.0 and len(record["ceiling_corners"]) >= 4
+        assert 1.5 < record["room_height"] < 4.0 and len(record["ceiling_corners"]) >= 4  # true: 2.52 m
         for suffix in (".obj", ".ply", ".glb", "_overlay.png", "_plan.png"):
             assert (out / f"{name}{suffix}").stat().st_size > 0
-    # The greyscale and transparent versions of one room give about the same layout.
+    # Dropping the alpha channel gives exactly the layout of the RGB file.
     heights = [json.loads((out / f"{n}.json").read_text())["room_height"] for n in ("room_R06825", "rgba_R06825")]
     assert heights[0] == pytest.approx(heights[1], abs=1e-6)
 
