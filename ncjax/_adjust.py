@@ -11,15 +11,13 @@ Minimises, over the wall directions, distances and the two heights,
   column, in pixels, times ``corner_weight``. This is what pins walls that
   no column sees (those inserted for occlusions).
 
-Solved by a fixed number of Levenberg-Marquardt iterations
-(:func:`adjust_layout`). Each boundary row depends on four parameters only
-(its wall's angle and distance and one height) and each corner on four (two
-walls), so the normal equations are assembled from per-column 2 x 4 and
-per-corner 1 x 4 Jacobians (forward mode) instead of a dense
-``(2W + K) x P`` Jacobian and its QR. Gauge: none while ``rc > 0`` (scale is
-observable, the heights and distances are absolute); the Manhattan
-parametrisation has one yaw for all walls, the Atlanta one an angle per wall.
-Differentiable by unrolling the iterations.
+Solved with ``optimistix.least_squares`` (Levenberg-Marquardt, ``throw=False``,
+at most ``PipelineConfig.adjustment_steps`` iterations) and differentiable
+through the implicit-function theorem (optimistix's default ``ImplicitAdjoint``).
+The residuals are evaluated per column (:func:`boundary_residuals`) and per
+corner (:func:`corner_residual`) directly on the wall angles. Gauge: none while
+``rc > 0`` (scale is observable, the heights and distances are absolute); the
+Manhattan parametrisation has one yaw for all walls, the Atlanta one an angle per wall.
 """
 
 from __future__ import annotations
@@ -29,6 +27,7 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel
@@ -177,43 +176,6 @@ def manhattan_yaw(directions: Float[Array, "K 2"], labels: Int[Array, " K"], wal
     return 0.5 * jnp.arctan2(jnp.sum(weight * jnp.sin(2 * angle)), jnp.sum(weight * jnp.cos(2 * angle)))
 
 
-def _value_and_jacobian(fn, x: Float[Array, " m"]) -> tuple[Array, Array]:
-    """``fn(x)`` and its Jacobian by forward mode, one pass for the ``m`` (few) inputs."""
-    tangents = jnp.eye(x.shape[0], dtype=x.dtype)
-    value, jacobian = jax.vmap(lambda t: jax.jvp(fn, (x,), (t,)), out_axes=(None, -1))(tangents)
-    return value, jacobian
-
-
-def _scatter_normal_equations(
-    jacobians: Float[Array, "n r m"], residuals: Float[Array, "n r"], index: Int[Array, "n m"], size: int
-) -> tuple[Float[Array, "P P"], Float[Array, " P"]]:
-    """``J^T J`` and ``J^T r`` of a sparse ``J`` whose term group ``i`` depends on parameters ``index[i]`` only.
-
-    Repeated indices within a group (one yaw for both walls of a Manhattan
-    corner) add up, as the chain rule wants.
-    """
-    normal = jnp.einsum("nri,nrj->nij", jacobians, jacobians)
-    gradient = jnp.einsum("nri,nr->ni", jacobians, residuals)
-    matrix = jnp.zeros((size, size), residuals.dtype).at[index[:, :, None], index[:, None, :]].add(normal)
-    return matrix, jnp.zeros(size, residuals.dtype).at[index].add(gradient)
-
-
-def _damped_step(
-    matrix: Float[Array, "P P"], gradient: Float[Array, " P"], damping: Float[Array, ""]
-) -> Float[Array, " P"]:
-    """Levenberg-Marquardt step ``-(H + damping diag(H))^-1 g``, Jacobi-scaled for float32.
-
-    Parameters no term constrains (empty wall slots: their Jacobian columns
-    are exactly zero) do not move; the scaling keeps far walls, whose rows
-    barely move with the distance, from looking unconstrained.
-    """
-    diagonal = jnp.diagonal(matrix)
-    free = diagonal > 0
-    scale = jnp.where(free, 1.0 / jnp.sqrt(jnp.where(free, diagonal, 1.0)), 0.0)
-    scaled = scale[:, None] * matrix * scale[None, :] + jnp.diag(jnp.where(free, damping, 1.0))
-    return -scale * jnp.linalg.solve(scaled, scale * gradient)
-
-
 def adjust_layout(
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
@@ -224,14 +186,13 @@ def adjust_layout(
     labels: Int[Array, " K"] | None,
     corner_weight: float = 1.0,
     steps: int = 8,
+    tolerance: float = 1e-6,
 ) -> tuple[Float[Array, "K 2"], Float[Array, " K"], Float[Array, ""], Float[Array, ""], Bool[Array, ""]]:
     """Levenberg-Marquardt refinement of a layout (see the module docstring).
 
-    A fixed number of iterations (no ``while_loop``: under ``vmap`` a batch
-    would run until its slowest member converges): each solves the damped
-    normal equations, assembled from the per-column and per-corner Jacobians
-    (:func:`_scatter_normal_equations`), and keeps the step only if it lowers
-    the cost (damping / 3, else damping x 10).
+    ``optimistix.least_squares`` with ``throw=False`` and at most ``steps``
+    iterations (under ``vmap`` a batch runs until its slowest member stops, so
+    the small cap bounds the batch's while loop too).
 
     Args:
         cam: the camera.
@@ -243,11 +204,13 @@ def adjust_layout(
         labels: Manhattan labels (0: ``u``, 1: ``u_perp``) to keep the walls
             exactly Manhattan with one yaw; None (static) for free directions (Atlanta).
         corner_weight: static weight of the corner-plane penalty.
-        steps: static number of iterations.
+        steps: static iteration cap.
+        tolerance: static relative and absolute tolerance.
 
     Returns:
         ``(directions, distances, h_c, h_f, improved)``; the initial values are
-        kept (``improved`` False) when no step lowered the cost.
+        kept (``improved`` False) when the result is not finite or does not
+        lower the cost (an unconverged but better iterate is kept).
     """
     capacity = distances.shape[0]
     dtype = distances.dtype
@@ -262,65 +225,33 @@ def adjust_layout(
         angles = yaw[None]
         offsets = labels.astype(dtype) * (math.pi / 2)
         angle_index = jnp.zeros(capacity, jnp.int32)
-    # parameters y = (angles (K, or the one yaw), distances (K), h_c, h_f)
-    y0 = jnp.concatenate([angles, distances, jnp.stack([ceiling_height, floor_height]).astype(dtype)])
-    size = y0.shape[0]
-    distance_index = angles.shape[0] + jnp.arange(capacity)
-    heights = jnp.array([size - 2, size - 1])
-    wall = jnp.maximum(observations.column_wall, 0)
-    previous = previous_walls(observations.wall_mask)
-    column_index = jnp.concatenate(
-        [jnp.stack([angle_index[wall], distance_index[wall]], -1), jnp.broadcast_to(heights, (wall.shape[0], 2))], -1
-    )
-    corner_index = jnp.stack([angle_index[previous], angle_index, distance_index[previous], distance_index], -1)
-    columns = jnp.arange(cam.width, dtype=dtype)
+    # parameters y = (angles (K, or the one yaw), distances (K), (h_c, h_f))
+    y0 = (angles, distances, jnp.stack([ceiling_height, floor_height]).astype(dtype))
     rows_used, corners_used = _used(observations)
+    absent = ~observations.wall_mask
 
-    def column_terms(local, offset, column, ceiling_v, floor_v):
-        return boundary_residuals(local[0] + offset, local[1], local[2], local[3], cam, column, ceiling_v, floor_v)
-
-    def corner_terms(local, offset, corner_column):
-        return corner_weight * corner_residual(local[0:2] + offset, local[2:4], cam, corner_column)
-
-    def column_arguments(y):
-        return y[column_index], offsets[wall], columns, observations.ceiling_v, observations.floor_v
-
-    def corner_arguments(y):
-        return y[corner_index], jnp.stack([offsets[previous], offsets], -1), observations.corner_columns
+    def residuals(y, args):
+        del args
+        wall_angles, d, h = y
+        rows, corners = _residual_terms(wall_angles[angle_index] + offsets, d, h[0], h[1], cam, observations)
+        # pin the parameters of empty slots so that the Jacobian has full column rank
+        # (the implicit adjoint solves with it); zero at the solution, so the fit is unchanged
+        pins = [jnp.where(absent, d - y0[1], 0.0)]
+        if labels is None:
+            pins.append(jnp.where(absent, wall_angles - y0[0], 0.0))
+        rows = jnp.where(rows_used, rows, 0.0)
+        corners = jnp.where(corners_used, corner_weight * corners, 0.0)
+        return jnp.concatenate([rows[:, 0], rows[:, 1], corners, *pins])
 
     def cost(y):
-        rows = jax.vmap(column_terms)(*column_arguments(y))
-        corners = jax.vmap(corner_terms)(*corner_arguments(y))
-        return jnp.sum(jnp.where(rows_used, rows, 0.0) ** 2) + jnp.sum(jnp.where(corners_used, corners, 0.0) ** 2)
+        r = residuals(y, None)
+        return jnp.sum(r * r)
 
-    def normal_equations(y):
-        def linearise(fn, local, *data):
-            return _value_and_jacobian(lambda x: fn(x, *data), local)
-
-        rows, row_jacobians = jax.vmap(lambda l, *d: linearise(column_terms, l, *d))(*column_arguments(y))
-        corners, corner_jacobians = jax.vmap(lambda l, *d: linearise(corner_terms, l, *d))(*corner_arguments(y))
-        # double where: unused terms (empty slots, parallel walls) may have non-finite derivatives
-        rows, row_jacobians = jnp.where(rows_used, rows, 0.0), jnp.where(rows_used[..., None], row_jacobians, 0.0)
-        corners = jnp.where(corners_used, corners, 0.0)[:, None]
-        corner_jacobians = jnp.where(corners_used[:, None], corner_jacobians, 0.0)[:, None, :]
-        matrix_rows, gradient_rows = _scatter_normal_equations(row_jacobians, rows, column_index, size)
-        matrix_corners, gradient_corners = _scatter_normal_equations(corner_jacobians, corners, corner_index, size)
-        return matrix_rows + matrix_corners, gradient_rows + gradient_corners
-
-    def iterate(_, state):
-        y, current, damping = state
-        candidate = y + _damped_step(*normal_equations(y), damping)
-        candidate_cost = cost(candidate)
-        better = candidate_cost < current  # False for NaN
-        return (
-            jnp.where(better, candidate, y),
-            jnp.where(better, candidate_cost, current),
-            jnp.where(better, damping / 3, damping * 10),
-        )
-
-    initial = cost(y0)
-    y, final, _ = jax.lax.fori_loop(0, steps, iterate, (y0, initial, jnp.asarray(1e-3, dtype)))
-    improved = jnp.isfinite(final) & (final < initial)
-    angles, distances, heights = y[: angles.shape[0]], y[angles.shape[0] : -2], y[-2:]
-    angles = angles[angle_index] + offsets
-    return jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1), distances, heights[0], heights[1], improved
+    solution = optx.least_squares(
+        residuals, optx.LevenbergMarquardt(rtol=tolerance, atol=tolerance), y0, max_steps=steps, throw=False
+    )
+    final_cost = cost(solution.value)
+    improved = jnp.isfinite(final_cost) & (final_cost < cost(y0))
+    y = jax.tree.map(lambda new, old: jnp.where(improved, new, old), solution.value, y0)
+    wall_angles = y[0][angle_index] + offsets
+    return jnp.stack([jnp.cos(wall_angles), jnp.sin(wall_angles)], -1), y[1], y[2][0], y[2][1], improved

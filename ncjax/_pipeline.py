@@ -97,7 +97,7 @@ class PipelineConfig:
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             wall from the Manhattan frame for the Manhattan branch.
         corner_weight: weight of the corner-plane penalty of the adjustment.
-        adjustment_steps: Levenberg-Marquardt iterations of each of the two adjustment passes.
+        adjustment_steps: most Levenberg-Marquardt iterations of each of the two adjustment passes.
         min_finite_fraction: fraction of columns with finite rows needed.
     """
 
