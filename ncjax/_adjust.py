@@ -11,9 +11,12 @@ Minimises, over the wall directions, distances and the two heights,
   column, in pixels, times ``corner_weight``. This is what pins walls that
   no column sees (those inserted for occlusions).
 
-Solved with ``optimistix.least_squares`` (Levenberg-Marquardt, ``throw=False``,
+Solved with ``optimistix.least_squares`` (``optx.Dogleg``, ``throw=False``,
 at most ``PipelineConfig.adjustment_steps`` iterations) and differentiable
 through the implicit-function theorem (optimistix's default ``ImplicitAdjoint``).
+Dogleg rather than ``optx.LevenbergMarquardt``: same tests and accuracy checks, about
+twice as fast here (its Newton and Cauchy steps are computed once per accepted point,
+Levenberg-Marquardt solves again for every damping).
 The residuals are evaluated per column (:func:`boundary_residuals`) and per
 corner (:func:`corner_residual`) directly on the wall angles. Gauge: none while
 ``rc > 0`` (scale is observable, the heights and distances are absolute); the
@@ -188,7 +191,7 @@ def adjust_layout(
     steps: int = 8,
     tolerance: float = 1e-6,
 ) -> tuple[Float[Array, "K 2"], Float[Array, " K"], Float[Array, ""], Float[Array, ""], Bool[Array, ""]]:
-    """Levenberg-Marquardt refinement of a layout (see the module docstring).
+    """Trust-region (dogleg) least-squares refinement of a layout (see the module docstring).
 
     ``optimistix.least_squares`` with ``throw=False`` and at most ``steps``
     iterations (under ``vmap`` a batch runs until its slowest member stops, so
@@ -248,7 +251,7 @@ def adjust_layout(
         return jnp.sum(r * r)
 
     solution = optx.least_squares(
-        residuals, optx.LevenbergMarquardt(rtol=tolerance, atol=tolerance), y0, max_steps=steps, throw=False
+        residuals, optx.Dogleg(rtol=tolerance, atol=tolerance), y0, max_steps=steps, throw=False
     )
     final_cost = cost(solution.value)
     improved = jnp.isfinite(final_cost) & (final_cost < cost(y0))

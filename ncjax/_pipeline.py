@@ -14,7 +14,7 @@
    inserted through the occluding corner; the Manhattan layout solver.
    Atlanta branch: RANSAC directions, a wall in the vertical plane of the
    corner ray at each occlusion, the Atlanta layout solver.
-5. Final adjustment (:mod:`ncjax._adjust`, Levenberg-Marquardt) of both branches: the
+5. Final adjustment (:mod:`ncjax._adjust`, optimistix least squares) of both branches: the
    paper adjusts the Atlanta branch only; the Manhattan branch keeps one yaw.
 6. Corners where consecutive walls meet.
 
@@ -97,7 +97,7 @@ class PipelineConfig:
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             wall from the Manhattan frame for the Manhattan branch.
         corner_weight: weight of the corner-plane penalty of the adjustment.
-        adjustment_steps: most Levenberg-Marquardt iterations of each of the two adjustment passes.
+        adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
         min_finite_fraction: fraction of columns with finite rows needed.
     """
 
