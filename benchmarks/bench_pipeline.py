@@ -1,58 +1,85 @@
 """Latency and throughput of the geometric pipeline (``ncjax.layout_from_boundaries``) on this machine.
 
 Exact boundaries of random rooms at 1024 x 512; one panorama (after
-compilation) and batches of 64 and 256 under ``jax.jit(jax.vmap(...))``,
-for the Manhattan and Atlanta branches.
+compilation; median of ``--repeats``) and batches of 64 and 256 under
+``jax.jit(jax.vmap(...))``, for the Manhattan, Atlanta and auto branches.
+Wall-clock and CPU (``time.process_time``) times are printed side by side:
+on a shared machine the wall time is noisy, the CPU time much less so.
 
-    uv run python benchmarks/bench_pipeline.py [--repeats 5] [--batches 64 256]
+OpenBLAS (the LAPACK behind jaxlib's CPU linear algebra) is limited to one
+thread before JAX loads it: its worker threads busy-wait, and on a machine
+whose cores are taken by another job a small QR or SVD then waits for a
+descheduled worker (we measured 6 s instead of 20 ms for the final
+adjustment). Set ``OPENBLAS_NUM_THREADS`` yourself to compare.
+
+    uv run python benchmarks/bench_pipeline.py [--repeats 11] [--batches 64 256] [--worlds manhattan atlanta auto]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import statistics
 import time
 
-import jax
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 
-import ncjax
-from ncjax._pipeline import PipelineConfig, layout_from_evidence
+import jax  # noqa: E402
+
+import ncjax  # noqa: E402
+from ncjax._pipeline import WORLDS, PipelineConfig, layout_from_evidence  # noqa: E402
 
 WIDTH, HEIGHT = 1024, 512
 
 
 def inputs(world: str, count: int):
-    config = ncjax.RoomConfig(world=world, occlusion="any", room_tries=2, camera_tries=64)
+    """Exact labels of ``count`` random rooms (Atlanta rooms for ``world="auto"``: both branches are taken)."""
+    config = ncjax.RoomConfig(
+        world="atlanta" if world == "auto" else world, occlusion="any", room_tries=2, camera_tries=64
+    )
     rooms = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(3), count))
     labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(rooms)
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(rooms)
     return labels.ceiling_v, labels.floor_v, labels.corner_target, cams
 
 
-def best_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - start)
-    return min(times)
+def timed(fn) -> tuple[float, float]:
+    """Wall-clock and CPU seconds of one blocking call."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    jax.block_until_ready(fn())
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def median_time(fn, repeats: int) -> tuple[float, float]:
+    """Median wall-clock and CPU seconds over ``repeats`` calls."""
+    times = [timed(fn) for _ in range(repeats)]
+    return statistics.median(t[0] for t in times), statistics.median(t[1] for t in times)
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=11)
     parser.add_argument("--batches", type=int, nargs="*", default=[64, 256])
+    parser.add_argument("--worlds", nargs="*", default=list(WORLDS), choices=WORLDS)
     args = parser.parse_args(argv)
     config = PipelineConfig()
-    print(f"devices: {jax.devices()}")
-    for world in ("manhattan", "atlanta"):
-        ceiling, floor, prob, cams = inputs(world, max(args.batches + [1]))
+    print(f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}")
+    for world in args.worlds:
+        ceiling, floor, prob, cams = inputs(world, max(args.batches + [args.repeats]))
         one = jax.jit(lambda c, f, p, cam: layout_from_evidence(c, f, p, cam, jax.random.key(0), world, config))
-        cam0 = jax.tree.map(lambda x: x[0], cams)
-        start = time.perf_counter()
-        jax.block_until_ready(one(ceiling[0], floor[0], prob[0], cam0))
-        compile_time = time.perf_counter() - start
-        latency = best_time(lambda: one(ceiling[0], floor[0], prob[0], cam0), args.repeats)
-        print(f"{world}: compile {compile_time:.1f} s, latency {1e3 * latency:.1f} ms per panorama")
+
+        def single(i):
+            return one(ceiling[i], floor[i], prob[i], jax.tree.map(lambda x: x[i], cams))
+
+        compile_wall, compile_cpu = timed(lambda: single(0))
+        jax.block_until_ready(single(0))
+        # a different room per repeat: the iteration counts depend on the data
+        times = [timed(lambda i=i: single(i)) for i in range(args.repeats)]
+        wall, cpu = statistics.median(t[0] for t in times), statistics.median(t[1] for t in times)
+        print(f"{world}: compile {compile_wall:.1f} s (cpu {compile_cpu:.1f} s), "
+              f"latency {1e3 * wall:.1f} ms per panorama (cpu {1e3 * cpu:.1f} ms), median of {args.repeats} rooms")
         batched = jax.jit(
             jax.vmap(lambda c, f, p, cam, k: layout_from_evidence(c, f, p, cam, k, world, config))
         )
@@ -60,8 +87,10 @@ def main(argv=None):
             keys = jax.random.split(jax.random.key(0), size)
             data = (ceiling[:size], floor[:size], prob[:size], jax.tree.map(lambda x: x[:size], cams), keys)
             jax.block_until_ready(batched(*data))
-            seconds = best_time(lambda: batched(*data), max(1, args.repeats // 2))
-            print(f"{world}: batch {size}: {size / seconds:.0f} panoramas/s ({1e3 * seconds / size:.1f} ms each)")
+            wall, cpu = median_time(lambda: batched(*data), max(1, args.repeats // 4))
+            print(f"{world}: batch {size}: {size / wall:.0f} panoramas/s ({1e3 * wall / size:.2f} ms each, "
+                  f"cpu {1e3 * cpu / size:.2f} ms each)")
+    print(f"load average {os.getloadavg()[0]:.2f}")
     return 0
 
 

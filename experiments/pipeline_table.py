@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # busy-waiting BLAS threads stall on a shared machine
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

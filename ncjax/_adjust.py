@@ -11,11 +11,16 @@ Minimises, over the wall directions, distances and the two heights,
   column, in pixels, times ``corner_weight``. This is what pins walls that
   no column sees (those inserted for occlusions).
 
-Solved with ``optimistix.least_squares`` (Levenberg-Marquardt, ``throw=False``)
-and differentiable through the implicit-function theorem (optimistix's
-default ``ImplicitAdjoint``). Gauge: none while ``rc > 0`` (scale is
-observable, the heights and distances are absolute); the Manhattan
-parametrisation has one yaw for all walls, the Atlanta one an angle per wall.
+Solved with ``optimistix.least_squares`` (``optx.Dogleg``, ``throw=False``,
+at most ``PipelineConfig.adjustment_steps`` iterations) and differentiable
+through the implicit-function theorem (optimistix's default ``ImplicitAdjoint``).
+Dogleg rather than ``optx.LevenbergMarquardt``: same tests and accuracy checks, about
+twice as fast here (its Newton and Cauchy steps are computed once per accepted point,
+Levenberg-Marquardt solves again for every damping).
+The residuals are evaluated per column (:func:`boundary_residuals`) and per
+corner (:func:`corner_residual`) directly on the wall angles. Gauge: none while
+``rc > 0`` (scale is observable, the heights and distances are absolute); the
+Manhattan parametrisation has one yaw for all walls, the Atlanta one an angle per wall.
 """
 
 from __future__ import annotations
@@ -81,6 +86,65 @@ def wrap_columns(offset: Float[Array, "*batch"], width: int) -> Float[Array, "*b
     return (offset + width / 2) % width - width / 2
 
 
+def boundary_residuals(
+    angle: Float[ArrayLike, ""],
+    distance: Float[ArrayLike, ""],
+    ceiling_height: Float[ArrayLike, ""],
+    floor_height: Float[ArrayLike, ""],
+    cam: NonCentralPanorama,
+    column: Float[ArrayLike, ""],
+    ceiling_v: Float[ArrayLike, ""],
+    floor_v: Float[ArrayLike, ""],
+) -> Float[Array, " 2"]:
+    """Ceiling and floor row errors (pixels) of one column on its wall, the wall given by its angle."""
+    direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+    ceiling, floor, _ = wall_boundary_rows(cam, direction, distance, ceiling_height, floor_height, column)
+    return jnp.stack([ceiling - ceiling_v, floor - floor_v])
+
+
+def corner_residual(
+    angles: Float[Array, " 2"],
+    distances: Float[Array, " 2"],
+    cam: NonCentralPanorama,
+    corner_column: Float[ArrayLike, ""],
+) -> Float[Array, ""]:
+    """Column error (pixels) of the corner where wall ``(angles[0], distances[0])`` meets the next wall."""
+    directions = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1)
+    point, _ = wall_planes_meet(directions[0], distances[0], directions[1], distances[1])
+    corner_u, _ = angles_to_pixel(cam, jnp.arctan2(point[1], point[0]), 0.0)
+    return wrap_columns(corner_u - corner_column, cam.width)
+
+
+def _residual_terms(
+    angles: Float[Array, " K"],
+    distances: Float[Array, " K"],
+    ceiling_height: Float[ArrayLike, ""],
+    floor_height: Float[ArrayLike, ""],
+    cam: NonCentralPanorama,
+    observations: BoundaryObservations,
+) -> tuple[Float[Array, "W 2"], Float[Array, " K"]]:
+    """Unweighted, unmasked row errors per column and column errors per corner (wall ``k`` at ``angles[k]``)."""
+    wall = jnp.maximum(observations.column_wall, 0)
+    columns = jnp.arange(cam.width, dtype=distances.dtype)
+    rows = jax.vmap(boundary_residuals, in_axes=(0, 0, None, None, None, 0, 0, 0))(
+        angles[wall], distances[wall], ceiling_height, floor_height, cam, columns, observations.ceiling_v, observations.floor_v
+    )
+    previous = previous_walls(observations.wall_mask)
+    corners = jax.vmap(corner_residual, in_axes=(0, 0, None, 0))(
+        jnp.stack([angles[previous], angles], -1),
+        jnp.stack([distances[previous], distances], -1),
+        cam,
+        observations.corner_columns,
+    )
+    return rows, corners
+
+
+def _used(observations: BoundaryObservations) -> tuple[Bool[Array, "W 2"], Bool[Array, " K"]]:
+    """Which residual terms enter the fit."""
+    rows = jnp.stack([observations.ceiling_used, observations.floor_used], -1)
+    return rows, observations.corner_used & observations.wall_mask
+
+
 def layout_residuals(
     directions: Float[Array, "K 2"],
     distances: Float[Array, " K"],
@@ -90,19 +154,16 @@ def layout_residuals(
     observations: BoundaryObservations,
     corner_weight: float,
 ) -> Float[Array, " residuals"]:
-    """Row errors of the ceiling and floor boundaries and weighted corner column errors (pixels)."""
-    wall = jnp.maximum(observations.column_wall, 0)
-    columns = jnp.arange(cam.width, dtype=distances.dtype)
-    ceiling, floor, _ = wall_boundary_rows(
-        cam, directions[wall], distances[wall], ceiling_height, floor_height, columns
-    )
-    ceiling_error = jnp.where(observations.ceiling_used, ceiling - observations.ceiling_v, 0.0)
-    floor_error = jnp.where(observations.floor_used, floor - observations.floor_v, 0.0)
-    points, _ = loop_corners(directions, distances, observations.wall_mask)
-    corner_u, _ = angles_to_pixel(cam, jnp.arctan2(points[:, 1], points[:, 0]), 0.0)
-    corner_error = wrap_columns(corner_u - observations.corner_columns, cam.width)
-    corner_error = jnp.where(observations.corner_used & observations.wall_mask, corner_weight * corner_error, 0.0)
-    return jnp.concatenate([ceiling_error, floor_error, corner_error])
+    """Row errors of the ceiling and floor boundaries and weighted corner column errors (pixels).
+
+    Returns:
+        ``2 W + K`` residuals: the ``W`` ceiling rows, the ``W`` floor rows, the corners; 0 where unused.
+    """
+    angles = jnp.arctan2(directions[:, 1], directions[:, 0])
+    rows, corners = _residual_terms(angles, distances, ceiling_height, floor_height, cam, observations)
+    rows_used, corners_used = _used(observations)
+    rows = jnp.where(rows_used, rows, 0.0)
+    return jnp.concatenate([rows[:, 0], rows[:, 1], jnp.where(corners_used, corner_weight * corners, 0.0)])
 
 
 def manhattan_directions(yaw: Float[Array, ""], labels: Int[Array, " K"]) -> Float[Array, "K 2"]:
@@ -127,10 +188,14 @@ def adjust_layout(
     floor_height: Float[ArrayLike, ""],
     labels: Int[Array, " K"] | None,
     corner_weight: float = 1.0,
-    max_steps: int = 32,
+    steps: int = 8,
     tolerance: float = 1e-6,
 ) -> tuple[Float[Array, "K 2"], Float[Array, " K"], Float[Array, ""], Float[Array, ""], Bool[Array, ""]]:
-    """Levenberg-Marquardt refinement of a layout (see the module docstring).
+    """Trust-region (dogleg) least-squares refinement of a layout (see the module docstring).
+
+    ``optimistix.least_squares`` with ``throw=False`` and at most ``steps``
+    iterations (under ``vmap`` a batch runs until its slowest member stops, so
+    the small cap bounds the batch's while loop too).
 
     Args:
         cam: the camera.
@@ -142,7 +207,7 @@ def adjust_layout(
         labels: Manhattan labels (0: ``u``, 1: ``u_perp``) to keep the walls
             exactly Manhattan with one yaw; None (static) for free directions (Atlanta).
         corner_weight: static weight of the corner-plane penalty.
-        max_steps: static iteration cap.
+        steps: static iteration cap.
         tolerance: static relative and absolute tolerance.
 
     Returns:
@@ -150,48 +215,46 @@ def adjust_layout(
         kept (``improved`` False) when the result is not finite or does not
         lower the cost (an unconverged but better iterate is kept).
     """
-
+    capacity = distances.shape[0]
+    dtype = distances.dtype
     if labels is None:
-        def unpack(y):
-            angle, d, h = y
-            return jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1), d, h
-
-        y0 = (jnp.arctan2(directions[:, 1], directions[:, 0]), distances, jnp.stack([ceiling_height, floor_height]))
+        angles = jnp.arctan2(directions[:, 1], directions[:, 0])
+        offsets = jnp.zeros(capacity, dtype)
+        angle_index = jnp.arange(capacity)
     else:
         yaw = manhattan_yaw(directions, labels, observations.wall_mask)
-        parametrised = manhattan_directions(yaw, labels)
-        aligned = jnp.sign(jnp.sum(parametrised * directions, -1))
-
-        def unpack(y):
-            yaw, d, h = y
-            return manhattan_directions(yaw, labels), d, h
-
-        y0 = (yaw, distances * jnp.where(aligned == 0, 1.0, aligned), jnp.stack([ceiling_height, floor_height]))
-
+        aligned = jnp.sign(jnp.sum(manhattan_directions(yaw, labels) * directions, -1))
+        distances = distances * jnp.where(aligned == 0, 1.0, aligned)
+        angles = yaw[None]
+        offsets = labels.astype(dtype) * (math.pi / 2)
+        angle_index = jnp.zeros(capacity, jnp.int32)
+    # parameters y = (angles (K, or the one yaw), distances (K), (h_c, h_f))
+    y0 = (angles, distances, jnp.stack([ceiling_height, floor_height]).astype(dtype))
+    rows_used, corners_used = _used(observations)
     absent = ~observations.wall_mask
 
     def residuals(y, args):
-        u, d, h = unpack(y)
+        del args
+        wall_angles, d, h = y
+        rows, corners = _residual_terms(wall_angles[angle_index] + offsets, d, h[0], h[1], cam, observations)
         # pin the parameters of empty slots so that the Jacobian has full column rank
         # (the implicit adjoint solves with it); zero at the solution, so the fit is unchanged
         pins = [jnp.where(absent, d - y0[1], 0.0)]
         if labels is None:
-            pins.append(jnp.where(absent, y[0] - y0[0], 0.0))
-        return jnp.concatenate([layout_residuals(u, d, h[0], h[1], cam, observations, corner_weight), *pins])
+            pins.append(jnp.where(absent, wall_angles - y0[0], 0.0))
+        rows = jnp.where(rows_used, rows, 0.0)
+        corners = jnp.where(corners_used, corner_weight * corners, 0.0)
+        return jnp.concatenate([rows[:, 0], rows[:, 1], corners, *pins])
 
     def cost(y):
         r = residuals(y, None)
         return jnp.sum(r * r)
 
     solution = optx.least_squares(
-        residuals,
-        optx.LevenbergMarquardt(rtol=tolerance, atol=tolerance),
-        y0,
-        max_steps=max_steps,
-        throw=False,
+        residuals, optx.Dogleg(rtol=tolerance, atol=tolerance), y0, max_steps=steps, throw=False
     )
     final_cost = cost(solution.value)
-    improved = jnp.isfinite(final_cost) & (final_cost <= cost(y0))
+    improved = jnp.isfinite(final_cost) & (final_cost < cost(y0))
     y = jax.tree.map(lambda new, old: jnp.where(improved, new, old), solution.value, y0)
-    u, d, h = unpack(y)
-    return u, d, h[0], h[1], improved
+    wall_angles = y[0][angle_index] + offsets
+    return jnp.stack([jnp.cos(wall_angles), jnp.sin(wall_angles)], -1), y[1], y[2][0], y[2][1], improved

@@ -14,7 +14,7 @@
    inserted through the occluding corner; the Manhattan layout solver.
    Atlanta branch: RANSAC directions, a wall in the vertical plane of the
    corner ray at each occlusion, the Atlanta layout solver.
-5. Final adjustment (:mod:`ncjax._adjust`, optimistix) of both branches: the
+5. Final adjustment (:mod:`ncjax._adjust`, optimistix least squares) of both branches: the
    paper adjusts the Atlanta branch only; the Manhattan branch keeps one yaw.
 6. Corners where consecutive walls meet.
 
@@ -50,7 +50,7 @@ from ._camera import NonCentralPanorama, pixel_to_angles, pixel_to_ray
 from ._corners import column_walls, distance_to_corners, find_corners, side_extrapolation
 from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
-from ._ransac import boundary_errors, num_hypotheses, ransac_wall
+from ._ransac import boundary_errors, num_hypotheses, ransac_wall, wall_columns
 from ._reprojection import boundary_points, fit_plan_line, wall_range
 from ._wall import Wall, canonical_orientation
 
@@ -86,6 +86,9 @@ class PipelineConfig:
         success_probability: RANSAC's P (paper: 0.9999).
         outlier_rate: RANSAC's epsilon (paper: 0.2).
         sample_size: columns per RANSAC hypothesis (paper: 3).
+        ransac_columns: columns per wall on which RANSAC scores its hypotheses
+            and refits the best one, evenly spaced along the wall (all of them
+            for a narrower wall); the cost grows with it, not with the width.
         inlier_threshold: row error of an inlier, pixels.
         occlusion_threshold: boundary jump at a corner that means an occlusion, pixels.
         merge_fraction: Atlanta: consecutive walls each of which explains at
@@ -94,7 +97,7 @@ class PipelineConfig:
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             wall from the Manhattan frame for the Manhattan branch.
         corner_weight: weight of the corner-plane penalty of the adjustment.
-        adjustment_steps: Levenberg-Marquardt iteration cap.
+        adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
         min_finite_fraction: fraction of columns with finite rows needed.
     """
 
@@ -105,12 +108,13 @@ class PipelineConfig:
     success_probability: float = 0.9999
     outlier_rate: float = 0.2
     sample_size: int = 3
+    ransac_columns: int = 64
     inlier_threshold: float = 3.0
     occlusion_threshold: float = 4.0
     merge_fraction: float = 0.8
     manhattan_tolerance: float = 5.0
     corner_weight: float = 1.0
-    adjustment_steps: int = 32
+    adjustment_steps: int = 8
     min_finite_fraction: float = 0.5
 
     def __post_init__(self):
@@ -119,6 +123,8 @@ class PipelineConfig:
         if self.sample_size < 3:
             raise ValueError(f"sample_size must be >= 3 columns (the wall solver needs 3 rays per line), got {self.sample_size}")
         num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
+        if self.ransac_columns < 2 * self.sample_size:
+            raise ValueError(f"ransac_columns must be >= 2 * sample_size, got {self.ransac_columns}")
         positive = ("nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "manhattan_tolerance")
         for name in positive:
             if not getattr(self, name) > 0:
@@ -245,39 +251,58 @@ def _gather_evidence(
     corner_columns, corner_mask, overflow = find_corners(corner_prob, capacity, radius, config.corner_threshold)
     column_wall = column_walls(corner_columns, corner_mask, width)
     away = distance_to_corners(corner_columns, corner_mask, width) >= _scaled(config.corner_margin, width, 1024)
-    own = (column_wall[None, :] == jnp.arange(capacity)[:, None]) & finite[None, :]
+    wall_of = jnp.where(column_wall >= 0, column_wall, capacity)  # segment ids, capacity: none
+    seen_away = jax.ops.segment_sum((finite & away).astype(jnp.int32), wall_of, capacity + 1)
     # narrow walls (seen almost edge-on) keep the columns next to their corners
-    few = jnp.sum(own & away[None, :], 1) < 2 * config.sample_size
-    candidates = own & (away[None, :] | few[:, None])
+    few = seen_away < 2 * config.sample_size
+    usable = finite & (column_wall >= 0) & (away | few[wall_of])
 
     pixels = _scaled(1.0, cam.height, 512)
-    walls, ceiling_inliers, floor_inliers = jax.vmap(
-        ransac_wall, in_axes=(0, None, None, None, None, None, 0, None, None, None)
-    )(
+    threshold = config.inlier_threshold * pixels
+    sampled, sampled_valid = wall_columns(column_wall, usable, corner_columns, config.ransac_columns)
+    walls = jax.vmap(ransac_wall, in_axes=(0, None, 0, 0, 0, 0, 0, 0, None, None, None))(
         jax.random.split(key, capacity),
         cam,
-        ceiling_rays,
-        floor_rays,
-        ceiling_v,
-        floor_v,
-        candidates,
+        columns[sampled],
+        ceiling_rays[sampled],
+        floor_rays[sampled],
+        ceiling_v[sampled],
+        floor_v[sampled],
+        sampled_valid,
         config.hypotheses,
         config.sample_size,
-        config.inlier_threshold * pixels,
+        threshold,
     )
-    weights = jnp.where(walls.ok & corner_mask, jnp.sum(ceiling_inliers, 1) + jnp.sum(floor_inliers, 1), 0)
-    inliers = ceiling_inliers | floor_inliers
 
     previous = previous_walls(corner_mask)
+    following = (jnp.arange(capacity) + 1) % jnp.maximum(jnp.sum(corner_mask), 1)
+    wall = jnp.maximum(column_wall, 0)
+
+    def errors_of(index):
+        """Row errors of wall ``index[column]`` at each column (one wall per column, not K x W)."""
+        return boundary_errors(cam, jax.tree.map(lambda x: x[index], walls), columns, ceiling_v, floor_v)
+
+    ceiling_error, floor_error = errors_of(wall)
+    ceiling_in, floor_in = usable & (ceiling_error < threshold), usable & (floor_error < threshold)
+    inliers = ceiling_in | floor_in
+    counts = jax.ops.segment_sum(ceiling_in.astype(jnp.int32) + floor_in, wall_of, capacity + 1)[:capacity]
+    weights = jnp.where(walls.ok & corner_mask, counts, 0)
+
+    def explained_fraction(neighbour):
+        """Per wall, the fraction of its inlier columns whose rows wall ``neighbour[wall]`` explains too."""
+        neighbour_ceiling, neighbour_floor = errors_of(neighbour[wall])
+        explained = inliers & (neighbour_ceiling < threshold) & (neighbour_floor < threshold)
+        total = jax.ops.segment_sum(jnp.stack([explained, inliers], -1).astype(jnp.int32), wall_of, capacity + 1)
+        return total[:capacity, 0] / jnp.maximum(total[:capacity, 1], 1)
 
     # the boundary jump at each corner, from lines fitted to the rows on either side
     margin = _scaled(config.corner_margin, width, 1024)
     window = max(3, round(_scaled(8.0, width, 1024)))
 
     def extrapolate(rows, wall, side):
-        usable = finite[None, :] & (column_wall[None, :] == wall[:, None])
+        own = finite[None, :] & (column_wall[None, :] == wall[:, None])
         return jax.vmap(side_extrapolation, in_axes=(None, 0, 0, None, None, None))(
-            rows, usable, corner_columns, side, window, margin
+            rows, own, corner_columns, side, window, margin
         )
 
     ceiling_here, seen_here = extrapolate(ceiling_v, jnp.arange(capacity), 1)
@@ -287,16 +312,9 @@ def _gather_evidence(
     jump = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
     fitted = walls.ok & corner_mask
     both_fitted = fitted & fitted[previous]
-    ceiling_error, floor_error = jax.vmap(boundary_errors, in_axes=(None, 0, None, None))(cam, walls, ceiling_v, floor_v)
-    explains = (ceiling_error < config.inlier_threshold * pixels) & (floor_error < config.inlier_threshold * pixels)
-
-    def explained_fraction(explaining, explained):
-        own = inliers[explained]
-        return jnp.sum(own & explains[explaining], 1) / jnp.maximum(jnp.sum(own, 1), 1)
-
-    index = jnp.arange(capacity)
-    same_plane = (explained_fraction(previous, index) >= config.merge_fraction) & (
-        explained_fraction(index, previous) >= config.merge_fraction
+    # each of walls j - 1 and j explains most inliers of the other
+    same_plane = (explained_fraction(previous) >= config.merge_fraction) & (
+        explained_fraction(following)[previous] >= config.merge_fraction
     )
     occluded = corner_mask & seen_here & seen_before & (jump > config.occlusion_threshold * pixels)
     previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
@@ -309,7 +327,7 @@ def _gather_evidence(
         corner_overflow=overflow,
         column_wall=column_wall,
         walls=walls,
-        usable=jnp.any(candidates, 0),
+        usable=usable,
         weights=weights.astype(ceiling_v.dtype),
         fitted=fitted,
         both_fitted=both_fitted,

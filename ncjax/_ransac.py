@@ -4,7 +4,9 @@ Each hypothesis is :func:`ncjax.solve_wall` on ``k`` sampled columns (one
 ceiling and one floor ray each: the paper's ``k = 3``); it is scored by the
 number of boundary pixels it reprojects within a threshold (pixels, the
 closed form of :mod:`ncjax._reprojection`), and the best one is refitted on
-its inliers. The number of hypotheses is the paper's
+its inliers. Hypotheses are scored and refitted on at most ``G`` columns
+of the wall (:func:`wall_columns`), so the cost does not grow with the
+image width. The number of hypotheses is the paper's
 ``n_hyp = log(1 - P) / log(1 - (1 - eps)^k)``, a static integer, so all
 hypotheses are solved at once with ``jax.vmap``.
 """
@@ -42,20 +44,60 @@ def num_hypotheses(success_probability: float, outlier_rate: float, sample_size:
     return max(1, math.ceil(math.log(1.0 - success_probability) / math.log(1.0 - inlier_sample)))
 
 
-def sample_columns(key: PRNGKeyArray, candidates: Bool[Array, " W"], sample_size: int) -> Int[Array, " k"]:
-    """``sample_size`` distinct columns drawn uniformly among the candidates."""
+def wall_columns(
+    column_wall: Int[Array, " W"],
+    candidate: Bool[Array, " W"],
+    corner_columns: Float[Array, " K"],
+    size: int,
+) -> tuple[Int[Array, "K G"], Bool[Array, "K G"]]:
+    """Up to ``size`` candidate columns of each wall, evenly spaced along it (fixed size ``G``).
+
+    RANSAC scores its hypotheses on these columns only: a wall's hypotheses
+    need its own columns, not all ``W`` (``K`` walls would cost ``K W`` row
+    evaluations per hypothesis), and a few dozen columns spread over the wall
+    rank hypotheses as well as all of them.
+
+    Args:
+        column_wall: the wall of each column (corner ``k`` starts wall ``k``), -1 for none.
+        candidate: columns that may be used.
+        corner_columns: start column of each wall (walls wrap around the image).
+        size: static ``G``.
+
+    Returns:
+        ``(columns, valid)``: per wall, column indices in image order from its
+        start corner; all candidates when it has at most ``G`` of them
+        (``valid`` marks them), else ``G`` evenly spaced ones.
+    """
+    width, capacity = column_wall.shape[0], corner_columns.shape[0]
+    wall = jnp.where(candidate & (column_wall >= 0), column_wall, capacity)
+    start = jnp.floor(corner_columns[jnp.minimum(wall, capacity - 1)]).astype(jnp.int32)
+    along = (jnp.arange(width, dtype=jnp.int32) - start) % width
+    order = jnp.argsort(wall * width + along)  # candidates grouped by wall, in image order
+    counts = jax.ops.segment_sum(jnp.ones(width, jnp.int32), wall, capacity + 1)[:capacity]
+    first = jnp.cumsum(counts) - counts
+    slot = jnp.arange(size, dtype=jnp.int32)
+    offset = slot[None, :] * jnp.maximum(counts, size)[:, None] // size
+    return order[jnp.minimum(first[:, None] + offset, width - 1)], slot[None, :] < counts[:, None]
+
+
+def sample_columns(key: PRNGKeyArray, candidates: Bool[Array, " n"], sample_size: int) -> Int[Array, " k"]:
+    """``sample_size`` distinct indices drawn uniformly among the candidates."""
     scores = jnp.where(candidates, jax.random.uniform(key, candidates.shape), -1.0)
     return jax.lax.top_k(scores, sample_size)[1]
 
 
 def boundary_errors(
-    cam: NonCentralPanorama, wall: Wall, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"]
-) -> tuple[Float[Array, " W"], Float[Array, " W"]]:
+    cam: NonCentralPanorama,
+    wall: Wall,
+    columns: Float[Array, " n"],
+    ceiling_v: Float[Array, " n"],
+    floor_v: Float[Array, " n"],
+) -> tuple[Float[Array, " n"], Float[Array, " n"]]:
     """Per column, the row distance (pixels) between a wall's reprojected lines and the boundaries.
 
+    The wall's fields broadcast against ``columns`` (one wall, or one per column).
     ``inf`` where the wall is not in front of the column.
     """
-    columns = jnp.arange(cam.width, dtype=ceiling_v.dtype)
     ceiling, floor, seen = wall_boundary_rows(
         cam, wall.direction, wall.distance, wall.ceiling_height, wall.floor_height, columns
     )
@@ -65,26 +107,28 @@ def boundary_errors(
 def ransac_wall(
     key: PRNGKeyArray,
     cam: NonCentralPanorama,
-    ceiling_rays: Float[Array, "W 6"],
-    floor_rays: Float[Array, "W 6"],
-    ceiling_v: Float[Array, " W"],
-    floor_v: Float[Array, " W"],
-    candidates: Bool[Array, " W"],
+    columns: Float[Array, " G"],
+    ceiling_rays: Float[Array, "G 6"],
+    floor_rays: Float[Array, "G 6"],
+    ceiling_v: Float[Array, " G"],
+    floor_v: Float[Array, " G"],
+    candidates: Bool[Array, " G"],
     num_hypotheses: int,
     sample_size: int,
     inlier_threshold: float,
     min_height: float = 0.1,
-) -> tuple[Wall, Bool[Array, " W"], Bool[Array, " W"]]:
+) -> Wall:
     """The wall that best explains the boundaries of the candidate columns.
 
     Args:
         key: PRNG key.
         cam: the camera.
-        ceiling_rays: per-column rays of the ceiling boundary.
-        floor_rays: per-column rays of the floor boundary.
-        ceiling_v: per-column ceiling rows (for the inlier test).
-        floor_v: per-column floor rows.
-        candidates: the columns of this wall (finite rows, away from corners).
+        columns: the wall's columns (:func:`wall_columns`).
+        ceiling_rays: their rays of the ceiling boundary.
+        floor_rays: their rays of the floor boundary.
+        ceiling_v: their ceiling rows (for the inlier test).
+        floor_v: their floor rows.
+        candidates: which of them are used (finite rows, away from corners).
         num_hypotheses: static number of hypotheses (:func:`num_hypotheses`).
         sample_size: static number of columns per hypothesis (>= 3).
         inlier_threshold: maximum row error of an inlier, pixels.
@@ -92,18 +136,17 @@ def ransac_wall(
             to the camera's plane are rejected (:func:`plausible_wall`).
 
     Returns:
-        ``(wall, ceiling_inliers, floor_inliers)``; the wall refitted on the
-        inliers of the best hypothesis, then the inliers of the refit.
-        ``wall.ok`` is False when fewer than ``sample_size`` candidates exist
-        or no hypothesis is valid.
+        The wall refitted on the inliers of the best hypothesis; ``ok`` is
+        False when fewer than ``sample_size`` candidates exist or no
+        hypothesis is valid.
     """
     samples = jax.vmap(sample_columns, in_axes=(0, None, None))(
         jax.random.split(key, num_hypotheses), candidates, sample_size
     )
     sure = jnp.ones(sample_size, bool)
     hypotheses = jax.vmap(lambda s: solve_wall(ceiling_rays[s], floor_rays[s], sure, sure))(samples)
-    ceiling_error, floor_error = jax.vmap(boundary_errors, in_axes=(None, 0, None, None))(
-        cam, hypotheses, ceiling_v, floor_v
+    ceiling_error, floor_error = jax.vmap(boundary_errors, in_axes=(None, 0, None, None, None))(
+        cam, hypotheses, columns, ceiling_v, floor_v
     )
     ceiling_in = candidates & (ceiling_error < inlier_threshold)
     floor_in = candidates & (floor_error < inlier_threshold)
@@ -115,12 +158,9 @@ def ransac_wall(
     wall = jax.tree.map(
         lambda r, h: jnp.where(plausible_wall(refit, min_height), r, h[best]), refit, hypotheses
     )
-    ceiling_error, floor_error = boundary_errors(cam, wall, ceiling_v, floor_v)
-    ceiling_in = candidates & (ceiling_error < inlier_threshold)
-    floor_in = candidates & (floor_error < inlier_threshold)
     enough = jnp.sum(candidates) >= sample_size
     ok = plausible_wall(wall, min_height) & enough & (score[best] >= 0)
-    return eqx.tree_at(lambda w: w.ok, wall, ok), ceiling_in, floor_in
+    return eqx.tree_at(lambda w: w.ok, wall, ok)
 
 
 def plausible_wall(wall: Wall, min_height: float) -> Bool[Array, ""]:

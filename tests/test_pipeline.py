@@ -16,7 +16,9 @@ import ncjax
 from ncjax import metrics
 from ncjax._corners import column_walls, find_corners, is_peak
 from ncjax._plucker import wall_planes_meet
-from ncjax._ransac import num_hypotheses
+from ncjax._adjust import BoundaryObservations, adjust_layout
+from ncjax._pipeline import manhattan_frame
+from ncjax._ransac import num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
 
 WIDTH, HEIGHT = 512, 256
@@ -73,6 +75,51 @@ def test_paper_number_of_hypotheses():
     assert num_hypotheses(0.9999, 0.6, 6) == 2245  # paper: 2244 (it truncates 2244.1)
     with pytest.raises(ValueError):
         num_hypotheses(1.0, 0.2, 3)
+
+
+def test_wall_columns_spread_over_each_wall():
+    width, size = 64, 8
+    corners = jnp.array([5.3, 20.0, 58.7, 64.0])  # the last wall wraps around the seam
+    mask = jnp.array([True, True, True, False])
+    column_wall = column_walls(corners, mask, width)
+    candidate = jnp.ones(width, bool).at[jnp.array([6, 7, 30])].set(False)
+    columns, valid = (np.asarray(x) for x in wall_columns(column_wall, candidate, corners, size))
+    for wall in range(3):
+        own = [c for c in range(width) if column_wall[c] == wall and candidate[c]]
+        chosen = columns[wall][valid[wall]]
+        assert set(chosen) <= set(own) and len(set(chosen)) == len(chosen) == min(size, len(own))
+        along = (chosen - np.floor(float(corners[wall]))) % width
+        assert np.all(np.diff(along) > 0)  # in image order from the wall's start corner
+        rank = np.searchsorted(np.sort((np.array(own) - np.floor(float(corners[wall]))) % width), along)
+        assert rank[0] < len(own) / size and rank[-1] >= len(own) * (1 - 1 / size) - 1  # spread over the wall
+    assert not valid[3].any()
+
+
+@pytest.mark.parametrize("manhattan", [True, False])
+def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan):
+    batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
+    room, label = pick(batch, 2), pick(labels, 2)
+    cam = room.camera(WIDTH, HEIGHT)
+    directions, distances = ncjax.room_walls(room)[:2]
+    used = jnp.ones(WIDTH, bool)
+    observations = BoundaryObservations(
+        ceiling_v=label.ceiling_v, floor_v=label.floor_v, ceiling_used=used, floor_used=used,
+        column_wall=label.wall_index, corner_columns=jnp.zeros(len(room.mask)),
+        corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
+    )
+    turn = 0.02 if manhattan else 0.02 * jnp.cos(jnp.arange(len(room.mask)))
+    start = jnp.stack([jnp.cos(turn) * directions[:, 0] - jnp.sin(turn) * directions[:, 1],
+                       jnp.sin(turn) * directions[:, 0] + jnp.cos(turn) * directions[:, 1]], -1)
+    labels_, _ = manhattan_frame(directions, room.mask.astype(directions.dtype))
+    adjust = jax.jit(functools.partial(adjust_layout, labels=labels_ if manhattan else None, corner_weight=1.0, steps=8))
+    u, d, h_c, h_f, improved = adjust(
+        cam, observations, start, 1.05 * distances, 0.95 * room.ceiling_height, 0.95 * room.floor_height
+    )
+    assert bool(improved)
+    seen = np.asarray(room.mask & jnp.any(label.wall_index[:, None] == jnp.arange(len(room.mask)), 0))
+    np.testing.assert_allclose(np.abs(np.sum(u * directions, -1))[seen], 1.0, atol=1e-5)
+    np.testing.assert_allclose(np.abs(d)[seen], np.abs(distances)[seen], rtol=1e-3)
+    np.testing.assert_allclose([h_c, h_f], [room.ceiling_height, room.floor_height], rtol=1e-3)
 
 
 # --- forward model of the boundaries ------------------------------------------------------------
