@@ -15,14 +15,16 @@ import os
 import statistics
 import time
 
-import jax
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see README, Development
 
-import ncjax
-from ncjax._app import DEMO_DIR
-from ncjax._images import read_panorama
-from ncjax._predict import _predict, default_model
-from ncjax._reconstruct import reconstruct_batch
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+import ncjax  # noqa: E402
+from ncjax._app import DEMO_DIR  # noqa: E402
+from ncjax._images import read_panorama  # noqa: E402
+from ncjax._predict import _predict, default_model  # noqa: E402
+from ncjax._reconstruct import reconstruct_batch  # noqa: E402
 
 
 def timed(function, repeats: int) -> tuple[float, float]:
