@@ -99,6 +99,11 @@ class PipelineConfig:
         corner_weight: weight of the corner-plane penalty of the adjustment.
         adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
         min_finite_fraction: fraction of columns with finite rows needed.
+        max_room_height: a layout whose ceiling is more than this above its
+            floor (metres) is implausible (DEGENERATE_LAYOUT), e.g. a wall fit
+            whose scale ran away.
+        max_corner_distance: a layout with a corner farther than this from
+            the camera (metres) is implausible (DEGENERATE_LAYOUT).
     """
 
     capacity: int = 32
@@ -116,6 +121,8 @@ class PipelineConfig:
     corner_weight: float = 1.0
     adjustment_steps: int = 8
     min_finite_fraction: float = 0.5
+    max_room_height: float = 10.0
+    max_corner_distance: float = 50.0
 
     def __post_init__(self):
         if self.capacity < 4:
@@ -636,6 +643,8 @@ def _assemble(
     points, meet = loop_corners(directions, distances, mask)
     directions, distances = canonical_orientation(directions, distances)
     finite = jnp.all(jnp.isfinite(points)) & jnp.isfinite(ceiling_height) & jnp.isfinite(floor_height)
+    farthest = jnp.max(jnp.where(mask, jnp.linalg.norm(jnp.where(mask[:, None], points, 0.0), axis=-1), 0.0))
+    plausible = (ceiling_height - floor_height <= config.max_room_height) & (farthest <= config.max_corner_distance)
     failed = jnp.stack(
         [
             ~(cam.rc > 1e-6),
@@ -645,7 +654,7 @@ def _assemble(
             jnp.sum(mask) < (4 if manhattan else 3),
             jnp.sum(final.observed) < 2,
             ~solver_ok,
-            ~(jnp.all(meet) & finite & (ceiling_height > 0) & (floor_height < 0)),
+            ~(jnp.all(meet) & finite & (ceiling_height > 0) & (floor_height < 0) & plausible),
         ]
     )
     status = jnp.where(jnp.any(failed), jnp.argmax(failed) + 1, LayoutStatus.OK).astype(jnp.int32)

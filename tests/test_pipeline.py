@@ -210,6 +210,11 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
         layout = ncjax.layout_from_boundaries(*args)
         assert int(layout.status) == status and not bool(layout.ok)
         assert bool(jnp.all(jnp.isfinite(layout.ceiling_corners)))
+    # The same exact room, valid with the defaults, is implausible for a 1 m room-height limit.
+    assert bool(ncjax.layout_from_boundaries(label.ceiling_v, label.floor_v, label.corner_target, cam).ok)
+    strict = ncjax.PipelineConfig(max_room_height=1.0)
+    layout = ncjax.layout_from_boundaries(label.ceiling_v, label.floor_v, label.corner_target, cam, config=strict)
+    assert int(layout.status) == ncjax.LayoutStatus.DEGENERATE_LAYOUT
 
 
 def test_bad_arguments_raise():
