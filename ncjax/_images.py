@@ -49,6 +49,17 @@ def to_rgb8(image: np.ndarray) -> np.ndarray:
     raise PanoramaError(f"unsupported number of channels: {channels}")
 
 
+def panorama_size_error(width: int, height: int) -> str | None:
+    """Why a ``width x height`` image cannot be a full 360 x 180 degree panorama, or None.
+
+    The network and the camera model read the image as the whole sphere, so
+    the aspect ratio must be 2:1.
+    """
+    if width != 2 * height or height < 32:
+        return f"{width} x {height} pixels is not a full 360 x 180 degree panorama (width must be 2 x height, at least 64 x 32)"
+    return None
+
+
 def read_panorama(path: str | os.PathLike) -> np.ndarray:
     """Read a full panorama as RGB uint8 (H, W, 3).
 
@@ -73,10 +84,7 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
         image = to_rgb8(image)
     except PanoramaError as error:
         raise PanoramaError(f"{path}: {error}") from None
-    height, width = image.shape[:2]
-    if width != 2 * height or height < 32:
-        raise PanoramaError(
-            f"{path}: {width} x {height} pixels is not a full 360 x 180 degree panorama "
-            "(width must be 2 x height, at least 64 x 32)"
-        )
+    size_error = panorama_size_error(*image.shape[1::-1])
+    if size_error:
+        raise PanoramaError(f"{path}: {size_error}")
     return image

@@ -20,6 +20,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Float, Key, PRNGKeyArray, Shaped
 
 from ._camera import NonCentralPanorama
+from ._images import panorama_size_error
 from ._network import HorizonNet, prediction_to_rows
 from ._pipeline import WORLDS, Layout, PipelineConfig, layout_from_evidence
 from ._predict import default_model
@@ -63,18 +64,12 @@ def _reconstruct(
 
 
 def check_panorama(images: np.ndarray) -> None:
-    """Raise ValueError unless ``images`` is RGB uint8 (H, W, 3) or (B, H, W, 3) with W = 2 H.
-
-    The network and the camera model read the image as a full 360 x 180
-    degree panorama, so the aspect ratio must be 2:1.
-    """
+    """Raise ValueError unless ``images`` is RGB uint8 (H, W, 3) or (B, H, W, 3) of a full panorama."""
     if images.dtype != np.uint8 or images.ndim not in (3, 4) or images.shape[-1] != 3:
         raise ValueError(f"expected an RGB uint8 image (H, W, 3) or batch (B, H, W, 3), got {images.dtype}{images.shape}")
-    height, width = images.shape[-3:-1]
-    if width != 2 * height or height < 32:
-        raise ValueError(
-            f"expected a full 360 x 180 degree panorama, width = 2 x height >= 64 pixels; got {width} x {height}"
-        )
+    size_error = panorama_size_error(images.shape[-2], images.shape[-3])
+    if size_error:
+        raise ValueError(size_error)
 
 
 def reconstruct_batch(
