@@ -5,7 +5,7 @@ the whole jitted call, the network alone (resize + forward + rows) and the
 geometry alone (``layout_from_boundaries`` on the network's output), after
 compilation, median of ``--repeats`` runs; latency per image and images per second.
 
-    uv run python benchmarks/bench_reconstruct.py [--batches 1 8] [--world manhattan] [--repeats 3]
+    uv run python benchmarks/bench_reconstruct.py [--batches 1 8] [--world manhattan] [--repeats 3] [--views 4]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 import ncjax  # noqa: E402
 from ncjax._app import DEMO_DIR  # noqa: E402
 from ncjax._images import read_panorama  # noqa: E402
-from ncjax._predict import _predict, default_model  # noqa: E402
+from ncjax._predict import DEFAULT_VIEWS, _predict, default_model  # noqa: E402
 from ncjax._reconstruct import reconstruct_batch  # noqa: E402
 
 
@@ -45,6 +45,7 @@ def main(argv=None):
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 8])
     parser.add_argument("--world", default="manhattan", choices=("manhattan", "atlanta", "auto"))
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even)")
     args = parser.parse_args(argv)
     name = next(p for p in os.listdir(DEMO_DIR) if p.endswith(".png"))
     image = read_panorama(DEMO_DIR / name)
@@ -52,15 +53,15 @@ def main(argv=None):
     model = default_model()
     model.eval()
     height, width = image.shape[:2]
-    print(f"{jax.devices()[0]}, {os.cpu_count()} CPUs, world {args.world}, image {width} x {height}")
+    print(f"{jax.devices()[0]}, {os.cpu_count()} CPUs, world {args.world}, image {width} x {height}, {args.views} network view(s)")
     print("| batch | end to end: compile (s) | per call (s) | images/s | network per call (s) | geometry per call (s) |")
     print("| --- | --- | --- | --- | --- | --- |")
     for batch in args.batches:
         images = np.repeat(image[None], batch, axis=0)
         radii = np.full(batch, rc, np.float32)
-        compile_time, total = timed(lambda: reconstruct_batch(images, radii, args.world, model=model), args.repeats)
-        _, network = timed(lambda: _predict(model, images, height=height, width=width), args.repeats)
-        ceiling_v, floor_v, corner_prob = _predict(model, images, height=height, width=width)
+        compile_time, total = timed(lambda: reconstruct_batch(images, radii, args.world, model=model, views=args.views), args.repeats)
+        _, network = timed(lambda: _predict(model, images, views=args.views), args.repeats)
+        ceiling_v, floor_v, corner_prob = _predict(model, images, views=args.views)
         cam = ncjax.NonCentralPanorama(width, height, rc=rc)
         _, geometry = timed(
             lambda: ncjax.layout_from_boundaries(ceiling_v, floor_v, corner_prob, cam, world=args.world), args.repeats

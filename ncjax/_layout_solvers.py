@@ -17,6 +17,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._linalg import scaled_null_space
@@ -29,7 +30,7 @@ from ._wall import (
     side_coefficients,
     wall_rows,
 )
-from ._wall_fit import heights_of, linear_walls, refine_walls, yaw_parameters
+from ._wall_fit import heights_of, linear_walls, refine_walls, search_scale, yaw_parameters
 
 
 class WallLayout(eqx.Module):
@@ -56,6 +57,11 @@ class WallLayout(eqx.Module):
     floor_lines: Float[Array, "*batch K 6"]
     mask: Bool[Array, "*batch K"]
     ok: Bool[Array, "*batch"]
+
+
+# camera heights above the floor (m) at which the "refined" Atlanta solver tries the room's shape
+# (:func:`ncjax._wall_fit.search_scale`): a bracket for the search, not a prior (the cost decides)
+FLOOR_DEPTHS = tuple(float(x) for x in np.geomspace(0.2, 20.0, 33))
 
 
 def _make_layout(directions, distances, h_c, h_f, mask, ok) -> WallLayout:
@@ -203,9 +209,10 @@ def solve_atlanta_layout(
     ``xibar'_1 + h_c xi'_2 - d xi'_3 = 0``. Methods: ``"paper"``: the
     (equilibrated) least-squares null vector of ``A``, scaled so that its
     first entry is 1; ``"refined"`` (default): the same linear solution (with
-    the distances eliminated in closed form) followed by the
-    maximum-likelihood fit of ``h_c``, ``h_f`` and the ``d_k`` (directions
-    stay the given ones).
+    the distances eliminated in closed form), its scale chosen by the
+    likelihood when the linear one is unreliable under noise
+    (:func:`ncjax._wall_fit.search_scale`), then the maximum-likelihood fit
+    of ``h_c``, ``h_f`` and the ``d_k`` (directions stay the given ones).
 
     Args:
         ceiling_rays: per-column ceiling rays.
@@ -234,19 +241,16 @@ def solve_atlanta_layout(
     rows_one_hot = _stacked(one_hot, one_hot)
     if method == "refined":
         x, d = linear_walls(shared, distance, rows_one_hot)
-        vector = jnp.concatenate([x, d])
-    else:
-        vector = scaled_null_space(_full_matrix(shared, distance, rows_one_hot, present), 1)[:, 0]
-    scale_ok = jnp.abs(vector[0]) > 1e3 * jnp.finfo(vector.dtype).eps * safe_norm(vector)
-    vector = vector / jnp.where(scale_ok, vector[0], 1.0)
-    if method == "refined":
         is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
-        params = jnp.concatenate([jnp.zeros(1, vector.dtype), vector[1:]])
-        params = refine_walls(
-            params, _stacked(ceiling_rays, floor_rays), _stacked(column_direction, column_direction), rows_one_hot, is_floor, refine_yaw=False
-        )
+        arguments = (_stacked(ceiling_rays, floor_rays), _stacked(column_direction, column_direction), rows_one_hot, is_floor)
+        params, scale_ok = search_scale(jnp.concatenate([x, d]), *arguments, jnp.asarray(FLOOR_DEPTHS, x.dtype))
+        params = refine_walls(params, *arguments, refine_yaw=False)
         vector = params.at[0].set(1.0)
         scale_ok = scale_ok & jnp.all(jnp.isfinite(params))
+    else:
+        vector = scaled_null_space(_full_matrix(shared, distance, rows_one_hot, present), 1)[:, 0]
+        scale_ok = jnp.abs(vector[0]) > 1e3 * jnp.finfo(vector.dtype).eps * safe_norm(vector)
+        vector = vector / jnp.where(scale_ok, vector[0], 1.0)
     h_c, h_f = vector[1], vector[2]
     ok = scale_ok & all_seen & (h_c > h_f) & jnp.any(present)
     return _make_layout(units, jnp.where(present, vector[3:], 0.0), h_c, h_f, present, ok)

@@ -458,3 +458,42 @@ def prediction_to_rows(
     )
     ceiling, floor, corner_prob = jnp.moveaxis(resample_columns(stacked, width), -1, 0)
     return elevation_to_row(ceiling, height), elevation_to_row(floor, height), corner_prob
+
+
+def check_views(views: int) -> None:
+    """Raise ValueError unless ``views`` is 1 or an even number (see :func:`predict_views`)."""
+    if not (isinstance(views, int) and (views == 1 or (views >= 2 and views % 2 == 0))):
+        raise ValueError(f"views must be 1 or an even number >= 2, got {views!r}")
+
+
+def predict_views(model: HorizonNet, images: Float[Array, "B H W 3"], views: int) -> BoundaryPrediction:
+    """The network's output averaged over ``views`` symmetric views of each panorama (test-time augmentation).
+
+    Rotating the rig about its vertical axis rolls the columns of a circular
+    panorama, and mirroring the room mirrors them (the rig is symmetric), so
+    every rolled and mirrored copy is a valid panorama of the same room: the
+    network's outputs on them, mapped back to the original columns, are
+    averaged (elevations and corner logits). ``views`` is 1 (the image alone)
+    or even: ``views / 2`` rolls evenly spaced over the width, each also
+    mirrored. The network has circular padding but its LSTM reads the columns
+    from a starting edge, so the views do differ; averaging them cuts the
+    boundary error (experiments/RESULTS.md).
+
+    Args:
+        images: (B, H, W, 3) at the network's input size, values in [0, 1].
+        views: static, 1 or an even number.
+    """
+    check_views(views)
+    width = images.shape[2]
+    if views == 1:
+        return model(images)
+    shifts = [width * i // (views // 2) for i in range(views // 2)]
+    rolled = [jnp.roll(images, shift, axis=2) for shift in shifts]
+    batch = jnp.concatenate([view for image in rolled for view in (image, image[:, :, ::-1])])
+    outputs = jax.tree.map(lambda x: x.reshape(views, images.shape[0], *x.shape[1:]), model(batch))
+
+    def back(view, x):
+        x = x[:, ::-1] if view % 2 else x
+        return jnp.roll(x, -shifts[view // 2] * x.shape[1] // width, axis=1)
+
+    return jax.tree.map(lambda x: jnp.mean(jnp.stack([back(view, x[view]) for view in range(views)]), 0), outputs)

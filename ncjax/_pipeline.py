@@ -9,9 +9,11 @@
    test does not depend on the single walls' noisy scale). Consecutive walls
    of one direction without a jump are one wall split by a spurious corner:
    they are merged.
-4. Manhattan branch: directions clustered into ``u`` / ``u_perp`` (any yaw);
-   at an occlusion between two walls of one class a perpendicular wall is
-   inserted through the occluding corner; the Manhattan layout solver.
+4. Manhattan branch: each wall labelled ``u`` / ``u_perp`` (any yaw) from its
+   direction and the corner types together (a least-cost labelling of the
+   wall cycle); consecutive walls of one class are merged, or, at an
+   occlusion, a perpendicular wall is inserted through the occluding corner;
+   the Manhattan layout solver.
    Atlanta branch: RANSAC directions, a wall in the vertical plane of the
    corner ray at each occlusion, the Atlanta layout solver.
 5. Final adjustment (:mod:`ncjax._adjust`, optimistix least squares) of both branches: the
@@ -96,6 +98,9 @@ class PipelineConfig:
             (Manhattan merges consecutive walls of one class without a jump).
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             wall from the Manhattan frame for the Manhattan branch.
+        turn_weight: Manhattan labelling: cost of a corner whose walls do not
+            turn as its type says, relative to the best-supported wall's
+            direction vote (:func:`manhattan_labels`).
         corner_weight: weight of the corner-plane penalty of the adjustment.
         adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
         min_finite_fraction: fraction of columns with finite rows needed.
@@ -118,6 +123,7 @@ class PipelineConfig:
     occlusion_threshold: float = 4.0
     merge_fraction: float = 0.8
     manhattan_tolerance: float = 5.0
+    turn_weight: float = 0.5
     corner_weight: float = 1.0
     adjustment_steps: int = 8
     min_finite_fraction: float = 0.5
@@ -132,7 +138,7 @@ class PipelineConfig:
         num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
         if self.ransac_columns < 2 * self.sample_size:
             raise ValueError(f"ransac_columns must be >= 2 * sample_size, got {self.ransac_columns}")
-        positive = ("nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "manhattan_tolerance")
+        positive = ("nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "manhattan_tolerance", "turn_weight")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -379,26 +385,63 @@ def manhattan_frame(
     return (quarter_turns.astype(jnp.int32) % 2), deviation
 
 
-def manhattan_labels(evidence: WallEvidence) -> Int[Array, " K"]:
-    """Manhattan class of each RANSAC wall.
+def cyclic_binary_labels(
+    unary: Float[Array, "K 2"], same_cost: Float[Array, " K"], turn_cost: Float[Array, " K"], valid: Bool[Array, " K"]
+) -> Int[Array, " K"]:
+    """Labels ``l_j`` in {0, 1} of the valid slots (a cycle, in index order) of least total cost.
+
+    The cost is ``sum_j unary[j, l_j]`` plus, at each corner ``j`` (between the
+    previous valid slot and ``j``), ``same_cost[j]`` when the two labels agree
+    and ``turn_cost[j]`` when they differ. Exact: dynamic programming over
+    the chain for each label of the first slot; invalid slots pass the label
+    through at no cost (slot 0 must be valid).
+    """
+    unary = jnp.where(valid[:, None], unary, 0.0)
+    agree = jnp.eye(2, dtype=bool)
+    transition = jnp.where(agree[None], same_cost[:, None, None], turn_cost[:, None, None])  # [corner, previous, label]
+    transition = jnp.where(valid[:, None, None], transition, jnp.where(agree, 0.0, jnp.inf)[None])
+
+    def chain(first):
+        start = unary[0] + jnp.where(jnp.arange(2) == first, 0.0, jnp.inf)
+
+        def forward(cost, step):
+            unary_j, transition_j = step
+            total = cost[:, None] + transition_j
+            return jnp.min(total, axis=0) + unary_j, jnp.argmin(total, axis=0)
+
+        cost, back = jax.lax.scan(forward, start, (unary[1:], transition[1:]))
+        cost = cost + transition[0][:, first]  # the corner that closes the loop at slot 0
+        last = jnp.argmin(cost)
+
+        def backward(label, back_j):
+            return back_j[label], label
+
+        _, labels = jax.lax.scan(backward, last, back, reverse=True)
+        return cost[last], jnp.concatenate([jnp.array([first]), labels])
+
+    costs, labels = jax.vmap(chain)(jnp.arange(2))
+    return labels[jnp.argmin(costs)].astype(jnp.int32)
+
+
+def manhattan_labels(evidence: WallEvidence, turn_weight: float) -> Int[Array, " K"]:
+    """Manhattan class of each RANSAC wall, from its direction and the corner types together.
 
     Walls turn by 90 degrees at every corner that is neither an occlusion nor
-    a split of one plane, so the classes follow from the corner types alone
-    (topology, robust to the noisy directions of single walls). When the
-    turns do not close the loop (an odd count) the classes come from the
-    directions (:func:`manhattan_frame`) instead. Unfitted walls alternate
-    with their predecessor.
+    a split of one plane, and each fitted wall's direction votes for its class
+    (:func:`manhattan_frame`) with its share of the inliers, less as it
+    deviates from the frame. The labelling that disagrees least with both
+    (:func:`cyclic_binary_labels`; a disagreeing corner costs ``turn_weight``,
+    the best-supported wall 1) survives noisy single-wall directions, unfitted
+    narrow walls and corners the detector missed (an odd number of turns).
     """
     mask = evidence.corner_mask
-    by_direction, _ = manhattan_frame(evidence.walls.direction, evidence.weights)
-    previous = _previous(evidence)
-    by_direction = jnp.where(evidence.fitted, by_direction, 1 - by_direction[previous])
-    turns = mask & ~evidence.occluded & ~evidence.same_plane
-    parity = (jnp.cumsum(turns) - turns[0]) % 2  # wall 0 has class 0
-    agree = jnp.sum(evidence.weights * (parity == by_direction)) >= jnp.sum(evidence.weights * (parity != by_direction))
-    by_parity = jnp.where(agree, parity, 1 - parity)
-    closes = jnp.sum(turns) % 2 == 0
-    return jnp.where(closes, by_parity, by_direction).astype(jnp.int32)
+    by_direction, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
+    confidence = evidence.weights / jnp.maximum(jnp.max(evidence.weights), 1.0) * (1 - deviation / (math.pi / 4))
+    unary = confidence[:, None] * (by_direction[:, None] != jnp.arange(2)[None, :])
+    turn_expected = ~evidence.occluded & ~evidence.same_plane
+    same_cost = jnp.where(turn_expected, turn_weight, 0.0)
+    turn_cost = jnp.where(turn_expected, 0.0, turn_weight)
+    return cyclic_binary_labels(unary, same_cost, turn_cost, mask)
 
 
 def _final_walls(
@@ -564,9 +607,10 @@ def _several_corners(evidence: WallEvidence) -> Bool[Array, ""]:
 
 def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
-    labels = manhattan_labels(evidence)
+    labels = manhattan_labels(evidence, config.turn_weight)
     same_class = labels[_previous(evidence)] == labels
-    merge = evidence.corner_mask & same_class & evidence.same_plane & ~evidence.occluded & _several_corners(evidence)
+    # consecutive walls of one class without a jump are one plane whatever the fits say: Manhattan walls never meet at 0 degrees
+    merge = evidence.corner_mask & same_class & ~evidence.occluded & _several_corners(evidence)
     insert = evidence.corner_mask & same_class & evidence.occluded
     final = _final_walls(evidence, merge, insert, True, config.sample_size)
     wall_labels = jnp.where(final.inserted, 1 - labels[final.start_wall], labels[final.start_wall])

@@ -21,9 +21,9 @@ from jaxtyping import Array, ArrayLike, Float, Key, PRNGKeyArray, Shaped
 
 from ._camera import NonCentralPanorama
 from ._images import panorama_size_error
-from ._network import HorizonNet, prediction_to_rows
+from ._network import HorizonNet, check_views
 from ._pipeline import WORLDS, Layout, PipelineConfig, layout_from_evidence
-from ._predict import default_model
+from ._predict import DEFAULT_VIEWS, default_model, image_boundaries
 
 
 class Reconstruction(NamedTuple):
@@ -41,7 +41,7 @@ class Reconstruction(NamedTuple):
     corner_prob: Float[Array, "B W"]
 
 
-@functools.partial(nnx.jit, static_argnames=("world", "config"))
+@functools.partial(nnx.jit, static_argnames=("world", "config", "views"))
 def _reconstruct(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
@@ -49,11 +49,10 @@ def _reconstruct(
     keys: Key[Array, " B"],
     world: str,
     config: PipelineConfig,
+    views: int,
 ) -> Reconstruction:
-    batch, height, width = images.shape[:3]
-    size = (batch, model.config.input_height, model.config.input_width, 3)
-    resized = jax.image.resize(images.astype(jnp.float32) / 255.0, size, method="linear")
-    ceiling_v, floor_v, corner_prob = prediction_to_rows(model(resized), height, width)
+    height, width = images.shape[1:3]
+    ceiling_v, floor_v, corner_prob = image_boundaries(model, images, views)
 
     def one(ceiling, floor, probability, radius, key):
         cam = NonCentralPanorama(width, height, rc=radius)
@@ -80,6 +79,7 @@ def reconstruct_batch(
     model: HorizonNet | None = None,
     config: PipelineConfig = PipelineConfig(),
     key: PRNGKeyArray | None = None,
+    views: int = DEFAULT_VIEWS,
 ) -> Reconstruction:
     """Metric layouts of a batch of panoramas of one size, each with its own radius.
 
@@ -90,6 +90,8 @@ def reconstruct_batch(
         model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
         config: static :class:`~ncjax.PipelineConfig`.
         key: RANSAC key (default ``jax.random.key(0)``), split over the batch.
+        views: static, rolled and mirrored views the network's output is
+            averaged over (1 or even, :func:`ncjax.predict_boundaries`).
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).
@@ -105,13 +107,14 @@ def reconstruct_batch(
         raise ValueError(f"reconstruct_batch takes a batch (B, H, W, 3), got {images.shape}; use reconstruct")
     if world not in WORLDS:
         raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
+    check_views(views)
     rc = np.broadcast_to(np.asarray(rc, np.float32), images.shape[:1])
     if not np.all(np.isfinite(rc)) or np.any(rc < 0):
         raise ValueError(f"rc must be finite radii >= 0 in metres, got {rc}")
     model = default_model() if model is None else model
     model.eval()
     keys = jax.random.split(jax.random.key(0) if key is None else key, images.shape[0])
-    return _reconstruct(model, jnp.asarray(images), jnp.asarray(rc), keys, world, config)
+    return _reconstruct(model, jnp.asarray(images), jnp.asarray(rc), keys, world, config, views)
 
 
 def reconstruct(
@@ -122,6 +125,7 @@ def reconstruct(
     model: HorizonNet | None = None,
     config: PipelineConfig = PipelineConfig(),
     key: PRNGKeyArray | None = None,
+    views: int = DEFAULT_VIEWS,
 ) -> Layout:
     """Metric room layout of one RGB panorama: network, then geometry (paper Fig. pipeline).
 
@@ -142,6 +146,6 @@ def reconstruct(
         raise ValueError(f"reconstruct takes one image (H, W, 3), got {image.shape}; use reconstruct_batch")
     if (cam.width, cam.height) != image.shape[1::-1]:
         raise ValueError(f"the camera is {cam.width} x {cam.height} but the image {image.shape[1]} x {image.shape[0]}")
-    result = reconstruct_batch(image[None], jnp.reshape(cam.rc, (1,)), world, model=model, config=config, key=key)
+    result = reconstruct_batch(image[None], jnp.reshape(cam.rc, (1,)), world, model=model, config=config, key=key, views=views)
     return jax.tree.map(lambda x: x[0], result.layout)
 

@@ -48,8 +48,10 @@ from ._network import (
     BoundaryPrediction,
     HorizonNet,
     HorizonNetConfig,
+    check_views,
     init_model,
     prediction_to_rows,
+    predict_views,
     row_to_elevation,
 )
 from ._network_metrics import network_table
@@ -501,15 +503,20 @@ def folder_batches(arrays: dict[str, np.ndarray], batch_size: int, seed: int) ->
     return from_step
 
 
-def evaluate_arrays(model: HorizonNet, arrays: dict[str, np.ndarray], batch_size: int = 8) -> dict[str, float]:
-    """Table netcorExp's row (:func:`~ncjax.network_table`) of a model on :func:`load_split` arrays."""
+def evaluate_arrays(model: HorizonNet, arrays: dict[str, np.ndarray], batch_size: int = 8, views: int = 1) -> dict[str, float]:
+    """Table netcorExp's row (:func:`~ncjax.network_table`) of a model on :func:`load_split` arrays.
+
+    ``views``: the network's output averaged over rolled and mirrored views
+    (:func:`~ncjax._network.predict_views`); 1 is the network alone.
+    """
+    check_views(views)
     model.eval()
     count, height, width = arrays["image"].shape[:3]
     outputs = []
     for start in range(0, count, batch_size):
         images = arrays["image"][start : start + batch_size]
         padded = np.concatenate([images, np.repeat(images[-1:], batch_size - len(images), 0)])
-        prediction = _forward(model, jnp.asarray(padded, jnp.float32) / 255.0)
+        prediction = _forward(model, jnp.asarray(padded, jnp.float32) / 255.0, views)
         rows = prediction_to_rows(prediction, height, width)
         outputs.append([np.asarray(r)[: len(images)] for r in rows])
     ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*outputs))
@@ -519,9 +526,7 @@ def evaluate_arrays(model: HorizonNet, arrays: dict[str, np.ndarray], batch_size
     return {key: float(value) for key, value in table.items()}
 
 
-@nnx.jit
-def _forward(model: HorizonNet, images: Float[Array, "B H W 3"]) -> BoundaryPrediction:
-    return model(images)
+_forward = nnx.jit(predict_views, static_argnames=("views",))
 
 
 # ----------------------------------------------------------------------------- command line

@@ -223,6 +223,48 @@ def gauss_newton_step(
     return params + jnp.concatenate([delta_shared, delta_distances])
 
 
+def search_scale(
+    vector: Float[Array, " n"],
+    rays: Float[Array, "m 6"],
+    base_directions: Float[Array, "m 2"],
+    one_hot: Bool[Array, "m K"],
+    is_floor: Bool[Array, " m"],
+    floor_depths: Float[Array, " S"],
+) -> tuple[Float[Array, " P"], Bool[Array, ""]]:
+    """The start of :func:`refine_walls` for a linear solution ``(x_0, h_c, h_f, d_1..d_K)`` (Atlanta order).
+
+    The metric scale is the weakest part of a linear solution: it rests on
+    ``x_0``, the coefficient of the small offsets ``rc`` of the optical
+    centres, while the ratios of ``h_c, h_f, d_k`` (the room's shape) rest
+    on the whole ray directions. Under noise ``x_0`` can come out tiny or of
+    the wrong sign and ``vector / x_0`` is then a room kilometres wide. So
+    the shape is kept and the scale is chosen by the maximum-likelihood cost
+    itself: among ``vector / x_0`` and the shape scaled to each camera
+    height ``-h_f`` in ``floor_depths`` (metres), the candidate with the
+    least sum of squared angular residuals wins. On exact data ``vector / x_0``
+    has zero cost and is kept.
+
+    Returns:
+        ``(params, ok)``: ``(0, h_c, h_f, d_1..d_K)`` and whether any candidate was finite.
+    """
+    x0, shape = vector[0], vector[1:]
+    linear_ok = jnp.abs(x0) > 1e3 * jnp.finfo(vector.dtype).eps * safe_norm(vector)
+    linear = shape / jnp.where(linear_ok, x0, 1.0)
+    # a floor below the camera (h_f < 0) fixes the sign of the shape
+    floor = shape[1]
+    shape_ok = jnp.abs(floor) > 1e3 * jnp.finfo(vector.dtype).eps * safe_norm(shape)
+    unit = shape / jnp.where(shape_ok, -floor, 1.0)
+    scaled = floor_depths[:, None] * unit[None, :]
+    candidates = jnp.concatenate([linear[None], scaled])
+    valid = jnp.concatenate([linear_ok[None], jnp.broadcast_to(shape_ok, floor_depths.shape)])
+    params = jnp.concatenate([jnp.zeros((candidates.shape[0], 1), vector.dtype), candidates], 1)
+    used = jnp.any(one_hot, 1)
+    geometry = column_geometry(jnp.where(used[:, None], rays, 0.0))
+    costs = jax.vmap(lambda p: jnp.sum(residuals_of(p, geometry, base_directions, one_hot, is_floor) ** 2))(params)
+    costs = jnp.where(valid & jnp.all(jnp.isfinite(params), 1) & jnp.isfinite(costs), costs, jnp.inf)
+    return params[jnp.argmin(costs)], jnp.any(jnp.isfinite(costs))
+
+
 def refine_walls(
     params: Float[Array, " P"],
     rays: Float[Array, "m 6"],

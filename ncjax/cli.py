@@ -91,8 +91,9 @@ def _evaluate(args: argparse.Namespace) -> int:
     model = load_model(args.model) if args.model else default_model()
     config = model.config
     arrays = load_split(args.data, args.split, config.input_height, config.input_width, limit=args.limit)
-    row = evaluate_arrays(model, arrays)
-    print(f"model {args.model or DEFAULT_MODEL_PATH}, {len(arrays['image'])} images of {args.data} ({args.split})")
+    row = evaluate_arrays(model, arrays, views=args.views)
+    print(f"model {args.model or DEFAULT_MODEL_PATH}, {len(arrays['image'])} images of {args.data} ({args.split}), "
+          f"{args.views} view(s) averaged")
     print(f"PE {row['pe_mean']:.3f} +- {row['pe_std']:.3f} px (1024-wide)")
     print(
         f"corners: precision {row['precision']:.3f}, recall {row['recall']:.3f}, "
@@ -100,7 +101,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     )
     if args.json:
         with open(args.json, "w") as file:
-            json.dump({"images": len(arrays["image"]), "data": args.data, "split": args.split, **row}, file, indent=1)
+            json.dump({"images": len(arrays["image"]), "data": args.data, "split": args.split, "views": args.views, **row}, file, indent=1)
     return 0
 
 
@@ -142,6 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     evaluate.add_argument("--model", help=".safetensors weights (default: the shipped model)")
     evaluate.add_argument("--limit", type=int, help="evaluate the first N images only")
     evaluate.add_argument("--json", help="also write the row to this json file")
+    evaluate.add_argument("--views", type=int, default=1, help="average the network over rolled and mirrored views (1 or even)")
     evaluate.set_defaults(run=_evaluate)
     from ncjax._app import add_demo_arguments, add_reconstruct_arguments, run_demo, run_reconstruct
 

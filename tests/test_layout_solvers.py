@@ -18,6 +18,8 @@ from test_wall import (
 )
 
 import ncjax
+import ncjax._layout_solvers
+from ncjax._wall_fit import refine_walls, search_scale
 
 N_ROOMS = 40  # per world (experiments/solver_accuracy.py checks 1000)
 
@@ -172,3 +174,26 @@ def test_layout_corners_of_parallel_walls_are_invalid_not_nan():
     assert bool(jnp.all(jnp.isfinite(grad)))
     lone, lone_valid = ncjax.layout_corners(lines, jnp.arange(5) == 2, return_valid=True)
     assert not bool(jnp.any(lone_valid)) and bool(jnp.all(lone == 0))
+
+
+def test_scale_search_recovers_a_scale_the_linear_solve_lost():
+    """A linear solution whose ``x_0`` (the metric scale) came out with the wrong sign is
+    re-scaled by the likelihood: the room's shape survives, the refinement recovers the room."""
+    room = sample_room(3, "atlanta")
+    ceiling_rays, floor_rays = rays(room)
+    one_hot = jax.nn.one_hot(room["wall_index"], CAPACITY, dtype=bool) & room["mask"][None, :]
+    rows_one_hot = jnp.concatenate([one_hot, one_hot])
+    stacked_rays = jnp.concatenate([ceiling_rays, floor_rays])
+    directions = room["directions"][jnp.maximum(room["wall_index"], 0)]
+    is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
+    truth = jnp.concatenate([jnp.stack([room["h_c"], room["h_f"]]), jnp.where(room["mask"], room["distances"], 0.0)])
+    arguments = (stacked_rays, jnp.concatenate([directions, directions]), rows_one_hot, is_floor)
+    depths = jnp.asarray(ncjax._layout_solvers.FLOOR_DEPTHS, truth.dtype)
+    corrupted = 0.37 * jnp.concatenate([jnp.array([-1.0]), truth])  # right shape, x_0 of the wrong sign
+    start, ok = search_scale(corrupted, *arguments, depths)
+    assert ok
+    assert start[2] < 0 and 0.85 < float(start[2] / room["h_f"]) < 1.18  # the nearest of the grid's depths
+    refined = refine_walls(start, *arguments, refine_yaw=False, steps=8)
+    np.testing.assert_allclose(refined[1:], truth, atol=1e-3)
+    exact, _ = search_scale(jnp.concatenate([jnp.ones(1), truth]), *arguments, depths)
+    np.testing.assert_allclose(exact[1:], truth, rtol=1e-6, atol=1e-6)  # an exact linear solution is kept

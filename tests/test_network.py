@@ -314,3 +314,23 @@ def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
     monkeypatch.setattr(_predict, "DEFAULT_MODEL_PATH", tmp_path / "compact.safetensors")
     with pytest.raises(FileNotFoundError, match="default network weights"):
         ncjax.predict_boundaries(image)
+
+
+def test_averaged_views_follow_the_panorama_symmetries():
+    """The average over views is exactly mirror- and half-turn-equivariant (each view is mapped back)."""
+    model = tiny_model()
+    model.eval()
+    images = jax.random.uniform(jax.random.key(3), (1, TINY.input_height, TINY.input_width, 3))
+    width = TINY.input_width
+    averaged = _network.predict_views(model, images, 4)
+    mirrored = _network.predict_views(model, images[:, :, ::-1], 4)
+    turned = _network.predict_views(model, jnp.roll(images, width // 2, axis=2), 4)
+    for field, flipped, rolled in zip(averaged, mirrored, turned):
+        np.testing.assert_allclose(flipped[:, ::-1], field, atol=1e-5)
+        np.testing.assert_allclose(rolled, jnp.roll(field, width // 2, axis=1), atol=1e-5)
+    single = _network.predict_views(model, images, 1)
+    np.testing.assert_array_equal(single.ceiling_elevation, model(images).ceiling_elevation)
+    assert not np.allclose(single.ceiling_elevation, averaged.ceiling_elevation)
+    for bad in (0, 3, -2):
+        with pytest.raises(ValueError, match="views"):
+            ncjax.predict_boundaries(np.zeros((64, 128, 3), np.uint8), model, views=bad)

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ncjax
@@ -17,7 +18,7 @@ from ncjax import metrics
 from ncjax._corners import column_walls, find_corners, is_peak
 from ncjax._plucker import wall_planes_meet
 from ncjax._adjust import BoundaryObservations, adjust_layout
-from ncjax._pipeline import manhattan_frame
+from ncjax._pipeline import cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
 
@@ -244,3 +245,23 @@ def test_gradients_through_the_adjustment_are_finite():
     finite_difference = (height(label.ceiling_v + step) - height(label.ceiling_v - step)) / (2 * step)
     assert float(jnp.sum(gradient)) < 0 and float(finite_difference) < 0
     np.testing.assert_allclose(float(jnp.sum(gradient)), float(finite_difference), rtol=0.2)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 6))
+def test_cyclic_labels_are_the_least_cost_labelling(seed, count):
+    """Dynamic programming on the wall cycle against all 2^n labellings."""
+    rng = np.random.default_rng(seed)
+    capacity = 6
+    unary = rng.uniform(0, 1, (capacity, 2))
+    same_cost, turn_cost = rng.uniform(0, 1, capacity), rng.uniform(0, 1, capacity)
+    valid = np.zeros(capacity, bool)
+    valid[:count] = True
+
+    def cost(labels):
+        total = sum(unary[j, labels[j]] for j in range(count))
+        return total + sum((same_cost if labels[j - 1] == labels[j] else turn_cost)[j] for j in range(count))
+
+    labels = np.asarray(cyclic_binary_labels(jnp.asarray(unary), jnp.asarray(same_cost), jnp.asarray(turn_cost), jnp.asarray(valid)))
+    best = min(cost(candidate) for candidate in itertools.product((0, 1), repeat=count))
+    np.testing.assert_allclose(cost(labels[:count]), best, rtol=1e-6)
