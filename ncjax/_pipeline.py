@@ -210,6 +210,8 @@ class WallEvidence(eqx.Module):
     column_wall: Int[Array, " W"]
     walls: Wall
     usable: Bool[Array, " W"]
+    ceiling_inlier: Bool[Array, " W"]
+    floor_inlier: Bool[Array, " W"]
     weights: Float[Array, " K"]
     fitted: Bool[Array, " K"]
     both_fitted: Bool[Array, " K"]
@@ -341,6 +343,8 @@ def _gather_evidence(
         column_wall=column_wall,
         walls=walls,
         usable=usable,
+        ceiling_inlier=ceiling_in & fitted[wall],
+        floor_inlier=floor_in & fitted[wall],
         weights=weights.astype(ceiling_v.dtype),
         fitted=fitted,
         both_fitted=both_fitted,
@@ -486,7 +490,8 @@ def _final_walls(
     wall = evidence.column_wall
     column_wall = jnp.where(wall >= 0, rank[2 * group_of_wall[jnp.maximum(wall, 0)] + 1], -1)
     column_wall = jnp.where(column_wall < capacity, column_wall, -1).astype(jnp.int32)
-    columns_seen = jax.ops.segment_sum(evidence.usable.astype(jnp.int32), jnp.where(column_wall >= 0, column_wall, capacity), capacity + 1)
+    ceiling, floor = _trusted(evidence)
+    columns_seen = jax.ops.segment_sum((ceiling & floor).astype(jnp.int32), jnp.where(column_wall >= 0, column_wall, capacity), capacity + 1)
     observed = mask & ~inserted & (columns_seen[:capacity] >= min_columns)
     return FinalWalls(
         mask=mask,
@@ -513,11 +518,12 @@ def _group_directions(evidence: WallEvidence, merge: Bool[Array, " K"], final: F
 
 
 def _observations(evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int) -> BoundaryObservations:
+    ceiling, floor = _trusted(evidence)
     return BoundaryObservations(
         ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
         floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
-        ceiling_used=evidence.usable & (final.column_wall >= 0),
-        floor_used=evidence.usable & (final.column_wall >= 0),
+        ceiling_used=ceiling & (final.column_wall >= 0),
+        floor_used=floor & (final.column_wall >= 0),
         column_wall=final.column_wall,
         corner_columns=final.corner_columns,
         corner_used=final.corner_used,
@@ -525,14 +531,25 @@ def _observations(evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v,
     )
 
 
+def _trusted(evidence: WallEvidence) -> tuple[Bool[Array, " W"], Bool[Array, " W"]]:
+    """Per column, whether its ceiling and its floor row may enter the joint fit: usable, and an
+    inlier of its RANSAC wall when RANSAC fitted one (a segment that holds two planes because a
+    corner was missed keeps only the rows of the plane RANSAC found)."""
+    fitted = evidence.fitted[jnp.maximum(evidence.column_wall, 0)]
+    return (
+        evidence.usable & (evidence.ceiling_inlier | ~fitted),
+        evidence.usable & (evidence.floor_inlier | ~fitted),
+    )
+
+
 def _fit_index(evidence: WallEvidence, final: FinalWalls) -> Int[Array, " W"]:
-    """Columns fed to the joint solvers: all usable columns (single-wall RANSAC inliers
-    are not trusted for this: a single wall's scale is weak, see :func:`ncjax._ransac.plausible_wall`)."""
-    return jnp.where(evidence.usable, final.column_wall, -1)
+    """Columns fed to the joint solvers: the trusted columns (:func:`_trusted`) with both rows."""
+    ceiling, floor = _trusted(evidence)
+    return jnp.where(ceiling & floor, final.column_wall, -1)
 
 
 def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
-    """Step 5: adjust on all usable columns, keep the inliers of that layout, adjust again."""
+    """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again."""
     observations = _observations(evidence, final, ceiling_v, floor_v, cam.height)
     adjusted = adjust_layout(
         cam, observations, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps
