@@ -457,7 +457,7 @@ def _final_walls(
     first start belong to the last group (the loop wraps). Slot ``2g`` holds the
     wall inserted before group ``g`` (if any), slot ``2g + 1`` group ``g``; the
     valid slots are then compacted to the front. A wall is observed with at
-    least ``min_columns`` usable columns.
+    least ``min_columns`` trusted columns (:func:`_trusted`).
     """
     capacity = evidence.corner_mask.shape[0]
     starts = evidence.corner_mask & ~merge
