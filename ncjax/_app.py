@@ -198,7 +198,12 @@ def run_demo(args: argparse.Namespace) -> int:
     print(f"layout: {len(record['ceiling_corners'])} corners ({record['branch']} branch), "
           f"room height {record['room_height']:.3f} m (true {true_height:.3f} m), "
           f"floor area {record['floor_area']:.2f} m^2")
-    print(f"error against the ground truth: corner error {scores['ce']:.3f} m, 3D IoU {100 * scores['iou3d']:.1f}%, "
+    found, true_count = len(record["ceiling_corners"]), len(truth["ceiling_corners"])
+    corner_error = (
+        f"corner error {scores['ce']:.3f} m" if math.isfinite(scores["ce"])
+        else f"corner error n/a ({found} corners found, {true_count} in the ground truth)"
+    )
+    print(f"error against the ground truth: {corner_error}, 3D IoU {100 * scores['iou3d']:.1f}%, "
           f"2D IoU {100 * scores['iou2d']:.1f}%, height error {scores['height_error']:.3f} m")
     print(f"outputs in {os.path.abspath(args.out)}/ (json, obj/ply/glb mesh, overlay and plan png); {elapsed:.0f} s")
     return 0

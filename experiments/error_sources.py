@@ -1,0 +1,147 @@
+"""Where the end-to-end error comes from: the network's outputs swapped one by one for the truth.
+
+On the test renders of ``network_table.py`` (128 Manhattan + 128 Atlanta rooms,
+never seen in training), the full pipeline runs on five inputs:
+
+* ``network``: the network's ceiling rows, floor rows and corner probability;
+* ``true corners``: the network's rows, the exact corner target;
+* ``true ceiling`` / ``true floor``: as ``true corners`` with one of the two
+  boundaries exact as well;
+* ``exact``: every input exact (the pipeline's own limit on these rooms).
+
+Per row: layout statuses, the failure rate of ``network_table.py`` (not ok, or a
+corner count that differs from the ground truth), mean and median CE of the
+other rooms, 3D IoU over the ok layouts and with failures as 0, the up-to-scale
+3D IoU, and the scale error (median and 90th percentile of
+``|log(room height / true room height)|`` over the ok layouts).
+
+    uv run python experiments/error_sources.py                 # 128 rooms per world, 4 views
+    uv run python experiments/error_sources.py --rooms 16 --views 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import math
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from tqdm import tqdm
+
+import ncjax
+from ncjax import metrics
+from ncjax._dataset import list_samples, read_sample
+from ncjax._pipeline import LayoutStatus
+from ncjax._predict import DEFAULT_VIEWS, default_model
+from ncjax._rooms import corner_target
+
+sys.path.insert(0, str(Path(__file__).parent))
+from network_table import OUT, SEEDS, ground_truth, test_renders  # noqa: E402
+from pipeline_table import compiled  # noqa: E402
+
+BATCH = 8
+SOURCES = ("network", "true corners", "true ceiling", "true floor", "exact")
+
+
+def network_outputs(samples, views: int) -> dict[str, np.ndarray]:
+    """The network's rows and corner probability, and the exact ones, of the samples."""
+    model = default_model()
+    predicted = []
+    for start in tqdm(range(0, len(samples), BATCH), desc="network"):
+        images = np.stack([s.image for s in samples[start : start + BATCH]])
+        predicted.append(ncjax.predict_boundaries(images, model, views=views))
+    ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*predicted))
+    width = samples[0].image.shape[1]
+    return {
+        "ceiling_v": ceiling_v,
+        "floor_v": floor_v,
+        "corner_prob": corner_prob,
+        "true_ceiling_v": np.stack([s.metadata["ceiling_v"] for s in samples]).astype(np.float32),
+        "true_floor_v": np.stack([s.metadata["floor_v"] for s in samples]).astype(np.float32),
+        "true_corner_prob": np.stack(
+            [np.asarray(corner_target(np.asarray(s.metadata["corner_u"], np.float32), np.ones(len(s.metadata["corner_u"]), bool), width))
+             for s in samples]
+        ).astype(np.float32),
+    }
+
+
+def inputs_of(outputs: dict[str, np.ndarray], source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ceiling = outputs["true_ceiling_v" if source in ("true ceiling", "exact") else "ceiling_v"]
+    floor = outputs["true_floor_v" if source in ("true floor", "exact") else "floor_v"]
+    corners = outputs["corner_prob" if source == "network" else "true_corner_prob"]
+    return ceiling, floor, corners
+
+
+def row(samples, layouts, truths) -> dict:
+    statuses = collections.Counter()
+    ce, iou_ok, iou_all, iou_u2s, scale = [], [], [], [], []
+    for index, truth in enumerate(truths):
+        layout = jax.tree.map(lambda x: np.asarray(x[index]), layouts)
+        statuses[LayoutStatus(int(layout.status)).name] += 1
+        if not bool(layout.ok):
+            iou_all.append(0.0)
+            continue
+        result = metrics.evaluate_layout(layout, truth)
+        true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
+        scale.append(abs(math.log((float(layout.ceiling_height) - float(layout.floor_height)) / true_height)))
+        iou_ok.append(result["iou3d"])
+        iou_u2s.append(result["iou3d_up_to_scale"])
+        iou_all.append(result["iou3d"])
+        if math.isfinite(result["ce"]):
+            ce.append(result["ce"])
+    return {
+        "statuses": dict(statuses),
+        "failed": 100.0 * (1 - len(ce) / len(truths)),
+        "ce_mean": float(np.mean(ce)) if ce else math.nan,
+        "ce_median": float(np.median(ce)) if ce else math.nan,
+        "iou_ok": 100 * float(np.mean(iou_ok)) if iou_ok else math.nan,
+        "iou_all": 100 * float(np.mean(iou_all)),
+        "iou_u2s": 100 * float(np.mean(iou_u2s)) if iou_u2s else math.nan,
+        "scale_median": float(np.median(scale)) if scale else math.nan,
+        "scale_p90": float(np.quantile(scale, 0.9)) if scale else math.nan,
+    }
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rooms", type=int, default=128, help="test renders per world (those of network_table.py)")
+    parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even)")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args(argv)
+    start = time.time()
+    lines = [
+        f"Network output averaged over {args.views} view(s); {args.rooms} rooms per world.",
+        "",
+        "| world | input | ok | failed (%) | CE mean (m) | CE median (m) | 3D IoU ok (%) | 3D IoU all (%) | "
+        "up-to-scale IoU (%) | scale error median / p90 |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for world in SEEDS:
+        folder = str(test_renders(world, args.rooms, args.out))
+        samples = [read_sample(folder, name) for name in list_samples(folder)]
+        truths = [ground_truth(s, world) for s in samples]
+        outputs = network_outputs(samples, args.views)
+        height, width = samples[0].image.shape[:2]
+        cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(np.array([s.rc for s in samples], np.float32))
+        keys = jax.random.split(jax.random.key(0), len(samples))
+        for source in tqdm(SOURCES, desc=f"pipeline {world}"):
+            layouts = jax.device_get(compiled("pipeline", world)(*inputs_of(outputs, source), cams, keys))
+            r = row(samples, layouts, truths)
+            lines.append(
+                f"| {world} | {source} | {r['statuses'].get('OK', 0)} / {len(samples)} | {r['failed']:.1f} | {r['ce_mean']:.3f} | "
+                f"{r['ce_median']:.3f} | {r['iou_ok']:.1f} | {r['iou_all']:.1f} | {r['iou_u2s']:.1f} | "
+                f"{r['scale_median']:.3f} / {r['scale_p90']:.3f} |"
+            )
+    table = "\n".join(lines)
+    print(table)
+    print(f"total time {time.time() - start:.0f} s")
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / f"error_sources_views{args.views}.md").write_text(table + "\n")
+
+
+if __name__ == "__main__":
+    main()
