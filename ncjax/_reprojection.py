@@ -100,6 +100,8 @@ def fit_plan_line(
     sxx = jnp.sum(weights * centred[:, 0] ** 2)
     syy = jnp.sum(weights * centred[:, 1] ** 2)
     sxy = jnp.sum(weights * centred[:, 0] * centred[:, 1])
-    angle = 0.5 * jnp.arctan2(2 * sxy, sxx - syy)
+    # no spread (an empty or one-point wall): any direction; the double where keeps the gradient of atan2(0, 0) finite
+    spread = (sxy != 0) | (sxx != syy)
+    angle = 0.5 * jnp.arctan2(jnp.where(spread, 2 * sxy, 0.0), jnp.where(spread, sxx - syy, 1.0))
     direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
     return direction, direction[0] * centroid[1] - direction[1] * centroid[0]
