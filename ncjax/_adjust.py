@@ -139,10 +139,13 @@ def _residual_terms(
     return rows, corners
 
 
-def _used(observations: BoundaryObservations) -> tuple[Bool[Array, "W 2"], Bool[Array, " K"]]:
-    """Which residual terms enter the fit."""
-    rows = jnp.stack([observations.ceiling_used, observations.floor_used], -1)
-    return rows, observations.corner_used & observations.wall_mask
+def _fitted_residuals(
+    rows: Float[Array, "W 2"], corners: Float[Array, " K"], observations: BoundaryObservations, corner_weight: float
+) -> Float[Array, " residuals"]:
+    """The ``2 W + K`` residuals of the fit: ceiling rows, floor rows, weighted corners; 0 where unused."""
+    rows = jnp.where(jnp.stack([observations.ceiling_used, observations.floor_used], -1), rows, 0.0)
+    corners = jnp.where(observations.corner_used & observations.wall_mask, corner_weight * corners, 0.0)
+    return jnp.concatenate([rows[:, 0], rows[:, 1], corners])
 
 
 def layout_residuals(
@@ -161,9 +164,7 @@ def layout_residuals(
     """
     angles = jnp.arctan2(directions[:, 1], directions[:, 0])
     rows, corners = _residual_terms(angles, distances, ceiling_height, floor_height, cam, observations)
-    rows_used, corners_used = _used(observations)
-    rows = jnp.where(rows_used, rows, 0.0)
-    return jnp.concatenate([rows[:, 0], rows[:, 1], jnp.where(corners_used, corner_weight * corners, 0.0)])
+    return _fitted_residuals(rows, corners, observations, corner_weight)
 
 
 def manhattan_directions(yaw: Float[Array, ""], labels: Int[Array, " K"]) -> Float[Array, "K 2"]:
@@ -230,7 +231,6 @@ def adjust_layout(
         angle_index = jnp.zeros(capacity, jnp.int32)
     # parameters y = (angles (K, or the one yaw), distances (K), (h_c, h_f))
     y0 = (angles, distances, jnp.stack([ceiling_height, floor_height]).astype(dtype))
-    rows_used, corners_used = _used(observations)
     absent = ~observations.wall_mask
 
     def residuals(y, args):
@@ -242,9 +242,7 @@ def adjust_layout(
         pins = [jnp.where(absent, d - y0[1], 0.0)]
         if labels is None:
             pins.append(jnp.where(absent, wall_angles - y0[0], 0.0))
-        rows = jnp.where(rows_used, rows, 0.0)
-        corners = jnp.where(corners_used, corner_weight * corners, 0.0)
-        return jnp.concatenate([rows[:, 0], rows[:, 1], corners, *pins])
+        return jnp.concatenate([_fitted_residuals(rows, corners, observations, corner_weight), *pins])
 
     def cost(y):
         r = residuals(y, None)

@@ -198,7 +198,9 @@ class WallEvidence(eqx.Module):
     Corner ``j`` starts RANSAC wall ``j``; ``previous`` is wall ``j - 1`` (cyclic).
     ``fitted``: RANSAC found wall ``j``; ``both_fitted``: walls ``j - 1`` and ``j``;
     ``occluded``: the boundaries jump at the corner; ``same_plane``: each of walls ``j - 1`` and ``j`` explains most
-    inlier pixels of the other.
+    inlier pixels of the other. ``ceiling_trusted`` / ``floor_trusted``: the column's row may enter the joint
+    fit: usable, and an inlier of its RANSAC wall when RANSAC fitted one (a segment that holds two planes
+    because a corner was missed keeps only the rows of the plane RANSAC found).
     """
 
     ceiling_rays: Float[Array, "W 6"]
@@ -210,8 +212,8 @@ class WallEvidence(eqx.Module):
     column_wall: Int[Array, " W"]
     walls: Wall
     usable: Bool[Array, " W"]
-    ceiling_inlier: Bool[Array, " W"]
-    floor_inlier: Bool[Array, " W"]
+    ceiling_trusted: Bool[Array, " W"]
+    floor_trusted: Bool[Array, " W"]
     weights: Float[Array, " K"]
     fitted: Bool[Array, " K"]
     both_fitted: Bool[Array, " K"]
@@ -343,8 +345,8 @@ def _gather_evidence(
         column_wall=column_wall,
         walls=walls,
         usable=usable,
-        ceiling_inlier=ceiling_in & fitted[wall],
-        floor_inlier=floor_in & fitted[wall],
+        ceiling_trusted=ceiling_in | (usable & ~fitted[wall]),
+        floor_trusted=floor_in | (usable & ~fitted[wall]),
         weights=weights.astype(ceiling_v.dtype),
         fitted=fitted,
         both_fitted=both_fitted,
@@ -457,7 +459,7 @@ def _final_walls(
     first start belong to the last group (the loop wraps). Slot ``2g`` holds the
     wall inserted before group ``g`` (if any), slot ``2g + 1`` group ``g``; the
     valid slots are then compacted to the front. A wall is observed with at
-    least ``min_columns`` trusted columns (:func:`_trusted`).
+    least ``min_columns`` trusted columns (:class:`WallEvidence`).
     """
     capacity = evidence.corner_mask.shape[0]
     starts = evidence.corner_mask & ~merge
@@ -490,8 +492,8 @@ def _final_walls(
     wall = evidence.column_wall
     column_wall = jnp.where(wall >= 0, rank[2 * group_of_wall[jnp.maximum(wall, 0)] + 1], -1)
     column_wall = jnp.where(column_wall < capacity, column_wall, -1).astype(jnp.int32)
-    ceiling, floor = _trusted(evidence)
-    columns_seen = jax.ops.segment_sum((ceiling & floor).astype(jnp.int32), jnp.where(column_wall >= 0, column_wall, capacity), capacity + 1)
+    trusted = evidence.ceiling_trusted & evidence.floor_trusted
+    columns_seen = jax.ops.segment_sum(trusted.astype(jnp.int32), jnp.where(column_wall >= 0, column_wall, capacity), capacity + 1)
     observed = mask & ~inserted & (columns_seen[:capacity] >= min_columns)
     return FinalWalls(
         mask=mask,
@@ -518,12 +520,11 @@ def _group_directions(evidence: WallEvidence, merge: Bool[Array, " K"], final: F
 
 
 def _observations(evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int) -> BoundaryObservations:
-    ceiling, floor = _trusted(evidence)
     return BoundaryObservations(
         ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
         floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
-        ceiling_used=ceiling & (final.column_wall >= 0),
-        floor_used=floor & (final.column_wall >= 0),
+        ceiling_used=evidence.ceiling_trusted & (final.column_wall >= 0),
+        floor_used=evidence.floor_trusted & (final.column_wall >= 0),
         column_wall=final.column_wall,
         corner_columns=final.corner_columns,
         corner_used=final.corner_used,
@@ -531,21 +532,9 @@ def _observations(evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v,
     )
 
 
-def _trusted(evidence: WallEvidence) -> tuple[Bool[Array, " W"], Bool[Array, " W"]]:
-    """Per column, whether its ceiling and its floor row may enter the joint fit: usable, and an
-    inlier of its RANSAC wall when RANSAC fitted one (a segment that holds two planes because a
-    corner was missed keeps only the rows of the plane RANSAC found)."""
-    fitted = evidence.fitted[jnp.maximum(evidence.column_wall, 0)]
-    return (
-        evidence.usable & (evidence.ceiling_inlier | ~fitted),
-        evidence.usable & (evidence.floor_inlier | ~fitted),
-    )
-
-
 def _fit_index(evidence: WallEvidence, final: FinalWalls) -> Int[Array, " W"]:
-    """Columns fed to the joint solvers: the trusted columns (:func:`_trusted`) with both rows."""
-    ceiling, floor = _trusted(evidence)
-    return jnp.where(ceiling & floor, final.column_wall, -1)
+    """Columns fed to the joint solvers: those whose ceiling and floor rows are both trusted (:class:`WallEvidence`)."""
+    return jnp.where(evidence.ceiling_trusted & evidence.floor_trusted, final.column_wall, -1)
 
 
 def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):

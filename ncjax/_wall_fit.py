@@ -223,6 +223,18 @@ def gauss_newton_step(
     return params + jnp.concatenate([delta_shared, delta_distances])
 
 
+def _used_geometry(rays: Float[Array, "m 6"], one_hot: Bool[Array, "m K"]) -> tuple[Array, Array, Array]:
+    """:func:`column_geometry` of the used rows (unused rows zeroed)."""
+    return column_geometry(jnp.where(jnp.any(one_hot, 1)[:, None], rays, 0.0))
+
+
+def squared_error(
+    geometry: tuple[Array, Array, Array], base_directions: Float[Array, "m 2"], one_hot: Bool[Array, "m K"], is_floor: Bool[Array, " m"]
+):
+    """The maximum-likelihood cost ``params -> sum of squared angular residuals`` of these rows."""
+    return lambda params: jnp.sum(residuals_of(params, geometry, base_directions, one_hot, is_floor) ** 2)
+
+
 def search_scale(
     vector: Float[Array, " n"],
     rays: Float[Array, "m 6"],
@@ -258,9 +270,7 @@ def search_scale(
     candidates = jnp.concatenate([linear[None], scaled])
     valid = jnp.concatenate([linear_ok[None], jnp.broadcast_to(shape_ok, floor_depths.shape)])
     params = jnp.concatenate([jnp.zeros((candidates.shape[0], 1), vector.dtype), candidates], 1)
-    used = jnp.any(one_hot, 1)
-    geometry = column_geometry(jnp.where(used[:, None], rays, 0.0))
-    costs = jax.vmap(lambda p: jnp.sum(residuals_of(p, geometry, base_directions, one_hot, is_floor) ** 2))(params)
+    costs = jax.vmap(squared_error(_used_geometry(rays, one_hot), base_directions, one_hot, is_floor))(params)
     costs = jnp.where(valid & jnp.all(jnp.isfinite(params), 1) & jnp.isfinite(costs), costs, jnp.inf)
     return params[jnp.argmin(costs)], jnp.any(jnp.isfinite(costs))
 
@@ -289,9 +299,8 @@ def refine_walls(
     Returns:
         The refined ``(t, h_c, h_f, d_1..d_K)``.
     """
-    used = jnp.any(one_hot, 1)
-    geometry = column_geometry(jnp.where(used[:, None], rays, 0.0))
-    cost = lambda p: jnp.sum(residuals_of(p, geometry, base_directions, one_hot, is_floor) ** 2)  # noqa: E731
+    geometry = _used_geometry(rays, one_hot)
+    cost = squared_error(geometry, base_directions, one_hot, is_floor)
     current = cost(params)
     for _ in range(steps):
         candidate = gauss_newton_step(params, geometry, base_directions, one_hot, is_floor, refine_yaw)
