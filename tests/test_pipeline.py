@@ -17,7 +17,7 @@ import ncjax
 from ncjax import metrics
 from ncjax._corners import column_walls, find_corners, is_peak
 from ncjax._plucker import wall_planes_meet
-from ncjax._adjust import BoundaryObservations, adjust_layout
+from ncjax._adjust import BoundaryObservations, _boundary_residuals_fast_jvp, adjust_layout, boundary_residuals
 from ncjax._pipeline import cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
@@ -94,6 +94,26 @@ def test_wall_columns_spread_over_each_wall():
         rank = np.searchsorted(np.sort((np.array(own) - np.floor(float(corners[wall]))) % width), along)
         assert rank[0] < len(own) / size and rank[-1] >= len(own) * (1 - 1 / size) - 1  # spread over the wall
     assert not valid[3].any()
+
+
+def test_boundary_residuals_fast_jvp_matches_autodiff():
+    """The local-Jacobian JVP of the adjustment's per-column residuals equals JAX's own, for every argument."""
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
+    args = (jnp.array(0.3), jnp.array(-2.1), jnp.array(1.2), jnp.array(-1.4), cam, jnp.array(17.3), jnp.array(40.0), jnp.array(90.0))
+    fast = _boundary_residuals_fast_jvp
+    key = jax.random.key(5)
+    for trial in range(3):
+        tangents = jax.tree.map(lambda x: jax.random.normal(jax.random.fold_in(key, trial), jnp.shape(x)), args)
+        value, tangent = jax.jvp(fast, args, tangents)
+        expected_value, expected_tangent = jax.jvp(boundary_residuals, args, tangents)
+        np.testing.assert_allclose(value, expected_value, rtol=1e-6)
+        np.testing.assert_allclose(tangent, expected_tangent, rtol=1e-4, atol=1e-4)
+    # reverse mode and a vmapped Jacobian (what the least-squares solver materialises)
+    jacobian = jax.vmap(jax.jacrev(fast, argnums=(0, 1, 2, 3, 6)), in_axes=(0, 0, None, None, None, 0, 0, 0))
+    batched = (jnp.linspace(0.1, 0.5, 4), jnp.full(4, -2.0), args[2], args[3], cam, jnp.arange(4.0) + 10, jnp.full(4, 40.0), jnp.full(4, 90.0))
+    expected = jax.vmap(jax.jacrev(boundary_residuals, argnums=(0, 1, 2, 3, 6)), in_axes=(0, 0, None, None, None, 0, 0, 0))
+    for got, want in zip(jacobian(*batched), expected(*batched)):
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
 @pytest.mark.parametrize("manhattan", [True, False])
