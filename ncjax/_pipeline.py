@@ -53,7 +53,7 @@ from ._corners import column_walls, distance_to_corners, find_corners, side_extr
 from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
 from ._ransac import boundary_errors, num_hypotheses, ransac_wall, wall_columns
-from ._reprojection import boundary_points, fit_plan_line, wall_range
+from ._reprojection import boundary_points, fit_plan_line, wall_boundary_rows, wall_range
 from ._wall import Wall, canonical_orientation
 
 WORLDS = ("manhattan", "atlanta", "auto")
@@ -93,9 +93,12 @@ class PipelineConfig:
             for a narrower wall); the cost grows with it, not with the width.
         inlier_threshold: row error of an inlier, pixels.
         occlusion_threshold: boundary jump at a corner that means an occlusion, pixels.
-        merge_fraction: Atlanta: consecutive walls each of which explains at
-            least this fraction of the other's inlier pixels are one wall
-            (Manhattan merges consecutive walls of one class without a jump).
+        merge_fraction: consecutive walls each of which explains at least
+            this fraction of the other's inlier pixels may be one wall.
+        merge_angle: Atlanta: such walls are merged only if their directions
+            differ by less than this (degrees): a shallow corner between two
+            walls seen far away passes the pixel test (Manhattan merges
+            walls of one class, see :func:`_manhattan_layout`).
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             wall from the Manhattan frame for the Manhattan branch.
         turn_weight: Manhattan labelling: cost of a corner whose walls do not
@@ -122,6 +125,7 @@ class PipelineConfig:
     inlier_threshold: float = 3.0
     occlusion_threshold: float = 4.0
     merge_fraction: float = 0.8
+    merge_angle: float = 5.0
     manhattan_tolerance: float = 5.0
     turn_weight: float = 0.5
     corner_weight: float = 1.0
@@ -138,7 +142,10 @@ class PipelineConfig:
         num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
         if self.ransac_columns < 2 * self.sample_size:
             raise ValueError(f"ransac_columns must be >= 2 * sample_size, got {self.ransac_columns}")
-        positive = ("nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "manhattan_tolerance", "turn_weight")
+        positive = (
+            "nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "merge_angle",
+            "manhattan_tolerance", "turn_weight",
+        )
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -329,6 +336,19 @@ def _gather_evidence(
     jump = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
     fitted = walls.ok & corner_mask
     both_fitted = fitted & fitted[previous]
+
+    def reprojected_rows(index):
+        wall_ = jax.tree.map(lambda x: x[index], walls)
+        return wall_boundary_rows(
+            cam, wall_.direction, wall_.distance, wall_.ceiling_height, wall_.floor_height, corner_columns
+        )
+
+    # two fitted walls that meet at the corner reproject to one point there; a
+    # line through the rows beside the corner misses it on a steep, curved boundary
+    ceiling_a, floor_a, seen_a = reprojected_rows(jnp.arange(capacity))
+    ceiling_b, floor_b, seen_b = reprojected_rows(previous)
+    wall_jump = jnp.maximum(jnp.abs(ceiling_a - ceiling_b), jnp.abs(floor_a - floor_b))
+    jump = jnp.where(both_fitted & seen_a & seen_b, jnp.minimum(jump, wall_jump), jump)
     # each of walls j - 1 and j explains most inliers of the other
     same_plane = (explained_fraction(previous) >= config.merge_fraction) & (
         explained_fraction(following)[previous] >= config.merge_fraction
@@ -615,9 +635,12 @@ def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
     labels = manhattan_labels(evidence, config.turn_weight)
     same_class = labels[_previous(evidence)] == labels
-    # consecutive walls of one class without a jump are one plane whatever the fits say: Manhattan walls never meet at 0 degrees
-    merge = evidence.corner_mask & same_class & ~evidence.occluded & _several_corners(evidence)
-    insert = evidence.corner_mask & same_class & evidence.occluded
+    # Manhattan walls never meet at 0 degrees: consecutive walls of one class are one plane split by a
+    # spurious corner, unless the boundaries jump there or both were fitted and neither explains the other
+    # (a wall between them that the corner detector merged into one peak, or a small occlusion)
+    one_plane = ~evidence.occluded & (evidence.same_plane | ~evidence.both_fitted)
+    merge = evidence.corner_mask & same_class & one_plane & _several_corners(evidence)
+    insert = evidence.corner_mask & same_class & ~one_plane
     final = _final_walls(evidence, merge, insert, True, config.sample_size)
     wall_labels = jnp.where(final.inserted, 1 - labels[final.start_wall], labels[final.start_wall])
     fit_index = _fit_index(evidence, final)
@@ -654,7 +677,9 @@ def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Arr
 
 def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
-    merge = evidence.same_plane & ~evidence.occluded & _several_corners(evidence)
+    fitted = evidence.walls.direction
+    parallel = jnp.abs(cross_2d(fitted[_previous(evidence)], fitted)) < math.sin(math.radians(config.merge_angle))
+    merge = evidence.same_plane & parallel & ~evidence.occluded & _several_corners(evidence)
     insert = evidence.occluded
     final = _final_walls(evidence, merge, insert, False, config.sample_size)
     fit_index = _fit_index(evidence, final)
