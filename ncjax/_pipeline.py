@@ -3,19 +3,22 @@
 1. Corners from the corner probability (:mod:`ncjax._corners`); the columns
    between consecutive corners are one wall.
 2. Per-wall RANSAC with the single-wall solver (:mod:`ncjax._ransac`).
-3. At each corner, the two walls' reprojected boundaries are compared at the
-   corner column: a jump of more than ``occlusion_threshold`` pixels means an
-   occlusion (the paper tests the same in 3D for Atlanta rooms; in pixels the
-   test does not depend on the single walls' noisy scale). Consecutive walls
-   of one direction without a jump are one wall split by a spurious corner:
-   they are merged.
+3. At each corner, the boundaries of the two walls are compared at the
+   corner column (lines through the rows on either side, and the two RANSAC
+   walls' reprojections; the smaller difference counts): a jump of more than
+   ``occlusion_threshold`` pixels means an occlusion (the paper tests the
+   same in 3D for Atlanta rooms; in pixels the test does not depend on the
+   single walls' noisy scale). Consecutive walls each of which explains the
+   other's pixels may be one wall split by a spurious corner.
 4. Manhattan branch: each wall labelled ``u`` / ``u_perp`` (any yaw) from its
    direction and the corner types together (a least-cost labelling of the
-   wall cycle); consecutive walls of one class are merged, or, at an
-   occlusion, a perpendicular wall is inserted through the occluding corner;
+   wall cycle); consecutive walls of one class are merged when they are one
+   plane, otherwise (an occlusion, or a narrow wall whose two corners gave
+   one peak) a perpendicular wall is inserted through the nearer corner;
    the Manhattan layout solver.
-   Atlanta branch: RANSAC directions, a wall in the vertical plane of the
-   corner ray at each occlusion, the Atlanta layout solver.
+   Atlanta branch: RANSAC directions, walls of one plane merged when their
+   directions also agree within ``merge_angle``, a wall in the vertical
+   plane of the corner ray at each occlusion, the Atlanta layout solver.
 5. Final adjustment (:mod:`ncjax._adjust`, optimistix least squares) of both branches: the
    paper adjusts the Atlanta branch only; the Manhattan branch keeps one yaw.
 6. Corners where consecutive walls meet.
