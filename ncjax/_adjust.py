@@ -20,7 +20,7 @@ Levenberg-Marquardt solves again for every damping). Its Newton step solves the 
 equations by Cholesky (``lineax.Normal(lineax.Cholesky())``) instead of the default QR
 of the ``(2 W + 2 K) x P`` Jacobian, and each column's residuals carry a JVP through
 their local Jacobian (:func:`_local_jacobian_jvp`): the same steps on our test rooms,
-a third less time per panorama (``benchmarks/bench_pipeline.py``).
+25-30% less time per panorama for the branch stage (experiments/RESULTS.md).
 The residuals are evaluated per column (:func:`boundary_residuals`) and per
 corner (:func:`corner_residual`) directly on the wall angles. Gauge: none while
 ``rc > 0`` (scale is observable, the heights and distances are absolute); the
