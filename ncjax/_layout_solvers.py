@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._linalg import scaled_null_space
+from ._linalg import divide_if_significant, scaled_null_space
 from ._plucker import cross_2d, horizontal_wall_line, intersect_coplanar_lines, safe_norm
 from ._wall import (
     canonical_orientation,
@@ -249,8 +249,7 @@ def solve_atlanta_layout(
         scale_ok = scale_ok & jnp.all(jnp.isfinite(params))
     else:
         vector = scaled_null_space(_full_matrix(shared, distance, rows_one_hot, present), 1)[:, 0]
-        scale_ok = jnp.abs(vector[0]) > 1e3 * jnp.finfo(vector.dtype).eps * safe_norm(vector)
-        vector = vector / jnp.where(scale_ok, vector[0], 1.0)
+        vector, scale_ok = divide_if_significant(vector, vector[0], safe_norm(vector))
     h_c, h_f = vector[1], vector[2]
     ok = scale_ok & all_seen & (h_c > h_f) & jnp.any(present)
     return _make_layout(units, jnp.where(present, vector[3:], 0.0), h_c, h_f, present, ok)

@@ -32,7 +32,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from ._plucker import safe_norm
 
@@ -134,6 +134,22 @@ def equilibrate(a: Float[Array, "rows cols"]) -> tuple[Float[Array, "rows cols"]
     column_norm = safe_norm(a.T)
     scale = 1.0 / jnp.where(column_norm > 0, column_norm, 1.0)
     return a * scale[None, :], scale
+
+
+def divide_if_significant(
+    values: Float[Array, "*shape"], divisor: Float[Array, ""], reference: Float[Array, ""] | float
+) -> tuple[Float[Array, "*shape"], Bool[Array, ""]]:
+    """``values / divisor`` when ``|divisor|`` exceeds ``1e3 eps`` times ``reference``.
+
+    De-homogenises a null vector by one of its entries: a tiny divisor would
+    give an unbounded result, so ``values`` is returned unchanged with
+    ``ok = False`` instead (no NaN or inf in traced code).
+
+    Returns:
+        ``(quotient, ok)``.
+    """
+    ok = jnp.abs(divisor) > 1e3 * jnp.finfo(values.dtype).eps * reference
+    return values / jnp.where(ok, divisor, 1.0), ok
 
 
 def scaled_null_space(a: Float[Array, "rows cols"], k: int) -> Float[Array, "cols k"]:

@@ -680,8 +680,9 @@ def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Arr
 
 def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
-    fitted = evidence.walls.direction
-    parallel = jnp.abs(cross_2d(fitted[_previous(evidence)], fitted)) < math.sin(math.radians(config.merge_angle))
+    ransac_directions = evidence.walls.direction
+    turn = cross_2d(ransac_directions[_previous(evidence)], ransac_directions)
+    parallel = jnp.abs(turn) < math.sin(math.radians(config.merge_angle))
     merge = evidence.same_plane & parallel & ~evidence.occluded & _several_corners(evidence)
     insert = evidence.occluded
     final = _final_walls(evidence, merge, insert, False, config.sample_size)

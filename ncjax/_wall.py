@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._linalg import null_space, scaled_null_space
+from ._linalg import divide_if_significant, null_space, scaled_null_space
 from ._wall_fit import heights_of, linear_walls, refine_walls, yaw_parameters
 from ._plucker import cross_2d as _cross2
 from ._plucker import horizontal_wall_line, safe_norm
@@ -450,8 +450,7 @@ def solve_wall_minimal(ceiling_rays: Float[Array, "2 6"], floor_rays: Float[Arra
     def wall_at(angle):
         direction = unit(angle)
         vector = null_space(_known_direction_matrix(ceiling_rays, floor_rays, direction), 1)[:, 0]
-        scale_ok = jnp.abs(vector[0]) > 1e3 * jnp.finfo(vector.dtype).eps
-        _, h_c, h_f, distance = vector / jnp.where(scale_ok, vector[0], 1.0)
+        (_, h_c, h_f, distance), scale_ok = divide_if_significant(vector, vector[0], 1.0)  # a unit null vector
         return make_wall(direction, distance, h_c, h_f, scale_ok & (h_c > h_f))
 
     walls = jax.vmap(wall_at)(theta)

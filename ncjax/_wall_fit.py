@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ._linalg import scaled_null_space
+from ._linalg import divide_if_significant, scaled_null_space
 from ._plucker import safe_norm
 
 
@@ -260,12 +260,9 @@ def search_scale(
         ``(params, ok)``: ``(0, h_c, h_f, d_1..d_K)`` and whether any candidate was finite.
     """
     x0, shape = vector[0], vector[1:]
-    linear_ok = jnp.abs(x0) > 1e3 * jnp.finfo(vector.dtype).eps * safe_norm(vector)
-    linear = shape / jnp.where(linear_ok, x0, 1.0)
+    linear, linear_ok = divide_if_significant(shape, x0, safe_norm(vector))
     # a floor below the camera (h_f < 0) fixes the sign of the shape
-    floor = shape[1]
-    shape_ok = jnp.abs(floor) > 1e3 * jnp.finfo(vector.dtype).eps * safe_norm(shape)
-    unit = shape / jnp.where(shape_ok, -floor, 1.0)
+    unit, shape_ok = divide_if_significant(shape, -shape[1], safe_norm(shape))
     scaled = floor_depths[:, None] * unit[None, :]
     candidates = jnp.concatenate([linear[None], scaled])
     valid = jnp.concatenate([linear_ok[None], jnp.broadcast_to(shape_ok, floor_depths.shape)])
