@@ -3,7 +3,8 @@
     uv run python benchmarks/bench_solvers.py [--rays 64] [--batch 4096]
 
 Prints wall solves per second (batched with jit(vmap), float32 and float64)
-for walls of ``--rays`` ceiling and ``--rays`` floor rays, and the time of
+for walls of ``--rays`` ceiling and ``--rays`` floor rays (the batch split over one
+single-threaded XLA device per core), and the time of
 the small noise sweep. Never asserted in tests.
 """
 
@@ -13,10 +14,13 @@ import argparse
 import os
 import time
 
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
+# one single-threaded XLA device per core; the batch is split over them
+os.environ.setdefault("XLA_FLAGS", f"--xla_cpu_multi_thread_eigen=false --xla_force_host_platform_device_count={os.cpu_count()}")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
+from jax.sharding import NamedSharding  # noqa: E402
+from jax.sharding import PartitionSpec as P  # noqa: E402
 
 import ncjax  # noqa: E402
 
@@ -41,8 +45,14 @@ def wall_batch(key, batch, rays, dtype):
     return jax.jit(jax.vmap(one))(jax.random.split(key, batch))
 
 
+def split_over_devices(*arrays):
+    """The arrays with their leading (batch) axis split over all devices: ``jit`` then runs one share per core."""
+    mesh = jax.make_mesh((len(jax.devices()),), ("batch",), devices=jax.devices(), axis_types=(jax.sharding.AxisType.Auto,))
+    return jax.device_put(arrays, NamedSharding(mesh, P("batch")))
+
+
 def solves_per_second(batch, rays, dtype, repeats=5):
-    ceiling, floor, mask = wall_batch(jax.random.PRNGKey(0), batch, rays, dtype)
+    ceiling, floor, mask = split_over_devices(*wall_batch(jax.random.PRNGKey(0), batch, rays, dtype))
     solve = jax.jit(jax.vmap(ncjax.solve_wall))
     jax.block_until_ready(solve(ceiling, floor, mask, mask))
     best = float("inf")
@@ -55,7 +65,7 @@ def solves_per_second(batch, rays, dtype, repeats=5):
 
 def svd_only_per_second(batch, rays, dtype, repeats=5):
     """The null space of the (2 rays, 7) matrices alone (Gram-Schmidt reduction + 7 x 7 Jacobi SVD): the solver's floor."""
-    a = jax.random.normal(jax.random.PRNGKey(1), (batch, 2 * rays, 7), dtype)
+    (a,) = split_over_devices(jax.random.normal(jax.random.PRNGKey(1), (batch, 2 * rays, 7), dtype))
     svd = jax.jit(jax.vmap(lambda m: ncjax.null_space(m, 2)))
     jax.block_until_ready(svd(a))
     best = float("inf")

@@ -11,9 +11,10 @@ ceiling and floor line alone; all rooms). Metrics as in the paper: corner
 error (m, mean L2 over ceiling and floor corners), direction error (deg,
 arccos |l . l_gt|) and depth error (m, | |lbar| - |lbar_gt| |).
 
-Each sweep of each method is ONE jitted call (``lax.map`` over chunks of a
-``vmap``: no Python loop over rooms or draws); the rooms and their exact
-labels (one set per rc) are generated once before.
+Each method's sigma and rc sweeps are ONE jitted call (``lax.map`` over chunks
+of a ``vmap``, split over one XLA device per core with ``shard_map``: no
+Python loop over rooms or draws); the rooms and their exact labels (one set
+per rc) are generated once before.
 
     uv run python experiments/noise_sweep.py            # the full sweep
     uv run python experiments/noise_sweep.py --small    # quick check (CI)
@@ -30,12 +31,15 @@ import time
 import warnings
 from pathlib import Path
 
-os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
+# one single-threaded XLA device per core: the sweep's cases are split over them
+os.environ.setdefault("XLA_FLAGS", f"--xla_cpu_multi_thread_eigen=false --xla_force_host_platform_device_count={os.cpu_count()}")
 
 import equinox as eqx  # noqa: E402
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from jax.sharding import NamedSharding  # noqa: E402
+from jax.sharding import PartitionSpec as P  # noqa: E402
 
 import ncjax  # noqa: E402
 
@@ -170,32 +174,52 @@ def single_walls(room, ceiling_rays, floor_rays, method="refined"):
     )
 
 
-def sweep(method, rooms, room_ids, sigmas, rc_level, draws, width, height, batch_size=128):
-    """All (level, draw, room) cases of one method in ONE jitted call.
+def sweep(method, rooms, room_ids, levels, width, height, batch_size=64, devices=None):
+    """All (level, draw, room) cases of one method in ONE jitted call, split over the CPU devices.
 
-    ``rooms`` holds the room arrays per rc level (leading axis); level ``i``
-    uses noise ``sigmas[i]`` and the rooms of rc level ``rc_level[i]``.
-    Returns a dict of arrays shaped (levels, draws * len(room_ids)); cases of
-    unusable rooms are NaN.
+    ``rooms`` holds the room arrays per rc level (leading axis). ``levels`` is
+    a list of ``(sigma, rc_index, draws)``: noise ``sigma`` on the rooms of rc
+    level ``rc_index``, ``draws`` noise draws per room. The cases are padded
+    to a multiple of the device count and each device maps over its share
+    (``shard_map`` of ``lax.map``), so every core works; ``devices``
+    (default: all) restricts that.
+
+    Returns:
+        A dict of lists (one array of ``draws * len(room_ids)`` values per
+        level); cases of unusable rooms are NaN.
     """
-    n_levels, n_rooms = len(sigmas), len(room_ids)
-    level = np.repeat(np.arange(n_levels), draws * n_rooms)
+    sigmas = np.concatenate([np.full(draws * len(room_ids), sigma, np.float32) for sigma, _, draws in levels])
+    rc_index = np.concatenate([np.full(draws * len(room_ids), rc) for _, rc, draws in levels])
+    room_index = np.concatenate([np.tile(room_ids, draws) for _, _, draws in levels])
+    n_cases = len(sigmas)
+    devices = devices or jax.devices()
+    padded = -(-n_cases // (len(devices) * batch_size)) * len(devices) * batch_size
+    pad = lambda x: np.concatenate([x, np.repeat(x[:1], padded - n_cases, 0)])  # noqa: E731
     cases = (
-        jnp.asarray(np.asarray(rc_level)[level]),
-        jnp.asarray(np.tile(room_ids, n_levels * draws)),
-        jax.random.split(jax.random.PRNGKey(12345), n_levels * draws * n_rooms),
-        jnp.asarray(np.asarray(sigmas, np.float32)[level]),
+        pad(rc_index),
+        pad(room_index),
+        pad(np.asarray(jax.random.key_data(jax.random.split(jax.random.PRNGKey(12345), n_cases)))),
+        pad(sigmas),
     )
 
-    def one(case):
-        rc_index, room_index, key, sigma = case
-        room = jax.tree.map(lambda x: x[rc_index, room_index], rooms)
-        result = method(room, *_noisy_rays(room, sigma, key, width, height))
+    def one(case, rooms):
+        rc, room_index, key, sigma = case
+        room = jax.tree.map(lambda x: x[rc, room_index], rooms)
+        result = method(room, *_noisy_rays(room, sigma, jax.random.wrap_key_data(key), width, height))
         return {k: jnp.where(room["usable"], v, jnp.nan) for k, v in result.items()}
 
-    run = jax.jit(lambda c: jax.lax.map(one, c, batch_size=batch_size))
-    result = run(cases)
-    return {k: np.asarray(v).reshape(n_levels, draws * n_rooms) for k, v in result.items()}
+    mesh = jax.make_mesh((len(devices),), ("cases",), devices=devices)
+    run = jax.jit(
+        jax.shard_map(
+            lambda c, r: jax.lax.map(lambda case: one(case, r), c, batch_size=batch_size),
+            mesh=mesh, in_specs=(P("cases"), P()), out_specs=P("cases"), check_vma=False,
+        )
+    )
+    cases = jax.device_put(cases, NamedSharding(mesh, P("cases")))
+    rooms = jax.device_put(rooms, NamedSharding(mesh, P()))
+    result = {k: np.asarray(v)[:n_cases] for k, v in run(cases, rooms).items()}
+    bounds = np.cumsum([0] + [draws * len(room_ids) for _, _, draws in levels])
+    return {k: [v[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:])] for k, v in result.items()}
 
 
 def _stat(values, fn):
@@ -273,26 +297,25 @@ def main(argv=None):
         "atlanta": (atlanta, all_ids),
         "baseline": (baseline, all_ids),
     }
-    results, timings = {}, {}
+    sigma_levels = [(sigma, 0, draws) for sigma in sigmas]
+    rc_levels = [(1.0, i + 1, rc_draws) for i in range(len(rcs))]
+    results, rc_results, timings = {}, {}, {}
     for name, (method, ids) in methods.items():
         t0 = time.perf_counter()
-        results[name] = sweep(method, arrays, ids, sigmas, np.zeros(len(sigmas), int), draws, width, height)
+        both = sweep(method, arrays, ids, sigma_levels + rc_levels, width, height)
+        results[name] = {k: v[: len(sigmas)] for k, v in both.items()}
+        rc_results[name] = {k: v[len(sigmas) :] for k, v in both.items()}
         timings[name] = time.perf_counter() - t0
-        print(f"{name}: {timings[name]:.1f} s", flush=True)
+        print(f"{name} (sigma and rc sweeps): {timings[name]:.1f} s", flush=True)
     _write(args.out / "noise_sweep.csv", "sigma_px", sigmas, results)
     _plot(args.out / "noise_sweep.png", "sigma (px)", sigmas, results)
-
-    rc_results = {}
-    for name, (method, ids) in methods.items():
-        t0 = time.perf_counter()
-        rc_results[name] = sweep(method, arrays, ids, np.ones(len(rcs)), np.arange(1, len(levels)), rc_draws, width, height)
-        timings[f"{name} (rc sweep)"] = time.perf_counter() - t0
-        print(f"{name} (rc sweep): {timings[f'{name} (rc sweep)']:.1f} s", flush=True)
     _write(args.out / "rc_sweep.csv", "rc_m", rcs, rc_results)
     _plot(args.out / "rc_sweep.png", "rc (m) at sigma = 1 px", rcs, rc_results)
 
     # refined vs the paper's solutions (parallelism quadratics; Atlanta: the literal null vector)
-    # vs the unconstrained null vector, sigma = 1 px, Manhattan rooms (Atlanta solver: all rooms)
+    # vs the unconstrained null vector, sigma = 1 px, Manhattan rooms (Atlanta solver: all rooms).
+    # One device: the paper's layout methods call LAPACK's SVD (6 + K unknowns), and that
+    # program never finished when shard_map-ped over two host devices (jax 0.10.2, observed).
     ablation = {}
     t0 = time.perf_counter()
     for solver_name, solver, labels, ids in (
@@ -303,10 +326,10 @@ def main(argv=None):
         for label in labels:
             res = sweep(
                 lambda r, c, f, s=solver, m=label: s(r, c, f, method=m),
-                arrays, ids, np.ones(1), np.zeros(1, int), ablation_draws, width, height,
+                arrays, ids, [(1.0, 0, ablation_draws)], width, height, devices=jax.devices()[:1],
             )
             ablation[f"{solver_name}/{label}"] = {
-                f"{m}_{stat}": _stat(res[m], fn) for m in ("corner", "direction", "depth") for stat, fn in (("mean", np.mean), ("median", np.median))
+                f"{m}_{stat}": _stat(res[m][0], fn) for m in ("corner", "direction", "depth") for stat, fn in (("mean", np.mean), ("median", np.median))
             }
             ablation[f"{solver_name}/{label}"].update({m: ablation[f"{solver_name}/{label}"][f"{m}_median"] for m in ("corner", "direction", "depth")})
     timings["ablation"] = time.perf_counter() - t0

@@ -62,6 +62,9 @@ def _triangular_factor(a: Array) -> Array:
 
 
 _MAX_JACOBI_SWEEPS = 12
+# The unrolled sweep has n (n - 1) / 2 rotations: right for the 5-7 unknowns of a wall,
+# not for the 6 + K unknowns of a whole layout (compile time), which go to LAPACK.
+_JACOBI_MAX_COLUMNS = 8
 
 
 def _jacobi_sweep(columns: tuple[Array, ...], vectors: tuple[Array, ...]) -> tuple[tuple, tuple, Array]:
@@ -127,9 +130,15 @@ def _sorted_svd(a: Array) -> tuple[Array, Array]:
     The tall ``A`` is first reduced to its triangular factor (batched LAPACK
     SVDs and QRs of ``2W x n`` matrices cost milliseconds each on CPU, the
     vectorised Gram-Schmidt reduction microseconds), then the small ``R`` is
-    decomposed by one-sided Jacobi (:func:`_jacobi_svd`).
+    decomposed by one-sided Jacobi (:func:`_jacobi_svd`; by LAPACK's ``svd``
+    beyond ``_JACOBI_MAX_COLUMNS`` unknowns).
     """
-    squared, vectors = _jacobi_svd(_triangular_factor(a))
+    r = _triangular_factor(a)
+    if r.shape[1] > _JACOBI_MAX_COLUMNS:
+        _, s, vt = jnp.linalg.svd(r, full_matrices=False)
+        squared, vectors = s * s, vt.T
+    else:
+        squared, vectors = _jacobi_svd(r)
     order = jnp.argsort(squared)
     return squared[order], vectors[:, order]
 
