@@ -16,7 +16,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import ncjax
-from ncjax import _wall
+from ncjax import _linalg, _wall
 
 WIDTH, HEIGHT = 256, 128
 CAPACITY = 12
@@ -291,6 +291,35 @@ def test_null_space_gradient_with_repeated_singular_values(x64):
         return v @ v.T
 
     assert bool(jnp.any(jnp.isnan(jax.jacrev(naive_projector)(a))))
+
+
+_sorted_svd = jax.jit(jax.vmap(_linalg._sorted_svd))
+
+
+@given(seed=st.integers(0, 2**31 - 1), kind=st.sampled_from(["random", "rank_deficient", "repeated_column", "zero_column"]))
+def test_sorted_svd_matches_numpy(seed, kind):
+    """Gram-Schmidt + one-sided Jacobi: numpy's singular values, orthonormal vectors, the same null space."""
+    with jax.enable_x64(True):
+        _check_sorted_svd(seed, kind)
+
+
+def _check_sorted_svd(seed, kind):
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(4, 12, 6)) * rng.uniform(0.1, 10.0, size=(4, 1, 6))
+    if kind == "rank_deficient":
+        a[..., 5] = a[..., :5] @ rng.normal(size=5)
+    elif kind == "repeated_column":
+        a[..., 3] = a[..., 1]
+    elif kind == "zero_column":
+        a[..., 2] = 0.0
+    squared, vectors = _sorted_svd(jnp.asarray(a))
+    _, s, vt = np.linalg.svd(a, full_matrices=False)
+    scale = s[:, :1] ** 2
+    np.testing.assert_allclose(np.asarray(squared) / scale, (s[:, ::-1] ** 2) / scale, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("bij,bik->bjk", vectors, vectors), np.broadcast_to(np.eye(6), (4, 6, 6)), atol=1e-12)
+    smallest, reference = np.asarray(vectors)[:, :, 0], vt[:, -1, :]
+    if kind != "random":  # an exact null vector: the same line
+        np.testing.assert_allclose(np.abs(np.einsum("bi,bi->b", smallest, reference)), 1.0, atol=1e-10)
 
 
 def test_minimal_solver(x64):
