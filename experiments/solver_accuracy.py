@@ -171,6 +171,12 @@ def run(solver, rooms, column_mask=None):
     return out
 
 
+def wall_selections(both, min_columns):
+    """Which walls enter the single-wall rows: seen by >= ``min_columns`` columns, and by >= 8."""
+    columns, mask = np.asarray(both["wall_columns"]), np.asarray(both["mask"])
+    return mask & (columns >= min_columns), mask & (columns >= 8)
+
+
 def rounded_input_rows(float32_rooms, min_columns):
     """The single-wall solvers in float64 on the float32 rooms' rays: the error float32 INPUT alone causes.
 
@@ -180,8 +186,7 @@ def rounded_input_rows(float32_rooms, min_columns):
     """
     promote = lambda x: x.astype(jnp.float64) if jnp.issubdtype(x.dtype, jnp.floating) else x  # noqa: E731
     both = jax.tree.map(lambda a, b: promote(jnp.concatenate([a, b])), *float32_rooms)
-    columns, mask = np.asarray(both["wall_columns"]), np.asarray(both["mask"])
-    wide, narrow = mask & (columns >= min_columns), mask & (columns >= 8)
+    wide, narrow = wall_selections(both, min_columns)
     dtype = "f32 rays"
     return [
         ("solve_wall", dtype, f"{narrow.sum()} walls >= 8 col", run(single_wall, both, narrow)),
@@ -200,11 +205,10 @@ def main(argv=None):
         with jax.enable_x64(x64):
             start = time.perf_counter()
             manhattan_rooms, atlanta_rooms = generate(args.rooms)
-            float32_rooms = float32_rooms or (manhattan_rooms, atlanta_rooms)
+            if not x64:
+                float32_rooms = (manhattan_rooms, atlanta_rooms)
             both = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), manhattan_rooms, atlanta_rooms)
-            columns = np.asarray(both["wall_columns"])
-            mask = np.asarray(both["mask"])
-            wide, narrow = mask & (columns >= args.min_columns), mask & (columns >= 8)
+            wide, narrow = wall_selections(both, args.min_columns)
             dtype = "float64" if x64 else "float32"
             cases = [
                 ("solve_manhattan_layout", manhattan, manhattan_rooms, None, f"{len(manhattan_rooms['h_c'])} rooms"),
