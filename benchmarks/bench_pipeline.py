@@ -13,6 +13,7 @@ descheduled worker (we measured 6 s instead of 20 ms for the final
 adjustment). Set ``OPENBLAS_NUM_THREADS`` yourself to compare.
 
     uv run python benchmarks/bench_pipeline.py [--repeats 11] [--batches 64 256] [--worlds manhattan atlanta auto]
+        [--adjustment-stride 1]
 """
 
 from __future__ import annotations
@@ -62,8 +63,10 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=11)
     parser.add_argument("--batches", type=int, nargs="*", default=[64, 256])
     parser.add_argument("--worlds", nargs="*", default=list(WORLDS), choices=WORLDS)
+    parser.add_argument("--adjustment-stride", type=int, default=PipelineConfig.adjustment_stride,
+                        help="PipelineConfig.adjustment_stride: the final adjustment fits every n-th column")
     args = parser.parse_args(argv)
-    config = PipelineConfig()
+    config = PipelineConfig(adjustment_stride=args.adjustment_stride)
     print(f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}")
     for world in args.worlds:

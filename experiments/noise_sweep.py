@@ -32,6 +32,11 @@ import warnings
 from pathlib import Path
 
 # one single-threaded XLA device per core: the sweep's cases are split over them
+# jaxlib's LAPACK kernels split their batch over XLA's CPU thread pool and wait for it; with
+# one busy device per pool thread that wait never ends (seen in gdb: both devices in
+# CholeskyFactorizationKernel -> ParallelBatchMap -> BlockingCounter::Wait). XLA sizes the
+# pool from NPROC when it is set: twice the cores leaves threads free for those kernels.
+os.environ.setdefault("NPROC", str(2 * os.cpu_count()))
 os.environ.setdefault("XLA_FLAGS", f"--xla_cpu_multi_thread_eigen=false --xla_force_host_platform_device_count={os.cpu_count()}")
 
 import equinox as eqx  # noqa: E402
@@ -174,15 +179,14 @@ def single_walls(room, ceiling_rays, floor_rays, method="refined"):
     )
 
 
-def sweep(method, rooms, room_ids, levels, width, height, batch_size=64, devices=None):
+def sweep(method, rooms, room_ids, levels, width, height, batch_size=64):
     """All (level, draw, room) cases of one method in ONE jitted call, split over the CPU devices.
 
     ``rooms`` holds the room arrays per rc level (leading axis). ``levels`` is
     a list of ``(sigma, rc_index, draws)``: noise ``sigma`` on the rooms of rc
     level ``rc_index``, ``draws`` noise draws per room. The cases are padded
     to a multiple of the device count and each device maps over its share
-    (``shard_map`` of ``lax.map``), so every core works; ``devices``
-    (default: all) restricts that.
+    (``shard_map`` of ``lax.map``), so every core works.
 
     Returns:
         A dict of lists (one array of ``draws * len(room_ids)`` values per
@@ -192,7 +196,7 @@ def sweep(method, rooms, room_ids, levels, width, height, batch_size=64, devices
     rc_index = np.concatenate([np.full(draws * len(room_ids), rc) for _, rc, draws in levels])
     room_index = np.concatenate([np.tile(room_ids, draws) for _, _, draws in levels])
     n_cases = len(sigmas)
-    devices = devices or jax.devices()
+    devices = jax.devices()
     padded = -(-n_cases // (len(devices) * batch_size)) * len(devices) * batch_size
     pad = lambda x: np.concatenate([x, np.repeat(x[:1], padded - n_cases, 0)])  # noqa: E731
     cases = (
@@ -314,8 +318,6 @@ def main(argv=None):
 
     # refined vs the paper's solutions (parallelism quadratics; Atlanta: the literal null vector)
     # vs the unconstrained null vector, sigma = 1 px, Manhattan rooms (Atlanta solver: all rooms).
-    # One device: the paper's layout methods call LAPACK's SVD (6 + K unknowns), and that
-    # program never finished when shard_map-ped over two host devices (jax 0.10.2, observed).
     ablation = {}
     t0 = time.perf_counter()
     for solver_name, solver, labels, ids in (
@@ -326,7 +328,7 @@ def main(argv=None):
         for label in labels:
             res = sweep(
                 lambda r, c, f, s=solver, m=label: s(r, c, f, method=m),
-                arrays, ids, [(1.0, 0, ablation_draws)], width, height, devices=jax.devices()[:1],
+                arrays, ids, [(1.0, 0, ablation_draws)], width, height,
             )
             ablation[f"{solver_name}/{label}"] = {
                 f"{m}_{stat}": _stat(res[m][0], fn) for m in ("corner", "direction", "depth") for stat, fn in (("mean", np.mean), ("median", np.median))

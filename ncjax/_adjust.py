@@ -44,11 +44,13 @@ from ._reprojection import wall_boundary_rows
 
 
 class BoundaryObservations(eqx.Module):
-    """The data the final adjustment fits (all fields traced; ``K`` wall slots).
+    """The data the final adjustment fits (all fields traced; ``N`` columns, ``K`` wall slots).
 
     Attributes:
-        ceiling_v: observed ceiling rows per column (W,).
-        floor_v: observed floor rows per column (W,).
+        columns: the panorama column of each observation (N,): all ``W`` of
+            them, or every ``s``-th (``PipelineConfig.adjustment_stride``).
+        ceiling_v: observed ceiling rows per column (N,).
+        floor_v: observed floor rows per column (N,).
         ceiling_used: columns whose ceiling row enters the fit (RANSAC inliers).
         floor_used: columns whose floor row enters the fit.
         column_wall: the wall (slot) each column sees, -1 for none.
@@ -57,11 +59,12 @@ class BoundaryObservations(eqx.Module):
         wall_mask: which slots hold walls; they are the first ``M`` slots.
     """
 
-    ceiling_v: Float[Array, " W"]
-    floor_v: Float[Array, " W"]
-    ceiling_used: Bool[Array, " W"]
-    floor_used: Bool[Array, " W"]
-    column_wall: Int[Array, " W"]
+    columns: Int[Array, " N"]
+    ceiling_v: Float[Array, " N"]
+    floor_v: Float[Array, " N"]
+    ceiling_used: Bool[Array, " N"]
+    floor_used: Bool[Array, " N"]
+    column_wall: Int[Array, " N"]
     corner_columns: Float[Array, " K"]
     corner_used: Bool[Array, " K"]
     wall_mask: Bool[Array, " K"]
@@ -157,12 +160,12 @@ def _residual_terms(
     floor_height: Float[ArrayLike, ""],
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
-) -> tuple[Float[Array, "W 2"], Float[Array, " K"]]:
+) -> tuple[Float[Array, "N 2"], Float[Array, " K"]]:
     """Unweighted, unmasked row errors per column and column errors per corner (wall ``k`` at ``angles[k]``)."""
     wall = jnp.maximum(observations.column_wall, 0)
-    columns = jnp.arange(cam.width, dtype=distances.dtype)
     rows = jax.vmap(_boundary_residuals_fast_jvp, in_axes=(0, 0, None, None, None, 0, 0, 0))(
-        angles[wall], distances[wall], ceiling_height, floor_height, cam, columns, observations.ceiling_v, observations.floor_v
+        angles[wall], distances[wall], ceiling_height, floor_height, cam,
+        observations.columns.astype(distances.dtype), observations.ceiling_v, observations.floor_v,
     )
     previous = previous_walls(observations.wall_mask)
     corners = jax.vmap(corner_residual, in_axes=(0, 0, None, 0))(
@@ -175,9 +178,9 @@ def _residual_terms(
 
 
 def _fitted_residuals(
-    rows: Float[Array, "W 2"], corners: Float[Array, " K"], observations: BoundaryObservations, corner_weight: float
+    rows: Float[Array, "N 2"], corners: Float[Array, " K"], observations: BoundaryObservations, corner_weight: float
 ) -> Float[Array, " residuals"]:
-    """The ``2 W + K`` residuals of the fit: ceiling rows, floor rows, weighted corners; 0 where unused."""
+    """The ``2 N + K`` residuals of the fit: ceiling rows, floor rows, weighted corners; 0 where unused."""
     rows = jnp.where(jnp.stack([observations.ceiling_used, observations.floor_used], -1), rows, 0.0)
     corners = jnp.where(observations.corner_used & observations.wall_mask, corner_weight * corners, 0.0)
     return jnp.concatenate([rows[:, 0], rows[:, 1], corners])
@@ -195,7 +198,7 @@ def layout_residuals(
     """Row errors of the ceiling and floor boundaries and weighted corner column errors (pixels).
 
     Returns:
-        ``2 W + K`` residuals: the ``W`` ceiling rows, the ``W`` floor rows, the corners; 0 where unused.
+        ``2 N + K`` residuals: the ``N`` ceiling rows, the ``N`` floor rows, the corners; 0 where unused.
     """
     angles = jnp.arctan2(directions[:, 1], directions[:, 0])
     rows, corners = _residual_terms(angles, distances, ceiling_height, floor_height, cam, observations)

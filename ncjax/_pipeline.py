@@ -109,6 +109,8 @@ class PipelineConfig:
             direction vote (:func:`manhattan_labels`).
         corner_weight: weight of the corner-plane penalty of the adjustment.
         adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
+        adjustment_stride: the adjustment fits every this-many-th column (1:
+            all); its cost is proportional to the number of columns it fits.
         min_finite_fraction: fraction of columns with finite rows needed.
         max_room_height: a layout whose ceiling is more than this above its
             floor (metres) is implausible (DEGENERATE_LAYOUT), e.g. a wall fit
@@ -133,6 +135,7 @@ class PipelineConfig:
     turn_weight: float = 0.5
     corner_weight: float = 1.0
     adjustment_steps: int = 8
+    adjustment_stride: int = 1
     min_finite_fraction: float = 0.5
     max_room_height: float = 10.0
     max_corner_distance: float = 50.0
@@ -152,6 +155,8 @@ class PipelineConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.adjustment_stride < 1:
+            raise ValueError(f"adjustment_stride must be >= 1 column, got {self.adjustment_stride}")
         if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0:
             raise ValueError("corner_margin, corner_weight and adjustment_steps must be >= 0")
 
@@ -542,13 +547,18 @@ def _group_directions(evidence: WallEvidence, merge: Bool[Array, " K"], final: F
     return summed[final.group]
 
 
-def _observations(evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int) -> BoundaryObservations:
+def _observations(
+    evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int, stride: int
+) -> BoundaryObservations:
+    """The adjustment's data: every ``stride``-th column (the cost of a step grows with their number)."""
+    every = slice(None, None, stride)
     return BoundaryObservations(
-        ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
-        floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
-        ceiling_used=evidence.ceiling_trusted & (final.column_wall >= 0),
-        floor_used=evidence.floor_trusted & (final.column_wall >= 0),
-        column_wall=final.column_wall,
+        columns=jnp.arange(ceiling_v.shape[0])[every],
+        ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4)[every],
+        floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4)[every],
+        ceiling_used=(evidence.ceiling_trusted & (final.column_wall >= 0))[every],
+        floor_used=(evidence.floor_trusted & (final.column_wall >= 0))[every],
+        column_wall=final.column_wall[every],
         corner_columns=final.corner_columns,
         corner_used=final.corner_used,
         wall_mask=final.mask,
@@ -562,18 +572,19 @@ def _fit_index(evidence: WallEvidence, final: FinalWalls) -> Int[Array, " W"]:
 
 def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
     """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again."""
-    observations = _observations(evidence, final, ceiling_v, floor_v, cam.height)
+    observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
     adjusted = adjust_layout(
         cam, observations, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps
     )
     errors = layout_residuals(*adjusted[:4], cam, observations, 0.0)
+    count = observations.columns.shape[0]
     threshold = config.inlier_threshold * _scaled(1.0, cam.height, 512)
     inliers = eqx.tree_at(
         lambda o: (o.ceiling_used, o.floor_used),
         observations,
         (
-            observations.ceiling_used & (jnp.abs(errors[: cam.width]) < threshold),
-            observations.floor_used & (jnp.abs(errors[cam.width : 2 * cam.width]) < threshold),
+            observations.ceiling_used & (jnp.abs(errors[:count]) < threshold),
+            observations.floor_used & (jnp.abs(errors[count : 2 * count]) < threshold),
         ),
     )
     return adjust_layout(cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps)

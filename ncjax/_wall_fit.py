@@ -235,6 +235,9 @@ def squared_error(
     return lambda params: jnp.sum(residuals_of(params, geometry, base_directions, one_hot, is_floor) ** 2)
 
 
+_SCALE_SEARCH_ROWS = 512
+
+
 def search_scale(
     vector: Float[Array, " n"],
     rays: Float[Array, "m 6"],
@@ -254,7 +257,9 @@ def search_scale(
     itself: among ``vector / x_0`` and the shape scaled to each camera
     height ``-h_f`` in ``floor_depths`` (metres), the candidate with the
     least sum of squared angular residuals wins. On exact data ``vector / x_0``
-    has zero cost and is kept.
+    has zero cost and is kept. The candidates are scored on at most
+    ``_SCALE_SEARCH_ROWS`` evenly strided rows: the grid only brackets the
+    scale, which :func:`refine_walls` then fits on every row.
 
     Returns:
         ``(params, ok)``: ``(0, h_c, h_f, d_1..d_K)`` and whether any candidate was finite.
@@ -267,7 +272,9 @@ def search_scale(
     candidates = jnp.concatenate([linear[None], scaled])
     valid = jnp.concatenate([linear_ok[None], jnp.broadcast_to(shape_ok, floor_depths.shape)])
     params = jnp.concatenate([jnp.zeros((candidates.shape[0], 1), vector.dtype), candidates], 1)
-    costs = jax.vmap(squared_error(_used_geometry(rays, one_hot), base_directions, one_hot, is_floor))(params)
+    every = slice(None, None, max(1, rays.shape[0] // _SCALE_SEARCH_ROWS))
+    cost = squared_error(_used_geometry(rays[every], one_hot[every]), base_directions[every], one_hot[every], is_floor[every])
+    costs = jax.vmap(cost)(params)
     costs = jnp.where(valid & jnp.all(jnp.isfinite(params), 1) & jnp.isfinite(costs), costs, jnp.inf)
     return params[jnp.argmin(costs)], jnp.any(jnp.isfinite(costs))
 

@@ -116,16 +116,17 @@ def test_boundary_residuals_fast_jvp_matches_autodiff():
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
-@pytest.mark.parametrize("manhattan", [True, False])
-def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan):
+@pytest.mark.parametrize("manhattan, stride", [(True, 1), (False, 3)])
+def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride):
     batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
     directions, distances = ncjax.room_walls(room)[:2]
-    used = jnp.ones(WIDTH, bool)
+    every = slice(None, None, stride)  # PipelineConfig.adjustment_stride
+    used = jnp.ones(WIDTH, bool)[every]
     observations = BoundaryObservations(
-        ceiling_v=label.ceiling_v, floor_v=label.floor_v, ceiling_used=used, floor_used=used,
-        column_wall=label.wall_index, corner_columns=jnp.zeros(len(room.mask)),
+        columns=jnp.arange(WIDTH)[every], ceiling_v=label.ceiling_v[every], floor_v=label.floor_v[every],
+        ceiling_used=used, floor_used=used, column_wall=label.wall_index[every], corner_columns=jnp.zeros(len(room.mask)),
         corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
     )
     turn = 0.02 if manhattan else 0.02 * jnp.cos(jnp.arange(len(room.mask)))
@@ -247,6 +248,8 @@ def test_bad_arguments_raise():
         ncjax.layout_from_boundaries(rows[:-1], rows[:-1], rows[:-1], cam)
     with pytest.raises(ValueError, match="capacity"):
         ncjax.PipelineConfig(capacity=2)
+    with pytest.raises(ValueError, match="adjustment_stride"):
+        ncjax.PipelineConfig(adjustment_stride=0)
 
 
 def test_gradients_through_the_pipeline_are_finite_and_match_finite_differences():
