@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import io
 import json
 import os
 import re
@@ -40,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._camera import NonCentralPanorama, project
+from ._files import write_atomic
 from ._render import Rendering, SynthConfig, synthesize_batch
 from ._rooms import Room, RoomLabels, RoomStatus, room_labels
 from ._scene import Scene
@@ -74,43 +76,17 @@ def split_of(layout_id: int, seed: int) -> str:
     return "test"
 
 
-def _write_atomically(path: str, write: Callable[[str], None]) -> None:
-    """Write through a temporary file in the same folder, then rename over ``path``."""
-    folder, base = os.path.split(path)
-    temporary = os.path.join(folder, f".{base}.tmp{os.getpid()}")
-    try:
-        write(temporary)
-        os.replace(temporary, path)
-    finally:
-        if os.path.exists(temporary):
-            os.remove(temporary)
-
-
 def _write_png(path: str, image: np.ndarray) -> None:
-    def write(temporary):
-        ok, encoded = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 3])
-        if not ok:
-            raise OSError(f"could not encode {path}")
-        with open(temporary, "wb") as file:
-            file.write(encoded.tobytes())
-
-    _write_atomically(path, write)
-
-
-def _write_bytes(path: str, data: bytes) -> None:
-    def write(temporary):
-        with open(temporary, "wb") as file:
-            file.write(data)
-
-    _write_atomically(path, write)
+    ok, encoded = cv2.imencode(".png", image, [cv2.IMWRITE_PNG_COMPRESSION, 3])
+    if not ok:
+        raise OSError(f"could not encode {path}")
+    write_atomic(path, encoded.tobytes())
 
 
 def _write_npy(path: str, array: np.ndarray) -> None:
-    def write(temporary):
-        with open(temporary, "wb") as file:
-            np.save(file, array)
-
-    _write_atomically(path, write)
+    buffer = io.BytesIO()
+    np.save(buffer, array)
+    write_atomic(path, buffer.getvalue())
 
 
 def label_cor_rows(labels: RoomLabels, cam: NonCentralPanorama) -> np.ndarray:
@@ -172,11 +148,11 @@ def write_sample(directory: str, name: str, rendering: Rendering, labels: RoomLa
     _write_png(os.path.join(directory, "depth", f"{name}.png"), depth)
     _write_png(os.path.join(directory, "semantic", f"{name}.png"), np.asarray(rendering.semantic).astype(np.uint8))
     rows = label_cor_rows(labels, room_camera)
-    _write_bytes(os.path.join(directory, "label_cor", f"{name}.txt"), "".join(f"{x} {y}\n" for x, y in rows).encode())
+    write_atomic(os.path.join(directory, "label_cor", f"{name}.txt"), "".join(f"{x} {y}\n" for x, y in rows).encode())
     corners = np.concatenate([np.asarray(metadata["ceiling_corners"]), np.asarray(metadata["floor_corners"])])
     _write_npy(os.path.join(directory, "3D_gt", f"{name}.npy"), (corners + camera_position).astype(np.float64))
     _write_npy(os.path.join(directory, "cam_pose", f"{name}.npy"), camera_position[None].astype(np.float64))
-    _write_bytes(
+    write_atomic(
         os.path.join(directory, "json", f"{name}.json"), (json.dumps(metadata, sort_keys=True, indent=1) + "\n").encode()
     )
 
@@ -241,7 +217,7 @@ def write_dataset(
             splits[split_of(int(index), seed)].append(name)
         if progress is not None:
             progress(min(batch_size, n - start))
-    _write_bytes(os.path.join(directory, "split.json"), (json.dumps(splits, indent=1) + "\n").encode())
+    write_atomic(os.path.join(directory, "split.json"), (json.dumps(splits, indent=1) + "\n").encode())
     return names
 
 

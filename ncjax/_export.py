@@ -40,7 +40,6 @@ import json
 import math
 import os
 import pathlib
-import secrets
 import struct
 
 import cv2
@@ -51,6 +50,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MultipleLocator
 
 from ._camera import NonCentralPanorama, project
+from ._files import write_atomic
 from ._pipeline import WORLDS, Layout, LayoutStatus
 
 SCHEMA_VERSION = 1
@@ -211,28 +211,6 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
 # --- atomic writes -------------------------------------------------------------------------------------
 
 
-def _write_atomic(path: PathLike, payload: bytes) -> None:
-    """Write ``payload`` to a temporary file beside ``path``, then rename it over ``path``.
-
-    The rename is atomic on one file system, so readers see the old file or
-    the complete new one; on any error the temporary file is removed and the
-    old file is left as it was.
-    """
-    path = pathlib.Path(path)
-    temporary = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp")
-    # os.open with mode 0o666 honours the umask, unlike tempfile's private 0o600 files.
-    descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    try:
-        with os.fdopen(descriptor, "wb") as file:
-            file.write(payload)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-
-
 def write_json(path: PathLike, record: dict) -> None:
     """Write a record as strict, indented JSON, atomically.
 
@@ -240,7 +218,7 @@ def write_json(path: PathLike, record: dict) -> None:
         ValueError: if the record holds NaN or infinity (``allow_nan=False``).
     """
     text = json.dumps(record, indent=2, allow_nan=False) + "\n"
-    _write_atomic(path, text.encode("utf-8"))
+    write_atomic(path, text.encode("utf-8"))
 
 
 def write_png(path: PathLike, image: UInt8[np.ndarray, "H W 3"]) -> None:
@@ -249,7 +227,7 @@ def write_png(path: PathLike, image: UInt8[np.ndarray, "H W 3"]) -> None:
     ok, encoded = cv2.imencode(".png", cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
     if not ok:
         raise ValueError(f"could not encode an image of shape {image.shape} as PNG")
-    _write_atomic(path, encoded.tobytes())
+    write_atomic(path, encoded.tobytes())
 
 
 # --- mesh ------------------------------------------------------------------------------------------------
@@ -372,7 +350,7 @@ def write_obj(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[Arra
     lines = ["# ncjax room layout: metres, camera frame, z up; normals point into the room"]
     lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
-    _write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
+    write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
 
 
 def write_ply(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[ArrayLike, "F 3"]) -> None:
@@ -391,7 +369,7 @@ def write_ply(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[Arra
         "end_header",
     ]
     lines = header + [f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices] + [f"3 {a} {b} {c}" for a, b, c in faces]
-    _write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
+    write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
 
 
 # glTF 2.0 constants (Khronos specification).
@@ -459,7 +437,7 @@ def write_glb(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[Arra
     glb.write(struct.pack("<III", _GLB_MAGIC, 2, total))
     glb.write(struct.pack("<II", len(json_chunk), _CHUNK_JSON) + json_chunk)
     glb.write(struct.pack("<II", len(bin_chunk), _CHUNK_BIN) + bin_chunk)
-    _write_atomic(path, glb.getvalue())
+    write_atomic(path, glb.getvalue())
 
 
 def write_mesh(stem: PathLike, layout: Layout) -> tuple[pathlib.Path, pathlib.Path, pathlib.Path]:
