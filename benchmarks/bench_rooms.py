@@ -5,7 +5,6 @@
 
 import argparse
 import time
-from functools import partial
 
 import jax
 import numpy as np
