@@ -6,7 +6,8 @@
 3. At each corner, the boundaries of the two walls are compared at the
    corner column (lines through the rows on either side, and the two RANSAC
    walls' reprojections; the smaller difference counts): a jump of more than
-   ``occlusion_threshold`` pixels means an occlusion (the paper tests the
+   ``occlusion_threshold`` pixels, and more than ``occlusion_noise_factor``
+   times the rows' noise about their walls, means an occlusion (the paper tests the
    same in 3D for Atlanta rooms; in pixels the test does not depend on the
    single walls' noisy scale). Consecutive walls each of which explains the
    other's pixels may be one wall split by a spurious corner.
@@ -96,6 +97,9 @@ class PipelineConfig:
             for a narrower wall); the cost grows with it, not with the width.
         inlier_threshold: row error of an inlier, pixels.
         occlusion_threshold: boundary jump at a corner that means an occlusion, pixels.
+        occlusion_noise_factor: the jump must also exceed this many times the
+            boundary noise, estimated from the rows about their RANSAC walls
+            (0: the fixed threshold alone).
         merge_fraction: consecutive walls each of which explains at least
             this fraction of the other's inlier pixels may be one wall.
         merge_angle: Atlanta: such walls are merged only if their directions
@@ -129,6 +133,7 @@ class PipelineConfig:
     ransac_columns: int = 64
     inlier_threshold: float = 3.0
     occlusion_threshold: float = 4.0
+    occlusion_noise_factor: float = 5.0
     merge_fraction: float = 0.8
     merge_angle: float = 5.0
     manhattan_tolerance: float = 5.0
@@ -155,6 +160,8 @@ class PipelineConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.occlusion_noise_factor < 0:
+            raise ValueError(f"occlusion_noise_factor must be >= 0, got {self.occlusion_noise_factor}")
         if self.adjustment_stride < 1:
             raise ValueError(f"adjustment_stride must be >= 1 column, got {self.adjustment_stride}")
         if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0:
@@ -361,7 +368,14 @@ def _gather_evidence(
     same_plane = (explained_fraction(previous) >= config.merge_fraction) & (
         explained_fraction(following)[previous] >= config.merge_fraction
     )
-    occluded = corner_mask & seen_here & seen_before & (jump > config.occlusion_threshold * pixels)
+    # noisy rows make the jump noisy too: it must also stand out of the noise, whose scale is
+    # robustly 1.4826 x the median row error of the usable columns about their RANSAC walls
+    residuals = jnp.concatenate([ceiling_error, floor_error])
+    residuals = jnp.where(jnp.tile(usable, 2) & jnp.isfinite(residuals), residuals, jnp.nan)
+    noise = 1.4826 * jnp.nanmedian(residuals)
+    noise = jnp.where(jnp.isfinite(noise), noise, 0.0)
+    jump_threshold = jnp.maximum(config.occlusion_threshold * pixels, config.occlusion_noise_factor * noise)
+    occluded = corner_mask & seen_here & seen_before & (jump > jump_threshold)
     previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
     return WallEvidence(
         ceiling_rays=ceiling_rays,

@@ -18,7 +18,7 @@ from ncjax import metrics
 from ncjax._corners import column_walls, find_corners, is_peak
 from ncjax._plucker import wall_planes_meet
 from ncjax._adjust import BoundaryObservations, _boundary_residuals_fast_jvp, adjust_layout, boundary_residuals
-from ncjax._pipeline import cyclic_binary_labels, manhattan_frame
+from ncjax._pipeline import _gather_evidence, cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
 
@@ -239,6 +239,24 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     assert int(layout.status) == ncjax.LayoutStatus.DEGENERATE_LAYOUT
 
 
+def test_noisy_rows_do_not_fake_occlusions():
+    """2 px of white noise on the rows of rooms without occlusions: a fixed 4 px jump threshold sees
+    occlusions at most corners; scaled by the rows' own noise (the default) it sees almost none."""
+    batch, labels = rooms("manhattan", "none")
+    noise = 2.0 * jax.random.normal(jax.random.key(5), (2,) + labels.ceiling_v.shape)
+    cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
+    keys = jax.random.split(jax.random.key(0), labels.ceiling_v.shape[0])
+
+    def occluded_fraction(config):
+        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: _gather_evidence(c, f, p, cam, k, config)))(
+            labels.ceiling_v + noise[0], labels.floor_v + noise[1], labels.corner_target, cams, keys
+        )
+        return float(jnp.sum(evidence.occluded) / jnp.sum(evidence.corner_mask))
+
+    assert occluded_fraction(ncjax.PipelineConfig()) < 0.1
+    assert occluded_fraction(ncjax.PipelineConfig(occlusion_noise_factor=0.0)) > 0.4
+
+
 def test_bad_arguments_raise():
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.5)
     rows = jnp.zeros(WIDTH)
@@ -250,6 +268,8 @@ def test_bad_arguments_raise():
         ncjax.PipelineConfig(capacity=2)
     with pytest.raises(ValueError, match="adjustment_stride"):
         ncjax.PipelineConfig(adjustment_stride=0)
+    with pytest.raises(ValueError, match="occlusion_noise_factor"):
+        ncjax.PipelineConfig(occlusion_noise_factor=-1.0)
 
 
 def test_gradients_through_the_pipeline_are_finite_and_match_finite_differences():
