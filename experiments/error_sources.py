@@ -13,7 +13,8 @@ Per row: layout statuses, the failure rate of ``network_table.py`` (not ok, or a
 corner count that differs from the ground truth), mean and median CE of the
 other rooms, 3D IoU over the ok layouts and with failures as 0, the up-to-scale
 3D IoU, and the scale error (median and 90th percentile of
-``|log(room height / true room height)|`` over the ok layouts).
+``|log(room height / true room height)|`` over the ok layouts, and the median of the
+signed log: below 0, the rooms come out too small).
 
     uv run python experiments/error_sources.py                 # 128 rooms per world, 4 views
     uv run python experiments/error_sources.py --rooms 16 --views 1
@@ -87,7 +88,7 @@ def row(samples, layouts, truths) -> dict:
             continue
         result = metrics.evaluate_layout(layout, truth)
         true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
-        scale.append(abs(math.log((float(layout.ceiling_height) - float(layout.floor_height)) / true_height)))
+        scale.append(math.log((float(layout.ceiling_height) - float(layout.floor_height)) / true_height))
         iou_ok.append(result["iou3d"])
         iou_u2s.append(result["iou3d_up_to_scale"])
         iou_all.append(result["iou3d"])
@@ -101,8 +102,9 @@ def row(samples, layouts, truths) -> dict:
         "iou_ok": 100 * float(np.mean(iou_ok)) if iou_ok else math.nan,
         "iou_all": 100 * float(np.mean(iou_all)),
         "iou_u2s": 100 * float(np.mean(iou_u2s)) if iou_u2s else math.nan,
-        "scale_median": float(np.median(scale)) if scale else math.nan,
-        "scale_p90": float(np.quantile(scale, 0.9)) if scale else math.nan,
+        "scale_median": float(np.median(np.abs(scale))) if scale else math.nan,
+        "scale_p90": float(np.quantile(np.abs(scale), 0.9)) if scale else math.nan,
+        "scale_bias": float(np.median(scale)) if scale else math.nan,
     }
 
 
@@ -117,8 +119,8 @@ def main(argv=None):
         f"Network output averaged over {args.views} view(s); {args.rooms} rooms per world.",
         "",
         "| world | input | ok | failed (%) | CE mean (m) | CE median (m) | 3D IoU ok (%) | 3D IoU all (%) | "
-        "up-to-scale IoU (%) | scale error median / p90 |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "up-to-scale IoU (%) | scale error median / p90 | signed scale error median |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for world in SEEDS:
         folder = str(test_renders(world, args.rooms, args.out))
@@ -134,7 +136,7 @@ def main(argv=None):
             lines.append(
                 f"| {world} | {source} | {r['statuses'].get('OK', 0)} / {len(samples)} | {r['failed']:.1f} | {r['ce_mean']:.3f} | "
                 f"{r['ce_median']:.3f} | {r['iou_ok']:.1f} | {r['iou_all']:.1f} | {r['iou_u2s']:.1f} | "
-                f"{r['scale_median']:.3f} / {r['scale_p90']:.3f} |"
+                f"{r['scale_median']:.3f} / {r['scale_p90']:.3f} | {r['scale_bias']:+.3f} |"
             )
     table = "\n".join(lines)
     print(table)
