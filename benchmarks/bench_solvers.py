@@ -14,12 +14,12 @@ import argparse
 import os
 import time
 
-# one single-threaded XLA device per core; the batch is split over them
 # jaxlib's LAPACK kernels split their batch over XLA's CPU thread pool and wait for it; with
 # one busy device per pool thread that wait never ends (seen in gdb: both devices in
 # CholeskyFactorizationKernel -> ParallelBatchMap -> BlockingCounter::Wait). XLA sizes the
 # pool from NPROC when it is set: twice the cores leaves threads free for those kernels.
 os.environ.setdefault("NPROC", str(2 * os.cpu_count()))
+# one single-threaded XLA device per core; the batch is split over them
 os.environ.setdefault("XLA_FLAGS", f"--xla_cpu_multi_thread_eigen=false --xla_force_host_platform_device_count={os.cpu_count()}")
 
 import jax  # noqa: E402

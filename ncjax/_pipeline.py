@@ -565,14 +565,16 @@ def _observations(
     evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int, stride: int
 ) -> BoundaryObservations:
     """The adjustment's data: every ``stride``-th column (the cost of a step grows with their number)."""
-    every = slice(None, None, stride)
+    per_column = dict(
+        columns=jnp.arange(ceiling_v.shape[0]),
+        ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
+        floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
+        ceiling_used=evidence.ceiling_trusted & (final.column_wall >= 0),
+        floor_used=evidence.floor_trusted & (final.column_wall >= 0),
+        column_wall=final.column_wall,
+    )
     return BoundaryObservations(
-        columns=jnp.arange(ceiling_v.shape[0])[every],
-        ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4)[every],
-        floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4)[every],
-        ceiling_used=(evidence.ceiling_trusted & (final.column_wall >= 0))[every],
-        floor_used=(evidence.floor_trusted & (final.column_wall >= 0))[every],
-        column_wall=final.column_wall[every],
+        **{name: values[::stride] for name, values in per_column.items()},
         corner_columns=final.corner_columns,
         corner_used=final.corner_used,
         wall_mask=final.mask,
