@@ -14,7 +14,8 @@ arccos |l . l_gt|) and depth error (m, | |lbar| - |lbar_gt| |).
 Each method's sigma and rc sweeps are ONE jitted call (``lax.map`` over chunks
 of a ``vmap``, split over one XLA device per core with ``shard_map``: no
 Python loop over rooms or draws); the rooms and their exact labels (one set
-per rc) are generated once before.
+per rc) are generated once before, and all the sweeps' programs are compiled
+in parallel threads before any runs.
 
     uv run python experiments/noise_sweep.py            # the full sweep
     uv run python experiments/noise_sweep.py --small    # quick check (CI)
@@ -25,6 +26,7 @@ Writes CSV and log-scale PNG plots to experiments/out/.
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import csv
 import os
 import time
@@ -57,8 +59,8 @@ def room_config(world: str) -> ncjax.RoomConfig:
     return ncjax.RoomConfig(world=world, max_walls=8, capacity=16, occlusion="none", rc_range=(1.0, 1.0))
 
 
-def generate_rooms(n_rooms: int, seed: int = 0) -> tuple[ncjax.Room, np.ndarray]:
-    """``n_rooms // 2`` Manhattan and ``n_rooms - n_rooms // 2`` Atlanta rooms (batched Room), and ``is_manhattan``.
+def generate_rooms(n_rooms: int, seed: int = 0) -> ncjax.Room:
+    """``n_rooms // 2`` Manhattan rooms, then ``n_rooms - n_rooms // 2`` Atlanta rooms (batched Room).
 
     Generated with rc = 1 m (the largest of the sweep, so the camera keeps its
     clearance when rc is lowered); rooms that fail are replaced by the next key.
@@ -69,8 +71,12 @@ def generate_rooms(n_rooms: int, seed: int = 0) -> tuple[ncjax.Room, np.ndarray]
         rooms = jax.jit(jax.vmap(lambda k, w=world: ncjax.random_room(k, room_config(w))))(keys)
         index = np.nonzero(np.asarray(rooms.ok))[0][:count]
         parts.append(jax.tree.map(lambda x: x[index], rooms))
-    rooms = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), *parts)
-    return rooms, np.arange(n_rooms) < n_rooms // 2
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), *parts)
+
+
+def rooms_per_rc(rooms: ncjax.Room, rcs, width: int, height: int) -> dict:
+    """:func:`room_arrays` of every room (axis 1) for every rc (axis 0)."""
+    return jax.vmap(jax.vmap(room_arrays, (0, None, None, None)), (None, 0, None, None))(rooms, rcs, width, height)
 
 
 def room_arrays(room: ncjax.Room, rc, width: int, height: int) -> dict:
@@ -154,12 +160,10 @@ def atlanta(room, ceiling_rays, floor_rays, method="refined"):
 
 def baseline(room, ceiling_rays, floor_rays):
     """[bermudez2016line]: every ceiling and floor line fitted alone."""
-    capacity = room["mask"].shape[0]
-    masks = room["wall_index"][None, :] == jnp.arange(capacity)[:, None]
     gt_ceiling, gt_floor = _gt_lines(room)
     direction, depth = 0.0, 0.0
     for rays, truth in ((ceiling_rays, gt_ceiling), (floor_rays, gt_floor)):
-        lines = jax.vmap(ncjax.solve_horizontal_line, (None, 0))(rays, masks)
+        lines = ncjax.solve_horizontal_lines(rays, room["wall_index"], room["mask"].shape[0])
         direction = direction + 0.5 * _masked_mean(_direction_error(lines.direction, room["directions"]), room["mask"])
         depth = depth + 0.5 * _masked_mean(jnp.abs(_depth(lines.line) - _depth(truth)), room["mask"])
     return dict(corner=jnp.nan, direction=direction, depth=depth, ok=jnp.float32(1.0))
@@ -179,56 +183,80 @@ def single_walls(room, ceiling_rays, floor_rays, method="refined"):
     )
 
 
-def sweep(method, rooms, room_ids, levels, width, height, batch_size=64):
-    """All (level, draw, room) cases of one method in ONE jitted call, split over the CPU devices.
+class Sweep:
+    """All (level, draw, room) cases of one method as ONE jitted call, split over the CPU devices.
 
-    ``rooms`` holds the room arrays per rc level (leading axis). ``levels`` is
+    ``rooms`` holds the room arrays per rc level (leading axis; only their
+    shapes are kept: :meth:`run` takes the arrays). ``levels`` is
     a list of ``(sigma, rc_index, draws)``: noise ``sigma`` on the rooms of rc
     level ``rc_index``, ``draws`` noise draws per room. The cases are padded
     to a multiple of the device count and each device maps over its share
-    (``shard_map`` of ``lax.map``), so every core works.
-
-    Returns:
-        A dict of lists (one array of ``draws * len(room_ids)`` values per
-        level); cases of unusable rooms are NaN.
+    (``shard_map`` of ``lax.map``), so every core works. :meth:`compile` and
+    :meth:`run` are separate so that several sweeps compile at once
+    (:func:`compile_all`).
     """
-    sigmas = np.concatenate([np.full(draws * len(room_ids), sigma, np.float32) for sigma, _, draws in levels])
-    rc_index = np.concatenate([np.full(draws * len(room_ids), rc) for _, rc, draws in levels])
-    room_index = np.concatenate([np.tile(room_ids, draws) for _, _, draws in levels])
-    n_cases = len(sigmas)
-    devices = jax.devices()
-    padded = -(-n_cases // (len(devices) * batch_size)) * len(devices) * batch_size
-    pad = lambda x: np.concatenate([x, np.repeat(x[:1], padded - n_cases, 0)])  # noqa: E731
-    cases = (
-        pad(rc_index),
-        pad(room_index),
-        pad(np.asarray(jax.random.key_data(jax.random.split(jax.random.PRNGKey(12345), n_cases)))),
-        pad(sigmas),
-    )
 
-    def one(case, rooms):
-        rc, room_index, key, sigma = case
-        room = jax.tree.map(lambda x: x[rc, room_index], rooms)
-        result = method(room, *_noisy_rays(room, sigma, jax.random.wrap_key_data(key), width, height))
-        return {k: jnp.where(room["usable"], v, jnp.nan) for k, v in result.items()}
-
-    mesh = jax.make_mesh((len(devices),), ("cases",), devices=devices)
-    run = jax.jit(
-        jax.shard_map(
-            lambda c, r: jax.lax.map(lambda case: one(case, r), c, batch_size=batch_size),
-            mesh=mesh, in_specs=(P("cases"), P()), out_specs=P("cases"), check_vma=False,
+    def __init__(self, method, rooms, room_ids, levels, width, height, batch_size=32):
+        sigmas = np.concatenate([np.full(draws * len(room_ids), sigma, np.float32) for sigma, _, draws in levels])
+        rc_index = np.concatenate([np.full(draws * len(room_ids), rc) for _, rc, draws in levels])
+        room_index = np.concatenate([np.tile(room_ids, draws) for _, _, draws in levels])
+        self.n_cases = len(sigmas)
+        self.bounds = np.cumsum([0] + [draws * len(room_ids) for _, _, draws in levels])
+        devices = jax.devices()
+        padded = -(-self.n_cases // (len(devices) * batch_size)) * len(devices) * batch_size
+        pad = lambda x: np.concatenate([x, np.repeat(x[:1], padded - self.n_cases, 0)])  # noqa: E731
+        cases = (
+            pad(rc_index),
+            pad(room_index),
+            pad(np.asarray(jax.random.key_data(jax.random.split(jax.random.PRNGKey(12345), self.n_cases)))),
+            pad(sigmas),
         )
-    )
-    cases = jax.device_put(cases, NamedSharding(mesh, P("cases")))
-    rooms = jax.device_put(rooms, NamedSharding(mesh, P()))
-    result = {k: np.asarray(v)[:n_cases] for k, v in run(cases, rooms).items()}
-    bounds = np.cumsum([0] + [draws * len(room_ids) for _, _, draws in levels])
-    return {k: [v[lo:hi] for lo, hi in zip(bounds[:-1], bounds[1:])] for k, v in result.items()}
+
+        def one(case, rooms):
+            rc, room_index, key, sigma = case
+            room = jax.tree.map(lambda x: x[rc, room_index], rooms)
+            result = method(room, *_noisy_rays(room, sigma, jax.random.wrap_key_data(key), width, height))
+            return {k: jnp.where(room["usable"], v, jnp.nan) for k, v in result.items()}
+
+        mesh = jax.make_mesh((len(devices),), ("cases",), devices=devices)
+        self._function = jax.jit(
+            jax.shard_map(
+                lambda c, r: jax.lax.map(lambda case: one(case, r), c, batch_size=batch_size),
+                mesh=mesh, in_specs=(P("cases"), P()), out_specs=P("cases"), check_vma=False,
+            )
+        )
+        self._cases = jax.device_put(cases, NamedSharding(mesh, P("cases")))
+        self._rooms_sharding = NamedSharding(mesh, P())
+        self._room_shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self._rooms_sharding), rooms)
+        self._compiled = None
+
+    def compile(self) -> None:
+        self._compiled = self._function.lower(self._cases, self._room_shapes).compile()
+
+    def run(self, rooms) -> dict:
+        """A dict of lists (one array of ``draws * len(room_ids)`` values per level); unusable rooms' cases are NaN."""
+        if self._compiled is None:
+            self.compile()
+        output = self._compiled(self._cases, jax.device_put(rooms, self._rooms_sharding))
+        result = {k: np.asarray(v)[: self.n_cases] for k, v in output.items()}
+        return {k: [v[lo:hi] for lo, hi in zip(self.bounds[:-1], self.bounds[1:])] for k, v in result.items()}
+
+
+def compile_all(sweeps) -> None:
+    """Compile the sweeps in parallel threads (XLA compiles outside the GIL)."""
+    with concurrent.futures.ThreadPoolExecutor(os.cpu_count()) as pool:
+        list(pool.map(Sweep.compile, sweeps))
 
 
 def _stat(values, fn):
     values = values[np.isfinite(values)]
     return float(fn(values)) if values.size else float("nan")
+
+
+def _summary(result, level):
+    """Mean and median of each metric at one level (the median also under the bare metric name)."""
+    summary = {f"{m}_{stat}": _stat(result[m][level], fn) for m in ("corner", "direction", "depth") for stat, fn in (("mean", np.mean), ("median", np.median))}
+    return summary | {m: summary[f"{m}_median"] for m in ("corner", "direction", "depth")}
 
 
 def _write(path, x_name, xs, results):
@@ -289,13 +317,13 @@ def main(argv=None):
     rc_default = 0.5
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    rooms, is_manhattan = generate_rooms(n_rooms)
     levels = np.concatenate([[rc_default], rcs])
-    per_rc = jax.jit(jax.vmap(jax.vmap(room_arrays, (0, None, None, None)), (None, 0, None, None)), static_argnums=(2, 3))
-    arrays = jax.block_until_ready(per_rc(rooms, jnp.asarray(levels, jnp.float32), width, height))
-    generation_time = time.perf_counter() - start
+    arrays = jax.block_until_ready(
+        jax.jit(rooms_per_rc, static_argnums=(2, 3))(generate_rooms(n_rooms), jnp.asarray(levels, jnp.float32), width, height)
+    )
     usable = np.asarray(arrays["usable"])
-    manhattan_ids, all_ids = np.nonzero(is_manhattan)[0], np.arange(n_rooms)
+    timings = {"rooms and labels": time.perf_counter() - start}
+    manhattan_ids, all_ids = np.arange(n_rooms // 2), np.arange(n_rooms)  # generate_rooms' order
     methods = {  # name: (function, rooms)
         "manhattan": (manhattan, manhattan_ids),
         "atlanta": (atlanta, all_ids),
@@ -303,10 +331,30 @@ def main(argv=None):
     }
     sigma_levels = [(sigma, 0, draws) for sigma in sigmas]
     rc_levels = [(1.0, i + 1, rc_draws) for i in range(len(rcs))]
-    results, rc_results, timings = {}, {}, {}
-    for name, (method, ids) in methods.items():
+    sweeps = {name: Sweep(method, arrays, ids, sigma_levels + rc_levels, width, height) for name, (method, ids) in methods.items()}
+    # refined vs the paper's solutions (parallelism quadratics; Atlanta: the literal null vector)
+    # vs the unconstrained null vector, sigma = 1 px, Manhattan rooms (Atlanta solver: all rooms).
+    # The layout solvers' refined rows are the sigma = 1 px level of the main sweep.
+    ablation_sweeps = {
+        f"{solver_name}/{label}": Sweep(
+            lambda r, c, f, s=solver, m=label: s(r, c, f, method=m), arrays, ids, [(1.0, 0, ablation_draws)], width, height
+        )
+        for solver_name, solver, labels, ids in (
+            ("manhattan", manhattan, ("paper", "null_vector"), manhattan_ids),
+            ("atlanta", atlanta, ("paper",), all_ids),
+            ("single_wall", single_walls, ("refined", "paper", "null_vector"), manhattan_ids),
+        )
+        for label in labels
+    }
+    t0 = time.perf_counter()
+    compile_all([*sweeps.values(), *ablation_sweeps.values()])
+    timings["compilation"] = time.perf_counter() - t0
+    print(f"rooms and labels {timings['rooms and labels']:.1f} s; compiled {len(sweeps) + len(ablation_sweeps)} sweeps "
+          f"{timings['compilation']:.1f} s", flush=True)
+    results, rc_results = {}, {}
+    for name, method_sweep in sweeps.items():
         t0 = time.perf_counter()
-        both = sweep(method, arrays, ids, sigma_levels + rc_levels, width, height)
+        both = method_sweep.run(arrays)
         results[name] = {k: v[: len(sigmas)] for k, v in both.items()}
         rc_results[name] = {k: v[len(sigmas) :] for k, v in both.items()}
         timings[name] = time.perf_counter() - t0
@@ -316,31 +364,16 @@ def main(argv=None):
     _write(args.out / "rc_sweep.csv", "rc_m", rcs, rc_results)
     _plot(args.out / "rc_sweep.png", "rc (m) at sigma = 1 px", rcs, rc_results)
 
-    # refined vs the paper's solutions (parallelism quadratics; Atlanta: the literal null vector)
-    # vs the unconstrained null vector, sigma = 1 px, Manhattan rooms (Atlanta solver: all rooms).
-    ablation = {}
     t0 = time.perf_counter()
-    for solver_name, solver, labels, ids in (
-        ("manhattan", manhattan, ("refined", "paper", "null_vector"), manhattan_ids),
-        ("atlanta", atlanta, ("refined", "paper"), all_ids),
-        ("single_wall", single_walls, ("refined", "paper", "null_vector"), manhattan_ids),
-    ):
-        for label in labels:
-            res = sweep(
-                lambda r, c, f, s=solver, m=label: s(r, c, f, method=m),
-                arrays, ids, [(1.0, 0, ablation_draws)], width, height,
-            )
-            ablation[f"{solver_name}/{label}"] = {
-                f"{m}_{stat}": _stat(res[m][0], fn) for m in ("corner", "direction", "depth") for stat, fn in (("mean", np.mean), ("median", np.median))
-            }
-            ablation[f"{solver_name}/{label}"].update({m: ablation[f"{solver_name}/{label}"][f"{m}_median"] for m in ("corner", "direction", "depth")})
+    one_px = int(np.argmin(np.abs(sigmas - 1.0)))
+    ablation = {f"{name}/refined": _summary(results[name], one_px) for name in ("manhattan", "atlanta")}
+    ablation.update({name: _summary(ablation_sweep.run(arrays), 0) for name, ablation_sweep in ablation_sweeps.items()})
     timings["ablation"] = time.perf_counter() - t0
 
-    total = generation_time + sum(timings.values())
+    total = sum(timings.values())
     print(f"rooms {n_rooms} ({len(manhattan_ids)} Manhattan), usable at rc = {rc_default}: {usable[0].sum()}, "
           f"draws {draws}, {width}x{height}, rc = {rc_default} m (sigma sweep)")
-    print(f"wall time (2 cores, incl. compilation): total {total:.1f} s (room generation and labels {generation_time:.1f} s); "
-          + ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()))
+    print(f"wall time (2 cores, incl. compilation): total {total:.1f} s; " + ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()))
     for name, res in results.items():
         print(f"  {name}")
         for i, sigma in enumerate(sigmas):

@@ -94,6 +94,7 @@ from ._wall import (
     HorizontalLine,
     Wall,
     solve_horizontal_line,
+    solve_horizontal_lines,
     solve_wall,
     solve_wall_minimal,
 )
@@ -210,6 +211,7 @@ __all__ = [
     "side",
     "solve_atlanta_layout",
     "solve_horizontal_line",
+    "solve_horizontal_lines",
     "solve_manhattan_layout",
     "solve_wall",
     "solve_wall_minimal",

@@ -20,12 +20,16 @@ def cross_2d(a: Array, b: Array) -> Array:
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
+def safe_sqrt(squared: Float[Array, "*batch"]) -> Float[Array, "*batch"]:
+    """Square root of a non-negative array whose gradient is 0 (not NaN) at 0."""
+    positive = squared > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, squared, 1.0)), 0.0)
+
+
 def safe_norm(x: Float[ArrayLike, "*#batch n"], axis: int = -1) -> Float[Array, "*batch"]:
     """Euclidean norm whose gradient is 0 (not NaN) at the zero vector."""
     x = _as_float(x)
-    squared = jnp.sum(x * x, axis=axis)
-    positive = squared > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, squared, 1.0)), 0.0)
+    return safe_sqrt(jnp.sum(x * x, axis=axis))
 
 
 def side(a: Float[ArrayLike, "*#batch 6"], b: Float[ArrayLike, "*#batch 6"]) -> Float[Array, "*batch"]:

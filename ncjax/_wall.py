@@ -41,9 +41,9 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
-from ._linalg import divide_if_significant, null_space, scaled_null_space
+from ._linalg import divide_if_significant, null_space, scaled_null_space, segment_scaled_null_spaces
 from ._wall_fit import heights_of, linear_walls, refine_walls, yaw_parameters
 from ._plucker import cross_2d as _cross2
 from ._plucker import horizontal_wall_line, safe_norm
@@ -352,8 +352,42 @@ def solve_horizontal_line(
         mask: which rays are used.
         parallel_constraint: static; False keeps ``W0`` (no Plücker constraint).
     """
-    a_u, a_h, a_d = side_coefficients(masked_rays(rays, mask))
-    basis = scaled_null_space(jnp.concatenate([a_u, a_h, a_d[:, None]], -1), 2)
+    basis = scaled_null_space(_horizontal_line_rows(masked_rays(rays, mask)), 2)
+    return _horizontal_line_from_basis(basis, jnp.sum(mask), parallel_constraint)
+
+
+def solve_horizontal_lines(
+    rays: Float[Array, "n 6"], line_index: Int[Array, " n"], capacity: int, parallel_constraint: bool = True
+) -> HorizontalLine:
+    """Every line of a labelled boundary at once, each from its own rays (the baseline, batched over lines).
+
+    Equal to ``jax.vmap(solve_horizontal_line, (None, 0))(rays, line_index == arange(capacity)[:, None])``
+    but each ray is reduced once, into its own line's null space
+    (:func:`ncjax._linalg.segment_scaled_null_spaces`), instead of once per line.
+
+    Args:
+        rays: the projecting rays of one boundary (e.g. the ceiling), one per column.
+        line_index: the line each ray belongs to, -1 (or ``>= capacity``) for none.
+        capacity: static number of lines ``K``.
+        parallel_constraint: static, as in :func:`solve_horizontal_line`.
+
+    Returns:
+        A :class:`HorizontalLine` with a leading ``K`` axis.
+    """
+    basis = segment_scaled_null_spaces(_horizontal_line_rows(rays), line_index, capacity, 2)
+    counts = jnp.sum(line_index[None, :] == jnp.arange(capacity)[:, None], 1)
+    return jax.vmap(lambda b, c: _horizontal_line_from_basis(b, c, parallel_constraint))(basis, counts)
+
+
+def _horizontal_line_rows(rays: Float[Array, "n 6"]) -> Float[Array, "n 5"]:
+    a_u, a_h, a_d = side_coefficients(rays)
+    return jnp.concatenate([a_u, a_h, a_d[:, None]], -1)
+
+
+def _horizontal_line_from_basis(
+    basis: Float[Array, "5 2"], count: Int[Array, ""], parallel_constraint: bool
+) -> HorizontalLine:
+    """The line of :func:`solve_horizontal_line` from the two smallest null vectors of its ``count`` rows."""
     w0, w1 = basis[:, 0], basis[:, 1]
     if parallel_constraint:
         theta = quadratic_root_angles(parallel_quadratic(w0[0:2], w1[0:2], w0[2:4], w1[2:4]))
@@ -366,7 +400,7 @@ def solve_horizontal_line(
     safe = jnp.where(norm > 0, norm, 1.0)
     height = jnp.dot(u, vector[2:4]) / (safe * safe)
     direction, distance = canonical_orientation(_unit_direction(u, norm), vector[4] / safe)
-    ok = (jnp.sum(mask) >= 4) & (norm > 0)
+    ok = (count >= 4) & (norm > 0)
     return HorizontalLine(direction, distance, height, horizontal_wall_line(direction, distance, height), ok)
 
 

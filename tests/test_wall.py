@@ -348,3 +348,59 @@ def test_horizontal_line_baseline():
             assert float(direction_error_deg(line.direction, room["directions"][wall_id])) < 0.05
             np.testing.assert_allclose(line.distance, room["distances"][wall_id], atol=2e-3)
             np.testing.assert_allclose(line.height, height, atol=2e-3)
+
+
+_segment_null_spaces = jax.jit(_linalg.segment_scaled_null_spaces, static_argnums=(2, 3))
+_masked_null_spaces = jax.jit(
+    jax.vmap(lambda a, segments, s: _linalg.scaled_null_space(jnp.where((segments == s)[:, None], a, 0.0), 2), (None, None, 0))
+)
+
+
+@given(seed=st.integers(0, 2**31 - 1))
+def test_segment_null_spaces_match_masked_ones(seed):
+    """One pass over the rows gives every segment's scaled null space (empty and NaN-free segments included)."""
+    with jax.enable_x64(True):
+        rng = np.random.default_rng(seed)
+        # >= 4 rows of 5 unknowns per segment: a unique 2-dimensional null space; -1 rows belong to none, 5 is empty
+        segments = rng.permutation(np.repeat(np.arange(-1, 5), 4 + rng.multinomial(30, np.full(6, 1 / 6))))  # 54 rows
+        a = rng.normal(size=(len(segments), 5)) * rng.uniform(0.1, 10.0, size=(len(segments), 1))
+        a[segments == -1] = np.nan
+        got = np.asarray(_segment_null_spaces(jnp.asarray(a), jnp.asarray(segments), 6, 2))
+        want = np.asarray(_masked_null_spaces(jnp.asarray(np.nan_to_num(a)), jnp.asarray(segments), jnp.arange(6)))
+        assert np.all(np.isfinite(got))
+        for s in range(6):  # the same span (each basis is orthonormal in its equilibrated space)
+            projector = lambda b: b @ np.linalg.pinv(b)  # noqa: E731
+            np.testing.assert_allclose(projector(got[s]), projector(want[s]), atol=1e-8)
+
+
+def test_batched_baseline_matches_one_line_at_a_time():
+    room = sample_room(8, "atlanta")
+    ceiling_rays, _ = rays(room)
+    index = jnp.where(jnp.arange(WIDTH) % 17 == 0, -1, room["wall_index"])  # some columns of no line
+    batched = jax.jit(ncjax.solve_horizontal_lines, static_argnums=2)(ceiling_rays, index, CAPACITY)
+    masks = index[None, :] == jnp.arange(CAPACITY)[:, None]
+    single = jax.jit(jax.vmap(ncjax.solve_horizontal_line, (None, 0)))(ceiling_rays, masks)
+    assert batched.direction.shape == (CAPACITY, 2)
+    np.testing.assert_array_equal(batched.ok, single.ok)
+    ok = np.asarray(single.ok)
+    assert ok.sum() >= 5  # lines seen by >= 4 columns
+    for field in ("direction", "distance", "height"):
+        np.testing.assert_allclose(np.asarray(getattr(batched, field))[ok], np.asarray(getattr(single, field))[ok], rtol=2e-4, atol=1e-4)  # float32, sums in another order
+
+
+def test_batched_baseline_gradient(x64):
+    """Derivatives of the batched fit match central differences (rows of every line perturbed at once)."""
+    room = sample_room(9, "manhattan")
+
+    def distances(ceiling_v):
+        columns = jnp.arange(WIDTH, dtype=ceiling_v.dtype)
+        rays_ = ncjax.pixel_to_ray(room["cam"], columns, ceiling_v)
+        lines = ncjax.solve_horizontal_lines(rays_, room["wall_index"], CAPACITY)
+        return jnp.where(room["mask"], lines.distance, 0.0)
+
+    tangent = jnp.asarray(np.random.default_rng(0).normal(size=WIDTH))
+    _, derivative = jax.jvp(distances, (room["ceiling_v"],), (tangent,))
+    step = 1e-4
+    central = (distances(room["ceiling_v"] + step * tangent) - distances(room["ceiling_v"] - step * tangent)) / (2 * step)
+    assert np.all(np.isfinite(np.asarray(derivative)))
+    np.testing.assert_allclose(derivative, central, rtol=1e-3, atol=1e-6)
