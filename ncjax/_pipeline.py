@@ -24,9 +24,11 @@
    paper adjusts the Atlanta branch only; the Manhattan branch keeps one yaw.
 6. Corners where consecutive walls meet.
 
-``world="auto"`` (not in the paper) takes the Manhattan branch when every
-RANSAC wall lies within ``manhattan_tolerance`` degrees of the two
-perpendicular directions that fit them best, the Atlanta branch otherwise.
+``world="auto"`` (not in the paper) runs both branches and keeps the one that
+succeeds, or, when both do, the Manhattan layout if it reprojects more of the
+boundary rows within the inlier threshold than the Atlanta one; on a tie
+(exact rows), if every RANSAC wall lies within ``manhattan_tolerance`` degrees
+of the two perpendicular directions that fit them best (:func:`choose_manhattan`).
 
 Everything has fixed capacity ``K`` (DESIGN.md section 4); failures are
 status values (:class:`LayoutStatus`), never exceptions, inside traced code.
@@ -107,7 +109,8 @@ class PipelineConfig:
             walls seen far away passes the pixel test (Manhattan merges
             walls of one class, see :func:`_manhattan_layout`).
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
-            wall from the Manhattan frame for the Manhattan branch.
+            RANSAC wall from the Manhattan frame for the Manhattan branch to win
+            a tie (:func:`choose_manhattan`).
         turn_weight: Manhattan labelling: cost of a corner whose walls do not
             turn as its type says, relative to the best-supported wall's
             direction vote (:func:`manhattan_labels`).
@@ -586,24 +589,38 @@ def _fit_index(evidence: WallEvidence, final: FinalWalls) -> Int[Array, " W"]:
     return jnp.where(evidence.ceiling_trusted & evidence.floor_trusted, final.column_wall, -1)
 
 
+def _row_errors(cam, observations: BoundaryObservations, walls) -> tuple[Float[Array, " N"], Float[Array, " N"]]:
+    """Ceiling and floor row errors (pixels) of the observed columns on the walls ``(directions, distances, h_c, h_f)``."""
+    errors = layout_residuals(*walls, cam, observations, 0.0)
+    count = observations.columns.shape[0]
+    return errors[:count], errors[count : 2 * count]
+
+
 def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
-    """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again."""
+    """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again.
+
+    Returns:
+        The adjusted walls (:func:`ncjax._adjust.adjust_layout`) and the fraction of the usable
+        columns' ceiling and floor rows they reproject within ``inlier_threshold``.
+    """
     observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
     adjusted = adjust_layout(
         cam, observations, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps
     )
-    errors = layout_residuals(*adjusted[:4], cam, observations, 0.0)
-    count = observations.columns.shape[0]
     threshold = config.inlier_threshold * _scaled(1.0, cam.height, 512)
+    ceiling_error, floor_error = _row_errors(cam, observations, adjusted[:4])
     inliers = eqx.tree_at(
         lambda o: (o.ceiling_used, o.floor_used),
         observations,
-        (
-            observations.ceiling_used & (jnp.abs(errors[:count]) < threshold),
-            observations.floor_used & (jnp.abs(errors[count : 2 * count]) < threshold),
-        ),
+        (observations.ceiling_used & (jnp.abs(ceiling_error) < threshold), observations.floor_used & (jnp.abs(floor_error) < threshold)),
     )
-    return adjust_layout(cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps)
+    adjusted = adjust_layout(cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps)
+    # every usable column counts, on whichever wall this layout gives it, so the two branches compare
+    usable = evidence.usable[:: config.adjustment_stride]
+    seen = usable & (observations.column_wall >= 0)
+    ceiling_error, floor_error = _row_errors(cam, eqx.tree_at(lambda o: (o.ceiling_used, o.floor_used), observations, (seen, seen)), adjusted[:4])
+    explained = jnp.sum(seen & (jnp.abs(ceiling_error) < threshold)) + jnp.sum(seen & (jnp.abs(floor_error) < threshold))
+    return adjusted, explained / jnp.maximum(2 * jnp.sum(usable), 1)
 
 
 def _corner_directions(cam: NonCentralPanorama, columns: Float[Array, " K"]) -> Float[Array, "K 2"]:
@@ -661,8 +678,8 @@ def _several_corners(evidence: WallEvidence) -> Bool[Array, ""]:
     return jnp.sum(evidence.corner_mask) > 1
 
 
-def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
-    """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
+def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> tuple[Layout, Float[Array, ""]]:
+    """Manhattan branch (step 4 of the module docstring) and steps 5-6; also the explained fraction of :func:`_refine`."""
     labels = manhattan_labels(evidence, config.turn_weight)
     same_class = labels[_previous(evidence)] == labels
     # Manhattan walls never meet at 0 degrees: consecutive walls of one class are one plane split by a
@@ -685,11 +702,11 @@ def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
         evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, manhattan_directions(yaw, wall_labels)
     )
     distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
-    adjusted = _refine(
+    adjusted, explained = _refine(
         cam, evidence, final, ceiling_v, floor_v, solved.directions, distances,
         solved.ceiling_height, solved.floor_height, wall_labels, config,
     )
-    return _assemble(cam, evidence, final, *adjusted[:4], heights.ok & solved.ok, True, config)
+    return _assemble(cam, evidence, final, *adjusted[:4], heights.ok & solved.ok, True, config), explained
 
 
 def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Array, "K 2"]:
@@ -705,8 +722,8 @@ def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Arr
     return directions
 
 
-def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
-    """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
+def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> tuple[Layout, Float[Array, ""]]:
+    """Atlanta branch (step 4 of the module docstring) and steps 5-6; also the explained fraction of :func:`_refine`."""
     ransac_directions = evidence.walls.direction
     turn = cross_2d(ransac_directions[_previous(evidence)], ransac_directions)
     parallel = jnp.abs(turn) < math.sin(math.radians(config.merge_angle))
@@ -725,11 +742,11 @@ def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     directions = _plan_lines(cam, evidence, final, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
     solved = solve_atlanta_layout(evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, directions)
     directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
-    adjusted = _refine(
+    adjusted, explained = _refine(
         cam, evidence, final, ceiling_v, floor_v, directions, distances,
         solved.ceiling_height, solved.floor_height, None, config,
     )
-    return _assemble(cam, evidence, final, *adjusted[:4], heights.ok & solved.ok, False, config)
+    return _assemble(cam, evidence, final, *adjusted[:4], heights.ok & solved.ok, False, config), explained
 
 
 def _assemble(
@@ -801,17 +818,35 @@ def layout_from_evidence(
     """The traceable pipeline for one panorama (no input checks; see :func:`layout_from_boundaries`)."""
     evidence = _gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config)
     if world == "manhattan":
-        return _manhattan_layout(evidence, ceiling_v, floor_v, cam, config)
+        return _manhattan_layout(evidence, ceiling_v, floor_v, cam, config)[0]
     if world == "atlanta":
-        return _atlanta_layout(evidence, ceiling_v, floor_v, cam, config)
+        return _atlanta_layout(evidence, ceiling_v, floor_v, cam, config)[0]
     _, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
     counted = evidence.corner_mask & evidence.walls.ok
-    manhattan = jnp.all(jnp.where(counted, deviation, 0.0) < math.radians(config.manhattan_tolerance))
-    return jax.tree.map(
-        lambda m, a: jnp.where(manhattan, m, a),
-        _manhattan_layout(evidence, ceiling_v, floor_v, cam, config),
-        _atlanta_layout(evidence, ceiling_v, floor_v, cam, config),
-    )
+    in_frame = jnp.all(jnp.where(counted, deviation, 0.0) < math.radians(config.manhattan_tolerance))
+    manhattan, manhattan_explained = _manhattan_layout(evidence, ceiling_v, floor_v, cam, config)
+    atlanta, atlanta_explained = _atlanta_layout(evidence, ceiling_v, floor_v, cam, config)
+    use_manhattan = choose_manhattan(manhattan.ok, atlanta.ok, manhattan_explained, atlanta_explained, in_frame)
+    return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
+
+
+def choose_manhattan(
+    manhattan_ok: Bool[Array, ""],
+    atlanta_ok: Bool[Array, ""],
+    manhattan_explained: Float[Array, ""],
+    atlanta_explained: Float[Array, ""],
+    in_frame: Bool[Array, ""],
+) -> Bool[Array, ""]:
+    """``world="auto"``: whether to keep the Manhattan branch's layout rather than the Atlanta one.
+
+    A branch that failed loses to one that did not. Otherwise the Manhattan layout is kept when it
+    reprojects more of the usable boundary rows within the inlier threshold than the Atlanta one
+    (which has a free angle per wall, so it rarely loses unless the room is Manhattan), and on a
+    tie (exact rows: both explain everything) when every RANSAC wall lies within
+    ``manhattan_tolerance`` of a Manhattan frame.
+    """
+    better = (manhattan_explained > atlanta_explained) | ((manhattan_explained == atlanta_explained) & in_frame)
+    return manhattan_ok & (~atlanta_ok | better)
 
 
 _layout_jit = jax.jit(layout_from_evidence, static_argnames=("world", "config"))

@@ -18,7 +18,7 @@ from ncjax import metrics
 from ncjax._corners import column_walls, find_corners, is_peak
 from ncjax._plucker import wall_planes_meet
 from ncjax._adjust import BoundaryObservations, _boundary_residuals_fast_jvp, adjust_layout, boundary_residuals
-from ncjax._pipeline import _gather_evidence, cyclic_binary_labels, manhattan_frame
+from ncjax._pipeline import _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
 
@@ -320,3 +320,22 @@ def test_plan_line_without_spread_has_finite_gradients(weights):
 
     gradient = jax.grad(line)(points)
     assert bool(jnp.all(jnp.isfinite(gradient)))
+
+
+@pytest.mark.parametrize(
+    "manhattan_ok, atlanta_ok, manhattan_explained, atlanta_explained, in_frame, expected",
+    [
+        (True, True, 0.9, 0.8, False, True),  # explains more
+        (True, True, 0.8, 0.9, True, False),  # explains less, even in a Manhattan frame
+        (True, True, 1.0, 1.0, True, True),  # tie: the frame decides
+        (True, True, 1.0, 1.0, False, False),
+        (True, False, 0.1, 0.9, False, True),  # the other branch failed
+        (False, True, 0.9, 0.1, True, False),
+        (False, False, 0.9, 0.1, True, False),
+    ],
+)
+def test_auto_world_choice(manhattan_ok, atlanta_ok, manhattan_explained, atlanta_explained, in_frame, expected):
+    chosen = choose_manhattan(
+        jnp.array(manhattan_ok), jnp.array(atlanta_ok), jnp.float32(manhattan_explained), jnp.float32(atlanta_explained), jnp.array(in_frame)
+    )
+    assert bool(chosen) is expected
