@@ -18,6 +18,7 @@ signed log: below 0, the rooms come out too small).
 
     uv run python experiments/error_sources.py                 # 128 rooms per world, 4 views
     uv run python experiments/error_sources.py --rooms 16 --views 1
+    uv run python experiments/error_sources.py --branch auto   # world="auto", the reconstruct default
 """
 
 from __future__ import annotations
@@ -113,10 +114,12 @@ def main(argv=None):
     parser.add_argument("--rooms", type=int, default=128, help="test renders per world (those of network_table.py)")
     parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even)")
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--branch", choices=("own", "auto"), default="own",
+                        help="pipeline world: each test set's own (default) or auto (ncjax reconstruct's default)")
     args = parser.parse_args(argv)
     start = time.time()
     lines = [
-        f"Network output averaged over {args.views} view(s); {args.rooms} rooms per world.",
+        f"Network output averaged over {args.views} view(s); {args.rooms} rooms per world; pipeline world: {args.branch}.",
         "",
         "| world | input | ok | failed (%) | CE mean (m) | CE median (m) | 3D IoU ok (%) | 3D IoU all (%) | "
         "up-to-scale IoU (%) | scale error median / p90 | signed scale error median |",
@@ -131,7 +134,8 @@ def main(argv=None):
         cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(np.array([s.rc for s in samples], np.float32))
         keys = jax.random.split(jax.random.key(0), len(samples))
         for source in tqdm(SOURCES, desc=f"pipeline {world}"):
-            layouts = jax.device_get(compiled("pipeline", world)(*inputs_of(outputs, source), cams, keys))
+            branch = world if args.branch == "own" else "auto"
+            layouts = jax.device_get(compiled("pipeline", branch)(*inputs_of(outputs, source), cams, keys))
             r = row(samples, layouts, truths)
             lines.append(
                 f"| {world} | {source} | {r['statuses'].get('OK', 0)} / {len(samples)} | {r['failed']:.1f} | {r['ce_mean']:.3f} | "
@@ -142,7 +146,7 @@ def main(argv=None):
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"error_sources_views{args.views}.md").write_text(table + "\n")
+    (args.out / f"error_sources_views{args.views}_{args.branch}.md").write_text(table + "\n")
 
 
 if __name__ == "__main__":
