@@ -18,7 +18,9 @@ floats rounded to 6 decimals; quantities of a failed layout are ``null`` and its
 lists empty)::
 
     name, schema_version, ok, status (LayoutStatus name), status_code, world
-    (requested: manhattan/atlanta/auto), branch (manhattan/atlanta), rc,
+    (requested: manhattan/atlanta/auto), branch (manhattan/atlanta),
+    explained_fraction (share of the boundary pixels the layout reprojects within
+    the inlier threshold, a quality indicator; added in ncjax 0.1.0, same schema version), rc,
     image_size [W, H], units, frame, ceiling_height, floor_height, room_height,
     floor_area (m^2), perimeter, ceiling_corners / floor_corners [[x, y, z], ...]
     (valid corners, image order), corner_columns (image column of each corner),
@@ -152,6 +154,7 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
         "status_code": int(np.asarray(layout.status)),
         "world": world,
         "branch": "manhattan" if bool(np.asarray(layout.manhattan)) else "atlanta",
+        "explained_fraction": _number(np.asarray(layout.explained_fraction)),
         "rc": _number(np.asarray(cam.rc)),
         "image_size": [cam.width, cam.height],
         "units": "metres",

@@ -61,6 +61,7 @@ def make_layout(plan, ceiling_height=H_C, floor_height=H_F, *, inserted=(), capa
         inserted=jnp.asarray(pad(np.isin(np.arange(n), inserted), False)),
         corner_columns=f32(pad(columns)),
         manhattan=jnp.asarray(manhattan),
+        explained_fraction=f32(0.9),
         status=jnp.asarray(status, jnp.int32),
         ok=jnp.asarray(status == 0),
     )
@@ -82,6 +83,7 @@ def test_record_of_a_rectangle(tmp_path):
     record = export.layout_record(make_layout(RECTANGLE), CAM, name="room", world="auto", extra={"image": "room.png"})
     assert record["schema_version"] == 1 and record["ok"] is True
     assert (record["status"], record["status_code"], record["world"], record["branch"]) == ("OK", 0, "auto", "manhattan")
+    assert record["explained_fraction"] == pytest.approx(0.9)
     assert record["image_size"] == [1024, 512] and record["units"] == "metres" and record["image"] == "room.png"
     assert record["rc"] == pytest.approx(0.6)
     assert (record["ceiling_height"], record["floor_height"], record["room_height"]) == (1.0, -1.5, 2.5)
