@@ -14,7 +14,8 @@ corner count that differs from the ground truth), mean and median CE of the
 other rooms, 3D IoU over the ok layouts and with failures as 0, the up-to-scale
 3D IoU, and the scale error (median and 90th percentile of
 ``|log(room height / true room height)|`` over the ok layouts, and the median of the
-signed log: below 0, the rooms come out too small).
+signed log: below 0, the rooms come out too small). Then, for the network's
+input, the mean 3D IoU of the ok layouts per bin of ``Layout.explained_fraction``.
 
     uv run python experiments/error_sources.py                 # 128 rooms per world, 4 views
     uv run python experiments/error_sources.py --rooms 16 --views 1
@@ -47,6 +48,7 @@ from pipeline_table import compiled  # noqa: E402
 
 BATCH = 8
 SOURCES = ("network", "true corners", "true ceiling", "true floor", "exact")
+EXPLAINED_BINS = (0.6, 0.8, 0.9)  # Layout.explained_fraction bins of the quality check
 
 
 def network_outputs(samples, views: int) -> dict[str, np.ndarray]:
@@ -81,6 +83,7 @@ def inputs_of(outputs: dict[str, np.ndarray], source: str) -> tuple[np.ndarray, 
 def row(samples, layouts, truths) -> dict:
     statuses = collections.Counter()
     ce, iou_ok, iou_all, iou_u2s, scale = [], [], [], [], []
+    by_explained = collections.defaultdict(list)  # 3D IoU of the ok layouts per explained-fraction bin
     for index, truth in enumerate(truths):
         layout = jax.tree.map(lambda x: np.asarray(x[index]), layouts)
         statuses[LayoutStatus(int(layout.status)).name] += 1
@@ -91,6 +94,7 @@ def row(samples, layouts, truths) -> dict:
         true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
         scale.append(math.log((float(layout.ceiling_height) - float(layout.floor_height)) / true_height))
         iou_ok.append(result["iou3d"])
+        by_explained[np.searchsorted(EXPLAINED_BINS, float(layout.explained_fraction), side="right")].append(result["iou3d"])
         iou_u2s.append(result["iou3d_up_to_scale"])
         iou_all.append(result["iou3d"])
         if math.isfinite(result["ce"]):
@@ -106,7 +110,15 @@ def row(samples, layouts, truths) -> dict:
         "scale_median": float(np.median(np.abs(scale))) if scale else math.nan,
         "scale_p90": float(np.quantile(np.abs(scale), 0.9)) if scale else math.nan,
         "scale_bias": float(np.median(scale)) if scale else math.nan,
+        "iou_by_explained": ", ".join(
+            f"{_bin_name(b)}: {100 * np.mean(by_explained[b]):.1f}% ({len(by_explained[b])})" for b in sorted(by_explained)
+        ),
     }
+
+
+def _bin_name(index: int) -> str:
+    edges = [0.0, *EXPLAINED_BINS, 1.0]
+    return f"{edges[index]:.1f}-{edges[index + 1]:.1f}"
 
 
 def main(argv=None):
@@ -125,6 +137,7 @@ def main(argv=None):
         "up-to-scale IoU (%) | scale error median / p90 | signed scale error median |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
+    quality = []
     for world in SEEDS:
         folder = str(test_renders(world, args.rooms, args.out))
         samples = [read_sample(folder, name) for name in list_samples(folder)]
@@ -142,7 +155,9 @@ def main(argv=None):
                 f"{r['ce_median']:.3f} | {r['iou_ok']:.1f} | {r['iou_all']:.1f} | {r['iou_u2s']:.1f} | "
                 f"{r['scale_median']:.3f} / {r['scale_p90']:.3f} | {r['scale_bias']:+.3f} |"
             )
-    table = "\n".join(lines)
+            if source == "network":
+                quality.append(f"- {world}: 3D IoU of the ok layouts by explained fraction (rooms): {r['iou_by_explained']}")
+    table = "\n".join(lines + ["", "Is `Layout.explained_fraction` a quality indicator? Network input:", *quality])
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)

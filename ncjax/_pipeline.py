@@ -601,6 +601,10 @@ def _row_errors(cam, observations: BoundaryObservations, walls) -> tuple[Float[A
     return errors[:count], errors[count : 2 * count]
 
 
+def _using(observations: BoundaryObservations, ceiling_used, floor_used) -> BoundaryObservations:
+    return eqx.tree_at(lambda o: (o.ceiling_used, o.floor_used), observations, (ceiling_used, floor_used))
+
+
 def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
     """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again.
 
@@ -614,16 +618,16 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
     )
     threshold = config.inlier_threshold * _scaled(1.0, cam.height, 512)
     ceiling_error, floor_error = _row_errors(cam, observations, adjusted[:4])
-    inliers = eqx.tree_at(
-        lambda o: (o.ceiling_used, o.floor_used),
+    inliers = _using(
         observations,
-        (observations.ceiling_used & (jnp.abs(ceiling_error) < threshold), observations.floor_used & (jnp.abs(floor_error) < threshold)),
+        observations.ceiling_used & (jnp.abs(ceiling_error) < threshold),
+        observations.floor_used & (jnp.abs(floor_error) < threshold),
     )
     adjusted = adjust_layout(cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps)
-    # every usable column counts, on whichever wall this layout gives it, so the two branches compare
+    # every usable column counts, on whichever wall this layout gives it, so that the two branches compare
     usable = evidence.usable[:: config.adjustment_stride]
     seen = usable & (observations.column_wall >= 0)
-    ceiling_error, floor_error = _row_errors(cam, eqx.tree_at(lambda o: (o.ceiling_used, o.floor_used), observations, (seen, seen)), adjusted[:4])
+    ceiling_error, floor_error = _row_errors(cam, _using(observations, seen, seen), adjusted[:4])
     explained = jnp.sum(seen & (jnp.abs(ceiling_error) < threshold)) + jnp.sum(seen & (jnp.abs(floor_error) < threshold))
     return adjusted, explained / jnp.maximum(2 * jnp.sum(usable), 1)
 
