@@ -482,6 +482,20 @@ def load_split(
     return {key: np.stack([a[key] for a in arrays]) for key in arrays[0]}
 
 
+def load_splits(
+    directories: list[str], split: str, height: int, width: int, limit: int | None = None
+) -> dict[str, np.ndarray]:
+    """:func:`load_split` of several dataset folders, pooled in the given order (``limit``: of the pool)."""
+    pooled, remaining = [], limit
+    for directory in directories:
+        if remaining is not None and remaining <= 0:
+            break
+        arrays = load_split(directory, split, height, width, limit=remaining)
+        pooled.append(arrays)
+        remaining = None if remaining is None else remaining - len(arrays["image"])
+    return {key: np.concatenate([arrays[key] for arrays in pooled]) for key in pooled[0]}
+
+
 def folder_batches(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Callable[[int], Iterator[dict]]:
     """``start_step -> iterator`` of batches drawn from :func:`load_split` arrays.
 
@@ -534,7 +548,11 @@ _forward = nnx.jit(predict_views, static_argnames=("views",))
 
 def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``ncjax train``."""
-    parser.add_argument("--data", default="painted", help="a dataset folder (ncjax synth or the authors'), or 'painted'")
+    parser.add_argument(
+        "--data", nargs="+", default=["painted"],
+        help="dataset folders (ncjax synth or the authors'; their splits are pooled, validation takes the "
+        "first --validation-limit images of the pool), or 'painted'",
+    )
     parser.add_argument("--preset", default="compact", help="paper, resnet18 or compact")
     parser.add_argument("--steps", type=int, default=1000, help="total optimisation steps (a resumed run does the rest)")
     parser.add_argument("--batch-size", type=int, default=4)
@@ -560,11 +578,12 @@ def run_train(args: argparse.Namespace) -> int:
         peak_learning_rate=args.learning_rate, warmup_steps=args.warmup_steps, total_steps=args.steps
     )
     validate = None
-    if args.data == "painted":
+    folders = [args.data] if isinstance(args.data, str) else args.data
+    if folders == ["painted"]:
         data = painted_batches(args.seed, args.batch_size, height, width)
     else:
-        data = folder_batches(load_split(args.data, "train", height, width), args.batch_size, args.seed)
-        valid = load_split(args.data, "valid", height, width, limit=args.validation_limit)
+        data = folder_batches(load_splits(folders, "train", height, width), args.batch_size, args.seed)
+        valid = load_splits(folders, "valid", height, width, limit=args.validation_limit)
         validate = lambda model, step: evaluate_arrays(model, valid)  # noqa: E731
     result = train(
         config,

@@ -195,6 +195,18 @@ def test_folder_batches_are_reproducible_and_resumable(dataset):
         load_split(dataset, "holdout", HEIGHT, WIDTH, progress=False)
 
 
+def test_folders_are_pooled_in_order(dataset):
+    from ncjax._train import load_split, load_splits
+
+    one = load_split(dataset, "train", HEIGHT, WIDTH, progress=False)
+    count = len(one["image"])
+    pooled = load_splits([dataset, dataset], "train", HEIGHT, WIDTH)
+    assert pooled["image"].shape[0] == 2 * count
+    np.testing.assert_array_equal(pooled["ceiling_v"][count:], one["ceiling_v"])
+    limited = load_splits([dataset, dataset], "train", HEIGHT, WIDTH, limit=count + 1)
+    assert limited["image"].shape[0] == count + 1
+
+
 def test_evaluate_command_prints_the_network_table(dataset, tmp_path, capsys):
     config = ncjax.HorizonNetConfig(depth=10, width=8, input_height=32, input_width=64, lstm_hidden=8, lstm_layers=1)
     path = str(tmp_path / "tiny.safetensors")
