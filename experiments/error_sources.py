@@ -146,8 +146,8 @@ def main(argv=None):
         height, width = samples[0].image.shape[:2]
         cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(np.array([s.rc for s in samples], np.float32))
         keys = jax.random.split(jax.random.key(0), len(samples))
+        branch = world if args.branch == "own" else "auto"
         for source in tqdm(SOURCES, desc=f"pipeline {world}"):
-            branch = world if args.branch == "own" else "auto"
             layouts = jax.device_get(compiled("pipeline", branch)(*inputs_of(outputs, source), cams, keys))
             r = row(samples, layouts, truths)
             lines.append(

@@ -578,12 +578,11 @@ def run_train(args: argparse.Namespace) -> int:
         peak_learning_rate=args.learning_rate, warmup_steps=args.warmup_steps, total_steps=args.steps
     )
     validate = None
-    folders = [args.data] if isinstance(args.data, str) else args.data
-    if folders == ["painted"]:
+    if args.data == ["painted"]:
         data = painted_batches(args.seed, args.batch_size, height, width)
     else:
-        data = folder_batches(load_splits(folders, "train", height, width), args.batch_size, args.seed)
-        valid = load_splits(folders, "valid", height, width, limit=args.validation_limit)
+        data = folder_batches(load_splits(args.data, "train", height, width), args.batch_size, args.seed)
+        valid = load_splits(args.data, "valid", height, width, limit=args.validation_limit)
         validate = lambda model, step: evaluate_arrays(model, valid)  # noqa: E731
     result = train(
         config,
