@@ -191,16 +191,19 @@ def gauss_newton_step(
     one_hot: Bool[Array, "m K"],
     is_floor: Bool[Array, " m"],
     refine_yaw: bool,
-) -> Float[Array, " P"]:
-    """One Gauss-Newton step on the angular residuals of all used rows.
+) -> tuple[Float[Array, ""], Float[Array, " P"]]:
+    """The cost at ``params`` and the Gauss-Newton step from there, on the angular residuals of all used rows.
 
     ``params = (t, h_c, h_f, d_1..d_K)``. Rows with an all-False ``one_hot``
     are unused. Parameters that no row constrains (absent walls, the yaw when
     not refined) do not move.
+
+    Returns:
+        ``(cost, delta)``: the sum of squared residuals at ``params`` (as
+        :func:`squared_error`) and the increment ``delta`` of ``params``.
     """
     arguments, used = _row_arguments(params, geometry, base_directions, one_hot, is_floor)
-    residual = jax.vmap(angular_residual)(*arguments)
-    d_yaw, d_height, d_distance = jax.vmap(jax.grad(angular_residual, argnums=(0, 1, 2)))(*arguments)
+    residual, (d_yaw, d_height, d_distance) = jax.vmap(jax.value_and_grad(angular_residual, argnums=(0, 1, 2)))(*arguments)
     mask = used.astype(params.dtype)
     residual = residual * mask
     d_yaw = d_yaw * mask if refine_yaw else jnp.zeros_like(d_yaw)
@@ -220,7 +223,7 @@ def gauss_newton_step(
     scaled = scale[:, None] * complement * scale[None, :] + jnp.diag(jnp.where(free, 0.0, 1.0))
     delta_shared = -scale * jnp.linalg.solve(scaled, scale * rhs)
     delta_distances = -inverse * (e + c.T @ delta_shared)
-    return params + jnp.concatenate([delta_shared, delta_distances])
+    return jnp.sum(residual * residual), jnp.concatenate([delta_shared, delta_distances])
 
 
 def _used_geometry(rays: Float[Array, "m 6"], one_hot: Bool[Array, "m K"]) -> tuple[Array, Array, Array]:
@@ -305,12 +308,15 @@ def refine_walls(
     """
     geometry = _used_geometry(rays, one_hot)
     cost = squared_error(geometry, base_directions, one_hot, is_floor)
-    current = cost(params)
-    for _ in range(steps):
-        candidate = gauss_newton_step(params, geometry, base_directions, one_hot, is_floor, refine_yaw)
-        candidate_cost = cost(candidate)
+    linearise = lambda p: gauss_newton_step(p, geometry, base_directions, one_hot, is_floor, refine_yaw)  # noqa: E731
+    current, delta = linearise(params)
+    for step in range(steps):
+        candidate = params + delta
+        # the candidate's linearisation gives its cost and, if it is accepted, the next step
+        candidate_cost, candidate_delta = linearise(candidate) if step + 1 < steps else (cost(candidate), delta)
         # a step that does not decrease the cost (far from the optimum, degenerate data) is refused
         better = candidate_cost <= current
         params = jnp.where(better, candidate, params)
         current = jnp.where(better, candidate_cost, current)
+        delta = jnp.where(better, candidate_delta, delta)
     return params
