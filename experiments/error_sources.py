@@ -15,7 +15,10 @@ other rooms, 3D IoU over the ok layouts and with failures as 0, the up-to-scale
 3D IoU, and the scale error (median and 90th percentile of
 ``|log(room height / true room height)|`` over the ok layouts, and the median of the
 signed log: below 0, the rooms come out too small). Then, for the network's
-input, the mean 3D IoU of the ok layouts per bin of ``Layout.explained_fraction``.
+input, the mean 3D IoU of the ok layouts per bin of ``Layout.explained_fraction``. Last,
+whether ``Layout.corner_covariance`` and ``Layout.height_covariance`` are calibrated: the
+share of matched corners inside their 95% ellipse and of room heights within 1.96
+standard deviations of the truth (95% if calibrated).
 
     uv run python experiments/error_sources.py                 # 128 rooms per world, 4 views
     uv run python experiments/error_sources.py --rooms 16 --views 1
@@ -38,6 +41,7 @@ from tqdm import tqdm
 import ncjax
 from ncjax import metrics
 from ncjax._dataset import list_samples, read_sample
+from ncjax._export import CHI2_2D_95, room_height_sigma
 from ncjax._pipeline import LayoutStatus
 from ncjax._predict import DEFAULT_VIEWS, default_model
 from ncjax._rooms import corner_target
@@ -84,6 +88,7 @@ def row(samples, layouts, truths) -> dict:
     statuses = collections.Counter()
     ce, iou_ok, iou_all, iou_u2s, scale = [], [], [], [], []
     by_explained = collections.defaultdict(list)  # 3D IoU of the ok layouts per explained-fraction bin
+    in_ellipse, corner_sigma, corner_miss, height_within = [], [], [], []  # calibration of Layout's covariances
     for index, truth in enumerate(truths):
         layout = jax.tree.map(lambda x: np.asarray(x[index]), layouts)
         statuses[LayoutStatus(int(layout.status)).name] += 1
@@ -92,7 +97,15 @@ def row(samples, layouts, truths) -> dict:
             continue
         result = metrics.evaluate_layout(layout, truth)
         true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
-        scale.append(math.log((float(layout.ceiling_height) - float(layout.floor_height)) / true_height))
+        height = float(layout.ceiling_height) - float(layout.floor_height)
+        scale.append(math.log(height / true_height))
+        height_within.append(abs(height - true_height) <= 1.96 * room_height_sigma(layout))
+        _, shift = metrics.corner_error(layout, truth)
+        if shift is not None:
+            inside, sigma, miss = corner_calibration(layout, truth, shift)
+            in_ellipse.extend(inside)
+            corner_sigma.extend(sigma)
+            corner_miss.extend(miss)
         iou_ok.append(result["iou3d"])
         by_explained[np.searchsorted(EXPLAINED_BINS, float(layout.explained_fraction), side="right")].append(result["iou3d"])
         iou_u2s.append(result["iou3d_up_to_scale"])
@@ -110,10 +123,26 @@ def row(samples, layouts, truths) -> dict:
         "scale_median": float(np.median(np.abs(scale))) if scale else math.nan,
         "scale_p90": float(np.quantile(np.abs(scale), 0.9)) if scale else math.nan,
         "scale_bias": float(np.median(scale)) if scale else math.nan,
+        "in_ellipse": 100 * float(np.mean(in_ellipse)) if in_ellipse else math.nan,
+        "sigma_median": float(np.median(corner_sigma)) if corner_sigma else math.nan,
+        "miss_median": float(np.median(corner_miss)) if corner_miss else math.nan,
+        "height_within": 100 * float(np.mean(height_within)) if height_within else math.nan,
         "iou_by_explained": ", ".join(
             f"{_bin_name(b)}: {100 * np.mean(by_explained[b]):.1f}% ({len(by_explained[b])})" for b in sorted(by_explained)
         ),
     }
+
+
+def corner_calibration(layout, truth, shift: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per matched corner: inside its 95% ellipse (``Layout.corner_covariance``)? its sigma and its plan error (m)."""
+    mask = np.asarray(layout.mask, bool)
+    error = np.roll(np.asarray(layout.floor_corners)[mask, :2], -shift, 0) - np.asarray(truth["floor_corners"])[:, :2]
+    covariance = np.roll(np.asarray(layout.corner_covariance, np.float64)[mask], -shift, 0)
+    finite = np.all(np.isfinite(covariance), axis=(1, 2))
+    safe = np.where(finite[:, None, None], covariance, np.eye(2))
+    mahalanobis = np.einsum("ki,kij,kj->k", error, np.linalg.pinv(safe), error)
+    sigma = np.sqrt(np.trace(safe, axis1=1, axis2=2))
+    return finite & (mahalanobis <= CHI2_2D_95), np.where(finite, sigma, np.inf), np.linalg.norm(error, axis=1)
 
 
 def _bin_name(index: int) -> str:
@@ -137,7 +166,7 @@ def main(argv=None):
         "up-to-scale IoU (%) | scale error median / p90 | signed scale error median |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
-    quality = []
+    quality, calibration = [], []
     for world in SEEDS:
         folder = str(test_renders(world, args.rooms, args.out))
         samples = [read_sample(folder, name) for name in list_samples(folder)]
@@ -155,9 +184,19 @@ def main(argv=None):
                 f"{r['ce_median']:.3f} | {r['iou_ok']:.1f} | {r['iou_all']:.1f} | {r['iou_u2s']:.1f} | "
                 f"{r['scale_median']:.3f} / {r['scale_p90']:.3f} | {r['scale_bias']:+.3f} |"
             )
+            calibration.append(
+                f"| {world} | {source} | {r['in_ellipse']:.1f} | {r['sigma_median']:.3f} | {r['miss_median']:.3f} | "
+                f"{r['height_within']:.1f} |"
+            )
             if source == "network":
                 quality.append(f"- {world}: 3D IoU of the ok layouts by explained fraction (rooms): {r['iou_by_explained']}")
-    table = "\n".join(lines + ["", "Is `Layout.explained_fraction` a quality indicator? Network input:", *quality])
+    table = "\n".join(
+        lines
+        + ["", "Is `Layout.explained_fraction` a quality indicator? Network input:", *quality]
+        + ["", "Are the layouts' covariances calibrated? (rooms with the true corner count; 95% expected)", "",
+           "| world | input | corners in their 95% ellipse (%) | corner sigma median (m) | corner error median (m) | "
+           "room heights within 1.96 sigma (%) |", "| --- | --- | --- | --- | --- | --- |", *calibration]
+    )
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)

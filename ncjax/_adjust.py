@@ -33,13 +33,14 @@ import math
 
 import equinox as eqx
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel
-from ._plucker import wall_planes_meet
+from ._plucker import safe_sqrt, wall_planes_meet
 from ._reprojection import wall_boundary_rows
 
 
@@ -218,6 +219,62 @@ def manhattan_yaw(directions: Float[Array, "K 2"], labels: Int[Array, " K"], wal
     return 0.5 * jnp.arctan2(jnp.sum(weight * jnp.sin(2 * angle)), jnp.sum(weight * jnp.cos(2 * angle)))
 
 
+class _LayoutProblem(eqx.Module):
+    """The adjustment's parametrisation of a layout (internal).
+
+    ``y = (angles, distances, (h_c, h_f))`` with one angle per wall (Atlanta,
+    ``labels`` None) or one yaw for all (Manhattan: wall ``k`` at
+    ``yaw + labels[k] pi / 2``). ``start`` is the parameter point of the
+    walls it was built from. All fields traced.
+    """
+
+    start: tuple[Array, Array, Array]
+    offsets: Float[Array, " K"]
+    angle_index: Int[Array, " K"]
+    free_angles: bool = eqx.field(static=True)
+
+    def walls(self, y) -> tuple[Float[Array, "K 2"], Float[Array, " K"], Float[Array, ""], Float[Array, ""]]:
+        """``(directions, distances, h_c, h_f)`` at the parameters ``y``."""
+        angles = y[0][self.angle_index] + self.offsets
+        return jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1), y[1], y[2][0], y[2][1]
+
+
+def _layout_problem(directions, distances, ceiling_height, floor_height, labels, wall_mask) -> _LayoutProblem:
+    """The parametrisation of :func:`adjust_layout` at the given walls."""
+    capacity = distances.shape[0]
+    dtype = distances.dtype
+    if labels is None:
+        angles = jnp.arctan2(directions[:, 1], directions[:, 0])
+        offsets = jnp.zeros(capacity, dtype)
+        angle_index = jnp.arange(capacity)
+    else:
+        yaw = manhattan_yaw(directions, labels, wall_mask)
+        aligned = jnp.sign(jnp.sum(manhattan_directions(yaw, labels) * directions, -1))
+        distances = distances * jnp.where(aligned == 0, 1.0, aligned)
+        angles = yaw[None]
+        offsets = labels.astype(dtype) * (math.pi / 2)
+        angle_index = jnp.zeros(capacity, jnp.int32)
+    start = (angles, distances, jnp.stack([ceiling_height, floor_height]).astype(dtype))
+    return _LayoutProblem(start, offsets, angle_index, labels is None)
+
+
+def _problem_residuals(problem: _LayoutProblem, y, cam, observations: BoundaryObservations, corner_weight: float):
+    """:func:`layout_residuals` at ``y``, plus pins of the empty slots' parameters to ``problem.start``.
+
+    The pins make the Jacobian's columns independent (the implicit adjoint
+    solves with it, the covariance inverts it); they are zero at the start.
+    """
+    wall_angles, distances, heights = y
+    rows, corners = _residual_terms(
+        wall_angles[problem.angle_index] + problem.offsets, distances, heights[0], heights[1], cam, observations
+    )
+    absent = ~observations.wall_mask
+    pins = [jnp.where(absent, distances - problem.start[1], 0.0)]
+    if problem.free_angles:
+        pins.append(jnp.where(absent, wall_angles - problem.start[0], 0.0))
+    return jnp.concatenate([_fitted_residuals(rows, corners, observations, corner_weight), *pins])
+
+
 def adjust_layout(
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
@@ -254,33 +311,12 @@ def adjust_layout(
         kept (``improved`` False) when the result is not finite or does not
         lower the cost (an unconverged but better iterate is kept).
     """
-    capacity = distances.shape[0]
-    dtype = distances.dtype
-    if labels is None:
-        angles = jnp.arctan2(directions[:, 1], directions[:, 0])
-        offsets = jnp.zeros(capacity, dtype)
-        angle_index = jnp.arange(capacity)
-    else:
-        yaw = manhattan_yaw(directions, labels, observations.wall_mask)
-        aligned = jnp.sign(jnp.sum(manhattan_directions(yaw, labels) * directions, -1))
-        distances = distances * jnp.where(aligned == 0, 1.0, aligned)
-        angles = yaw[None]
-        offsets = labels.astype(dtype) * (math.pi / 2)
-        angle_index = jnp.zeros(capacity, jnp.int32)
-    # parameters y = (angles (K, or the one yaw), distances (K), (h_c, h_f))
-    y0 = (angles, distances, jnp.stack([ceiling_height, floor_height]).astype(dtype))
-    absent = ~observations.wall_mask
+    problem = _layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
+    y0 = problem.start
 
     def residuals(y, args):
         del args
-        wall_angles, d, h = y
-        rows, corners = _residual_terms(wall_angles[angle_index] + offsets, d, h[0], h[1], cam, observations)
-        # pin the parameters of empty slots so that the Jacobian has full column rank
-        # (the implicit adjoint solves with it); zero at the solution, so the fit is unchanged
-        pins = [jnp.where(absent, d - y0[1], 0.0)]
-        if labels is None:
-            pins.append(jnp.where(absent, wall_angles - y0[0], 0.0))
-        return jnp.concatenate([_fitted_residuals(rows, corners, observations, corner_weight), *pins])
+        return _problem_residuals(problem, y, cam, observations, corner_weight)
 
     def cost(y):
         r = residuals(y, None)
@@ -292,5 +328,100 @@ def adjust_layout(
     final_cost = cost(solution.value)
     improved = jnp.isfinite(final_cost) & (final_cost < cost(y0))
     y = jax.tree.map(lambda new, old: jnp.where(improved, new, old), solution.value, y0)
-    wall_angles = y[0][angle_index] + offsets
-    return jnp.stack([jnp.cos(wall_angles), jnp.sin(wall_angles)], -1), y[1], y[2][0], y[2][1], improved
+    return *problem.walls(y), improved
+
+
+def correlation_time(
+    rows: Float[Array, "2 N"], used: Bool[Array, "2 N"], column_wall: Int[Array, " N"], max_lag: int
+) -> Float[Array, ""]:
+    """Integrated autocorrelation time ``tau = 1 + 2 sum_k rho_k`` of the row residuals along the columns.
+
+    ``rho_k`` is the correlation of the residuals of two used rows ``k``
+    observations apart on one wall (ceiling and floor pooled). The sum stops
+    before the first ``rho_k <= 0`` (Geyer's initial positive sequence) or at
+    ``max_lag`` (static). ``N / tau`` is the effective number of independent
+    rows: a network's boundary errors are smooth along a wall, and treating
+    them as independent would make the covariance far too small.
+    """
+    variance = jnp.sum(jnp.where(used, rows * rows, 0.0)) / jnp.maximum(jnp.sum(used), 1)
+    correlations = []
+    for lag in range(1, max_lag + 1):
+        pair = used[:, :-lag] & used[:, lag:] & (column_wall[:-lag] == column_wall[lag:])[None, :]
+        product = jnp.sum(jnp.where(pair, rows[:, :-lag] * rows[:, lag:], 0.0)) / jnp.maximum(jnp.sum(pair), 1)
+        correlations.append(product / jnp.where(variance > 0, variance, 1.0))
+    correlations = jnp.stack(correlations)
+    counted = jnp.cumprod(correlations > 0)
+    return 1.0 + 2.0 * jnp.sum(counted * correlations)
+
+
+class LayoutUncertainty(eqx.Module):
+    """Gauss-Newton covariance of an adjusted layout (all fields traced).
+
+    Attributes:
+        corner_covariance: (K, 2, 2) covariance of each corner's plan position (m^2); zero for empty slots.
+        height_covariance: (2, 2) covariance of ``(h_c, h_f)`` (m^2).
+        row_sigma: the estimated boundary noise, pixels (RMS of the used rows' residuals, per degree of freedom).
+        correlation_time: :func:`correlation_time` of those residuals (the covariance is scaled by it).
+    """
+
+    corner_covariance: Float[Array, "K 2 2"]
+    height_covariance: Float[Array, "2 2"]
+    row_sigma: Float[Array, ""]
+    correlation_time: Float[Array, ""]
+
+
+def layout_uncertainty(
+    cam: NonCentralPanorama,
+    observations: BoundaryObservations,
+    directions: Float[Array, "K 2"],
+    distances: Float[Array, " K"],
+    ceiling_height: Float[ArrayLike, ""],
+    floor_height: Float[ArrayLike, ""],
+    labels: Int[Array, " K"] | None,
+    corner_weight: float = 1.0,
+    max_lag: int = 64,
+) -> LayoutUncertainty:
+    """First-order covariance of the corners and heights of a layout that :func:`adjust_layout` returned.
+
+    With ``J`` the Jacobian of the adjustment's residuals in its own
+    parameters (one yaw or an angle per wall, distances, heights), the
+    parameter covariance is ``tau sigma^2 (J^T J)^-1``: ``sigma^2`` is the
+    used rows' sum of squared residuals over their count minus the free
+    parameters, ``tau`` their :func:`correlation_time`. It is propagated to
+    each corner's plan position through the Jacobian of the corner (where
+    consecutive walls meet). It describes the noise of the rows, not a
+    wrong wall structure (a missed or extra corner).
+
+    Args:
+        cam, observations, directions, distances, ceiling_height, floor_height, labels, corner_weight:
+            as for :func:`adjust_layout`; the walls are its result.
+        max_lag: static largest lag of :func:`correlation_time`, in observations.
+
+    Returns:
+        A :class:`LayoutUncertainty`; infinite where ``J^T J`` is singular.
+    """
+    problem = _layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
+    flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
+    residuals = lambda f: _problem_residuals(problem, unravel(f), cam, observations, corner_weight)  # noqa: E731
+    jacobian = jax.jacfwd(residuals)(flat)
+    count = observations.columns.shape[0]
+    values = residuals(flat)
+    rows = jnp.stack([values[:count], values[count : 2 * count]])
+    used = jnp.stack([observations.ceiling_used, observations.floor_used])
+    walls = jnp.sum(observations.wall_mask)
+    free = 2 + walls + jnp.where(problem.free_angles, walls, 1)
+    row_variance = jnp.sum(jnp.where(used, rows * rows, 0.0)) / jnp.maximum(jnp.sum(used) - free, 1)
+    tau = correlation_time(rows, used, observations.column_wall, max_lag)
+    covariance = tau * row_variance * jnp.linalg.inv(jacobian.T @ jacobian)
+    singular = ~jnp.all(jnp.isfinite(covariance))
+    covariance = jnp.where(singular, 0.0, covariance)
+
+    def corners(f):
+        wall_directions, wall_distances, _, _ = problem.walls(unravel(f))
+        return loop_corners(wall_directions, wall_distances, observations.wall_mask)[0]
+
+    corner_jacobian = jax.jacfwd(corners)(flat)  # (K, 2, P)
+    corner_covariance = jnp.einsum("kip,pq,kjq->kij", corner_jacobian, covariance, corner_jacobian)
+    corner_covariance = jnp.where(observations.wall_mask[:, None, None], jnp.where(singular, jnp.inf, corner_covariance), 0.0)
+    height_covariance = jnp.where(singular, jnp.inf, covariance[-2:, -2:])
+    return LayoutUncertainty(corner_covariance, height_covariance, safe_sqrt(row_variance), tau)

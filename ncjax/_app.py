@@ -197,7 +197,7 @@ def run_demo(args: argparse.Namespace) -> int:
     true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
     print(f"layout: {len(record['ceiling_corners'])} corners ({record['branch']} branch, explains "
           f"{100 * record['explained_fraction']:.0f}% of the boundary pixels), "
-          f"room height {record['room_height']:.3f} m (true {true_height:.3f} m), "
+          f"room height {record['room_height']:.3f} ± {record['room_height_sigma'] or math.inf:.3f} m (true {true_height:.3f} m), "
           f"floor area {record['floor_area']:.2f} m^2")
     found, true_count = len(record["ceiling_corners"]), len(truth["ceiling_corners"])
     corner_error = (

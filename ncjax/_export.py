@@ -14,8 +14,8 @@ folder and renames it over the target, so an existing file is replaced only by
 a complete one and nothing is left half-written.
 
 JSON schema, version 1 (lengths in metres, camera frame of DESIGN.md section 1,
-floats rounded to 6 decimals; quantities of a failed layout are ``null`` and its
-lists empty)::
+floats rounded to 6 decimals, covariances to 6 significant digits; quantities of a
+failed layout are ``null`` and its lists empty)::
 
     name, schema_version, ok, status (LayoutStatus name), status_code, world
     (requested: manhattan/atlanta/auto), branch (manhattan/atlanta),
@@ -26,6 +26,15 @@ lists empty)::
     (valid corners, image order), corner_columns (image column of each corner),
     walls [{direction, distance, length, inserted, ceiling_line, floor_line}, ...],
     then the caller's extra keys.
+
+Uncertainty (added in ncjax 0.1.0, same schema version; ``null`` where the fit does
+not determine it): corner_sigma (per corner, the RMS radius of its plan-position
+error, sqrt of the trace of its covariance), corner_covariance (per corner
+[[xx, xy], [xy, yy]], m^2), ceiling_height_sigma, floor_height_sigma and room_height_sigma. They are
+the first-order covariance of the final adjustment under the boundary rows' noise,
+estimated from its residuals and their correlation along the columns
+(:attr:`ncjax.Layout.corner_covariance`); a wrong wall structure (a missed or extra
+corner) is not part of them.
 
 Wall k runs from corner k to corner k + 1 (cyclic); ``length`` is that
 distance. ``direction`` [ux, uy] and ``distance`` d are the wall's line
@@ -49,6 +58,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float, Int, UInt8
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.patches import Ellipse
 from matplotlib.ticker import MultipleLocator
 
 from ._camera import NonCentralPanorama, project
@@ -114,12 +124,24 @@ def _number(x) -> float | None:
     return round(x, DECIMALS) + 0.0 if math.isfinite(x) else None
 
 
-def _numbers(array) -> list:
-    """Nested lists of :func:`_number` of an array."""
+def _numbers(array, number=_number) -> list:
+    """Nested lists of ``number`` (default :func:`_number`) of an array."""
     array = np.asarray(array, np.float64)
     if array.ndim == 0:
-        return _number(array)
-    return [_numbers(row) for row in array]
+        return number(array)
+    return [_numbers(row, number) for row in array]
+
+
+def room_height_sigma(layout: Layout) -> float:
+    """Standard deviation (m) of ``h_c - h_f`` under :attr:`ncjax.Layout.height_covariance` (inf or NaN if unknown)."""
+    (ceiling, both), (_, floor) = np.asarray(layout.height_covariance, np.float64)
+    return math.sqrt(max(ceiling + floor - 2 * both, 0.0)) if math.isfinite(ceiling + floor + both) else math.inf
+
+
+def _significant(x) -> float | None:
+    """A JSON number to DECIMALS significant digits (small variances keep their precision), ``None`` where not finite."""
+    x = float(x)
+    return float(f"{x:.{DECIMALS}g}") + 0.0 if math.isfinite(x) else None
 
 
 def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: str, extra: dict | None = None) -> dict:
@@ -167,6 +189,11 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
         "ceiling_corners": [],
         "floor_corners": [],
         "corner_columns": [],
+        "corner_sigma": [],
+        "corner_covariance": [],
+        "ceiling_height_sigma": None,
+        "floor_height_sigma": None,
+        "room_height_sigma": None,
         "walls": [],
     }
     if ok:
@@ -174,6 +201,8 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
         ceiling_height = float(np.asarray(layout.ceiling_height))
         floor_height = float(np.asarray(layout.floor_height))
         lengths = wall_lengths(floor[:, :2])
+        covariance = np.asarray(layout.corner_covariance, np.float64)[mask]
+        height_variance = np.diagonal(np.asarray(layout.height_covariance, np.float64))
         walls = [
             {
                 "direction": _numbers(direction),
@@ -201,6 +230,11 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
             ceiling_corners=_numbers(ceiling),
             floor_corners=_numbers(floor),
             corner_columns=_numbers(np.asarray(layout.corner_columns)[mask]),
+            corner_sigma=_numbers(np.sqrt(np.trace(covariance, axis1=-2, axis2=-1))),
+            corner_covariance=_numbers(covariance, _significant),
+            ceiling_height_sigma=_number(np.sqrt(height_variance[0])),
+            floor_height_sigma=_number(np.sqrt(height_variance[1])),
+            room_height_sigma=_number(room_height_sigma(layout)),
             walls=walls,
         )
     extra = {} if extra is None else extra
@@ -584,13 +618,34 @@ def _figure_to_rgb(figure: Figure) -> np.ndarray:
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
 
 
+CHI2_2D_95 = 5.991464547107979  # 95% quantile of the chi-square distribution with 2 degrees of freedom
+
+
+def corner_ellipses(covariance: Float[ArrayLike, "n 2 2"]) -> Float[np.ndarray, "n 3"]:
+    """Full width, full height and angle (degrees) of each corner's 95% ellipse (matplotlib's ``Ellipse``).
+
+    The ellipse ``e^T C^-1 e <= chi2_2(0.95)`` of a 2D Gaussian error with
+    covariance ``C``: semi-axes ``sqrt(chi2 lambda)`` along ``C``'s
+    eigenvectors. NaN for a covariance that is not finite.
+    """
+    covariance = np.asarray(covariance, np.float64).reshape(-1, 2, 2)
+    finite = np.all(np.isfinite(covariance), axis=(1, 2))
+    values, vectors = np.linalg.eigh(np.where(finite[:, None, None], covariance, np.eye(2)))
+    axes = 2 * np.sqrt(CHI2_2D_95 * np.maximum(values, 0.0))
+    angle = np.degrees(np.arctan2(vectors[:, 1, 1], vectors[:, 0, 1]))
+    ellipses = np.stack([axes[:, 1], axes[:, 0], angle], -1)
+    return np.where(finite[:, None], ellipses, np.nan)
+
+
 def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UInt8[np.ndarray, "H W 3"]:
     """The top-down floor plan: x right, y up, metres, camera at the origin.
 
     Walls are lines with their length written at their middle (inserted walls
-    dashed), the origin is marked, and the circle of optical centres is drawn
-    if ``rc`` is given. The title gives the ceiling and floor heights, the
-    room height and the floor area. A failed layout gives a figure saying
+    dashed), each corner carries the ellipse that holds its true position with
+    95% probability under :attr:`ncjax.Layout.corner_covariance`, the origin
+    is marked, and the circle of optical centres is drawn if ``rc`` is given.
+    The title gives the ceiling and floor heights, the room height (with its
+    standard deviation) and the floor area. A failed layout gives a figure saying
     "no layout: <status>". Matplotlib's Agg canvas is used directly: no
     pyplot state is left behind.
 
@@ -629,11 +684,19 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         )
         middle = (start + end) / 2
         axes.annotate(f"{lengths[k]:.2f} m", middle, ha="center", va="center", fontsize=8, bbox={"fc": "white", "ec": "none", "alpha": 0.8})
+    covariance = np.asarray(layout.corner_covariance, np.float64)[np.asarray(layout.mask, bool)]
+    for centre, (width, height, angle) in zip(plan, corner_ellipses(covariance)):
+        if np.isfinite(width):
+            axes.add_patch(
+                Ellipse(centre, width, height, angle=angle, facecolor="tab:orange", alpha=0.35, edgecolor="tab:orange",
+                        label="95% corner region")
+            )
     axes.plot([0.0], [0.0], marker="+", color="black", markersize=10, linestyle="none", label="origin")
     if rc is not None:
         angle = np.linspace(0.0, 2 * np.pi, 90)
         axes.plot(rc * np.cos(angle), rc * np.sin(angle), color="black", linewidth=1, label=f"camera (rc = {rc:.2f} m)")
     handles, labels = axes.get_legend_handles_labels()
+    axes.autoscale_view()
     unique = dict(zip(labels, handles))  # one legend entry per kind of line
     axes.legend(unique.values(), unique.keys(), loc="best", fontsize=8)
 
@@ -645,8 +708,10 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     axes.set_ylabel("y (m)")
     ceiling_height = float(np.asarray(layout.ceiling_height))
     floor_height = float(np.asarray(layout.floor_height))
+    height_sigma = room_height_sigma(layout)
+    spread = f" ± {height_sigma:.2f}" if math.isfinite(height_sigma) else ""
     summary = (
-        f"ceiling {ceiling_height:.2f} m, floor {floor_height:.2f} m, height {ceiling_height - floor_height:.2f} m, "
+        f"ceiling {ceiling_height:.2f} m, floor {floor_height:.2f} m, height {ceiling_height - floor_height:.2f}{spread} m, "
         f"area {abs(signed_area(plan)):.2f} m²"
     )
     axes.set_title(f"{title}\n{summary}" if title else summary, fontsize=10)

@@ -47,8 +47,10 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ._adjust import (
     BoundaryObservations,
+    LayoutUncertainty,
     adjust_layout,
     layout_residuals,
+    layout_uncertainty,
     loop_corners,
     manhattan_directions,
     previous_walls,
@@ -63,6 +65,8 @@ from ._reprojection import boundary_points, fit_plan_line, wall_boundary_rows, w
 from ._wall import Wall, canonical_orientation
 
 WORLDS = ("manhattan", "atlanta", "auto")
+# longest lag (columns of a 1024-wide panorama) over which the boundary rows' errors count as correlated
+_CORRELATION_COLUMNS = 64.0
 
 
 class LayoutStatus(enum.IntEnum):
@@ -201,6 +205,12 @@ class Layout(eqx.Module):
             rows that the layout reprojects within ``PipelineConfig.inlier_threshold``
             (a quality indicator: on our test renders the 3D IoU grows with it;
             ``world="auto"`` compares the branches by it).
+        corner_covariance: (K, 2, 2) first-order covariance (m^2) of each corner's
+            plan position under the boundary rows' noise, estimated from the
+            final adjustment's residuals and their correlation along the columns
+            (:func:`ncjax._adjust.layout_uncertainty`); infinite when the fit
+            does not determine it. It does not cover a wrong wall structure.
+        height_covariance: (2, 2) covariance (m^2) of ``(h_c, h_f)``, likewise.
         status: :class:`LayoutStatus` code (int32).
         ok: ``status == OK``; corners of a failed layout are finite but meaningless.
     """
@@ -218,6 +228,8 @@ class Layout(eqx.Module):
     corner_columns: Float[Array, "*batch K"]
     manhattan: Bool[Array, "*batch"]
     explained_fraction: Float[Array, "*batch"]
+    corner_covariance: Float[Array, "*batch K 2 2"]
+    height_covariance: Float[Array, "*batch 2 2"]
     status: Int[Array, "*batch"]
     ok: Bool[Array, "*batch"]
 
@@ -609,8 +621,9 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
     """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again.
 
     Returns:
-        The adjusted walls (:func:`ncjax._adjust.adjust_layout`) and the fraction of the usable
-        columns' ceiling and floor rows they reproject within ``inlier_threshold``.
+        The adjusted walls (:func:`ncjax._adjust.adjust_layout`), the fraction of the usable
+        columns' ceiling and floor rows they reproject within ``inlier_threshold``, and their
+        :func:`ncjax._adjust.layout_uncertainty` on the rows of the second adjustment.
     """
     observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
     adjusted = adjust_layout(
@@ -624,12 +637,14 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
         observations.floor_used & (jnp.abs(floor_error) < threshold),
     )
     adjusted = adjust_layout(cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps)
+    max_lag = max(1, round(_scaled(_CORRELATION_COLUMNS, cam.width, 1024) / config.adjustment_stride))
+    uncertainty = layout_uncertainty(cam, inliers, *adjusted[:4], labels, config.corner_weight, max_lag)
     # every usable column counts, on whichever wall this layout gives it, so that the two branches compare
     usable = evidence.usable[:: config.adjustment_stride]
     seen = usable & (observations.column_wall >= 0)
     ceiling_error, floor_error = _row_errors(cam, _using(observations, seen, seen), adjusted[:4])
     explained = jnp.sum(seen & (jnp.abs(ceiling_error) < threshold)) + jnp.sum(seen & (jnp.abs(floor_error) < threshold))
-    return adjusted, explained / jnp.maximum(2 * jnp.sum(usable), 1)
+    return adjusted, explained / jnp.maximum(2 * jnp.sum(usable), 1), uncertainty
 
 
 def _corner_directions(cam: NonCentralPanorama, columns: Float[Array, " K"]) -> Float[Array, "K 2"]:
@@ -711,11 +726,11 @@ def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
         evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, manhattan_directions(yaw, wall_labels)
     )
     distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
-    adjusted, explained = _refine(
+    adjusted, explained, uncertainty = _refine(
         cam, evidence, final, ceiling_v, floor_v, solved.directions, distances,
         solved.ceiling_height, solved.floor_height, wall_labels, config,
     )
-    return _assemble(cam, evidence, final, *adjusted[:4], explained, heights.ok & solved.ok, True, config)
+    return _assemble(cam, evidence, final, *adjusted[:4], explained, uncertainty, heights.ok & solved.ok, True, config)
 
 
 def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Array, "K 2"]:
@@ -751,11 +766,11 @@ def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     directions = _plan_lines(cam, evidence, final, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
     solved = solve_atlanta_layout(evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, directions)
     directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
-    adjusted, explained = _refine(
+    adjusted, explained, uncertainty = _refine(
         cam, evidence, final, ceiling_v, floor_v, directions, distances,
         solved.ceiling_height, solved.floor_height, None, config,
     )
-    return _assemble(cam, evidence, final, *adjusted[:4], explained, heights.ok & solved.ok, False, config)
+    return _assemble(cam, evidence, final, *adjusted[:4], explained, uncertainty, heights.ok & solved.ok, False, config)
 
 
 def _assemble(
@@ -767,6 +782,7 @@ def _assemble(
     ceiling_height: Float[Array, ""],
     floor_height: Float[Array, ""],
     explained_fraction: Float[Array, ""],
+    uncertainty: LayoutUncertainty,
     solver_ok: Bool[Array, ""],
     manhattan: bool,
     config: PipelineConfig,
@@ -812,6 +828,8 @@ def _assemble(
         corner_columns=jnp.where(mask, final.corner_columns, 0.0),
         manhattan=jnp.array(manhattan),
         explained_fraction=explained_fraction,
+        corner_covariance=uncertainty.corner_covariance,
+        height_covariance=uncertainty.height_covariance,
         status=status,
         ok=status == LayoutStatus.OK,
     )

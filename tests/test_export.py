@@ -12,6 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import shapely
 import trimesh
 
@@ -62,6 +64,8 @@ def make_layout(plan, ceiling_height=H_C, floor_height=H_F, *, inserted=(), capa
         corner_columns=f32(pad(columns)),
         manhattan=jnp.asarray(manhattan),
         explained_fraction=f32(0.9),
+        corner_covariance=f32(pad(np.tile(np.diag([4e-4, 1e-4]), (n, 1, 1)))),
+        height_covariance=f32(np.diag([1e-4, 4e-4])),
         status=jnp.asarray(status, jnp.int32),
         ok=jnp.asarray(status == 0),
     )
@@ -92,6 +96,10 @@ def test_record_of_a_rectangle(tmp_path):
     assert record["ceiling_corners"] == [[x, y, 1.0] for x, y in RECTANGLE]
     assert record["floor_corners"] == [[x, y, -1.5] for x, y in RECTANGLE]
     assert len(record["corner_columns"]) == 4 and not any(wall["inserted"] for wall in record["walls"])
+    assert record["corner_sigma"] == [round(math.sqrt(5e-4), 6)] * 4
+    assert record["corner_covariance"] == [[[pytest.approx(4e-4), 0.0], [0.0, pytest.approx(1e-4)]]] * 4
+    assert (record["ceiling_height_sigma"], record["floor_height_sigma"]) == (pytest.approx(0.01), pytest.approx(0.02))
+    assert record["room_height_sigma"] == round(math.sqrt(5e-4), 6)
     # Canonical walls: camera on the left, distance <= 0; the far wall y = 1.8 runs towards -x.
     assert record["walls"][0]["direction"] == [-1.0, 0.0] and record["walls"][0]["distance"] == -1.8
     path = tmp_path / "room.json"
@@ -105,6 +113,7 @@ def test_failed_layout_record_is_strict_json(tmp_path):
     assert record["ok"] is False and record["status"] == "DEGENERATE_LAYOUT" and record["status_code"] == 8
     assert record["ceiling_corners"] == record["floor_corners"] == record["walls"] == []
     assert record["ceiling_height"] is None and record["floor_area"] is None
+    assert record["corner_sigma"] == record["corner_covariance"] == [] and record["ceiling_height_sigma"] is None
     text = json.dumps(record, allow_nan=False)
     assert "NaN" not in text
     export.write_json(tmp_path / "bad.json", record)
@@ -307,6 +316,26 @@ def test_overlay_checks_sizes_and_draws_failed_layouts():
 
 
 # --- floor plan ------------------------------------------------------------------------------------------
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-89.0, 89.0), st.floats(1e-4, 1.0), st.floats(1e-4, 1.0))
+def test_corner_ellipses_hold_95_percent(angle, major, minor):
+    major, minor = max(major, minor), min(major, minor)
+    turn = np.radians(angle)
+    rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    covariance = rotation @ np.diag([major, minor]) @ rotation.T
+    (width, height, got), = export.corner_ellipses(covariance[None])
+    np.testing.assert_allclose([width, height], 2 * np.sqrt(5.991464547107979 * np.array([major, minor])), rtol=1e-6)
+    if major > 1.001 * minor:  # the orientation of a circle is arbitrary
+        assert abs((got - angle + 90) % 180 - 90) < 1e-3
+    samples = np.random.default_rng(0).multivariate_normal([0, 0], covariance, 20000)
+    half_width, half_height = width / 2, height / 2
+    along = samples @ np.array([np.cos(np.radians(got)), np.sin(np.radians(got))])
+    across = samples @ np.array([-np.sin(np.radians(got)), np.cos(np.radians(got))])
+    inside = (along / half_width) ** 2 + (across / half_height) ** 2 <= 1
+    assert abs(np.mean(inside) - 0.95) < 0.01
+    assert np.all(np.isnan(export.corner_ellipses(np.full((1, 2, 2), np.inf))))
 
 
 def test_plan_images():

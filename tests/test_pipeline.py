@@ -17,7 +17,14 @@ import ncjax
 from ncjax import metrics
 from ncjax._corners import column_walls, find_corners, is_peak
 from ncjax._plucker import wall_planes_meet
-from ncjax._adjust import BoundaryObservations, _boundary_residuals_fast_jvp, adjust_layout, boundary_residuals
+from ncjax._adjust import (
+    BoundaryObservations,
+    _boundary_residuals_fast_jvp,
+    adjust_layout,
+    boundary_residuals,
+    layout_uncertainty,
+    loop_corners,
+)
 from ncjax._pipeline import _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
@@ -142,6 +149,52 @@ def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride):
     np.testing.assert_allclose(np.abs(np.sum(u * directions, -1))[seen], 1.0, atol=1e-5)
     np.testing.assert_allclose(np.abs(d)[seen], np.abs(distances)[seen], rtol=1e-3)
     np.testing.assert_allclose([h_c, h_f], [room.ceiling_height, room.floor_height], rtol=1e-3)
+
+
+SMOOTHING = 9  # columns averaged into one noise value: errors correlated along the wall like a network's
+
+
+@pytest.mark.parametrize("manhattan", [True, False])
+def test_layout_uncertainty_matches_monte_carlo(manhattan):
+    """Rows of a known room with 1 px noise, white or averaged over ``SMOOTHING`` columns: the predicted
+    corner covariance matches the spread of the adjusted corners over the draws."""
+    batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
+    room, label = pick(batch, 2), pick(labels, 2)
+    cam = room.camera(WIDTH, HEIGHT)
+    directions, distances = ncjax.room_walls(room)[:2]
+    wall_labels, _ = manhattan_frame(directions, room.mask.astype(directions.dtype))
+    wall_labels = wall_labels if manhattan else None
+    used = jnp.ones(WIDTH, bool)
+    draws = 48
+    white = jax.random.normal(jax.random.key(1), (draws, 2, WIDTH))
+    samples = jax.random.normal(jax.random.key(2), (draws, 2, WIDTH + SMOOTHING - 1))
+    box = jnp.ones(SMOOTHING) / math.sqrt(SMOOTHING)  # unit variance after averaging
+    smooth = jax.vmap(jax.vmap(lambda x: jnp.convolve(x, box, mode="valid")))(samples)
+
+    def one(noise):
+        observations = BoundaryObservations(
+            columns=jnp.arange(WIDTH), ceiling_v=label.ceiling_v + noise[0], floor_v=label.floor_v + noise[1],
+            ceiling_used=used, floor_used=used, column_wall=label.wall_index, corner_columns=jnp.zeros(len(room.mask)),
+            corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
+        )
+        walls = adjust_layout(cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
+        corners, _ = loop_corners(walls[0], walls[1], room.mask)
+        return corners, layout_uncertainty(cam, observations, *walls, wall_labels)
+
+    corners, uncertainty = jax.jit(jax.vmap(one))(jnp.concatenate([white, smooth]))
+    truth, _ = loop_corners(directions, distances, room.mask)
+    for kind, expected_tau in ((slice(None, draws), 1.0), (slice(draws, None), SMOOTHING)):
+        error = (corners[kind] - truth)[:, room.mask]  # (draws, corners, 2)
+        covariance = uncertainty.corner_covariance[kind][:, room.mask]
+        # squared Mahalanobis distances: chi-square with 2 degrees of freedom if calibrated. Medians and
+        # quantiles, not means: where two walls meet at a shallow angle the corner's error has heavy tails.
+        mahalanobis = np.einsum("dki,dkij,dkj->dk", error, np.linalg.inv(covariance), error)
+        assert 0.9 < np.median(mahalanobis) < 2.1, np.median(mahalanobis)  # chi-square median: 2 ln 2 = 1.39
+        assert 0.88 < np.mean(mahalanobis < 5.991) < 0.99  # its 95% quantile
+        # a box average of n white samples has tau = 1 + 2 sum_k (1 - k / n) = n
+        tau = np.median(uncertainty.correlation_time[kind])
+        assert 0.75 * expected_tau < tau < 1.25 * expected_tau, tau
+        np.testing.assert_allclose(np.median(uncertainty.row_sigma[kind]), 1.0, rtol=0.15)
 
 
 # --- forward model of the boundaries ------------------------------------------------------------
