@@ -127,10 +127,19 @@ def row(samples, layouts, truths) -> dict:
         "sigma_median": float(np.median(corner_sigma)) if corner_sigma else math.nan,
         "miss_median": float(np.median(corner_miss)) if corner_miss else math.nan,
         "height_within": 100 * float(np.mean(height_within)) if height_within else math.nan,
+        "rank_correlation": rank_correlation(corner_sigma, corner_miss),
         "iou_by_explained": ", ".join(
             f"{_bin_name(b)}: {100 * np.mean(by_explained[b]):.1f}% ({len(by_explained[b])})" for b in sorted(by_explained)
         ),
     }
+
+
+def rank_correlation(x, y) -> float:
+    """Spearman's rank correlation (ties broken by order): does a larger sigma go with a larger error?"""
+    if len(x) < 3:
+        return math.nan
+    ranks = [np.argsort(np.argsort(np.asarray(v, np.float64))) for v in (x, y)]
+    return float(np.corrcoef(*ranks)[0, 1])
 
 
 def corner_calibration(layout, truth, shift: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -186,7 +195,7 @@ def main(argv=None):
             )
             calibration.append(
                 f"| {world} | {source} | {r['in_ellipse']:.1f} | {r['sigma_median']:.3f} | {r['miss_median']:.3f} | "
-                f"{r['height_within']:.1f} |"
+                f"{r['rank_correlation']:.2f} | {r['height_within']:.1f} |"
             )
             if source == "network":
                 quality.append(f"- {world}: 3D IoU of the ok layouts by explained fraction (rooms): {r['iou_by_explained']}")
@@ -195,7 +204,8 @@ def main(argv=None):
         + ["", "Is `Layout.explained_fraction` a quality indicator? Network input:", *quality]
         + ["", "Are the layouts' covariances calibrated? (rooms with the true corner count; 95% expected)", "",
            "| world | input | corners in their 95% ellipse (%) | corner sigma median (m) | corner error median (m) | "
-           "room heights within 1.96 sigma (%) |", "| --- | --- | --- | --- | --- | --- |", *calibration]
+           "rank correlation sigma / error | room heights within 1.96 sigma (%) |", "| --- | --- | --- | --- | --- | --- | --- |",
+           *calibration]
     )
     print(table)
     print(f"total time {time.time() - start:.0f} s")

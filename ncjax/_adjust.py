@@ -34,13 +34,14 @@ import math
 import equinox as eqx
 import jax
 import jax.flatten_util
+import jax.scipy.linalg
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel
-from ._plucker import safe_sqrt, wall_planes_meet
+from ._plucker import safe_norm, safe_sqrt, wall_planes_meet
 from ._reprojection import wall_boundary_rows
 
 
@@ -344,12 +345,14 @@ def correlation_time(
     them as independent would make the covariance far too small.
     """
     variance = jnp.sum(jnp.where(used, rows * rows, 0.0)) / jnp.maximum(jnp.sum(used), 1)
-    correlations = []
-    for lag in range(1, max_lag + 1):
-        pair = used[:, :-lag] & used[:, lag:] & (column_wall[:-lag] == column_wall[lag:])[None, :]
-        product = jnp.sum(jnp.where(pair, rows[:, :-lag] * rows[:, lag:], 0.0)) / jnp.maximum(jnp.sum(pair), 1)
-        correlations.append(product / jnp.where(variance > 0, variance, 1.0))
-    correlations = jnp.stack(correlations)
+
+    def correlation(lag):
+        # cyclic: the last column of a panorama neighbours the first
+        pair = used & jnp.roll(used, -lag, 1) & (column_wall == jnp.roll(column_wall, -lag))[None, :]
+        product = jnp.sum(jnp.where(pair, rows * jnp.roll(rows, -lag, 1), 0.0)) / jnp.maximum(jnp.sum(pair), 1)
+        return product / jnp.where(variance > 0, variance, 1.0)
+
+    correlations = jax.lax.map(correlation, jnp.arange(1, max_lag + 1))
     counted = jnp.cumprod(correlations > 0)
     return 1.0 + 2.0 * jnp.sum(counted * correlations)
 
@@ -368,6 +371,12 @@ class LayoutUncertainty(eqx.Module):
     height_covariance: Float[Array, "2 2"]
     row_sigma: Float[Array, ""]
     correlation_time: Float[Array, ""]
+
+
+def not_computed(capacity: int, dtype) -> LayoutUncertainty:
+    """A :class:`LayoutUncertainty` of NaNs, for a pipeline configured without covariances."""
+    nan = lambda *shape: jnp.full(shape, jnp.nan, dtype)  # noqa: E731
+    return LayoutUncertainty(nan(capacity, 2, 2), nan(2, 2), nan(), nan())
 
 
 def layout_uncertainty(
@@ -412,8 +421,15 @@ def layout_uncertainty(
     free = 2 + walls + jnp.where(problem.free_angles, walls, 1)
     row_variance = jnp.sum(jnp.where(used, rows * rows, 0.0)) / jnp.maximum(jnp.sum(used) - free, 1)
     tau = correlation_time(rows, used, observations.column_wall, max_lag)
-    covariance = tau * row_variance * jnp.linalg.inv(jacobian.T @ jacobian)
-    singular = ~jnp.all(jnp.isfinite(covariance))
+    # unit columns first: angles (radians) and lengths (metres) differ in scale, and float32
+    # inverts the equilibrated normal matrix far more accurately (no negative variances)
+    norms = safe_norm(jacobian.T)
+    scale = jnp.where(norms > 0, 1.0 / jnp.where(norms > 0, norms, 1.0), 0.0)
+    unit = jacobian * scale[None, :]
+    cholesky = jnp.linalg.cholesky(unit.T @ unit)
+    inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))
+    covariance = tau * row_variance * scale[:, None] * inverse * scale[None, :]
+    singular = ~jnp.all(jnp.isfinite(covariance)) | jnp.any(norms == 0)
     covariance = jnp.where(singular, 0.0, covariance)
 
     def corners(f):

@@ -52,6 +52,7 @@ from ._adjust import (
     layout_residuals,
     layout_uncertainty,
     loop_corners,
+    not_computed,
     manhattan_directions,
     previous_walls,
     manhattan_yaw,
@@ -66,7 +67,7 @@ from ._wall import Wall, canonical_orientation
 
 WORLDS = ("manhattan", "atlanta", "auto")
 # longest lag (columns of a 1024-wide panorama) over which the boundary rows' errors count as correlated
-_CORRELATION_COLUMNS = 64.0
+_CORRELATION_COLUMNS = 256.0
 
 
 class LayoutStatus(enum.IntEnum):
@@ -122,6 +123,9 @@ class PipelineConfig:
         adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
         adjustment_stride: the adjustment fits every this-many-th column (1:
             all); its cost is proportional to the number of columns it fits.
+        covariance: compute ``Layout.corner_covariance`` and ``height_covariance``
+            (a Jacobian of the final adjustment, roughly a tenth of the pipeline's
+            time); False leaves them NaN.
         min_finite_fraction: fraction of columns with finite rows needed.
         max_room_height: a layout whose ceiling is more than this above its
             floor (metres) is implausible (DEGENERATE_LAYOUT), e.g. a wall fit
@@ -148,6 +152,7 @@ class PipelineConfig:
     corner_weight: float = 1.0
     adjustment_steps: int = 8
     adjustment_stride: int = 1
+    covariance: bool = True
     min_finite_fraction: float = 0.5
     max_room_height: float = 10.0
     max_corner_distance: float = 50.0
@@ -209,7 +214,12 @@ class Layout(eqx.Module):
             plan position under the boundary rows' noise, estimated from the
             final adjustment's residuals and their correlation along the columns
             (:func:`ncjax._adjust.layout_uncertainty`); infinite when the fit
-            does not determine it. It does not cover a wrong wall structure.
+            does not determine it, NaN with ``PipelineConfig(covariance=False)``.
+            Calibrated for rows with independent or short-range correlated
+            noise; a network's errors are correlated over whole walls and partly
+            absorbed by the fit, so there the ellipses are too small (about 55%
+            of the true corners inside the 95% ellipse on our test renders). It
+            does not cover a wrong wall structure.
         height_covariance: (2, 2) covariance (m^2) of ``(h_c, h_f)``, likewise.
         status: :class:`LayoutStatus` code (int32).
         ok: ``status == OK``; corners of a failed layout are finite but meaningless.
@@ -637,8 +647,11 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
         observations.floor_used & (jnp.abs(floor_error) < threshold),
     )
     adjusted = adjust_layout(cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps)
-    max_lag = max(1, round(_scaled(_CORRELATION_COLUMNS, cam.width, 1024) / config.adjustment_stride))
-    uncertainty = layout_uncertainty(cam, inliers, *adjusted[:4], labels, config.corner_weight, max_lag)
+    if config.covariance:
+        max_lag = max(1, round(_scaled(_CORRELATION_COLUMNS, cam.width, 1024) / config.adjustment_stride))
+        uncertainty = layout_uncertainty(cam, inliers, *adjusted[:4], labels, config.corner_weight, max_lag)
+    else:
+        uncertainty = not_computed(distances.shape[0], distances.dtype)
     # every usable column counts, on whichever wall this layout gives it, so that the two branches compare
     usable = evidence.usable[:: config.adjustment_stride]
     seen = usable & (observations.column_wall >= 0)

@@ -108,6 +108,17 @@ def test_record_of_a_rectangle(tmp_path):
     assert "-0.0," not in path.read_text() and "-0.0]" not in path.read_text()
 
 
+def test_record_without_covariances():
+    layout = make_layout(RECTANGLE)
+    nan = jnp.full_like(layout.corner_covariance, jnp.nan)  # PipelineConfig(covariance=False)
+    layout = ncjax.Layout(**{**vars(layout), "corner_covariance": nan, "height_covariance": nan[0]})
+    record = export.layout_record(layout, CAM, name="room", world="auto")
+    assert record["corner_sigma"] == [None] * 4 and record["corner_covariance"] == [[[None, None]] * 2] * 4
+    assert record["ceiling_height_sigma"] is record["room_height_sigma"] is None
+    json.dumps(record, allow_nan=False)
+    assert export.draw_plan(layout).shape == (600, 600, 3)
+
+
 def test_failed_layout_record_is_strict_json(tmp_path):
     record = export.layout_record(failed_layout(), CAM, name="bad", world="manhattan")
     assert record["ok"] is False and record["status"] == "DEGENERATE_LAYOUT" and record["status_code"] == 8

@@ -267,6 +267,8 @@ def test_batch_auto_world_and_shapes():
     stacked = [jnp.stack([x, x]) for x in (label.ceiling_v, label.floor_v, label.corner_target)]
     layout = ncjax.layout_from_boundaries(*stacked, room.camera(WIDTH, HEIGHT), world="auto")
     assert layout.ceiling_corners.shape == (2, 32, 3) and layout.mask.shape == (2, 32) and layout.ok.shape == (2,)
+    assert layout.corner_covariance.shape == (2, 32, 2, 2) and layout.height_covariance.shape == (2, 2, 2)
+    assert bool(jnp.all(jnp.isfinite(layout.corner_covariance)))
     assert bool(jnp.all(layout.ok)) and bool(jnp.all(layout.manhattan))
     np.testing.assert_allclose(layout.ceiling_corners[0], layout.ceiling_corners[1], atol=1e-5)
 
