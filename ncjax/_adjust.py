@@ -339,8 +339,8 @@ def correlation_time(
 
     ``rho_k`` is the correlation of the residuals of two used rows ``k``
     observations apart on one wall (ceiling and floor pooled). The sum stops
-    before the first ``rho_k <= 0`` (Geyer's initial positive sequence) or at
-    ``max_lag`` (static). ``N / tau`` is the effective number of independent
+    before the first ``rho_k <= 0`` (a simple form of Geyer's initial positive
+    sequence: past it the estimates are noise) or at ``max_lag`` (static). ``N / tau`` is the effective number of independent
     rows: a network's boundary errors are smooth along a wall, and treating
     them as independent would make the covariance far too small.
     """
