@@ -52,10 +52,10 @@ from ._adjust import (
     layout_residuals,
     layout_uncertainty,
     loop_corners,
-    not_computed,
     manhattan_directions,
-    previous_walls,
     manhattan_yaw,
+    not_computed,
+    previous_walls,
 )
 from ._camera import NonCentralPanorama, pixel_to_angles, pixel_to_ray
 from ._corners import column_walls, distance_to_corners, find_corners, side_extrapolation
@@ -124,8 +124,8 @@ class PipelineConfig:
         adjustment_stride: the adjustment fits every this-many-th column (1:
             all); its cost is proportional to the number of columns it fits.
         covariance: compute ``Layout.corner_covariance`` and ``height_covariance``
-            (a Jacobian of the final adjustment, roughly a tenth of the pipeline's
-            time); False leaves them NaN.
+            (a Jacobian of the final adjustment: 10-20% of the batched throughput
+            in our benchmark); False leaves them NaN.
         min_finite_fraction: fraction of columns with finite rows needed.
         max_room_height: a layout whose ceiling is more than this above its
             floor (metres) is implausible (DEGENERATE_LAYOUT), e.g. a wall fit
