@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float
 
 from ._linalg import divide_if_significant, scaled_null_space
 from ._plucker import safe_norm

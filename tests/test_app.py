@@ -1,14 +1,12 @@
 """The product: reading panoramas, ``ncjax reconstruct`` (outputs, bad input, exit codes) and ``ncjax demo``."""
 
 import json
-import os
 import pathlib
 
 import cv2
 import numpy as np
 import pytest
 
-import ncjax
 from ncjax import cli
 from ncjax._app import DEMO_DIR
 from ncjax._images import PanoramaError, read_panorama
