@@ -41,6 +41,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel
+from ._linalg import inverse_or_zero
 from ._plucker import safe_norm, safe_sqrt, wall_planes_meet
 from ._reprojection import wall_boundary_rows
 
@@ -340,9 +341,10 @@ def correlation_time(
     ``rho_k`` is the correlation of the residuals of two used rows ``k``
     observations apart on one wall (ceiling and floor pooled). The sum stops
     before the first ``rho_k <= 0`` (a simple form of Geyer's initial positive
-    sequence: past it the estimates are noise) or at ``max_lag`` (static). ``N / tau`` is the effective number of independent
-    rows: a network's boundary errors are smooth along a wall, and treating
-    them as independent would make the covariance far too small.
+    sequence: past it the estimates are noise) or at ``max_lag`` (static).
+    ``N / tau`` is the effective number of independent rows: a network's
+    boundary errors are smooth along a wall, and treating them as independent
+    would make the covariance far too small.
     """
     variance = jnp.sum(jnp.where(used, rows * rows, 0.0)) / jnp.maximum(jnp.sum(used), 1)
 
@@ -412,19 +414,19 @@ def layout_uncertainty(
     problem = _layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
     residuals = lambda f: _problem_residuals(problem, unravel(f), cam, observations, corner_weight)  # noqa: E731
-    jacobian = jax.jacfwd(residuals)(flat)
+    # the residuals at the layout come out of the same forward-mode pass as their Jacobian
+    jacobian, values = jax.jacfwd(lambda f: (residuals(f),) * 2, has_aux=True)(flat)
     count = observations.columns.shape[0]
-    values = residuals(flat)
     rows = jnp.stack([values[:count], values[count : 2 * count]])
     used = jnp.stack([observations.ceiling_used, observations.floor_used])
     walls = jnp.sum(observations.wall_mask)
-    free = 2 + walls + jnp.where(problem.free_angles, walls, 1)
+    free = 2 + walls + (walls if problem.free_angles else 1)
     row_variance = jnp.sum(jnp.where(used, rows * rows, 0.0)) / jnp.maximum(jnp.sum(used) - free, 1)
     tau = correlation_time(rows, used, observations.column_wall, max_lag)
     # unit columns first: angles (radians) and lengths (metres) differ in scale, and float32
     # inverts the equilibrated normal matrix far more accurately (no negative variances)
     norms = safe_norm(jacobian.T)
-    scale = jnp.where(norms > 0, 1.0 / jnp.where(norms > 0, norms, 1.0), 0.0)
+    scale = inverse_or_zero(norms)
     unit = jacobian * scale[None, :]
     cholesky = jnp.linalg.cholesky(unit.T @ unit)
     inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))

@@ -133,7 +133,7 @@ def _numbers(array, number=_number) -> list:
 
 
 def room_height_sigma(layout: Layout) -> float:
-    """Standard deviation (m) of ``h_c - h_f`` under :attr:`ncjax.Layout.height_covariance` (inf or NaN if unknown)."""
+    """Standard deviation (m) of ``h_c - h_f`` under :attr:`ncjax.Layout.height_covariance` (inf if unknown)."""
     (ceiling, both), (_, floor) = np.asarray(layout.height_covariance, np.float64)
     return math.sqrt(max(ceiling + floor - 2 * both, 0.0)) if math.isfinite(ceiling + floor + both) else math.inf
 

@@ -216,6 +216,12 @@ def _unit_rows(a: Array) -> Array:
     return a / jnp.where(norm > 0, norm, 1.0)[:, None]
 
 
+def inverse_or_zero(x: Array) -> Array:
+    """``1 / x`` where ``x > 0``, else 0 (no inf or NaN, and a finite gradient, in traced code)."""
+    positive = x > 0
+    return jnp.where(positive, 1.0 / jnp.where(positive, x, 1.0), 0.0)
+
+
 def _inverse_or_one(norm: Array) -> Array:
     return 1.0 / jnp.where(norm > 0, norm, 1.0)
 

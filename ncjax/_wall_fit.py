@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._linalg import divide_if_significant, scaled_null_space
+from ._linalg import divide_if_significant, inverse_or_zero, scaled_null_space
 from ._plucker import safe_norm
 
 
@@ -51,11 +51,6 @@ def rotate_2d(vector: Float[Array, "*batch 2"], angle: Float[Array, "*#batch"]) 
 # --------------------------------------------------------------------------
 # Linear initial solve
 # --------------------------------------------------------------------------
-
-
-def _inverse_or_zero(x: Array) -> Array:
-    positive = x > 0
-    return jnp.where(positive, 1.0 / jnp.where(positive, x, 1.0), 0.0)
 
 
 def linear_walls(
@@ -82,11 +77,11 @@ def linear_walls(
     Returns:
         ``(x, d)``: shared unknowns and distances (0 for walls without rows), one homogeneous scale.
     """
-    row_scale = _inverse_or_zero(safe_norm(jnp.concatenate([shared, distance[:, None]], -1)))
+    row_scale = inverse_or_zero(safe_norm(jnp.concatenate([shared, distance[:, None]], -1)))
     shared = shared * row_scale[:, None]
     distance = distance * row_scale
     weights = one_hot.astype(shared.dtype) * distance[:, None]  # (m, K)
-    inverse = _inverse_or_zero(jnp.sum(weights * weights, 0))  # 1 / (a_k^T a_k)
+    inverse = inverse_or_zero(jnp.sum(weights * weights, 0))  # 1 / (a_k^T a_k)
     coupling = inverse[:, None] * (weights.T @ shared)  # (K, n)
     projected = shared - weights @ coupling
     x = scaled_null_space(projected, 1)[:, 0]
@@ -128,7 +123,7 @@ def column_geometry(rays: Float[Array, "m 6"]) -> tuple[Float[Array, "m 2"], Flo
     """
     cos_phi = safe_norm(rays[:, 0:2])
     sin_phi = rays[:, 2]
-    a = rays[:, 0:2] * _inverse_or_zero(cos_phi)[:, None]
+    a = rays[:, 0:2] * inverse_or_zero(cos_phi)[:, None]
     readable = jnp.abs(sin_phi) > jnp.sqrt(jnp.finfo(rays.dtype).eps)
     moment = rays[:, 3] * a[:, 1] - rays[:, 4] * a[:, 0]
     rc = jnp.where(readable, moment / jnp.where(readable, sin_phi, 1.0), 0.0)
@@ -212,7 +207,7 @@ def gauss_newton_step(
     # normal equations [[A, C], [C^T, diag(D)]] delta = -[b, e]
     a = shared.T @ shared
     c = shared.T @ weights
-    inverse = _inverse_or_zero(jnp.sum(weights * weights, 0))
+    inverse = inverse_or_zero(jnp.sum(weights * weights, 0))
     b = shared.T @ residual
     e = weights.T @ residual
     complement = a - (c * inverse[None, :]) @ c.T
