@@ -17,10 +17,12 @@ through the implicit-function theorem (optimistix's default ``ImplicitAdjoint``)
 Dogleg rather than ``optx.LevenbergMarquardt``: same tests and accuracy checks, about
 twice as fast here (its Newton and Cauchy steps are computed once per accepted point,
 Levenberg-Marquardt solves again for every damping). Its Newton step solves the normal
-equations by Cholesky (``lineax.Normal(lineax.Cholesky())``) instead of the default QR
-of the ``(2 W + 2 K) x P`` Jacobian, and each column's residuals carry a JVP through
-their local Jacobian (:func:`_local_jacobian_jvp`): the same steps on our test rooms,
-25-30% less time per panorama for the branch stage (experiments/RESULTS.md).
+equations by Cholesky with :class:`ncjax._sparse_normal.SparseNormalCholesky`: every
+residual depends on at most four parameters (:func:`_jacobian_structure`), so the
+Jacobian is probed with 6 (Manhattan) or 8 (Atlanta) forward passes instead of one per
+parameter, and ``J^T J`` is summed per wall instead of multiplied out (the same steps;
+4.5 times less time for the Atlanta adjustment, experiments/RESULTS.md). Each column's
+residuals carry a JVP through their local Jacobian (:func:`_local_jacobian_jvp`).
 The residuals are evaluated per column (:func:`boundary_residuals`) and per
 corner (:func:`corner_residual`) directly on the wall angles. Gauge: none while
 ``rc > 0`` (scale is observable, the heights and distances are absolute); the
@@ -36,14 +38,14 @@ import jax
 import jax.flatten_util
 import jax.scipy.linalg
 import jax.numpy as jnp
-import lineax as lx
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel
 from ._linalg import inverse_or_zero
-from ._plucker import safe_norm, safe_sqrt, wall_planes_meet
+from ._plucker import safe_sqrt, wall_planes_meet
 from ._reprojection import wall_boundary_rows
+from ._sparse_normal import JacobianStructure, SparseNormalCholesky, distinct_slots, normal_matrix, probe_jacobian
 
 
 class BoundaryObservations(eqx.Module):
@@ -180,11 +182,16 @@ def _residual_terms(
     return rows, corners
 
 
+def _used_rows(observations: BoundaryObservations) -> Bool[Array, "2 N"]:
+    """Which ceiling (first) and floor rows the fit uses: a column that sees no wall never is."""
+    return jnp.stack([observations.ceiling_used, observations.floor_used]) & (observations.column_wall >= 0)[None, :]
+
+
 def _fitted_residuals(
     rows: Float[Array, "N 2"], corners: Float[Array, " K"], observations: BoundaryObservations, corner_weight: float
 ) -> Float[Array, " residuals"]:
     """The ``2 N + K`` residuals of the fit: ceiling rows, floor rows, weighted corners; 0 where unused."""
-    rows = jnp.where(jnp.stack([observations.ceiling_used, observations.floor_used], -1), rows, 0.0)
+    rows = jnp.where(_used_rows(observations).T, rows, 0.0)
     corners = jnp.where(observations.corner_used & observations.wall_mask, corner_weight * corners, 0.0)
     return jnp.concatenate([rows[:, 0], rows[:, 1], corners])
 
@@ -277,6 +284,40 @@ def _problem_residuals(problem: _LayoutProblem, y, cam, observations: BoundaryOb
     return jnp.concatenate([_fitted_residuals(rows, corners, observations, corner_weight), *pins])
 
 
+def _jacobian_structure(problem: _LayoutProblem, observations: BoundaryObservations) -> JacobianStructure:
+    """Which flat parameters ``(angles, distances, h_c, h_f)`` each of :func:`_problem_residuals` depends on.
+
+    Groups: the rows of wall ``k`` (its angle and distance, both heights), corner
+    ``k`` (walls ``k - 1`` and ``k``), the pins, and one group without parameters
+    for the columns of no wall. Colours: the heights one each; the distances, and
+    the angles, a proper colouring of the wall cycle (two colours, a third for
+    the last wall of an odd count), so that no corner sees two walls of one colour.
+    """
+    capacity = observations.wall_mask.shape[0]
+    num_angles = capacity if problem.free_angles else 1
+    walls = jnp.arange(capacity)
+    angle, distance = problem.angle_index, num_angles + walls
+    ceiling, floor = jnp.full(capacity, num_angles + capacity), jnp.full(capacity, num_angles + capacity + 1)
+    previous = previous_walls(observations.wall_mask)
+    empty = jnp.full(capacity, -1)
+    groups = [
+        jnp.stack([angle, distance, ceiling, floor], -1),
+        jnp.stack([angle[previous], distance[previous], angle, distance], -1),
+        jnp.stack([distance, empty, empty, empty], -1),
+    ]
+    if problem.free_angles:
+        groups.append(jnp.stack([angle, empty, empty, empty], -1))
+    no_wall = len(groups) * capacity
+    group_parameters = distinct_slots(jnp.concatenate([*groups, jnp.full((1, 4), -1)]))
+    column_group = jnp.where(observations.column_wall >= 0, observations.column_wall, no_wall)
+    row_group = jnp.concatenate([column_group, column_group, *(walls + i * capacity for i in range(1, len(groups)))])
+    count = jnp.sum(observations.wall_mask)
+    cycle = jnp.where((walls == count - 1) & (count % 2 == 1), 2, walls % 2)
+    angle_colours = 5 + cycle if problem.free_angles else jnp.array([5])
+    colours = jnp.concatenate([angle_colours, 2 + cycle, jnp.array([0, 1])])
+    return JacobianStructure(row_group, group_parameters, colours, 8 if problem.free_angles else 6)
+
+
 def adjust_layout(
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
@@ -324,8 +365,9 @@ def adjust_layout(
         r = residuals(y, None)
         return jnp.sum(r * r)
 
+    linear_solver = SparseNormalCholesky(_jacobian_structure(problem, observations))
     solution = optx.least_squares(
-        residuals, optx.Dogleg(rtol=tolerance, atol=tolerance, linear_solver=lx.Normal(lx.Cholesky())), y0, max_steps=steps, throw=False
+        residuals, optx.Dogleg(rtol=tolerance, atol=tolerance, linear_solver=linear_solver), y0, max_steps=steps, throw=False
     )
     final_cost = cost(solution.value)
     improved = jnp.isfinite(final_cost) & (final_cost < cost(y0))
@@ -414,21 +456,21 @@ def layout_uncertainty(
     problem = _layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
     residuals = lambda f: _problem_residuals(problem, unravel(f), cam, observations, corner_weight)  # noqa: E731
-    # the residuals at the layout come out of the same forward-mode pass as their Jacobian
-    jacobian, values = jax.jacfwd(lambda f: (residuals(f),) * 2, has_aux=True)(flat)
+    values, linear = jax.linearize(residuals, flat)
+    structure = _jacobian_structure(problem, observations)
+    normal = normal_matrix(probe_jacobian(linear, structure, flat.dtype), structure)
     count = observations.columns.shape[0]
     rows = jnp.stack([values[:count], values[count : 2 * count]])
-    used = jnp.stack([observations.ceiling_used, observations.floor_used])
+    used = _used_rows(observations)
     walls = jnp.sum(observations.wall_mask)
     free = 2 + walls + (walls if problem.free_angles else 1)
     row_variance = jnp.sum(jnp.where(used, rows * rows, 0.0)) / jnp.maximum(jnp.sum(used) - free, 1)
     tau = correlation_time(rows, used, observations.column_wall, max_lag)
     # unit columns first: angles (radians) and lengths (metres) differ in scale, and float32
     # inverts the equilibrated normal matrix far more accurately (no negative variances)
-    norms = safe_norm(jacobian.T)
+    norms = safe_sqrt(jnp.diagonal(normal))
     scale = inverse_or_zero(norms)
-    unit = jacobian * scale[None, :]
-    cholesky = jnp.linalg.cholesky(unit.T @ unit)
+    cholesky = jnp.linalg.cholesky(scale[:, None] * normal * scale[None, :])
     inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))
     covariance = tau * row_variance * scale[:, None] * inverse * scale[None, :]
     singular = ~jnp.all(jnp.isfinite(covariance)) | jnp.any(norms == 0)

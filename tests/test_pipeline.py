@@ -20,6 +20,9 @@ from ncjax._plucker import wall_planes_meet
 from ncjax._adjust import (
     BoundaryObservations,
     _boundary_residuals_fast_jvp,
+    _jacobian_structure,
+    _layout_problem,
+    _problem_residuals,
     adjust_layout,
     boundary_residuals,
     layout_uncertainty,
@@ -28,6 +31,7 @@ from ncjax._adjust import (
 from ncjax._pipeline import _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
+from ncjax._sparse_normal import normal_matrix, probe_jacobian
 
 WIDTH, HEIGHT = 512, 256
 
@@ -149,6 +153,35 @@ def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride):
     np.testing.assert_allclose(np.abs(np.sum(u * directions, -1))[seen], 1.0, atol=1e-5)
     np.testing.assert_allclose(np.abs(d)[seen], np.abs(distances)[seen], rtol=1e-3)
     np.testing.assert_allclose([h_c, h_f], [room.ceiling_height, room.floor_height], rtol=1e-3)
+
+
+@pytest.mark.parametrize("world", ["manhattan", "atlanta"])
+def test_adjustment_structure_gives_the_dense_normal_matrix(world):
+    """The colouring of the final adjustment's parameters is valid: probing recovers ``J^T J`` exactly,
+    with unused columns, penalised corners and empty wall slots."""
+    batch, labels = rooms(world, "none")
+    room, label = pick(batch, 2), pick(labels, 2)
+    cam = room.camera(WIDTH, HEIGHT)
+    directions, distances = ncjax.room_walls(room)[:2]
+    labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if world == "manhattan" else None
+    columns = jnp.arange(WIDTH)
+    observations = BoundaryObservations(
+        columns=columns, ceiling_v=label.ceiling_v + 0.3, floor_v=label.floor_v - 0.2,
+        ceiling_used=columns % 5 != 0, floor_used=columns % 7 != 0, column_wall=jnp.where(columns % 11 == 0, -1, label.wall_index),
+        corner_columns=jnp.linspace(0, WIDTH, len(room.mask)), corner_used=room.mask, wall_mask=room.mask,
+    )
+    assert not bool(jnp.all(room.mask)), "the room should leave empty slots"
+    problem = _layout_problem(directions, 1.02 * distances, room.ceiling_height, room.floor_height, labels, room.mask)
+    flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
+
+    def residuals(f):
+        return _problem_residuals(problem, unravel(f), cam, observations, 1.0)
+
+    structure = _jacobian_structure(problem, observations)
+    dense = jax.jit(jax.jacfwd(residuals))(flat)
+    probed = jax.jit(lambda f: normal_matrix(probe_jacobian(jax.linearize(residuals, f)[1], structure, f.dtype), structure))(flat)
+    scale = np.abs(dense.T @ dense).max()
+    np.testing.assert_allclose(probed / scale, dense.T @ dense / scale, atol=1e-6)
 
 
 SMOOTHING = 9  # columns averaged into one noise value: errors correlated along the wall like a network's
