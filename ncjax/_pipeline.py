@@ -62,7 +62,7 @@ from ._corners import column_walls, distance_to_corners, find_corners, side_extr
 from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
 from ._ransac import boundary_errors, num_hypotheses, ransac_wall, wall_columns
-from ._reprojection import boundary_points, fit_plan_line, wall_boundary_rows, wall_range
+from ._reprojection import boundary_points, fit_plan_lines, wall_boundary_rows, wall_range
 from ._wall import Wall, canonical_orientation
 
 WORLDS = ("manhattan", "atlanta", "auto")
@@ -753,9 +753,9 @@ def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Arr
     floor, floor_ok = boundary_points(cam, columns, jnp.where(evidence.finite, floor_v, 0.0), h_f)
     points = jnp.concatenate([ceiling, floor])
     ok = jnp.concatenate([ceiling_ok, floor_ok]) & jnp.tile(evidence.usable, 2)
-    wall = jnp.tile(final.column_wall, 2)
-    weights = (wall[None, :] == jnp.arange(final.mask.shape[0])[:, None]) & ok[None, :]
-    directions, _ = jax.vmap(fit_plan_line, in_axes=(None, 0))(points, weights.astype(points.dtype))
+    capacity = final.mask.shape[0]
+    wall = jnp.tile(jnp.where(final.column_wall >= 0, final.column_wall, capacity), 2)  # capacity: dropped
+    directions, _ = fit_plan_lines(points, ok.astype(points.dtype), wall, capacity)
     return directions
 
 

@@ -12,8 +12,9 @@ error in pixels, per column).
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 
@@ -86,22 +87,33 @@ def boundary_points(
     return jnp.stack([radius * jnp.cos(azimuth), radius * jnp.sin(azimuth)], -1), ok
 
 
-def fit_plan_line(
-    points: Float[Array, "n 2"], weights: Float[Array, " n"]
-) -> tuple[Float[Array, " 2"], Float[Array, ""]]:
-    """Total-least-squares line through weighted plan points: ``(direction, distance)``.
+def fit_plan_lines(
+    points: Float[Array, "n 2"], weights: Float[Array, " n"], segments: Int[Array, " n"], num_segments: int
+) -> tuple[Float[Array, "S 2"], Float[Array, " S"]]:
+    """Total-least-squares lines through weighted plan points, one per segment: ``(directions, distances)``.
 
-    The direction is the principal axis of the weighted scatter (closed form
-    for 2 x 2); ``distance = e2 . centroid`` with ``e2 = (-uy, ux)``.
+    Each point belongs to segment ``segments[i]`` (``num_segments`` static; an
+    index outside ``[0, S)`` drops the point). The direction is the principal
+    axis of the segment's weighted scatter (closed form for 2 x 2);
+    ``distance = e2 . centroid`` with ``e2 = (-uy, ux)``. Sums per segment, so
+    the cost is one pass over the points whatever ``S``.
     """
-    total = jnp.maximum(jnp.sum(weights), jnp.finfo(points.dtype).tiny)
-    centroid = jnp.sum(weights[:, None] * points, 0) / total
-    centred = points - centroid
-    sxx = jnp.sum(weights * centred[:, 0] ** 2)
-    syy = jnp.sum(weights * centred[:, 1] ** 2)
-    sxy = jnp.sum(weights * centred[:, 0] * centred[:, 1])
+    total = jax.ops.segment_sum(weights, segments, num_segments)
+    total = jnp.maximum(total, jnp.finfo(points.dtype).tiny)
+    centroid = jax.ops.segment_sum(weights[:, None] * points, segments, num_segments) / total[:, None]
+    centred = points - centroid[jnp.clip(segments, 0, num_segments - 1)]
+    moments = jnp.stack([centred[:, 0] ** 2, centred[:, 1] ** 2, centred[:, 0] * centred[:, 1]], -1)
+    sxx, syy, sxy = jax.ops.segment_sum(weights[:, None] * moments, segments, num_segments).T
     # no spread (an empty or one-point wall): any direction; the double where keeps the gradient of atan2(0, 0) finite
     spread = (sxy != 0) | (sxx != syy)
     angle = 0.5 * jnp.arctan2(jnp.where(spread, 2 * sxy, 0.0), jnp.where(spread, sxx - syy, 1.0))
-    direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
-    return direction, direction[0] * centroid[1] - direction[1] * centroid[0]
+    directions = jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1)
+    return directions, directions[:, 0] * centroid[:, 1] - directions[:, 1] * centroid[:, 0]
+
+
+def fit_plan_line(
+    points: Float[Array, "n 2"], weights: Float[Array, " n"]
+) -> tuple[Float[Array, " 2"], Float[Array, ""]]:
+    """:func:`fit_plan_lines` of one line through all the points."""
+    directions, distances = fit_plan_lines(points, weights, jnp.zeros(points.shape[0], jnp.int32), 1)
+    return directions[0], distances[0]

@@ -30,7 +30,7 @@ from ncjax._adjust import (
 )
 from ncjax._pipeline import _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
-from ncjax._reprojection import boundary_points, fit_plan_line, wall_boundary_rows
+from ncjax._reprojection import boundary_points, fit_plan_line, fit_plan_lines, wall_boundary_rows
 from ncjax._sparse_normal import normal_matrix, probe_jacobian
 
 WIDTH, HEIGHT = 512, 256
@@ -395,6 +395,28 @@ def test_cyclic_labels_are_the_least_cost_labelling(seed, count):
     labels = np.asarray(cyclic_binary_labels(jnp.asarray(unary), jnp.asarray(same_cost), jnp.asarray(turn_cost), jnp.asarray(valid)))
     best = min(cost(candidate) for candidate in itertools.product((0, 1), repeat=count))
     np.testing.assert_allclose(cost(labels[:count]), best, rtol=1e-6)
+
+
+@given(st.integers(0, 2**31 - 1))
+@settings(max_examples=10)
+def test_plan_lines_per_segment_match_one_line_each(seed):
+    """Each segment's line is the principal axis of its own weighted points (numpy); other ids are dropped."""
+    rng = np.random.default_rng(seed)
+    points = jnp.asarray(rng.normal(size=(40, 2)) * [3.0, 0.5] + rng.normal(size=2), jnp.float32)
+    weights = jnp.asarray(rng.uniform(0.0, 2.0, 40) * (rng.uniform(size=40) > 0.2), jnp.float32)
+    segments = jnp.asarray(rng.integers(-1, 6, 40))  # 5 segments; -1 and 5 belong to none
+    directions, distances = fit_plan_lines(points, weights, segments, 5)
+    for s in range(5):
+        w = np.where(np.asarray(segments) == s, np.asarray(weights, np.float64), 0.0)
+        if np.sum(w > 0) < 3:
+            continue  # no principal axis
+        centroid = w @ np.asarray(points, np.float64) / w.sum()
+        centred = np.asarray(points, np.float64) - centroid
+        direction = np.linalg.eigh((w[:, None] * centred).T @ centred)[1][:, -1]
+        distance = direction[0] * centroid[1] - direction[1] * centroid[0]
+        sign = np.sign(np.dot(direction, directions[s]))
+        np.testing.assert_allclose(sign * directions[s], direction, atol=2e-4)
+        np.testing.assert_allclose(sign * distances[s], distance, atol=2e-3)
 
 
 @pytest.mark.parametrize("weights", [np.zeros(4), np.array([0.0, 1.0, 0.0, 0.0])])
