@@ -125,7 +125,8 @@ class SparseNormalCholesky(lx.AbstractLinearSolver):
     For a tall ``J`` of full column rank (the solver does not check it: a
     singular ``J^T J`` gives non-finite solutions, as ``lineax.Cholesky``
     does) whose sparsity ``structure`` describes. Operators map a pytree of
-    parameters to a flat residual vector. The transposed solve (needed when
+    parameters to ONE flat residual vector (R,), the parameters flattened in
+    ``jax.flatten_util.ravel_pytree`` order. The transposed solve (needed when
     differentiating through ``lineax.linear_solve``) is ``J (J^T J)^-1``.
     """
 
