@@ -753,9 +753,8 @@ def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Arr
     floor, floor_ok = boundary_points(cam, columns, jnp.where(evidence.finite, floor_v, 0.0), h_f)
     points = jnp.concatenate([ceiling, floor])
     ok = jnp.concatenate([ceiling_ok, floor_ok]) & jnp.tile(evidence.usable, 2)
-    capacity = final.mask.shape[0]
-    wall = jnp.tile(jnp.where(final.column_wall >= 0, final.column_wall, capacity), 2)  # capacity: dropped
-    directions, _ = fit_plan_lines(points, ok.astype(points.dtype), wall, capacity)
+    wall = jnp.tile(final.column_wall, 2)  # -1 (no wall): dropped
+    directions, _ = fit_plan_lines(points, ok.astype(points.dtype), wall, final.mask.shape[0])
     return directions
 
 
