@@ -135,19 +135,15 @@ def _jacobi_svd(r: Array) -> tuple[Array, Array]:
     return squared, jnp.stack(vectors, 1)
 
 
-def _sorted_svd(a: Array, gram: bool = False) -> tuple[Array, Array]:
+def _sorted_svd(a: Array) -> tuple[Array, Array]:
     """Squared singular values ascending and the matching right singular vectors (as columns).
 
     The tall ``A`` is first reduced to its triangular factor (batched LAPACK
     SVDs and QRs of ``2W x n`` matrices cost milliseconds each on CPU, the
     vectorised Gram-Schmidt reduction microseconds), then the small ``R`` is
     decomposed by one-sided Jacobi (:func:`_jacobi_svd`; by LAPACK's ``svd``
-    beyond ``_JACOBI_MAX_COLUMNS`` unknowns). ``gram`` (static): LAPACK's
-    ``eigh`` of ``A^T A`` instead, about 3 times cheaper for the few rows of
-    a RANSAC sample, but it squares the condition number (see :func:`null_space`).
+    beyond ``_JACOBI_MAX_COLUMNS`` unknowns).
     """
-    if gram:
-        return jnp.linalg.eigh(a.T @ a)
     r = _triangular_factor(a)
     if r.shape[1] > _JACOBI_MAX_COLUMNS:
         _, s, vt = jnp.linalg.svd(r, full_matrices=False)
@@ -165,22 +161,19 @@ def _canonical_sign(vectors: Array) -> Array:
     return vectors * jnp.where(pivot < 0, -1.0, 1.0)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(1, 2))
-def null_space(a: Float[Array, "rows cols"], k: int, gram: bool = False) -> Float[Array, "cols k"]:
+@functools.partial(jax.custom_jvp, nondiff_argnums=(1,))
+def null_space(a: Float[Array, "rows cols"], k: int) -> Float[Array, "cols k"]:
     """Orthonormal basis of the (least-squares) ``k``-dimensional null space of ``A``.
 
     Args:
         a: the matrix, any number of rows (zero rows are harmless).
         k: how many vectors, static.
-        gram: static; from the eigenvectors of ``A^T A`` (LAPACK), cheaper for
-            small matrices but accurate only to ``eps kappa(A)^2``: for RANSAC
-            hypotheses, which are scored and then refitted on their inliers.
 
     Returns:
         ``(cols, k)``: column ``i`` is the right singular vector of the ``i``-th
         smallest singular value (column 0 minimises ``|A x|``), canonical sign.
     """
-    _, vectors = _sorted_svd(a, gram)
+    _, vectors = _sorted_svd(a)
     return _canonical_sign(vectors[:, :k])
 
 
@@ -201,9 +194,9 @@ def _kept_tangent(eig: Array, vectors: Array, dm: Array, k: int) -> Array:
 
 
 @null_space.defjvp
-def _null_space_jvp(k: int, gram: bool, primals: tuple[Array], tangents: tuple[Array]) -> tuple[Array, Array]:
+def _null_space_jvp(k: int, primals: tuple[Array], tangents: tuple[Array]) -> tuple[Array, Array]:
     (a,), (da,) = primals, tangents
-    eig, vectors = _sorted_svd(a, gram)
+    eig, vectors = _sorted_svd(a)
     kept = _canonical_sign(vectors[:, :k])
     vectors = jnp.concatenate([kept, vectors[:, k:]], 1)
     return kept, _kept_tangent(eig, vectors, da.T @ a + a.T @ da, k)
@@ -251,7 +244,7 @@ def divide_if_significant(
     return values / jnp.where(ok, divisor, 1.0), ok
 
 
-def scaled_null_space(a: Float[Array, "rows cols"], k: int, gram: bool = False) -> Float[Array, "cols k"]:
+def scaled_null_space(a: Float[Array, "rows cols"], k: int) -> Float[Array, "cols k"]:
     """:func:`null_space` of the equilibrated matrix, mapped back to the unknowns of ``A``.
 
     The columns span the null space of ``A`` but are not orthonormal: column
@@ -260,7 +253,7 @@ def scaled_null_space(a: Float[Array, "rows cols"], k: int, gram: bool = False) 
     the metric of that well-conditioned space.
     """
     scaled, scale = equilibrate(a)
-    return scale[:, None] * null_space(scaled, k, gram)
+    return scale[:, None] * null_space(scaled, k)
 
 
 def segment_scaled_null_spaces(

@@ -144,8 +144,7 @@ def ransac_wall(
         jax.random.split(key, num_hypotheses), candidates, sample_size
     )
     sure = jnp.ones(sample_size, bool)
-    # hypotheses are only scored, and the best one refitted on its inliers: the cheaper null space suffices
-    hypotheses = jax.vmap(lambda s: solve_wall(ceiling_rays[s], floor_rays[s], sure, sure, sample=True))(samples)
+    hypotheses = jax.vmap(lambda s: solve_wall(ceiling_rays[s], floor_rays[s], sure, sure))(samples)
     ceiling_error, floor_error = jax.vmap(boundary_errors, in_axes=(None, 0, None, None, None))(
         cam, hypotheses, columns, ceiling_v, floor_v
     )

@@ -271,7 +271,6 @@ def solve_wall(
     ceiling_mask: Bool[Array, " n"],
     floor_mask: Bool[Array, " m"],
     method: str = "paper",
-    sample: bool = False,
 ) -> Wall:
     """One vertical wall from the projecting rays of its ceiling and floor lines (Section 4.1).
 
@@ -300,9 +299,6 @@ def solve_wall(
         ceiling_mask: which ceiling rays are used (others add zero rows).
         floor_mask: which floor rays are used.
         method: static, see above.
-        sample: static; a RANSAC hypothesis from a few rays: the null space
-            from ``A^T A`` (:func:`ncjax._linalg.null_space` with ``gram``),
-            about 3 times cheaper, accurate to ``eps kappa^2`` only.
 
     Returns:
         The :class:`Wall` (canonical orientation); ``ok`` is False when fewer
@@ -323,7 +319,7 @@ def solve_wall(
         direction = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
         ok = ok & jnp.all(jnp.isfinite(params))
     else:
-        basis = scaled_null_space(rows, 2, gram=sample)
+        basis = scaled_null_space(rows, 2)
         if method == "paper":
             vector, ok = constrained_null_vector(basis)
         else:

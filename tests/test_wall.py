@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 import ncjax
@@ -275,14 +275,13 @@ def test_wall_gradients(x64, axis_aligned, method):
     assert float(jnp.max(jnp.abs(reverse[..., room["wall_index"] != 0]))) == 0.0
 
 
-@pytest.mark.parametrize("gram", [False, True])
-def test_null_space_gradient_with_repeated_singular_values(x64, gram):
+def test_null_space_gradient_with_repeated_singular_values(x64):
     """Repeated singular values (outside the null space) give finite, correct derivatives."""
     a = jnp.concatenate([jnp.eye(4)[:, :3] * 2.0, jnp.zeros((4, 1))], 1)  # singular values 2, 2, 2, 0
     a = jnp.concatenate([a, jnp.ones((1, 4)) * 0.0])
 
     def projector(m):
-        v = ncjax.null_space(m, 1, gram)
+        v = ncjax.null_space(m, 1)
         return v @ v.T
 
     check_gradients(projector, a)
@@ -295,22 +294,6 @@ def test_null_space_gradient_with_repeated_singular_values(x64, gram):
 
 
 _sorted_svd = jax.jit(jax.vmap(_linalg._sorted_svd))
-_gram_null_spaces = jax.jit(jax.vmap(lambda a: _linalg.scaled_null_space(a, 2, gram=True)))
-
-
-@given(st.integers(0, 2**31 - 1))
-@settings(max_examples=10)
-def test_gram_null_space_spans_the_numpy_one(seed):
-    """RANSAC samples' null space (6 rows, 7 unknowns, from A^T A in float32) spans numpy's two smallest
-    right singular vectors of the equilibrated matrix."""
-    a = np.random.default_rng(seed).normal(size=(16, 6, 7))
-    got = np.asarray(_gram_null_spaces(jnp.asarray(a, jnp.float32)), np.float64)
-    for a_i, basis in zip(a, got):
-        rows = a_i / np.linalg.norm(a_i, axis=1, keepdims=True)
-        scale = 1.0 / np.linalg.norm(rows, axis=0)
-        want = np.linalg.svd(rows * scale)[2][-2:].T  # in the equilibrated unknowns
-        q, _ = np.linalg.qr(basis / scale[:, None])
-        np.testing.assert_allclose(q @ q.T, want @ want.T, atol=2e-3)
 
 
 @given(seed=st.integers(0, 2**31 - 1), kind=st.sampled_from(["random", "rank_deficient", "repeated_column", "zero_column"]))
