@@ -24,8 +24,6 @@ space. This module computes that null space once, in one place:
   outputs have the same derivative for any basis of the span.
 - :func:`scaled_null_space` equilibrates the rows and columns of ``A`` first
   (float32 accuracy), and maps the answer back.
-- ``gram=True`` takes the eigenvectors of ``A^T A`` instead (LAPACK ``eigh``):
-  cheaper for RANSAC's small samples, accurate only to ``eps kappa^2``.
 """
 
 from __future__ import annotations
