@@ -45,7 +45,14 @@ from ._camera import NonCentralPanorama, angles_to_pixel
 from ._linalg import inverse_or_zero
 from ._plucker import safe_sqrt, wall_planes_meet
 from ._reprojection import wall_boundary_rows
-from ._sparse_normal import JacobianStructure, SparseNormalCholesky, distinct_slots, normal_matrix, probe_jacobian
+from ._sparse_normal import (
+    JacobianStructure,
+    SparseNormalCholesky,
+    distinct_slots,
+    normal_matrix,
+    probe_jacobian,
+    scale_columns,
+)
 
 
 class BoundaryObservations(eqx.Module):
@@ -458,7 +465,7 @@ def layout_uncertainty(
     residuals = lambda f: _problem_residuals(problem, unravel(f), cam, observations, corner_weight)  # noqa: E731
     values, linear = jax.linearize(residuals, flat)
     structure = _jacobian_structure(problem, observations)
-    normal = normal_matrix(probe_jacobian(linear, structure, flat.dtype), structure)
+    jacobian = probe_jacobian(linear, structure, flat.dtype)
     count = observations.columns.shape[0]
     rows = jnp.stack([values[:count], values[count : 2 * count]])
     used = _used_rows(observations)
@@ -468,9 +475,10 @@ def layout_uncertainty(
     tau = correlation_time(rows, used, observations.column_wall, max_lag)
     # unit columns first: angles (radians) and lengths (metres) differ in scale, and float32
     # inverts the equilibrated normal matrix far more accurately (no negative variances)
-    norms = safe_sqrt(jnp.diagonal(normal))
+    # (the columns are scaled before their products, not after: J^T J spans 1e9 and float32 loses the difference)
+    norms = safe_sqrt(jnp.diagonal(normal_matrix(jacobian, structure)))
     scale = inverse_or_zero(norms)
-    cholesky = jnp.linalg.cholesky(scale[:, None] * normal * scale[None, :])
+    cholesky = jnp.linalg.cholesky(normal_matrix(scale_columns(jacobian, structure, scale), structure))
     inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))
     covariance = tau * row_variance * scale[:, None] * inverse * scale[None, :]
     singular = ~jnp.all(jnp.isfinite(covariance)) | jnp.any(norms == 0)

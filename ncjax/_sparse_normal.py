@@ -114,6 +114,14 @@ def jacobian_product(
     return jnp.sum(values * jnp.where(parameters >= 0, vector[jnp.maximum(parameters, 0)], 0.0), axis=-1)
 
 
+def scale_columns(
+    values: Float[Array, "R A"], structure: JacobianStructure, scale: Float[Array, " P"]
+) -> Float[Array, "R A"]:
+    """The non-zeros of ``J diag(scale)``."""
+    parameters = structure.group_parameters[structure.row_group]
+    return values * jnp.where(parameters >= 0, scale[jnp.maximum(parameters, 0)], 0.0)
+
+
 def _flat_structure(parameters: PyTree[jax.ShapeDtypeStruct]):
     """A flat zero vector of ``parameters``' size and the map from flat vectors back to that pytree."""
     return jax.flatten_util.ravel_pytree(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), parameters))
