@@ -52,6 +52,7 @@ from ._sparse_normal import (
     normal_matrix,
     probe_jacobian,
     scale_columns,
+    squared_column_norms,
 )
 
 
@@ -476,7 +477,7 @@ def layout_uncertainty(
     # unit columns first: angles (radians) and lengths (metres) differ in scale, and float32
     # inverts the equilibrated normal matrix far more accurately (no negative variances)
     # (the columns are scaled before their products, not after: J^T J spans 1e9 and float32 loses the difference)
-    norms = safe_sqrt(jnp.diagonal(normal_matrix(jacobian, structure)))
+    norms = safe_sqrt(squared_column_norms(jacobian, structure))
     scale = inverse_or_zero(norms)
     cholesky = jnp.linalg.cholesky(normal_matrix(scale_columns(jacobian, structure, scale), structure))
     inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))

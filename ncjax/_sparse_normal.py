@@ -67,6 +67,24 @@ def _slot_indices(structure: JacobianStructure) -> Int[Array, "G A"]:
     return jnp.where(structure.group_parameters >= 0, structure.group_parameters, structure.num_parameters)
 
 
+def _row_parameters(structure: JacobianStructure) -> Int[Array, "R A"]:
+    """Each residual's parameter slots (``-1``: empty)."""
+    return structure.group_parameters[structure.row_group]
+
+
+def _at_slots(structure: JacobianStructure, vector: Float[Array, " P"]) -> Float[Array, "R A"]:
+    """``vector[p]`` at each residual's parameter slot ``p``, 0 in empty slots."""
+    parameters = _row_parameters(structure)
+    return jnp.where(parameters >= 0, vector[jnp.maximum(parameters, 0)], 0.0)
+
+
+def _sum_into_parameters(per_slot: Float[Array, "R A"], structure: JacobianStructure) -> Float[Array, " P"]:
+    """Per parameter, the sum of ``per_slot`` over the residual slots that hold it (per group first)."""
+    groups, size = structure.group_parameters.shape[0], structure.num_parameters
+    per_group = jax.ops.segment_sum(per_slot, structure.row_group, groups)
+    return jnp.zeros(size + 1, per_slot.dtype).at[_slot_indices(structure)].add(per_group)[:size]
+
+
 def probe_jacobian(
     jvp: Callable[[Float[Array, " P"]], Float[Array, " R"]], structure: JacobianStructure, dtype
 ) -> Float[Array, "R A"]:
@@ -82,7 +100,7 @@ def probe_jacobian(
     """
     seeds = jax.nn.one_hot(structure.colours, structure.num_colours, dtype=dtype).T
     compressed = jax.vmap(jvp)(seeds)  # (colours, R)
-    parameters = structure.group_parameters[structure.row_group]  # (R, A)
+    parameters = _row_parameters(structure)
     colour = structure.colours[jnp.maximum(parameters, 0)]
     values = jnp.take_along_axis(compressed.T, colour, axis=1)
     return jnp.where(parameters >= 0, values, 0.0)
@@ -101,25 +119,26 @@ def transpose_product(
     values: Float[Array, "R A"], structure: JacobianStructure, vector: Float[Array, " R"]
 ) -> Float[Array, " P"]:
     """``J^T b`` from the Jacobian's non-zeros."""
-    groups, size = structure.group_parameters.shape[0], structure.num_parameters
-    per_group = jax.ops.segment_sum(values * vector[:, None], structure.row_group, groups)
-    return jnp.zeros(size + 1, values.dtype).at[_slot_indices(structure)].add(per_group)[:size]
+    return _sum_into_parameters(values * vector[:, None], structure)
+
+
+def squared_column_norms(values: Float[Array, "R A"], structure: JacobianStructure) -> Float[Array, " P"]:
+    """The diagonal of ``J^T J`` without the rest of it."""
+    return _sum_into_parameters(values * values, structure)
 
 
 def jacobian_product(
     values: Float[Array, "R A"], structure: JacobianStructure, vector: Float[Array, " P"]
 ) -> Float[Array, " R"]:
     """``J t`` from the Jacobian's non-zeros."""
-    parameters = structure.group_parameters[structure.row_group]
-    return jnp.sum(values * jnp.where(parameters >= 0, vector[jnp.maximum(parameters, 0)], 0.0), axis=-1)
+    return jnp.sum(values * _at_slots(structure, vector), axis=-1)
 
 
 def scale_columns(
     values: Float[Array, "R A"], structure: JacobianStructure, scale: Float[Array, " P"]
 ) -> Float[Array, "R A"]:
     """The non-zeros of ``J diag(scale)``."""
-    parameters = structure.group_parameters[structure.row_group]
-    return values * jnp.where(parameters >= 0, scale[jnp.maximum(parameters, 0)], 0.0)
+    return values * _at_slots(structure, scale)
 
 
 def _flat_structure(parameters: PyTree[jax.ShapeDtypeStruct]):

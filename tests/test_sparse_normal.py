@@ -9,7 +9,14 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ncjax._sparse_normal import JacobianStructure, SparseNormalCholesky, distinct_slots, normal_matrix, probe_jacobian
+from ncjax._sparse_normal import (
+    JacobianStructure,
+    SparseNormalCholesky,
+    distinct_slots,
+    normal_matrix,
+    probe_jacobian,
+    squared_column_norms,
+)
 
 ROWS, GROUPS, SLOTS, PARAMETERS = 40, 8, 3, 10
 
@@ -45,6 +52,7 @@ def test_sparse_normal_solve_matches_least_squares(seed):
     jacobian, structure, rhs = random_problem(seed)
     values = probe_jacobian(lambda t: jacobian @ t, structure, jnp.float32)
     np.testing.assert_allclose(normal_matrix(values, structure), jacobian.T @ jacobian, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(squared_column_norms(values, structure), jnp.sum(jacobian**2, 0), rtol=1e-5, atol=1e-5)
     operator = lx.MatrixLinearOperator(jacobian)
     solver = SparseNormalCholesky(structure)
     solution = lx.linear_solve(operator, rhs, solver).value
