@@ -27,16 +27,19 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 import jax  # noqa: E402
 
 from bench_pipeline import inputs  # noqa: E402
-from ncjax import _adjust, _linalg, _pipeline, _ransac, _wall  # noqa: E402
+from ncjax import _adjust, _layout_solvers, _linalg, _pipeline, _ransac, _sparse_normal, _wall, _wall_fit  # noqa: E402
 
 STAGES = {
     _pipeline: ["_gather_evidence", "ransac_wall", "side_extrapolation", "boundary_errors", "manhattan_labels",
                 "_final_walls", "solve_atlanta_layout", "_plan_lines", "_refine", "adjust_layout", "layout_uncertainty",
                 "_assemble", "_row_errors", "pixel_to_ray"],
-    _adjust: ["correlation_time"],
+    _adjust: ["correlation_time", "_residual_terms", "corner_residual", "_fitted_residuals"],
+    _sparse_normal: ["probe_jacobian", "normal_matrix", "transpose_product", "jacobian_product"],
     _ransac: ["solve_wall", "sample_columns", "boundary_errors"],
     _wall: ["scaled_null_space", "constrained_null_vector"],
     _linalg: ["_jacobi_svd", "_triangular_factor"],
+    _layout_solvers: ["linear_walls", "search_scale", "refine_walls"],
+    _wall_fit: ["gauss_newton_step"],
 }
 _PREFIX = "stage_"
 
@@ -83,6 +86,7 @@ def main(argv=None):
     parser.add_argument("--world", default="manhattan", choices=["manhattan", "atlanta", "auto"])
     parser.add_argument("--batch", type=int, default=64)
     parser.add_argument("--top", type=int, default=20)
+    parser.add_argument("--capacity", type=int, default=_pipeline.PipelineConfig.capacity, help="PipelineConfig.capacity")
     args = parser.parse_args(argv)
     for module, names in STAGES.items():
         for name in names:
@@ -90,7 +94,7 @@ def main(argv=None):
     ceiling, floor, prob, cams = inputs(args.world, args.batch)
     cam = jax.tree.map(lambda x: x[0], cams)
     keys = jax.random.split(jax.random.key(0), args.batch)
-    config = _pipeline.PipelineConfig()
+    config = _pipeline.PipelineConfig(capacity=args.capacity)
     batched = jax.jit(jax.vmap(lambda c, f, p, k: _pipeline.layout_from_evidence(c, f, p, cam, k, args.world, config)))
     jax.block_until_ready(batched(ceiling, floor, prob, keys))
     with tempfile.TemporaryDirectory() as folder:

@@ -38,11 +38,13 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import math
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ._adjust import (
@@ -93,6 +95,11 @@ class PipelineConfig:
 
     Attributes:
         capacity: K, wall and corner slots of the layout.
+        compact_capacity: :func:`layout_from_boundaries` first runs concrete
+            panoramas with this many slots, pads their Layouts to ``capacity``
+            and reruns with ``capacity`` slots only the panoramas that did not
+            fit (``TOO_MANY_WALLS``): the same layouts, and the cost of most
+            stages is proportional to the slots (0: always ``capacity``).
         corner_threshold: minimum corner probability of a peak.
         nms_radius: non-maximum-suppression half-width, columns.
         corner_margin: columns this close to a corner are not used to fit walls.
@@ -135,6 +142,7 @@ class PipelineConfig:
     """
 
     capacity: int = 32
+    compact_capacity: int = 16
     corner_threshold: float = 0.3
     nms_radius: float = 2.0
     corner_margin: float = 2.0
@@ -160,6 +168,8 @@ class PipelineConfig:
     def __post_init__(self):
         if self.capacity < 4:
             raise ValueError(f"capacity must be >= 4 walls, got {self.capacity}")
+        if self.compact_capacity != 0 and self.compact_capacity < 4:
+            raise ValueError(f"compact_capacity must be 0 (off) or >= 4 walls, got {self.compact_capacity}")
         if self.sample_size < 3:
             raise ValueError(f"sample_size must be >= 3 columns (the wall solver needs 3 rays per line), got {self.sample_size}")
         num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
@@ -223,6 +233,8 @@ class Layout(eqx.Module):
         height_covariance: (2, 2) covariance (m^2) of ``(h_c, h_f)``, likewise.
         status: :class:`LayoutStatus` code (int32).
         ok: ``status == OK``; corners of a failed layout are finite but meaningless.
+
+    The per-slot fields hold zeros (False) in the slots outside ``mask``.
     """
 
     ceiling_corners: Float[Array, "*batch K 3"]
@@ -242,6 +254,30 @@ class Layout(eqx.Module):
     height_covariance: Float[Array, "*batch 2 2"]
     status: Int[Array, "*batch"]
     ok: Bool[Array, "*batch"]
+
+
+# the Layout fields with the K slots on their first (unbatched) axis
+_SLOT_FIELDS = (
+    "ceiling_corners", "floor_corners", "mask", "wall_directions", "wall_distances", "ceiling_lines",
+    "floor_lines", "inserted", "corner_columns", "corner_covariance",
+)
+
+
+def pad_layout(layout: Layout, capacity: int) -> Layout:
+    """``layout`` with its slots padded to ``capacity`` (static) with empty slots (zeros, mask False).
+
+    Works on batched layouts: the slot axis follows the batch axes.
+    """
+    batch = layout.ok.ndim
+    if layout.mask.shape[batch] == capacity:
+        return layout
+
+    def padded(x):
+        widths = [(0, 0)] * x.ndim
+        widths[batch] = (0, capacity - x.shape[batch])
+        return jnp.pad(x, widths)
+
+    return dataclasses.replace(layout, **{name: padded(getattr(layout, name)) for name in _SLOT_FIELDS})
 
 
 class WallEvidence(eqx.Module):
@@ -298,6 +334,10 @@ def _scaled(value: float, size: int, reference: int) -> float:
     return value * size / reference
 
 
+def _nms_radius(config: PipelineConfig, width: int) -> int:
+    return max(1, round(_scaled(config.nms_radius, width, 1024)))
+
+
 def _gather_evidence(
     ceiling_v: Float[Array, " W"],
     floor_v: Float[Array, " W"],
@@ -315,9 +355,10 @@ def _gather_evidence(
     ceiling_rays = pixel_to_ray(cam, columns, ceiling_v)
     floor_rays = pixel_to_ray(cam, columns, floor_v)
 
-    radius = max(1, round(_scaled(config.nms_radius, width, 1024)))
     corner_prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, 0.0)
-    corner_columns, corner_mask, overflow = find_corners(corner_prob, capacity, radius, config.corner_threshold)
+    corner_columns, corner_mask, overflow = find_corners(
+        corner_prob, capacity, _nms_radius(config, width), config.corner_threshold
+    )
     column_wall = column_walls(corner_columns, corner_mask, width)
     away = distance_to_corners(corner_columns, corner_mask, width) >= _scaled(config.corner_margin, width, 1024)
     wall_of = jnp.where(column_wall >= 0, column_wall, capacity)  # segment ids, capacity: none
@@ -832,15 +873,15 @@ def _assemble(
         mask=mask,
         ceiling_height=ceiling_height,
         floor_height=floor_height,
-        wall_directions=directions,
-        wall_distances=distances,
+        wall_directions=jnp.where(mask[:, None], directions, 0.0),
+        wall_distances=jnp.where(mask, distances, 0.0),
         ceiling_lines=horizontal_wall_line(directions, distances, ceiling_height) * mask[:, None],
         floor_lines=horizontal_wall_line(directions, distances, floor_height) * mask[:, None],
         inserted=final.inserted,
         corner_columns=jnp.where(mask, final.corner_columns, 0.0),
         manhattan=jnp.array(manhattan),
         explained_fraction=explained_fraction,
-        corner_covariance=uncertainty.corner_covariance,
+        corner_covariance=jnp.where(mask[:, None, None], uncertainty.corner_covariance, 0.0),
         height_covariance=uncertainty.height_covariance,
         status=status,
         ok=status == LayoutStatus.OK,
@@ -904,15 +945,19 @@ def layout_from_boundaries(
 ) -> Layout:
     """Metric room layout from the per-column network outputs (paper Section 4.4).
 
-    Jitted; leading batch axes are mapped with ``jax.vmap`` (one camera for
-    the batch). Inside your own ``jax.jit``/``jax.vmap`` it traces like any
-    JAX function.
+    Jitted; leading batch axes are mapped with ``jax.vmap``. Inside your own
+    ``jax.jit``/``jax.vmap`` it traces like any JAX function. Concrete arrays
+    run with ``config.compact_capacity`` slots first and only the panoramas
+    that need more are rerun with ``config.capacity`` (the same layouts,
+    faster); the Layout has ``config.capacity`` slots either way.
 
     Args:
         ceiling_v: ceiling-wall boundary row per column (pixels, sub-pixel; NaN = missing).
         floor_v: floor-wall boundary row per column.
         corner_prob: wall-wall corner probability per column, in [0, 1].
-        cam: the camera; ``cam.width`` must equal the number of columns.
+        cam: the camera; ``cam.width`` must equal the number of columns. Its
+            traced fields (``rc``, the fields of view) are scalars, shared by the
+            batch, or have the batch's shape (one camera per panorama).
         world: static: "manhattan", "atlanta" or "auto".
         config: static :class:`PipelineConfig`.
         key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``).
@@ -921,7 +966,8 @@ def layout_from_boundaries(
         A :class:`Layout`; check ``ok`` / ``status``.
 
     Raises:
-        ValueError: for an unknown ``world`` or arrays whose shapes do not match the camera.
+        ValueError: for an unknown ``world``, arrays whose shapes do not match
+            the camera, or camera fields of another shape than the batch's.
     """
     if world not in WORLDS:
         raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
@@ -933,21 +979,60 @@ def layout_from_boundaries(
             f"ceiling_v, floor_v and corner_prob must share one shape (..., W) with W = cam.width = {cam.width}; "
             f"got {[tuple(x.shape) for x in arrays]}"
         )
-    key = jax.random.key(0) if key is None else key
     batch = shape[:-1]
+    fields = jax.tree.leaves(cam)
+    if any(jnp.shape(x) not in ((), batch) for x in fields):
+        raise ValueError(
+            f"the camera's rc and fields of view must be scalars or of the batch's shape {batch}; "
+            f"got {[jnp.shape(x) for x in fields]}"
+        )
+    key = jax.random.key(0) if key is None else key
     if not batch:
-        return _layout_jit(*arrays, cam, key, world, config)
+        return _layout_with_fallback(*arrays, cam, key, world, config)
     flat = [x.reshape(-1, cam.width) for x in arrays]
+    cams = jax.tree.map(lambda x: jnp.broadcast_to(x, batch).reshape(-1), cam)
     keys = jax.random.split(key, flat[0].shape[0])
-    layouts = _batched_layout_jit(*flat, cam, keys, world, config)
-    return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layouts)
+    layout = _layout_with_fallback(*flat, cams, keys, world, config)
+    return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layout)
 
 
-def _batched_layout(ceiling_v, floor_v, corner_prob, cam, keys, world, config):
-    def one(c, f, p, k):
+def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, key, world, config) -> Layout:
+    """One panorama (1D rows) or a flat batch: with ``config.compact_capacity`` slots first where that can help.
+
+    A rerun with ``config.capacity`` slots replaces the compact run's
+    ``TOO_MANY_WALLS`` layouts; the checks before that status do not depend
+    on the slots, so it is raised exactly when the layout needs more of them.
+    Traced inputs run with ``config.capacity`` slots directly.
+    """
+    batched = ceiling_v.ndim == 2
+    run = _batched_layout_jit if batched else _layout_jit
+    compact = config.compact_capacity
+    if not 0 < compact < config.capacity or any(isinstance(x, jax.core.Tracer) for x in (ceiling_v, floor_v, corner_prob)):
+        return _pad_layout_jit(run(ceiling_v, floor_v, corner_prob, cam, key, world, config), config.capacity)
+    small = dataclasses.replace(config, capacity=compact, compact_capacity=0)
+    layout = _pad_layout_jit(run(ceiling_v, floor_v, corner_prob, cam, key, world, small), config.capacity)
+    full = dataclasses.replace(config, compact_capacity=0)
+    if not batched:
+        if int(layout.status) != LayoutStatus.TOO_MANY_WALLS:
+            return layout
+        return _layout_jit(ceiling_v, floor_v, corner_prob, cam, key, world, full)
+    rerun = np.flatnonzero(np.asarray(layout.status) == LayoutStatus.TOO_MANY_WALLS)
+    if not rerun.size:
+        return layout
+    # padded to a power of two: few batch sizes, so few compilations
+    size = 1 << (rerun.size - 1).bit_length()
+    picked = jnp.asarray(np.concatenate([rerun, np.full(size - rerun.size, rerun[0])]))
+    inputs = jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cam, key))
+    redone = _batched_layout_jit(*inputs, world, full)
+    return jax.tree.map(lambda b, x: b.at[rerun].set(x[: rerun.size]), layout, redone)
+
+
+def _batched_layout(ceiling_v, floor_v, corner_prob, cams, keys, world, config):
+    def one(c, f, p, cam, k):
         return layout_from_evidence(c, f, p, cam, k, world, config)
 
-    return jax.vmap(one)(ceiling_v, floor_v, corner_prob, keys)
+    return jax.vmap(one)(ceiling_v, floor_v, corner_prob, cams, keys)
 
 
 _batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config"))
+_pad_layout_jit = jax.jit(pad_layout, static_argnames=("capacity",))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import itertools
 import math
@@ -28,7 +29,7 @@ from ncjax._adjust import (
     layout_uncertainty,
     loop_corners,
 )
-from ncjax._pipeline import _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
+from ncjax._pipeline import _batched_layout_jit, _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, fit_plan_line, fit_plan_lines, wall_boundary_rows
 from ncjax._sparse_normal import normal_matrix, probe_jacobian
@@ -294,16 +295,44 @@ def test_exact_boundaries_give_the_room(world, occlusion):
 
 
 def test_batch_auto_world_and_shapes():
+    """A batch of two rooms, each with its own camera (rc), in a (1, 2) batch shape."""
     batch, labels = rooms("manhattan", "none")
-    room = pick(batch, 0)
-    label = pick(labels, 0)
-    stacked = [jnp.stack([x, x]) for x in (label.ceiling_v, label.floor_v, label.corner_target)]
-    layout = ncjax.layout_from_boundaries(*stacked, room.camera(WIDTH, HEIGHT), world="auto")
-    assert layout.ceiling_corners.shape == (2, 32, 3) and layout.mask.shape == (2, 32) and layout.ok.shape == (2,)
-    assert layout.corner_covariance.shape == (2, 32, 2, 2) and layout.height_covariance.shape == (2, 2, 2)
+    two = pick(labels, slice(0, 2))
+    cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(pick(batch, slice(0, 2)))
+    assert float(cams.rc[0]) != float(cams.rc[1])
+    stacked = [x[None] for x in (two.ceiling_v, two.floor_v, two.corner_target)]
+    cam = jax.tree.map(lambda x: x[None], cams)
+    layout = ncjax.layout_from_boundaries(*stacked, cam, world="auto")
+    assert layout.ceiling_corners.shape == (1, 2, 32, 3) and layout.mask.shape == (1, 2, 32) and layout.ok.shape == (1, 2)
+    assert layout.corner_covariance.shape == (1, 2, 32, 2, 2) and layout.height_covariance.shape == (1, 2, 2, 2)
     assert bool(jnp.all(jnp.isfinite(layout.corner_covariance)))
     assert bool(jnp.all(layout.ok)) and bool(jnp.all(layout.manhattan))
-    np.testing.assert_allclose(layout.ceiling_corners[0], layout.ceiling_corners[1], atol=1e-5)
+    for i in range(2):
+        result = metrics.evaluate_layout(jax.tree.map(lambda x: x[0, i], layout), pick(batch, i))
+        assert result["ce"] < 0.02, result
+    with pytest.raises(ValueError, match="batch's shape"):
+        ncjax.layout_from_boundaries(*stacked, cams, world="auto")
+
+
+def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun():
+    batch, labels = rooms("manhattan", "required")
+    cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
+    rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
+    full = ncjax.PipelineConfig(capacity=16, compact_capacity=0, covariance=False)
+    layout = ncjax.layout_from_boundaries(*rows, cams, config=dataclasses.replace(full, compact_capacity=8))
+    walls = np.asarray(layout.mask).sum(1)
+    assert layout.mask.shape == (6, 16) and bool(jnp.all(layout.ok))
+    assert (walls > 8).any() and (walls <= 8).any(), walls  # both the compact run and the rerun count
+    empty = ~np.asarray(layout.mask)
+    for name in ("ceiling_corners", "wall_directions", "wall_distances", "ceiling_lines", "corner_columns"):
+        assert not np.asarray(getattr(layout, name))[empty].any(), name
+    # four rooms with all the slots from the start (the reruns' padded batch size: no extra compilation)
+    keys = jax.random.split(jax.random.key(0), 6)[:4]
+    expected = _batched_layout_jit(*(x[:4] for x in rows), pick(cams, slice(0, 4)), keys, "manhattan", full)
+    np.testing.assert_array_equal(layout.mask[:4], expected.mask)
+    np.testing.assert_array_equal(layout.status[:4], expected.status)
+    np.testing.assert_allclose(layout.ceiling_corners[:4], expected.ceiling_corners, atol=1e-4)
+    np.testing.assert_allclose(layout.floor_corners[:4], expected.floor_corners, atol=1e-4)
 
 
 def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
