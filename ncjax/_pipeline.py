@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import functools
 import math
 
 import equinox as eqx
