@@ -79,13 +79,13 @@ def _make_layout(directions, distances, h_c, h_f, mask, ok) -> WallLayout:
 
 
 def _column_bookkeeping(wall_index: Array, wall_mask: Array) -> tuple[Array, Array, Array, Array]:
-    """``(column_used (W,), one_hot (W, K), present (K,), all_seen ())``."""
+    """``(column_used (W,), column_wall (W,), present (K,), all_seen ())``; ``column_wall`` is -1 where unused."""
     capacity = wall_mask.shape[0]
-    one_hot = jax.nn.one_hot(wall_index, capacity, dtype=bool)  # -1 gives a zero row
-    column_used = jnp.any(one_hot & wall_mask[None, :], axis=1)
-    seen = jnp.any(one_hot & column_used[:, None], axis=0)
+    column_used = (wall_index >= 0) & (wall_index < capacity) & wall_mask[jnp.clip(wall_index, 0, capacity - 1)]
+    column_wall = jnp.where(column_used, wall_index, -1)
+    seen = jax.ops.segment_sum(column_used.astype(jnp.int32), jnp.where(column_used, wall_index, capacity), capacity + 1)[:capacity] > 0
     present = wall_mask & seen
-    return column_used, one_hot & column_used[:, None], present, jnp.all(seen | ~wall_mask)
+    return column_used, column_wall, present, jnp.all(seen | ~wall_mask)
 
 
 def quarter_turn(ray: Float[Array, "*batch 6"]) -> Float[Array, "*batch 6"]:
@@ -119,9 +119,9 @@ def _manhattan_matrix(ceiling_rays, floor_rays, column_used, turned):
     return a[:, :6], a[:, 6]
 
 
-def _full_matrix(shared, distance, one_hot, present):
+def _full_matrix(shared, distance, row_wall, present):
     """``[shared | d_k columns]`` plus a pinning row ``d_k = 0`` per absent wall (the paper's literal ``A``)."""
-    columns = distance[:, None] * one_hot.astype(distance.dtype)
+    columns = distance[:, None] * jax.nn.one_hot(row_wall, present.shape[0], dtype=distance.dtype)  # -1: a zero row
     pins = jnp.diag(jnp.where(present, 0.0, 1.0).astype(distance.dtype))
     return jnp.concatenate(
         [jnp.concatenate([shared, columns], 1), jnp.concatenate([jnp.zeros((pins.shape[0], shared.shape[1]), pins.dtype), pins], 1)]
@@ -164,21 +164,21 @@ def solve_manhattan_layout(
         The :class:`WallLayout` (canonical orientation per wall).
     """
     check_method(method)
-    column_used, one_hot, present, all_seen = _column_bookkeeping(wall_index, wall_mask)
+    column_used, column_wall, present, all_seen = _column_bookkeeping(wall_index, wall_mask)
     turned = labels[jnp.maximum(wall_index, 0)] == 1
     shared, distance = _manhattan_matrix(ceiling_rays, floor_rays, column_used, turned)
-    rows_one_hot = _stacked(one_hot, one_hot)
+    row_wall = _stacked(column_wall, column_wall)
     if method == "refined":
-        x, d = linear_walls(shared, distance, rows_one_hot)
+        x, d = linear_walls(shared, distance, row_wall, wall_mask.shape[0])
         params, ok = yaw_parameters(jnp.concatenate([x, d]))
         base = jnp.where(turned[:, None], jnp.array([0.0, 1.0], shared.dtype), jnp.array([1.0, 0.0], shared.dtype))
         is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
-        params = refine_walls(params, _stacked(ceiling_rays, floor_rays), _stacked(base, base), rows_one_hot, is_floor, refine_yaw=True)
+        params = refine_walls(params, _stacked(ceiling_rays, floor_rays), _stacked(base, base), row_wall, is_floor, refine_yaw=True)
         u = jnp.stack([jnp.cos(params[0]), jnp.sin(params[0])])
         h_c, h_f, distances = params[1], params[2], params[3:]
         ok = ok & jnp.all(jnp.isfinite(params))
     else:
-        basis = scaled_null_space(_full_matrix(shared, distance, rows_one_hot, present), 2)
+        basis = scaled_null_space(_full_matrix(shared, distance, row_wall, present), 2)
         if method == "paper":
             vector, ok = constrained_null_vector(basis)
         else:
@@ -227,7 +227,7 @@ def solve_atlanta_layout(
         and oriented canonically (camera on the left).
     """
     check_method(method, ("refined", "paper"))
-    column_used, one_hot, present, all_seen = _column_bookkeeping(wall_index, wall_mask)
+    column_used, column_wall, present, all_seen = _column_bookkeeping(wall_index, wall_mask)
     norm = safe_norm(directions)
     units = jnp.where((norm > 0)[:, None], directions / jnp.where(norm > 0, norm, 1.0)[:, None], jnp.array([1.0, 0.0], directions.dtype))
     column_direction = units[jnp.maximum(wall_index, 0)]
@@ -238,17 +238,17 @@ def solve_atlanta_layout(
         blocks.append(jnp.concatenate([a_u[:, :1], heights], 1))
         distance.append(a_d)
     shared, distance = jnp.concatenate(blocks), jnp.concatenate(distance)
-    rows_one_hot = _stacked(one_hot, one_hot)
+    row_wall = _stacked(column_wall, column_wall)
     if method == "refined":
-        x, d = linear_walls(shared, distance, rows_one_hot)
+        x, d = linear_walls(shared, distance, row_wall, wall_mask.shape[0])
         is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
-        arguments = (_stacked(ceiling_rays, floor_rays), _stacked(column_direction, column_direction), rows_one_hot, is_floor)
+        arguments = (_stacked(ceiling_rays, floor_rays), _stacked(column_direction, column_direction), row_wall, is_floor)
         params, scale_ok = search_scale(jnp.concatenate([x, d]), *arguments, jnp.asarray(FLOOR_DEPTHS, x.dtype))
         params = refine_walls(params, *arguments, refine_yaw=False)
         vector = params.at[0].set(1.0)
         scale_ok = scale_ok & jnp.all(jnp.isfinite(params))
     else:
-        vector = scaled_null_space(_full_matrix(shared, distance, rows_one_hot, present), 1)[:, 0]
+        vector = scaled_null_space(_full_matrix(shared, distance, row_wall, present), 1)[:, 0]
         vector, scale_ok = divide_if_significant(vector, vector[0], safe_norm(vector))
     h_c, h_f = vector[1], vector[2]
     ok = scale_ok & all_seen & (h_c > h_f) & jnp.any(present)

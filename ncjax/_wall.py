@@ -308,13 +308,13 @@ def solve_wall(
     ceiling, floor = wall_rows(masked_rays(ceiling_rays, ceiling_mask), masked_rays(floor_rays, floor_mask))
     rows = jnp.concatenate([ceiling, floor])
     if method == "refined":
-        used = jnp.concatenate([ceiling_mask, floor_mask])
-        x, d = linear_walls(rows[:, :6], rows[:, 6], used[:, None])
+        row_wall = jnp.where(jnp.concatenate([ceiling_mask, floor_mask]), 0, -1)
+        x, d = linear_walls(rows[:, :6], rows[:, 6], row_wall, 1)
         params, ok = yaw_parameters(jnp.concatenate([x, d]))
         rays = jnp.concatenate([ceiling_rays, floor_rays])
         is_floor = jnp.arange(rays.shape[0]) >= ceiling_rays.shape[0]
         base = jnp.broadcast_to(jnp.array([1.0, 0.0], rays.dtype), (rays.shape[0], 2))
-        params = refine_walls(params, rays, base, used[:, None], is_floor, refine_yaw=True)
+        params = refine_walls(params, rays, base, row_wall, is_floor, refine_yaw=True)
         yaw, h_c, h_f, distance = params
         direction = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
         ok = ok & jnp.all(jnp.isfinite(params))

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from ._linalg import divide_if_significant, inverse_or_zero, scaled_null_space
 from ._plucker import safe_norm
@@ -54,12 +54,12 @@ def rotate_2d(vector: Float[Array, "*batch 2"], angle: Float[Array, "*#batch"]) 
 
 
 def linear_walls(
-    shared: Float[Array, "m n"], distance: Float[Array, " m"], one_hot: Bool[Array, "m K"]
+    shared: Float[Array, "m n"], distance: Float[Array, " m"], row_wall: Int[Array, " m"], num_walls: int
 ) -> tuple[Float[Array, " n"], Float[Array, " K"]]:
     """Least-squares null vector of ``[shared | distance columns]`` with the distances eliminated.
 
     The matrix has row ``i`` equal to ``shared[i]`` in the shared unknowns and
-    ``distance[i]`` in the column of its wall (``one_hot[i]``). After unit
+    ``distance[i]`` in the column of its wall (``row_wall[i]``). After unit
     rows, each wall's distance column is projected out of its own rows
     (``B_k - a_k (a_k^T B_k) / (a_k^T a_k)``: the distances minimise each
     wall's rows in closed form); the shared unknowns ``x`` are the
@@ -67,25 +67,43 @@ def linear_walls(
     an SVD of ``m x n`` instead of ``m x (n + K)``; the scale is fixed on the
     shared unknowns, ``|x| = 1`` after column equilibration), and
     ``d_k = -(a_k^T B_k x) / (a_k^T a_k)``. The projection never forms
-    ``B^T B``, so float32 keeps its accuracy.
+    ``B^T B``, so float32 keeps its accuracy; the per-wall sums are segment
+    sums, so the cost does not grow with ``K``.
 
     Args:
-        shared: coefficients of the shared unknowns, one row per ray (zero rows unused).
+        shared: coefficients of the shared unknowns, one row per ray.
         distance: coefficient of the row's wall distance.
-        one_hot: the row's wall (all False for unused rows).
+        row_wall: the row's wall, -1 for unused rows (they count as zero rows).
+        num_walls: static ``K``.
 
     Returns:
         ``(x, d)``: shared unknowns and distances (0 for walls without rows), one homogeneous scale.
     """
-    row_scale = inverse_or_zero(safe_norm(jnp.concatenate([shared, distance[:, None]], -1)))
+    used = row_wall >= 0
+    row_scale = jnp.where(used, inverse_or_zero(safe_norm(jnp.concatenate([shared, distance[:, None]], -1))), 0.0)
     shared = shared * row_scale[:, None]
     distance = distance * row_scale
-    weights = one_hot.astype(shared.dtype) * distance[:, None]  # (m, K)
-    inverse = inverse_or_zero(jnp.sum(weights * weights, 0))  # 1 / (a_k^T a_k)
-    coupling = inverse[:, None] * (weights.T @ shared)  # (K, n)
-    projected = shared - weights @ coupling
+    segment = _segments(row_wall, num_walls)
+    inverse = inverse_or_zero(_wall_sums(distance * distance, segment, num_walls))  # 1 / (a_k^T a_k)
+    coupling = inverse[:, None] * _wall_sums(distance[:, None] * shared, segment, num_walls)  # (K, n)
+    projected = shared - distance[:, None] * _per_row(coupling, segment)
     x = scaled_null_space(projected, 1)[:, 0]
     return x, -(coupling @ x)
+
+
+def _segments(row_wall: Int[Array, " m"], num_walls: int) -> Int[Array, " m"]:
+    """Segment ids of the rows: their wall, ``num_walls`` for unused rows."""
+    return jnp.where(row_wall >= 0, row_wall, num_walls)
+
+
+def _wall_sums(values: Float[Array, "m ..."], segment: Int[Array, " m"], num_walls: int) -> Float[Array, "K ..."]:
+    """Per-wall sums of per-row values (unused rows dropped)."""
+    return jax.ops.segment_sum(values, segment, num_walls + 1)[:num_walls]
+
+
+def _per_row(per_wall: Float[Array, "K ..."], segment: Int[Array, " m"]) -> Float[Array, "m ..."]:
+    """Each row's wall's value (zero for unused rows)."""
+    return jnp.concatenate([per_wall, jnp.zeros_like(per_wall[:1])])[segment]
 
 
 def heights_of(vector: Float[Array, " n"]) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
@@ -158,12 +176,12 @@ def angular_residual(
     return jnp.where(defined, jnp.arctan2(cross, jnp.where(defined, dot, 1.0)), 0.0)
 
 
-def _row_arguments(params, geometry, base_directions, one_hot, is_floor):
+def _row_arguments(params, geometry, base_directions, row_wall, is_floor):
     """The per-row arguments of :func:`angular_residual`, and which rows are used."""
     azimuth, rc, observed = geometry
-    used = jnp.any(one_hot, 1)
+    used = row_wall >= 0
     heights = jnp.where(is_floor, params[2], params[1])
-    distances = params[3:][jnp.argmax(one_hot, 1)]
+    distances = params[3:][jnp.maximum(row_wall, 0)]
     return (jnp.broadcast_to(params[0], heights.shape), heights, distances, base_directions, azimuth, rc, observed), used
 
 
@@ -171,11 +189,11 @@ def residuals_of(
     params: Float[Array, " P"],
     geometry: tuple[Array, Array, Array],
     base_directions: Float[Array, "m 2"],
-    one_hot: Bool[Array, "m K"],
+    row_wall: Int[Array, " m"],
     is_floor: Bool[Array, " m"],
 ) -> Float[Array, " m"]:
-    """:func:`angular_residual` of every row (0 for unused rows)."""
-    arguments, used = _row_arguments(params, geometry, base_directions, one_hot, is_floor)
+    """:func:`angular_residual` of every row (0 for unused rows, ``row_wall`` -1)."""
+    arguments, used = _row_arguments(params, geometry, base_directions, row_wall, is_floor)
     return jnp.where(used, jax.vmap(angular_residual)(*arguments), 0.0)
 
 
@@ -183,33 +201,35 @@ def gauss_newton_step(
     params: Float[Array, " P"],
     geometry: tuple[Array, Array, Array],
     base_directions: Float[Array, "m 2"],
-    one_hot: Bool[Array, "m K"],
+    row_wall: Int[Array, " m"],
     is_floor: Bool[Array, " m"],
     refine_yaw: bool,
 ) -> tuple[Float[Array, ""], Float[Array, " P"]]:
     """The cost at ``params`` and the Gauss-Newton step from there, on the angular residuals of all used rows.
 
-    ``params = (t, h_c, h_f, d_1..d_K)``. Rows with an all-False ``one_hot``
-    are unused. Parameters that no row constrains (absent walls, the yaw when
+    ``params = (t, h_c, h_f, d_1..d_K)``. Rows with ``row_wall`` -1 are
+    unused. Parameters that no row constrains (absent walls, the yaw when
     not refined) do not move.
 
     Returns:
         ``(cost, delta)``: the sum of squared residuals at ``params`` (as
         :func:`squared_error`) and the increment ``delta`` of ``params``.
     """
-    arguments, used = _row_arguments(params, geometry, base_directions, one_hot, is_floor)
+    num_walls = params.shape[0] - 3
+    arguments, used = _row_arguments(params, geometry, base_directions, row_wall, is_floor)
     residual, (d_yaw, d_height, d_distance) = jax.vmap(jax.value_and_grad(angular_residual, argnums=(0, 1, 2)))(*arguments)
     mask = used.astype(params.dtype)
     residual = residual * mask
     d_yaw = d_yaw * mask if refine_yaw else jnp.zeros_like(d_yaw)
     shared = jnp.stack([d_yaw, jnp.where(is_floor, 0.0, d_height), jnp.where(is_floor, d_height, 0.0)], -1) * mask[:, None]
-    weights = one_hot.astype(params.dtype) * d_distance[:, None]  # (m, K)
+    d_distance = d_distance * mask
+    segment = _segments(row_wall, num_walls)
     # normal equations [[A, C], [C^T, diag(D)]] delta = -[b, e]
     a = shared.T @ shared
-    c = shared.T @ weights
-    inverse = inverse_or_zero(jnp.sum(weights * weights, 0))
+    c = _wall_sums(shared * d_distance[:, None], segment, num_walls).T
+    inverse = inverse_or_zero(_wall_sums(d_distance * d_distance, segment, num_walls))
     b = shared.T @ residual
-    e = weights.T @ residual
+    e = _wall_sums(d_distance * residual, segment, num_walls)
     complement = a - (c * inverse[None, :]) @ c.T
     rhs = b - c @ (inverse * e)
     diagonal = jnp.diagonal(complement)
@@ -221,16 +241,16 @@ def gauss_newton_step(
     return jnp.sum(residual * residual), jnp.concatenate([delta_shared, delta_distances])
 
 
-def _used_geometry(rays: Float[Array, "m 6"], one_hot: Bool[Array, "m K"]) -> tuple[Array, Array, Array]:
+def _used_geometry(rays: Float[Array, "m 6"], row_wall: Int[Array, " m"]) -> tuple[Array, Array, Array]:
     """:func:`column_geometry` of the used rows (unused rows zeroed)."""
-    return column_geometry(jnp.where(jnp.any(one_hot, 1)[:, None], rays, 0.0))
+    return column_geometry(jnp.where((row_wall >= 0)[:, None], rays, 0.0))
 
 
 def squared_error(
-    geometry: tuple[Array, Array, Array], base_directions: Float[Array, "m 2"], one_hot: Bool[Array, "m K"], is_floor: Bool[Array, " m"]
+    geometry: tuple[Array, Array, Array], base_directions: Float[Array, "m 2"], row_wall: Int[Array, " m"], is_floor: Bool[Array, " m"]
 ):
     """The maximum-likelihood cost ``params -> sum of squared angular residuals`` of these rows."""
-    return lambda params: jnp.sum(residuals_of(params, geometry, base_directions, one_hot, is_floor) ** 2)
+    return lambda params: jnp.sum(residuals_of(params, geometry, base_directions, row_wall, is_floor) ** 2)
 
 
 _SCALE_SEARCH_ROWS = 512
@@ -240,7 +260,7 @@ def search_scale(
     vector: Float[Array, " n"],
     rays: Float[Array, "m 6"],
     base_directions: Float[Array, "m 2"],
-    one_hot: Bool[Array, "m K"],
+    row_wall: Int[Array, " m"],
     is_floor: Bool[Array, " m"],
     floor_depths: Float[Array, " S"],
 ) -> tuple[Float[Array, " P"], Bool[Array, ""]]:
@@ -271,7 +291,7 @@ def search_scale(
     valid = jnp.concatenate([linear_ok[None], jnp.broadcast_to(shape_ok, floor_depths.shape)])
     params = jnp.concatenate([jnp.zeros((candidates.shape[0], 1), vector.dtype), candidates], 1)
     every = slice(None, None, max(1, rays.shape[0] // _SCALE_SEARCH_ROWS))
-    cost = squared_error(_used_geometry(rays[every], one_hot[every]), base_directions[every], one_hot[every], is_floor[every])
+    cost = squared_error(_used_geometry(rays[every], row_wall[every]), base_directions[every], row_wall[every], is_floor[every])
     costs = jax.vmap(cost)(params)
     costs = jnp.where(valid & jnp.all(jnp.isfinite(params), 1) & jnp.isfinite(costs), costs, jnp.inf)
     return params[jnp.argmin(costs)], jnp.any(jnp.isfinite(costs))
@@ -281,7 +301,7 @@ def refine_walls(
     params: Float[Array, " P"],
     rays: Float[Array, "m 6"],
     base_directions: Float[Array, "m 2"],
-    one_hot: Bool[Array, "m K"],
+    row_wall: Int[Array, " m"],
     is_floor: Bool[Array, " m"],
     refine_yaw: bool,
     steps: int = 3,
@@ -292,7 +312,7 @@ def refine_walls(
         params: initial ``(t, h_c, h_f, d_1..d_K)`` (from a linear solver).
         rays: the rays, one per row.
         base_directions: per row, its wall's direction at yaw 0.
-        one_hot: per row, its wall (all False: the row is unused).
+        row_wall: per row, its wall (-1: the row is unused).
         is_floor: per row, floor (True) or ceiling ray.
         refine_yaw: static; False keeps ``t`` (Atlanta: known directions).
         steps: static number of Gauss-Newton steps (3: converged to float
@@ -301,9 +321,9 @@ def refine_walls(
     Returns:
         The refined ``(t, h_c, h_f, d_1..d_K)``.
     """
-    geometry = _used_geometry(rays, one_hot)
-    cost = squared_error(geometry, base_directions, one_hot, is_floor)
-    linearise = lambda p: gauss_newton_step(p, geometry, base_directions, one_hot, is_floor, refine_yaw)  # noqa: E731
+    geometry = _used_geometry(rays, row_wall)
+    cost = squared_error(geometry, base_directions, row_wall, is_floor)
+    linearise = lambda p: gauss_newton_step(p, geometry, base_directions, row_wall, is_floor, refine_yaw)  # noqa: E731
     current, delta = linearise(params)
     for step in range(steps):
         candidate = params + delta

@@ -181,13 +181,13 @@ def test_scale_search_recovers_a_scale_the_linear_solve_lost():
     re-scaled by the likelihood: the room's shape survives, the refinement recovers the room."""
     room = sample_room(3, "atlanta")
     ceiling_rays, floor_rays = rays(room)
-    one_hot = jax.nn.one_hot(room["wall_index"], CAPACITY, dtype=bool) & room["mask"][None, :]
-    rows_one_hot = jnp.concatenate([one_hot, one_hot])
+    column_wall = jnp.where(room["mask"][jnp.maximum(room["wall_index"], 0)] & (room["wall_index"] >= 0), room["wall_index"], -1)
+    row_wall = jnp.concatenate([column_wall, column_wall])
     stacked_rays = jnp.concatenate([ceiling_rays, floor_rays])
     directions = room["directions"][jnp.maximum(room["wall_index"], 0)]
     is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
     truth = jnp.concatenate([jnp.stack([room["h_c"], room["h_f"]]), jnp.where(room["mask"], room["distances"], 0.0)])
-    arguments = (stacked_rays, jnp.concatenate([directions, directions]), rows_one_hot, is_floor)
+    arguments = (stacked_rays, jnp.concatenate([directions, directions]), row_wall, is_floor)
     depths = jnp.asarray(ncjax._layout_solvers.FLOOR_DEPTHS, truth.dtype)
     corrupted = 0.37 * jnp.concatenate([jnp.array([-1.0]), truth])  # right shape, x_0 of the wrong sign
     start, ok = search_scale(corrupted, *arguments, depths)
