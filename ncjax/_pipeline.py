@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import math
 
 import equinox as eqx
@@ -930,7 +931,11 @@ def choose_manhattan(
     return manhattan_ok & (~atlanta_ok | better)
 
 
-_layout_jit = jax.jit(layout_from_evidence, static_argnames=("world", "config"))
+def _padded_layout(ceiling_v, floor_v, corner_prob, cam, key, world, config, slots):
+    return pad_layout(layout_from_evidence(ceiling_v, floor_v, corner_prob, cam, key, world, config), slots)
+
+
+_layout_jit = jax.jit(_padded_layout, static_argnames=("world", "config", "slots"))
 
 
 def layout_from_boundaries(
@@ -1004,34 +1009,29 @@ def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, key, world, conf
     Traced inputs run with ``config.capacity`` slots directly.
     """
     batched = ceiling_v.ndim == 2
-    run = _batched_layout_jit if batched else _layout_jit
+    run = functools.partial(_batched_layout_jit if batched else _layout_jit, world=world, slots=config.capacity)
+    full = dataclasses.replace(config, compact_capacity=0)
     compact = config.compact_capacity
     if not 0 < compact < config.capacity or any(isinstance(x, jax.core.Tracer) for x in (ceiling_v, floor_v, corner_prob)):
-        return _pad_layout_jit(run(ceiling_v, floor_v, corner_prob, cam, key, world, config), config.capacity)
-    small = dataclasses.replace(config, capacity=compact, compact_capacity=0)
-    layout = _pad_layout_jit(run(ceiling_v, floor_v, corner_prob, cam, key, world, small), config.capacity)
-    full = dataclasses.replace(config, compact_capacity=0)
+        return run(ceiling_v, floor_v, corner_prob, cam, key, config=full)
+    layout = run(ceiling_v, floor_v, corner_prob, cam, key, config=dataclasses.replace(full, capacity=compact))
     if not batched:
-        if int(layout.status) != LayoutStatus.TOO_MANY_WALLS:
-            return layout
-        return _layout_jit(ceiling_v, floor_v, corner_prob, cam, key, world, full)
+        return run(ceiling_v, floor_v, corner_prob, cam, key, config=full) if layout.status == LayoutStatus.TOO_MANY_WALLS else layout
     rerun = np.flatnonzero(np.asarray(layout.status) == LayoutStatus.TOO_MANY_WALLS)
     if not rerun.size:
         return layout
     # padded to a power of two: few batch sizes, so few compilations
     size = 1 << (rerun.size - 1).bit_length()
     picked = jnp.asarray(np.concatenate([rerun, np.full(size - rerun.size, rerun[0])]))
-    inputs = jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cam, key))
-    redone = _batched_layout_jit(*inputs, world, full)
+    redone = run(*jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cam, key)), config=full)
     return jax.tree.map(lambda b, x: b.at[rerun].set(x[: rerun.size]), layout, redone)
 
 
-def _batched_layout(ceiling_v, floor_v, corner_prob, cams, keys, world, config):
+def _batched_layout(ceiling_v, floor_v, corner_prob, cams, keys, world, config, slots):
     def one(c, f, p, cam, k):
-        return layout_from_evidence(c, f, p, cam, k, world, config)
+        return _padded_layout(c, f, p, cam, k, world, config, slots)
 
     return jax.vmap(one)(ceiling_v, floor_v, corner_prob, cams, keys)
 
 
-_batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config"))
-_pad_layout_jit = jax.jit(pad_layout, static_argnames=("capacity",))
+_batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config", "slots"))

@@ -328,7 +328,7 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
         assert not np.asarray(getattr(layout, name))[empty].any(), name
     # four rooms with all the slots from the start (the reruns' padded batch size: no extra compilation)
     keys = jax.random.split(jax.random.key(0), 6)[:4]
-    expected = _batched_layout_jit(*(x[:4] for x in rows), pick(cams, slice(0, 4)), keys, "manhattan", full)
+    expected = _batched_layout_jit(*(x[:4] for x in rows), pick(cams, slice(0, 4)), keys, "manhattan", full, 16)
     np.testing.assert_array_equal(layout.mask[:4], expected.mask)
     np.testing.assert_array_equal(layout.status[:4], expected.status)
     np.testing.assert_allclose(layout.ceiling_corners[:4], expected.ceiling_corners, atol=1e-4)
