@@ -4,14 +4,23 @@
   jaxtyping + beartype (the annotations are part of the contract).
 - ``x64`` fixture: float64 only for the tests that need it.
 - Hypothesis profile sized for 2-core CI machines.
+- A private XLA compilation cache: the CLI tests switch on the persistent
+  cache (``ncjax._app.enable_compilation_cache``) for the rest of the
+  session; entries of other runs (other flags, a concurrent writer) must
+  not be read back.
 """
 
+import atexit
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # OpenBLAS worker threads busy-wait for each other: on a loaded 2-core machine one
 # small LAPACK call can then take seconds. Must be set before jax loads OpenBLAS.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ["NCJAX_CACHE"] = tempfile.mkdtemp(prefix="ncjax-test-xla-")
+atexit.register(shutil.rmtree, os.environ["NCJAX_CACHE"], ignore_errors=True)
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
