@@ -11,6 +11,7 @@
 """
 
 import atexit
+import gc
 import os
 import shutil
 import tempfile
@@ -38,6 +39,19 @@ settings.register_profile(
     derandomize=True,
 )
 settings.load_profile("ncjax")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop each test module's compiled programs when it ends.
+
+    The suite compiles hundreds of XLA programs (the pipeline alone in
+    several worlds, slot counts and batch sizes); kept for the whole session
+    they made a 2-core CI run abort inside XLA's compiler in the last modules.
+    """
+    yield
+    jax.clear_caches()
+    gc.collect()
 
 
 @pytest.fixture
