@@ -1,6 +1,6 @@
 """Latency and throughput of the geometric pipeline (``ncjax.layout_from_boundaries``) on this machine.
 
-Exact boundaries of random rooms at 1024 x 512; one panorama (after
+Exact boundaries (or with ``--sigma`` px of noise) of random rooms at 1024 x 512; one panorama (after
 compilation; median of ``--repeats``) and batches of 64 and 256 (one call,
 ``jax.jit(jax.vmap(...))`` inside), for the Manhattan, Atlanta and auto
 branches, each room with its own camera. Rooms run with
@@ -16,7 +16,7 @@ descheduled worker (we measured 6 s instead of 20 ms for the final
 adjustment). Set ``OPENBLAS_NUM_THREADS`` yourself to compare.
 
     uv run python benchmarks/bench_pipeline.py [--repeats 11] [--batches 64 256] [--worlds manhattan atlanta auto]
-        [--adjustment-stride 1] [--compact-capacity 16]
+        [--adjustment-stride 1] [--compact-capacity 16] [--sigma 0]
 """
 
 from __future__ import annotations
@@ -38,15 +38,23 @@ from ncjax._pipeline import WORLDS, PipelineConfig  # noqa: E402
 WIDTH, HEIGHT = 1024, 512
 
 
-def inputs(world: str, count: int):
-    """Exact labels of ``count`` random rooms (Atlanta rooms for ``world="auto"``: both branches are taken)."""
+def inputs(world: str, count: int, sigma: float = 0.0):
+    """Labels of ``count`` random rooms (Atlanta rooms for ``world="auto"``: both branches are taken).
+
+    ``sigma`` (pixels) adds white noise to the boundary rows: on exact rows the
+    final adjustment converges in a step or two, on noisy ones it runs to
+    ``PipelineConfig.adjustment_steps`` more often.
+    """
     config = ncjax.RoomConfig(
         world="atlanta" if world == "auto" else world, occlusion="any", room_tries=2, camera_tries=64
     )
     rooms = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(3), count))
     labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(rooms)
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(rooms)
-    return labels.ceiling_v, labels.floor_v, labels.corner_target, cams
+    ceiling_key, floor_key = jax.random.split(jax.random.key(4))
+    ceiling_v = labels.ceiling_v + sigma * jax.random.normal(ceiling_key, labels.ceiling_v.shape)
+    floor_v = labels.floor_v + sigma * jax.random.normal(floor_key, labels.floor_v.shape)
+    return ceiling_v, floor_v, labels.corner_target, cams
 
 
 def timed(fn) -> tuple[float, float]:
@@ -71,12 +79,14 @@ def main(argv=None):
                         help="PipelineConfig.adjustment_stride: the final adjustment fits every n-th column")
     parser.add_argument("--compact-capacity", type=int, default=PipelineConfig.compact_capacity,
                         help="PipelineConfig.compact_capacity (0: every room with all the slots)")
+    parser.add_argument("--sigma", type=float, default=0.0, help="white noise on the boundary rows, pixels")
     args = parser.parse_args(argv)
     config = PipelineConfig(adjustment_stride=args.adjustment_stride, compact_capacity=args.compact_capacity)
     print(f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}")
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}, "
+          f"row noise {args.sigma} px")
     for world in args.worlds:
-        ceiling, floor, prob, cams = inputs(world, max(args.batches + [args.repeats]))
+        ceiling, floor, prob, cams = inputs(world, max(args.batches + [args.repeats]), args.sigma)
 
         def single(i):
             cam = jax.tree.map(lambda x: x[i], cams)

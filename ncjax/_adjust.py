@@ -4,7 +4,7 @@ Minimises, over the wall directions, distances and the two heights,
 
 * the reprojection error of the boundary pixels: per used column, the row of
   its wall's ceiling (floor) line minus the observed row, in pixels
-  (:func:`ncjax._reprojection.wall_boundary_rows`), and
+  (:func:`ncjax._reprojection.boundary_rows_along`), and
 * a soft penalty on corners leaving the vertical planes of their corner rays:
   all rays of one panorama column lie in the vertical half-plane of its
   azimuth, so the penalty is the corner's column minus the detected corner
@@ -44,7 +44,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from ._camera import NonCentralPanorama, angles_to_pixel
 from ._linalg import inverse_or_zero
 from ._plucker import safe_sqrt, wall_planes_meet
-from ._reprojection import wall_boundary_rows
+from ._reprojection import boundary_rows_along, column_directions
 from ._sparse_normal import (
     JacobianStructure,
     SparseNormalCholesky,
@@ -128,25 +128,26 @@ def _local_jacobian_jvp(fn, num_parameters: int):
         parameters, rest = primals[:num_parameters], primals[num_parameters:]
         jacobian = jax.jacfwd(lambda *p: fn(*p, *rest), argnums=tuple(range(num_parameters)))(*parameters)
         _, rest_tangent = jax.jvp(lambda *r: fn(*parameters, *r), rest, tangents[num_parameters:])
-        parameter_tangent = sum(j * t for j, t in zip(jacobian, tangents[:num_parameters]))
+        parameter_tangent = sum(
+            jnp.tensordot(j, t, axes=jnp.ndim(t)) for j, t in zip(jacobian, tangents[:num_parameters])
+        )
         return fn(*primals), parameter_tangent + rest_tangent
 
     return wrapped
 
 
 def boundary_residuals(
-    angle: Float[ArrayLike, ""],
+    direction: Float[ArrayLike, " 2"],
     distance: Float[ArrayLike, ""],
     ceiling_height: Float[ArrayLike, ""],
     floor_height: Float[ArrayLike, ""],
     cam: NonCentralPanorama,
-    column: Float[ArrayLike, ""],
+    column_direction: Float[ArrayLike, " 2"],
     ceiling_v: Float[ArrayLike, ""],
     floor_v: Float[ArrayLike, ""],
 ) -> Float[Array, " 2"]:
-    """Ceiling and floor row errors (pixels) of one column on its wall, the wall given by its angle."""
-    direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
-    ceiling, floor, _ = wall_boundary_rows(cam, direction, distance, ceiling_height, floor_height, column)
+    """Ceiling and floor row errors (pixels) of one column (given by its :func:`column_directions`) on its wall."""
+    ceiling, floor, _ = boundary_rows_along(cam, direction, distance, ceiling_height, floor_height, column_direction)
     return jnp.stack([ceiling - ceiling_v, floor - floor_v])
 
 
@@ -173,12 +174,18 @@ def _residual_terms(
     floor_height: Float[ArrayLike, ""],
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
+    observed_directions: Float[Array, "N 2"],
 ) -> tuple[Float[Array, "N 2"], Float[Array, " K"]]:
-    """Unweighted, unmasked row errors per column and column errors per corner (wall ``k`` at ``angles[k]``)."""
+    """Unweighted, unmasked row errors per column and column errors per corner (wall ``k`` at ``angles[k]``).
+
+    ``observed_directions`` are the :func:`column_directions` of the observed
+    columns: the solvers evaluate the residuals many times, so they pass them in.
+    """
     wall = jnp.maximum(observations.column_wall, 0)
+    directions = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1)
     rows = jax.vmap(_boundary_residuals_fast_jvp, in_axes=(0, 0, None, None, None, 0, 0, 0))(
-        angles[wall], distances[wall], ceiling_height, floor_height, cam,
-        observations.columns.astype(distances.dtype), observations.ceiling_v, observations.floor_v,
+        directions[wall], distances[wall], ceiling_height, floor_height, cam,
+        observed_directions, observations.ceiling_v, observations.floor_v,
     )
     previous = previous_walls(observations.wall_mask)
     corners = jax.vmap(corner_residual, in_axes=(0, 0, None, 0))(
@@ -219,8 +226,14 @@ def layout_residuals(
         ``2 N + K`` residuals: the ``N`` ceiling rows, the ``N`` floor rows, the corners; 0 where unused.
     """
     angles = jnp.arctan2(directions[:, 1], directions[:, 0])
-    rows, corners = _residual_terms(angles, distances, ceiling_height, floor_height, cam, observations)
+    rows, corners = _residual_terms(
+        angles, distances, ceiling_height, floor_height, cam, observations, _observed_directions(cam, observations)
+    )
     return _fitted_residuals(rows, corners, observations, corner_weight)
+
+
+def _observed_directions(cam: NonCentralPanorama, observations: BoundaryObservations) -> Float[Array, "N 2"]:
+    return column_directions(cam, observations.columns.astype(observations.ceiling_v.dtype))
 
 
 def manhattan_directions(yaw: Float[Array, ""], labels: Int[Array, " K"]) -> Float[Array, "K 2"]:
@@ -275,7 +288,9 @@ def _layout_problem(directions, distances, ceiling_height, floor_height, labels,
     return _LayoutProblem(start, offsets, angle_index, labels is None)
 
 
-def _problem_residuals(problem: _LayoutProblem, y, cam, observations: BoundaryObservations, corner_weight: float):
+def _problem_residuals(
+    problem: _LayoutProblem, y, cam, observations: BoundaryObservations, observed_directions, corner_weight: float
+):
     """:func:`layout_residuals` at ``y``, plus pins of the empty slots' parameters to ``problem.start``.
 
     The pins make the Jacobian's columns independent (the implicit adjoint
@@ -283,7 +298,8 @@ def _problem_residuals(problem: _LayoutProblem, y, cam, observations: BoundaryOb
     """
     wall_angles, distances, heights = y
     rows, corners = _residual_terms(
-        wall_angles[problem.angle_index] + problem.offsets, distances, heights[0], heights[1], cam, observations
+        wall_angles[problem.angle_index] + problem.offsets, distances, heights[0], heights[1], cam, observations,
+        observed_directions,
     )
     absent = ~observations.wall_mask
     pins = [jnp.where(absent, distances - problem.start[1], 0.0)]
@@ -364,10 +380,11 @@ def adjust_layout(
     """
     problem = _layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
     y0 = problem.start
+    observed_directions = _observed_directions(cam, observations)
 
     def residuals(y, args):
         del args
-        return _problem_residuals(problem, y, cam, observations, corner_weight)
+        return _problem_residuals(problem, y, cam, observations, observed_directions, corner_weight)
 
     def cost(y):
         r = residuals(y, None)
@@ -463,7 +480,8 @@ def layout_uncertainty(
     """
     problem = _layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
-    residuals = lambda f: _problem_residuals(problem, unravel(f), cam, observations, corner_weight)  # noqa: E731
+    observed_directions = _observed_directions(cam, observations)
+    residuals = lambda f: _problem_residuals(problem, unravel(f), cam, observations, observed_directions, corner_weight)  # noqa: E731
     values, linear = jax.linearize(residuals, flat)
     structure = _jacobian_structure(problem, observations)
     jacobian = probe_jacobian(linear, structure, flat.dtype)

@@ -59,12 +59,12 @@ from ._adjust import (
     not_computed,
     previous_walls,
 )
-from ._camera import NonCentralPanorama, pixel_to_angles, pixel_to_ray
+from ._camera import NonCentralPanorama, pixel_to_ray
 from ._corners import column_walls, distance_to_corners, find_corners, side_extrapolation
 from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
 from ._ransac import boundary_errors, num_hypotheses, ransac_wall, wall_columns
-from ._reprojection import boundary_points, fit_plan_lines, wall_boundary_rows, wall_range
+from ._reprojection import boundary_points, column_directions, fit_plan_lines, wall_boundary_rows, wall_range
 from ._wall import Wall, canonical_orientation
 
 WORLDS = ("manhattan", "atlanta", "auto")
@@ -128,8 +128,16 @@ class PipelineConfig:
             direction vote (:func:`manhattan_labels`).
         corner_weight: weight of the corner-plane penalty of the adjustment.
         adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
+        adjustment_tolerance: the dogleg stops when a step changes every
+            parameter (radians, metres) and every residual (pixels) by less
+            than this plus this times its size (optimistix's Cauchy test).
+            Float32 rounds the rows' residuals at about 1e-5 px, so a tighter
+            test is never met and every panorama runs ``adjustment_steps``.
         adjustment_stride: the adjustment fits every this-many-th column (1:
             all); its cost is proportional to the number of columns it fits.
+        inlier_pass_stride: the first adjustment pass, whose layout only
+            picks the inlier rows of the second (and is its start), fits every
+            this-many-th of the second's columns (1: the same columns).
         covariance: compute ``Layout.corner_covariance`` and ``height_covariance``
             (a Jacobian of the final adjustment: 10-20% of the batched throughput
             in our benchmark); False leaves them NaN.
@@ -159,7 +167,9 @@ class PipelineConfig:
     turn_weight: float = 0.5
     corner_weight: float = 1.0
     adjustment_steps: int = 8
+    adjustment_tolerance: float = 1e-4
     adjustment_stride: int = 1
+    inlier_pass_stride: int = 4
     covariance: bool = True
     min_finite_fraction: float = 0.5
     max_room_height: float = 10.0
@@ -177,15 +187,16 @@ class PipelineConfig:
             raise ValueError(f"ransac_columns must be >= 2 * sample_size, got {self.ransac_columns}")
         positive = (
             "nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "merge_angle",
-            "manhattan_tolerance", "turn_weight",
+            "manhattan_tolerance", "turn_weight", "adjustment_tolerance",
         )
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if self.occlusion_noise_factor < 0:
             raise ValueError(f"occlusion_noise_factor must be >= 0, got {self.occlusion_noise_factor}")
-        if self.adjustment_stride < 1:
-            raise ValueError(f"adjustment_stride must be >= 1 column, got {self.adjustment_stride}")
+        for name in ("adjustment_stride", "inlier_pass_stride"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1 column, got {getattr(self, name)}")
         if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0:
             raise ValueError("corner_margin, corner_weight and adjustment_steps must be >= 0")
 
@@ -671,14 +682,22 @@ def _using(observations: BoundaryObservations, ceiling_used, floor_used) -> Boun
 def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
     """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again.
 
+    The first pass only has to bring the layout within ``inlier_threshold`` of
+    the inlier rows, so it fits a subset of the columns
+    (``inlier_pass_stride``); the second starts next to its optimum.
+
     Returns:
         The adjusted walls (:func:`ncjax._adjust.adjust_layout`), the fraction of the usable
         columns' ceiling and floor rows they reproject within ``inlier_threshold``, and their
         :func:`ncjax._adjust.layout_uncertainty` on the rows of the second adjustment.
     """
     observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
+    subset = _observations(
+        evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride * config.inlier_pass_stride
+    )
     adjusted = adjust_layout(
-        cam, observations, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps
+        cam, subset, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps,
+        config.adjustment_tolerance,
     )
     threshold = config.inlier_threshold * _scaled(1.0, cam.height, 512)
     ceiling_error, floor_error = _row_errors(cam, observations, adjusted[:4])
@@ -687,7 +706,9 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
         observations.ceiling_used & (jnp.abs(ceiling_error) < threshold),
         observations.floor_used & (jnp.abs(floor_error) < threshold),
     )
-    adjusted = adjust_layout(cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps)
+    adjusted = adjust_layout(
+        cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps, config.adjustment_tolerance
+    )
     if config.covariance:
         max_lag = max(1, round(_scaled(_CORRELATION_COLUMNS, cam.width, 1024) / config.adjustment_stride))
         uncertainty = layout_uncertainty(cam, inliers, *adjusted[:4], labels, config.corner_weight, max_lag)
@@ -701,18 +722,13 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
     return adjusted, explained / jnp.maximum(2 * jnp.sum(usable), 1), uncertainty
 
 
-def _corner_directions(cam: NonCentralPanorama, columns: Float[Array, " K"]) -> Float[Array, "K 2"]:
-    azimuth, _ = pixel_to_angles(cam, columns, 0.0)
-    return jnp.stack([jnp.cos(azimuth), jnp.sin(azimuth)], -1)
-
-
 def _point_on_wall(
     cam: NonCentralPanorama, direction: Float[Array, "K 2"], distance: Float[Array, " K"], column: Float[Array, " K"]
 ) -> Float[Array, "K 2"]:
     """Where the vertical half-plane of ``column`` meets a wall (plan view)."""
     t = wall_range(cam, direction, distance, column)
     t = jnp.where(jnp.isfinite(t), t, 0.0)
-    return (cam.rc + t)[:, None] * _corner_directions(cam, column)
+    return (cam.rc + t)[:, None] * column_directions(cam, column)
 
 
 def _signed_distance(direction: Float[Array, "K 2"], point: Float[Array, "K 2"]) -> Float[Array, " K"]:
@@ -745,7 +761,7 @@ def _place_atlanta_walls(
     chord = end - start
     length = jnp.linalg.norm(chord, axis=-1, keepdims=True)
     through_corners = jnp.where(length > 0, chord / jnp.where(length > 0, length, 1.0), directions)
-    radial = _corner_directions(cam, final.corner_columns)
+    radial = column_directions(cam, final.corner_columns)
     new_direction = jnp.where(final.inserted[:, None], radial, through_corners)
     new_distance = jnp.where(final.inserted, 0.0, _signed_distance(through_corners, start))
     keep = final.observed[:, None]

@@ -19,6 +19,25 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 
 
+def column_directions(cam: NonCentralPanorama, column: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 2"]:
+    """Unit horizontal direction ``a = (cos varphi, sin varphi)`` of each column's half-plane."""
+    azimuth, _ = pixel_to_angles(cam, column, 0.0)
+    return jnp.stack([jnp.cos(azimuth), jnp.sin(azimuth)], -1)
+
+
+def range_along(
+    cam: NonCentralPanorama,
+    direction: Float[ArrayLike, "*#batch 2"],
+    distance: Float[ArrayLike, "*#batch"],
+    column_direction: Float[ArrayLike, "*#batch 2"],
+) -> Float[Array, "*batch"]:
+    """:func:`wall_range` of the column whose half-plane has the unit direction ``column_direction``."""
+    direction, column_direction = jnp.asarray(direction), jnp.asarray(column_direction)
+    facing = direction[..., 0] * column_direction[..., 1] - direction[..., 1] * column_direction[..., 0]  # e2 . a
+    hit = jnp.abs(facing) > 0
+    return jnp.where(hit, distance / jnp.where(hit, facing, 1.0), jnp.inf) - cam.rc
+
+
 def wall_range(
     cam: NonCentralPanorama,
     direction: Float[ArrayLike, "*#batch 2"],
@@ -30,10 +49,29 @@ def wall_range(
     ``inf`` where the column's half-plane is parallel to the wall; negative
     where the wall is behind the optical centre.
     """
-    azimuth, _ = pixel_to_angles(cam, column, 0.0)
-    facing = direction[..., 0] * jnp.sin(azimuth) - direction[..., 1] * jnp.cos(azimuth)  # e2 . a
-    hit = jnp.abs(facing) > 0
-    return jnp.where(hit, distance / jnp.where(hit, facing, 1.0), jnp.inf) - cam.rc
+    return range_along(cam, direction, distance, column_directions(cam, column))
+
+
+def boundary_rows_along(
+    cam: NonCentralPanorama,
+    direction: Float[ArrayLike, "*#batch 2"],
+    distance: Float[ArrayLike, "*#batch"],
+    ceiling_height: Float[ArrayLike, "*#batch"],
+    floor_height: Float[ArrayLike, "*#batch"],
+    column_direction: Float[ArrayLike, "*#batch 2"],
+) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"], Bool[Array, "*batch"]]:
+    """:func:`wall_boundary_rows` of the column whose half-plane has the unit direction ``column_direction``.
+
+    The rows depend on the column only through ``a`` (equirectangular rows
+    are a function of the elevation alone), so a caller that evaluates the
+    same columns many times (the final adjustment) computes ``a`` once.
+    """
+    t = range_along(cam, direction, distance, column_direction)
+    seen = jnp.isfinite(t) & (t > 0)
+    t = jnp.where(seen, t, 1e-3)
+    _, ceiling_v = angles_to_pixel(cam, 0.0, jnp.arctan2(ceiling_height, t))
+    _, floor_v = angles_to_pixel(cam, 0.0, jnp.arctan2(floor_height, t))
+    return ceiling_v, floor_v, seen
 
 
 def wall_boundary_rows(
@@ -59,13 +97,9 @@ def wall_boundary_rows(
         parallel to the column's half-plane) the rows are those of a wall at
         1 mm, finite with finite gradients.
     """
-    t = wall_range(cam, direction, distance, column)
-    seen = jnp.isfinite(t) & (t > 0)
-    t = jnp.where(seen, t, 1e-3)
-    azimuth, _ = pixel_to_angles(cam, column, 0.0)
-    _, ceiling_v = angles_to_pixel(cam, azimuth, jnp.arctan2(ceiling_height, t))
-    _, floor_v = angles_to_pixel(cam, azimuth, jnp.arctan2(floor_height, t))
-    return ceiling_v, floor_v, seen
+    return boundary_rows_along(
+        cam, direction, distance, ceiling_height, floor_height, column_directions(cam, column)
+    )
 
 
 def boundary_points(

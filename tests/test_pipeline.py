@@ -23,6 +23,7 @@ from ncjax._adjust import (
     _boundary_residuals_fast_jvp,
     _jacobian_structure,
     _layout_problem,
+    _observed_directions,
     _problem_residuals,
     adjust_layout,
     boundary_residuals,
@@ -31,7 +32,7 @@ from ncjax._adjust import (
 )
 from ncjax._pipeline import _batched_layout_jit, _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
 from ncjax._ransac import num_hypotheses, wall_columns
-from ncjax._reprojection import boundary_points, fit_plan_line, fit_plan_lines, wall_boundary_rows
+from ncjax._reprojection import boundary_points, column_directions, fit_plan_line, fit_plan_lines, wall_boundary_rows
 from ncjax._sparse_normal import normal_matrix, probe_jacobian
 
 WIDTH, HEIGHT = 512, 256
@@ -111,7 +112,8 @@ def test_wall_columns_spread_over_each_wall():
 def test_boundary_residuals_fast_jvp_matches_autodiff():
     """The local-Jacobian JVP of the adjustment's per-column residuals equals JAX's own, for every argument."""
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
-    args = (jnp.array(0.3), jnp.array(-2.1), jnp.array(1.2), jnp.array(-1.4), cam, jnp.array(17.3), jnp.array(40.0), jnp.array(90.0))
+    direction = jnp.array([jnp.cos(0.3), jnp.sin(0.3)])
+    args = (direction, jnp.array(-2.1), jnp.array(1.2), jnp.array(-1.4), cam, column_directions(cam, 17.3), jnp.array(40.0), jnp.array(90.0))
     fast = _boundary_residuals_fast_jvp
     key = jax.random.key(5)
     for trial in range(3):
@@ -121,9 +123,14 @@ def test_boundary_residuals_fast_jvp_matches_autodiff():
         np.testing.assert_allclose(value, expected_value, rtol=1e-6)
         np.testing.assert_allclose(tangent, expected_tangent, rtol=1e-4, atol=1e-4)
     # reverse mode and a vmapped Jacobian (what the least-squares solver materialises)
-    jacobian = jax.vmap(jax.jacrev(fast, argnums=(0, 1, 2, 3, 6)), in_axes=(0, 0, None, None, None, 0, 0, 0))
-    batched = (jnp.linspace(0.1, 0.5, 4), jnp.full(4, -2.0), args[2], args[3], cam, jnp.arange(4.0) + 10, jnp.full(4, 40.0), jnp.full(4, 90.0))
-    expected = jax.vmap(jax.jacrev(boundary_residuals, argnums=(0, 1, 2, 3, 6)), in_axes=(0, 0, None, None, None, 0, 0, 0))
+    argnums = (0, 1, 2, 3, 5, 6)
+    jacobian = jax.vmap(jax.jacrev(fast, argnums=argnums), in_axes=(0, 0, None, None, None, 0, 0, 0))
+    angles = jnp.linspace(0.1, 0.5, 4)
+    batched = (
+        jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1), jnp.full(4, -2.0), args[2], args[3], cam,
+        column_directions(cam, jnp.arange(4.0) + 10), jnp.full(4, 40.0), jnp.full(4, 90.0),
+    )
+    expected = jax.vmap(jax.jacrev(boundary_residuals, argnums=argnums), in_axes=(0, 0, None, None, None, 0, 0, 0))
     for got, want in zip(jacobian(*batched), expected(*batched)):
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
@@ -176,7 +183,7 @@ def test_adjustment_structure_gives_the_dense_normal_matrix(world):
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
 
     def residuals(f):
-        return _problem_residuals(problem, unravel(f), cam, observations, 1.0)
+        return _problem_residuals(problem, unravel(f), cam, observations, _observed_directions(cam, observations), 1.0)
 
     structure = _jacobian_structure(problem, observations)
     dense = jax.jit(jax.jacfwd(residuals))(flat)
