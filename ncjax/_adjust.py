@@ -400,6 +400,9 @@ def adjust_layout(
     return *problem.walls(y), improved
 
 
+_LAGS_PER_ITERATION = 8
+
+
 def correlation_time(
     rows: Float[Array, "2 N"], used: Bool[Array, "2 N"], column_wall: Int[Array, " N"], max_lag: int
 ) -> Float[Array, ""]:
@@ -421,7 +424,13 @@ def correlation_time(
         product = jnp.sum(jnp.where(pair, rows * jnp.roll(rows, -lag, 1), 0.0)) / jnp.maximum(jnp.sum(pair), 1)
         return product / jnp.where(variance > 0, variance, 1.0)
 
-    correlations = jax.lax.map(correlation, jnp.arange(1, max_lag + 1))
+    # a few lags per loop iteration: one panorama alone pays the loop's overhead per iteration
+    iterations = -(-max_lag // _LAGS_PER_ITERATION)
+    chunks = jax.lax.map(
+        lambda first: jnp.stack([correlation(first + j) for j in range(_LAGS_PER_ITERATION)]),
+        1 + _LAGS_PER_ITERATION * jnp.arange(iterations),
+    )
+    correlations = chunks.reshape(-1)[:max_lag]
     counted = jnp.cumprod(correlations > 0)
     return 1.0 + 2.0 * jnp.sum(counted * correlations)
 

@@ -27,6 +27,7 @@ from ncjax._adjust import (
     _problem_residuals,
     adjust_layout,
     boundary_residuals,
+    correlation_time,
     layout_uncertainty,
     loop_corners,
 )
@@ -236,6 +237,27 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan):
         tau = np.median(uncertainty.correlation_time[kind])
         assert 0.75 * expected_tau < tau < 1.25 * expected_tau, tau
         np.testing.assert_allclose(np.median(uncertainty.row_sigma[kind]), 1.0, rtol=0.15)
+
+
+def test_correlation_time_matches_a_direct_sum():
+    """tau = 1 + 2 sum of the lag correlations up to the first non-positive one, pairs on one wall only (cyclic)."""
+    rng = np.random.default_rng(3)
+    count, max_lag = 96, 12
+    smooth = np.stack([np.convolve(np.tile(rng.normal(size=count), 2), np.ones(4) / 4, "same")[count // 2 : count // 2 + count] for _ in range(2)])
+    used = rng.random((2, count)) < 0.8
+    column_wall = np.repeat([2, 0, 1, -1, 2], [20, 30, 25, 6, 15])
+    used &= column_wall >= 0
+    variance = np.sum(np.where(used, smooth**2, 0)) / used.sum()
+    expected, positive = 1.0, True
+    for lag in range(1, max_lag + 1):
+        shifted = np.roll(np.arange(count), -lag)
+        pair = used & used[:, shifted] & (column_wall == column_wall[shifted])[None]
+        rho = np.sum(np.where(pair, smooth * smooth[:, shifted], 0)) / max(pair.sum(), 1) / variance
+        positive &= rho > 0
+        expected += 2 * rho * positive
+    tau = jax.jit(correlation_time, static_argnums=3)(jnp.asarray(smooth, jnp.float32), used, column_wall, max_lag)
+    assert expected > 1.5  # the smoothing correlates neighbours
+    np.testing.assert_allclose(tau, expected, rtol=1e-5)
 
 
 # --- forward model of the boundaries ------------------------------------------------------------
