@@ -16,7 +16,7 @@ descheduled worker (we measured 6 s instead of 20 ms for the final
 adjustment). Set ``OPENBLAS_NUM_THREADS`` yourself to compare.
 
     uv run python benchmarks/bench_pipeline.py [--repeats 11] [--batches 64 256] [--worlds manhattan atlanta auto]
-        [--adjustment-stride 1] [--compact-capacity 16] [--sigma 0]
+        [--adjustment-stride 1] [--compact-capacity 16] [--chunk-size 64] [--sigma 0]
 """
 
 from __future__ import annotations
@@ -79,9 +79,13 @@ def main(argv=None):
                         help="PipelineConfig.adjustment_stride: the final adjustment fits every n-th column")
     parser.add_argument("--compact-capacity", type=int, default=PipelineConfig.compact_capacity,
                         help="PipelineConfig.compact_capacity (0: every room with all the slots)")
+    parser.add_argument("--chunk-size", type=int, default=PipelineConfig.chunk_size,
+                        help="PipelineConfig.chunk_size: panoramas per vmap inside a batch (0: all)")
     parser.add_argument("--sigma", type=float, default=0.0, help="white noise on the boundary rows, pixels")
     args = parser.parse_args(argv)
-    config = PipelineConfig(adjustment_stride=args.adjustment_stride, compact_capacity=args.compact_capacity)
+    config = PipelineConfig(
+        adjustment_stride=args.adjustment_stride, compact_capacity=args.compact_capacity, chunk_size=args.chunk_size
+    )
     print(f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}, "
           f"row noise {args.sigma} px")

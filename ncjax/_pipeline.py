@@ -138,6 +138,9 @@ class PipelineConfig:
         inlier_pass_stride: the first adjustment pass, whose layout only
             picks the inlier rows of the second (and is its start), fits every
             this-many-th of the second's columns (1: the same columns).
+        chunk_size: a batch runs this many panoramas at a time (one ``vmap``),
+            chunk after chunk inside the same jitted call: a larger ``vmap``
+            leaves the CPU's caches and runs slower per panorama (0: all at once).
         covariance: compute ``Layout.corner_covariance`` and ``height_covariance``
             (a Jacobian of the final adjustment: 10-20% of the batched throughput
             in our benchmark); False leaves them NaN.
@@ -170,6 +173,7 @@ class PipelineConfig:
     adjustment_tolerance: float = 1e-4
     adjustment_stride: int = 1
     inlier_pass_stride: int = 4
+    chunk_size: int = 32
     covariance: bool = True
     min_finite_fraction: float = 0.5
     max_room_height: float = 10.0
@@ -197,8 +201,8 @@ class PipelineConfig:
         for name in ("adjustment_stride", "inlier_pass_stride"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1 column, got {getattr(self, name)}")
-        if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0:
-            raise ValueError("corner_margin, corner_weight and adjustment_steps must be >= 0")
+        if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0 or self.chunk_size < 0:
+            raise ValueError("corner_margin, corner_weight, adjustment_steps and chunk_size must be >= 0")
 
     @property
     def hypotheses(self) -> int:
@@ -1047,7 +1051,10 @@ def _batched_layout(ceiling_v, floor_v, corner_prob, cams, keys, world, config, 
     def one(c, f, p, cam, k):
         return _padded_layout(c, f, p, cam, k, world, config, slots)
 
-    return jax.vmap(one)(ceiling_v, floor_v, corner_prob, cams, keys)
+    if not 0 < config.chunk_size < ceiling_v.shape[0]:
+        return jax.vmap(one)(ceiling_v, floor_v, corner_prob, cams, keys)
+    # the last, partial chunk (if any) is one more vmap after the loop over the full ones
+    return jax.lax.map(lambda args: one(*args), (ceiling_v, floor_v, corner_prob, cams, keys), batch_size=config.chunk_size)
 
 
 _batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config", "slots"))

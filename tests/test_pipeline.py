@@ -347,7 +347,8 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
     batch, labels = rooms("manhattan", "required")
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
     rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
-    full = ncjax.PipelineConfig(capacity=16, compact_capacity=0, covariance=False)
+    # chunks of 4: the compact run of the six rooms is a loop over one chunk and a remainder of two
+    full = ncjax.PipelineConfig(capacity=16, compact_capacity=0, covariance=False, chunk_size=4)
     layout = ncjax.layout_from_boundaries(*rows, cams, config=dataclasses.replace(full, compact_capacity=8))
     walls = np.asarray(layout.mask).sum(1)
     assert layout.mask.shape == (6, 16) and bool(jnp.all(layout.ok))
@@ -355,13 +356,15 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
     empty = ~np.asarray(layout.mask)
     for name in ("ceiling_corners", "wall_directions", "wall_distances", "ceiling_lines", "corner_columns"):
         assert not np.asarray(getattr(layout, name))[empty].any(), name
-    # four rooms with all the slots from the start (the reruns' padded batch size: no extra compilation)
-    keys = jax.random.split(jax.random.key(0), 6)[:4]
-    expected = _batched_layout_jit(*(x[:4] for x in rows), pick(cams, slice(0, 4)), keys, "manhattan", full, 16)
-    np.testing.assert_array_equal(layout.mask[:4], expected.mask)
-    np.testing.assert_array_equal(layout.status[:4], expected.status)
-    np.testing.assert_allclose(layout.ceiling_corners[:4], expected.ceiling_corners, atol=1e-4)
-    np.testing.assert_allclose(layout.floor_corners[:4], expected.floor_corners, atol=1e-4)
+    # four rooms, across the chunk and the remainder, with all the slots from the start in one vmap
+    # (the reruns' padded batch size: no extra compilation)
+    last = slice(2, 6)
+    keys = jax.random.split(jax.random.key(0), 6)[last]
+    expected = _batched_layout_jit(*(x[last] for x in rows), pick(cams, last), keys, "manhattan", full, 16)
+    np.testing.assert_array_equal(layout.mask[last], expected.mask)
+    np.testing.assert_array_equal(layout.status[last], expected.status)
+    np.testing.assert_allclose(layout.ceiling_corners[last], expected.ceiling_corners, atol=1e-4)
+    np.testing.assert_allclose(layout.floor_corners[last], expected.floor_corners, atol=1e-4)
 
 
 def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
