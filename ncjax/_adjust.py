@@ -24,7 +24,8 @@ parameter, and ``J^T J`` is summed per wall instead of multiplied out (the same 
 4.5 times less time for the Atlanta adjustment, experiments/RESULTS.md). Each column's
 residuals carry a JVP through their local Jacobian (:func:`_local_jacobian_jvp`).
 The residuals are evaluated per column (:func:`boundary_residuals`) and per
-corner (:func:`corner_residual`) directly on the wall angles. Gauge: none while
+corner (:func:`corner_residual`) from the wall angles: each wall's direction is
+computed once per evaluation, each column's once per solve. Gauge: none while
 ``rc > 0`` (scale is observable, the heights and distances are absolute); the
 Manhattan parametrisation has one yaw for all walls, the Atlanta one an angle per wall.
 """
