@@ -13,9 +13,10 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
-_LUMA = jnp.array([0.299, 0.587, 0.114])
+_LUMA = np.array([0.299, 0.587, 0.114], np.float32)  # numpy: importing ncjax starts no JAX backend
 
 
 def adjust_exposure(image: Float[Array, "H W 3"], factor: Float[ArrayLike, ""]) -> Float[Array, "H W 3"]:

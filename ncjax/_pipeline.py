@@ -64,7 +64,7 @@ from ._corners import column_walls, distance_to_corners, find_corners, side_extr
 from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
 from ._ransac import boundary_errors, num_hypotheses, ransac_wall, wall_columns
-from ._reprojection import boundary_points, column_directions, fit_plan_lines, wall_boundary_rows, wall_range
+from ._reprojection import boundary_points, column_directions, fit_plan_lines, range_along, wall_boundary_rows
 from ._wall import Wall, canonical_orientation
 
 WORLDS = ("manhattan", "atlanta", "auto")
@@ -651,19 +651,27 @@ def _observations(
     evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int, stride: int
 ) -> BoundaryObservations:
     """The adjustment's data: every ``stride``-th column (the cost of a step grows with their number)."""
-    per_column = dict(
+    observations = BoundaryObservations(
         columns=jnp.arange(ceiling_v.shape[0]),
         ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
         floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
         ceiling_used=evidence.ceiling_trusted & (final.column_wall >= 0),
         floor_used=evidence.floor_trusted & (final.column_wall >= 0),
         column_wall=final.column_wall,
-    )
-    return BoundaryObservations(
-        **{name: values[::stride] for name, values in per_column.items()},
         corner_columns=final.corner_columns,
         corner_used=final.corner_used,
         wall_mask=final.mask,
+    )
+    return _strided(observations, stride)
+
+
+_PER_COLUMN_FIELDS = ("columns", "ceiling_v", "floor_v", "ceiling_used", "floor_used", "column_wall")
+
+
+def _strided(observations: BoundaryObservations, stride: int) -> BoundaryObservations:
+    """Every ``stride``-th of the observed columns; the per-wall fields are kept."""
+    return dataclasses.replace(
+        observations, **{name: getattr(observations, name)[::stride] for name in _PER_COLUMN_FIELDS}
     )
 
 
@@ -696,9 +704,7 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
         :func:`ncjax._adjust.layout_uncertainty` on the rows of the second adjustment.
     """
     observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
-    subset = _observations(
-        evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride * config.inlier_pass_stride
-    )
+    subset = _strided(observations, config.inlier_pass_stride)
     adjusted = adjust_layout(
         cam, subset, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps,
         config.adjustment_tolerance,
@@ -730,9 +736,10 @@ def _point_on_wall(
     cam: NonCentralPanorama, direction: Float[Array, "K 2"], distance: Float[Array, " K"], column: Float[Array, " K"]
 ) -> Float[Array, "K 2"]:
     """Where the vertical half-plane of ``column`` meets a wall (plan view)."""
-    t = wall_range(cam, direction, distance, column)
+    along = column_directions(cam, column)
+    t = range_along(cam, direction, distance, along)
     t = jnp.where(jnp.isfinite(t), t, 0.0)
-    return (cam.rc + t)[:, None] * column_directions(cam, column)
+    return (cam.rc + t)[:, None] * along
 
 
 def _signed_distance(direction: Float[Array, "K 2"], point: Float[Array, "K 2"]) -> Float[Array, " K"]:
