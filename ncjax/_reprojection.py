@@ -31,25 +31,16 @@ def range_along(
     distance: Float[ArrayLike, "*#batch"],
     column_direction: Float[ArrayLike, "*#batch 2"],
 ) -> Float[Array, "*batch"]:
-    """:func:`wall_range` of the column whose half-plane has the unit direction ``column_direction``."""
+    """Horizontal range ``t`` from a column's optical centre to the wall plane.
+
+    The column is given by the unit direction ``column_direction`` of its
+    half-plane (:func:`column_directions`). ``inf`` where the half-plane is
+    parallel to the wall; negative where the wall is behind the optical centre.
+    """
     direction, column_direction = jnp.asarray(direction), jnp.asarray(column_direction)
     facing = direction[..., 0] * column_direction[..., 1] - direction[..., 1] * column_direction[..., 0]  # e2 . a
     hit = jnp.abs(facing) > 0
     return jnp.where(hit, distance / jnp.where(hit, facing, 1.0), jnp.inf) - cam.rc
-
-
-def wall_range(
-    cam: NonCentralPanorama,
-    direction: Float[ArrayLike, "*#batch 2"],
-    distance: Float[ArrayLike, "*#batch"],
-    column: Float[ArrayLike, "*#batch"],
-) -> Float[Array, "*batch"]:
-    """Horizontal range ``t`` from column ``column``'s optical centre to the wall plane.
-
-    ``inf`` where the column's half-plane is parallel to the wall; negative
-    where the wall is behind the optical centre.
-    """
-    return range_along(cam, direction, distance, column_directions(cam, column))
 
 
 def boundary_rows_along(
