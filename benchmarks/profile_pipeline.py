@@ -86,6 +86,8 @@ def main(argv=None):
     parser.add_argument("--world", default="manhattan", choices=["manhattan", "atlanta", "auto"])
     parser.add_argument("--batch", type=int, default=64)
     parser.add_argument("--top", type=int, default=20)
+    parser.add_argument("--adjustment-stride", type=int, default=_pipeline.PipelineConfig.adjustment_stride,
+                        help="PipelineConfig.adjustment_stride")
     parser.add_argument("--capacity", type=int, default=_pipeline.PipelineConfig.capacity, help="PipelineConfig.capacity")
     args = parser.parse_args(argv)
     for module, names in STAGES.items():
@@ -94,7 +96,7 @@ def main(argv=None):
     ceiling, floor, prob, cams = inputs(args.world, args.batch)
     cam = jax.tree.map(lambda x: x[0], cams)
     keys = jax.random.split(jax.random.key(0), args.batch)
-    config = _pipeline.PipelineConfig(capacity=args.capacity)
+    config = _pipeline.PipelineConfig(capacity=args.capacity, adjustment_stride=args.adjustment_stride)
     batched = jax.jit(jax.vmap(lambda c, f, p, k: _pipeline.layout_from_evidence(c, f, p, cam, k, args.world, config)))
     jax.block_until_ready(batched(ceiling, floor, prob, keys))
     with tempfile.TemporaryDirectory() as folder:
