@@ -6,7 +6,7 @@ batch is run under ``jax.profiler.trace``, and the duration of every XLA
 kernel is attributed to the innermost stage that emitted most of its
 operations. Run it pinned to one core for single-core figures:
 
-    taskset -c 0 uv run python benchmarks/profile_pipeline.py [--world manhattan] [--batch 64]
+    taskset -c 0 uv run python benchmarks/profile_pipeline.py [--world manhattan] [--batch 64] [--adjustment-stride 2]
 """
 
 from __future__ import annotations
