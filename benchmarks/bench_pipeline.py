@@ -16,7 +16,7 @@ descheduled worker (we measured 6 s instead of 20 ms for the final
 adjustment). Set ``OPENBLAS_NUM_THREADS`` yourself to compare.
 
     uv run python benchmarks/bench_pipeline.py [--repeats 11] [--batches 64 256] [--worlds manhattan atlanta auto]
-        [--adjustment-stride 1] [--compact-capacity 16] [--chunk-size 32] [--sigma 0]
+        [--adjustment-stride 2] [--compact-capacity 16] [--chunk-size 32] [--sigma 0]
 """
 
 from __future__ import annotations
