@@ -35,7 +35,7 @@ STAGES = {
                 "_assemble", "_row_errors", "pixel_to_ray"],
     _adjust: ["correlation_time", "_residual_terms", "corner_residual", "_fitted_residuals"],
     _sparse_normal: ["probe_jacobian", "normal_matrix", "transpose_product", "jacobian_product"],
-    _ransac: ["solve_wall", "sample_columns", "boundary_errors"],
+    _ransac: ["solve_wall", "sample_columns", "inlier_rows", "elevation_band"],
     _wall: ["scaled_null_space", "constrained_null_vector"],
     _linalg: ["_jacobi_svd", "_triangular_factor"],
     _layout_solvers: ["linear_walls", "search_scale", "refine_walls"],

@@ -43,6 +43,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel
+from ._fastmath import arctan2
 from ._linalg import inverse_or_zero
 from ._plucker import safe_sqrt, wall_planes_meet
 from ._reprojection import boundary_rows_along, column_directions
@@ -164,7 +165,7 @@ def corner_residual(
     """Column error (pixels) of the corner where wall ``(angles[0], distances[0])`` meets the next wall."""
     directions = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1)
     point, _ = wall_planes_meet(directions[0], distances[0], directions[1], distances[1])
-    corner_u, _ = angles_to_pixel(cam, jnp.arctan2(point[1], point[0]), 0.0)
+    corner_u, _ = angles_to_pixel(cam, arctan2(point[1], point[0]), 0.0)
     return wrap_columns(corner_u - corner_column, cam.width)
 
 

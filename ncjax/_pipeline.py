@@ -389,14 +389,12 @@ def _gather_evidence(
     pixels = _scaled(1.0, cam.height, 512)
     threshold = config.inlier_threshold * pixels
     sampled, sampled_valid = wall_columns(column_wall, usable, corner_columns, config.ransac_columns)
-    walls = jax.vmap(ransac_wall, in_axes=(0, None, 0, 0, 0, 0, 0, 0, None, None, None))(
+    walls = jax.vmap(ransac_wall, in_axes=(0, None, 0, 0, 0, 0, None, None, None))(
         jax.random.split(key, capacity),
         cam,
-        columns[sampled],
+        column_directions(cam, columns)[sampled],
         ceiling_rays[sampled],
         floor_rays[sampled],
-        ceiling_v[sampled],
-        floor_v[sampled],
         sampled_valid,
         config.hypotheses,
         config.sample_size,

@@ -3,7 +3,8 @@
 Each hypothesis is :func:`ncjax.solve_wall` on ``k`` sampled columns (one
 ceiling and one floor ray each: the paper's ``k = 3``); it is scored by the
 number of boundary pixels it reprojects within a threshold (pixels, the
-closed form of :mod:`ncjax._reprojection`), and the best one is refitted on
+closed form of :mod:`ncjax._reprojection`, tested as directions:
+:func:`inlier_rows`), and the best one is refitted on
 its inliers. Hypotheses are scored and refitted on at most ``G`` columns
 of the wall (:func:`wall_columns`), so the cost does not grow with the
 image width. The number of hypotheses is the paper's
@@ -18,10 +19,10 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ._camera import NonCentralPanorama
-from ._reprojection import wall_boundary_rows
+from ._reprojection import range_along, wall_boundary_rows
 from ._wall import Wall, solve_wall
 
 
@@ -104,14 +105,66 @@ def boundary_errors(
     return jnp.where(seen, jnp.abs(ceiling - ceiling_v), jnp.inf), jnp.where(seen, jnp.abs(floor - floor_v), jnp.inf)
 
 
+def elevation_band(
+    rays: Float[Array, "n 6"], azimuth: Float[Array, "n 2"], tolerance: Float[ArrayLike, ""]
+) -> Float[Array, "n 2 2"]:
+    """The in-plane directions ``tolerance`` radians below and above each boundary ray.
+
+    A boundary ray of elevation ``phi`` in the half-plane of its column's unit
+    azimuth ``a`` points along ``(cos phi, sin phi)`` in that half-plane
+    (``cos phi`` read as ``xi . a``, so that rows past the zenith or nadir keep
+    their sign). The result holds the lower and the upper edge of the band,
+    ``(cos, sin)`` of ``phi -+ tolerance``. Rows are an affine function of the
+    elevation, so ``tolerance = threshold * fov_vertical / height`` radians is
+    the band of rows within ``threshold`` pixels.
+    """
+    cosine, sine = jnp.cos(tolerance), jnp.sin(tolerance)
+    c, s = jnp.sum(rays[:, 0:2] * azimuth, -1), rays[:, 2]
+    lower = jnp.stack([c * cosine + s * sine, s * cosine - c * sine], -1)
+    upper = jnp.stack([c * cosine - s * sine, s * cosine + c * sine], -1)
+    return jnp.stack([lower, upper], 1)
+
+
+def inlier_rows(
+    cam: NonCentralPanorama,
+    wall: Wall,
+    azimuth: Float[Array, "n 2"],
+    ceiling_band: Float[Array, "n 2 2"],
+    floor_band: Float[Array, "n 2 2"],
+) -> tuple[Bool[Array, " n"], Bool[Array, " n"]]:
+    """Which columns' ceiling and floor boundaries a wall reprojects inside their :func:`elevation_band`.
+
+    The wall's line at height ``h`` is seen from the column's optical centre
+    in the in-plane direction ``(t, h)`` (range ``t > 0``,
+    :mod:`ncjax._reprojection`); it is inside the band when it lies
+    counter-clockwise of the lower edge and clockwise of the upper one. The
+    same test as ``boundary_errors(...) < threshold``, with two cross
+    products instead of an arctangent per (hypothesis, column) pair.
+
+    Args:
+        cam: the camera.
+        wall: one wall.
+        azimuth: unit horizontal direction ``a`` of each column.
+        ceiling_band: the ceiling rows' bands.
+        floor_band: the floor rows' bands.
+    """
+    t = range_along(cam, wall.direction, wall.distance, azimuth)
+    seen = jnp.isfinite(t) & (t > 0)
+    t = jnp.where(seen, t, 1.0)
+
+    def inside(height, band):
+        lower, upper = band[:, 0], band[:, 1]
+        return seen & (lower[:, 0] * height - lower[:, 1] * t > 0) & (t * upper[:, 1] - height * upper[:, 0] > 0)
+
+    return inside(wall.ceiling_height, ceiling_band), inside(wall.floor_height, floor_band)
+
+
 def ransac_wall(
     key: PRNGKeyArray,
     cam: NonCentralPanorama,
-    columns: Float[Array, " G"],
+    azimuth: Float[Array, "G 2"],
     ceiling_rays: Float[Array, "G 6"],
     floor_rays: Float[Array, "G 6"],
-    ceiling_v: Float[Array, " G"],
-    floor_v: Float[Array, " G"],
     candidates: Bool[Array, " G"],
     num_hypotheses: int,
     sample_size: int,
@@ -123,11 +176,9 @@ def ransac_wall(
     Args:
         key: PRNG key.
         cam: the camera.
-        columns: the wall's columns (:func:`wall_columns`).
+        azimuth: unit horizontal direction of each of the wall's columns (:func:`wall_columns`).
         ceiling_rays: their rays of the ceiling boundary.
         floor_rays: their rays of the floor boundary.
-        ceiling_v: their ceiling rows (for the inlier test).
-        floor_v: their floor rows.
         candidates: which of them are used (finite rows, away from corners).
         num_hypotheses: static number of hypotheses (:func:`num_hypotheses`).
         sample_size: static number of columns per hypothesis (>= 3).
@@ -145,11 +196,10 @@ def ransac_wall(
     )
     sure = jnp.ones(sample_size, bool)
     hypotheses = jax.vmap(lambda s: solve_wall(ceiling_rays[s], floor_rays[s], sure, sure))(samples)
-    ceiling_error, floor_error = jax.vmap(boundary_errors, in_axes=(None, 0, None, None, None))(
-        cam, hypotheses, columns, ceiling_v, floor_v
-    )
-    ceiling_in = candidates & (ceiling_error < inlier_threshold)
-    floor_in = candidates & (floor_error < inlier_threshold)
+    tolerance = inlier_threshold * cam.fov_vertical / cam.height
+    bands = elevation_band(ceiling_rays, azimuth, tolerance), elevation_band(floor_rays, azimuth, tolerance)
+    ceiling_in, floor_in = jax.vmap(inlier_rows, in_axes=(None, 0, None, None, None))(cam, hypotheses, azimuth, *bands)
+    ceiling_in, floor_in = candidates & ceiling_in, candidates & floor_in
     valid = jax.vmap(plausible_wall, in_axes=(0, None))(hypotheses, min_height)
     score = jnp.where(valid, jnp.sum(ceiling_in, 1) + jnp.sum(floor_in, 1), -1)
     best = jnp.argmax(score)

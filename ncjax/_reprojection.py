@@ -17,6 +17,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
+from ._fastmath import arctan2
 
 
 def column_directions(cam: NonCentralPanorama, column: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 2"]:
@@ -60,8 +61,8 @@ def boundary_rows_along(
     t = range_along(cam, direction, distance, column_direction)
     seen = jnp.isfinite(t) & (t > 0)
     t = jnp.where(seen, t, 1e-3)
-    _, ceiling_v = angles_to_pixel(cam, 0.0, jnp.arctan2(ceiling_height, t))
-    _, floor_v = angles_to_pixel(cam, 0.0, jnp.arctan2(floor_height, t))
+    _, ceiling_v = angles_to_pixel(cam, 0.0, arctan2(ceiling_height, t))
+    _, floor_v = angles_to_pixel(cam, 0.0, arctan2(floor_height, t))
     return ceiling_v, floor_v, seen
 
 

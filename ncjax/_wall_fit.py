@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._fastmath import arctan2
 from ._linalg import divide_if_significant, inverse_or_zero, scaled_null_space
 from ._plucker import safe_norm
 
@@ -173,7 +174,7 @@ def angular_residual(
     cross = observed[0] * predicted[1] - observed[1] * predicted[0]
     dot = jnp.dot(observed, predicted)
     defined = (cross != 0) | (dot != 0)
-    return jnp.where(defined, jnp.arctan2(cross, jnp.where(defined, dot, 1.0)), 0.0)
+    return jnp.where(defined, arctan2(cross, jnp.where(defined, dot, 1.0)), 0.0)
 
 
 def _row_arguments(params, geometry, base_directions, row_wall, is_floor):

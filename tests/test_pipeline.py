@@ -32,8 +32,9 @@ from ncjax._adjust import (
     loop_corners,
 )
 from ncjax._pipeline import _batched_layout_jit, _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
-from ncjax._ransac import num_hypotheses, wall_columns
+from ncjax._ransac import boundary_errors, elevation_band, inlier_rows, num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, column_directions, fit_plan_line, fit_plan_lines, wall_boundary_rows
+from ncjax._wall import make_wall
 from ncjax._sparse_normal import normal_matrix, probe_jacobian
 
 WIDTH, HEIGHT = 512, 256
@@ -58,6 +59,33 @@ def target(width: int, corners) -> np.ndarray:
 
 
 # --- corner extraction -------------------------------------------------------------------------
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.5, 20.0))
+def test_inlier_slopes_match_the_row_errors(seed, threshold):
+    """RANSAC's inlier test on ray directions (no arctangent) agrees with thresholding the row errors in pixels."""
+    cam = ncjax.NonCentralPanorama(rc=0.3, width=WIDTH, height=HEIGHT)
+    rng = np.random.default_rng(seed)
+    yaw = rng.uniform(-np.pi, np.pi)
+    direction = jnp.array([np.cos(yaw), np.sin(yaw)], jnp.float32)
+    heights = jnp.float32(rng.uniform(0.2, 3.0)), jnp.float32(-rng.uniform(0.2, 2.0))
+    wall = make_wall(direction, jnp.float32(rng.uniform(-4.0, 4.0)), *heights, jnp.array(True))
+    columns = jnp.arange(WIDTH, dtype=jnp.float32)
+    ceiling, floor, _ = wall_boundary_rows(cam, wall.direction, wall.distance, wall.ceiling_height, wall.floor_height, columns)
+    # rows near the wall's own and anywhere in the image; the top and bottom rows put the band past a pole
+    ceiling_v = jnp.where(rng.random(WIDTH) < 0.7, ceiling + rng.normal(0, 2 * threshold, WIDTH), rng.uniform(-1, HEIGHT, WIDTH))
+    floor_v = jnp.where(rng.random(WIDTH) < 0.7, floor + rng.normal(0, 2 * threshold, WIDTH), rng.uniform(-1, HEIGHT, WIDTH))
+    ceiling_error, floor_error = boundary_errors(cam, wall, columns, ceiling_v, floor_v)
+    tolerance = threshold * cam.fov_vertical / cam.height
+    azimuth = column_directions(cam, columns)
+    ceiling_band, floor_band = (elevation_band(ncjax.pixel_to_ray(cam, columns, v), azimuth, tolerance) for v in (ceiling_v, floor_v))
+    ceiling_in, floor_in = inlier_rows(cam, wall, azimuth, ceiling_band, floor_band)
+    for errors, inside in ((ceiling_error, ceiling_in), (floor_error, floor_in)):
+        errors, inside = np.asarray(errors), np.asarray(inside)
+        clear = np.abs(errors - threshold) > 1e-3  # float32 rounding decides the rows on the band's edge
+        assert np.array_equal(inside[clear], (errors < threshold)[clear])
+        assert clear.mean() > 0.95 and 0 < inside.sum() < WIDTH
 
 
 @given(st.lists(st.floats(0.0, 511.0), min_size=1, max_size=6, unique=True))
