@@ -1050,10 +1050,10 @@ def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, key, world, conf
     if not rerun.size:
         return layout
     # padded to a power of two: few batch sizes, so few compilations
-    size = 1 << (rerun.size - 1).bit_length()
-    picked = jnp.asarray(np.concatenate([rerun, np.full(size - rerun.size, rerun[0])]))
-    redone = run(*jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cam, key)), config=full)
-    return jax.tree.map(lambda b, x: b.at[rerun].set(x[: rerun.size]), layout, redone)
+    padding = (1 << (rerun.size - 1).bit_length()) - rerun.size
+    picked = jnp.asarray(np.concatenate([rerun, np.full(padding, rerun[0])]))
+    destination = jnp.asarray(np.concatenate([rerun, np.full(padding, ceiling_v.shape[0])]))
+    return _rerun_jit(ceiling_v, floor_v, corner_prob, cam, key, layout, picked, destination, world=world, config=full)
 
 
 def _batched_layout(ceiling_v, floor_v, corner_prob, cams, keys, world, config, slots):
@@ -1067,3 +1067,17 @@ def _batched_layout(ceiling_v, floor_v, corner_prob, cams, keys, world, config, 
 
 
 _batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config", "slots"))
+
+
+def _rerun(ceiling_v, floor_v, corner_prob, cams, keys, layout, picked, destination, world, config):
+    """``layout`` with the panoramas ``picked`` solved again with ``config``: gather, solve and scatter in one call.
+
+    Result ``i`` goes to panorama ``destination[i]``; out-of-range
+    destinations (the padding of ``picked``) are dropped.
+    """
+    inputs = jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cams, keys))
+    redone = _batched_layout(*inputs, world, config, config.capacity)
+    return jax.tree.map(lambda old, new: old.at[destination].set(new, mode="drop"), layout, redone)
+
+
+_rerun_jit = jax.jit(_rerun, static_argnames=("world", "config"))

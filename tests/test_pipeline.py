@@ -385,7 +385,6 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
     for name in ("ceiling_corners", "wall_directions", "wall_distances", "ceiling_lines", "corner_columns"):
         assert not np.asarray(getattr(layout, name))[empty].any(), name
     # four rooms, across the chunk and the remainder, with all the slots from the start in one vmap
-    # (the reruns' padded batch size: no extra compilation)
     last = slice(2, 6)
     keys = jax.random.split(jax.random.key(0), 6)[last]
     expected = _batched_layout_jit(*(x[last] for x in rows), pick(cams, last), keys, "manhattan", full, 16)
