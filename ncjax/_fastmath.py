@@ -1,12 +1,12 @@
 """A float32 arctangent that vectorises on the CPU.
 
-XLA's CPU backend evaluates ``atan2`` one element at a time through the C
-library: about 25 ns per element on our 2-core machine, against 0.5 ns for
-the polynomial below (``benchmarks/bench_elementary.py``). The pipeline takes an arctangent per boundary row in every reprojection
-(:func:`ncjax._reprojection.boundary_rows_along`, the final adjustment) and
-in every angular residual of the layout solvers
-(:func:`ncjax._wall_fit.angular_residual`), millions per batch, so those
-call :func:`arctan2` here.
+XLA's CPU backend does not vectorise ``atan2``: it costs about 25 ns per
+element on one core of our machine, against 0.5 ns for the polynomial below
+(``benchmarks/bench_elementary.py``). The pipeline takes an arctangent per
+boundary row in every reprojection (:func:`ncjax._reprojection.boundary_rows_along`,
+the final adjustment) and in every angular residual of the layout solvers
+(:func:`ncjax._wall_fit.angular_residual`), millions per batch, so those call
+:func:`arctan2` here.
 
 Float64 inputs go to ``jnp.arctan2``: float64 callers (the accuracy tests,
 finite differences) want its last bits. Float32 inputs get an odd
