@@ -3,10 +3,10 @@
     uv run python benchmarks/bench_elementary.py [--size 1048576] [--repeats 20]
 
 One jitted call per function on ``--size`` float32 elements (best of
-``--repeats``; XLA splits large loops over the cores, ``taskset -c 0`` for one). On the CPU, XLA evaluates ``atan2``, ``sin``, ``cos`` and
-``tan`` element by element through the C library, while products, quotients,
-square roots and ``exp`` vectorise; ``ncjax._fastmath.arctan2`` is a
-polynomial that vectorises too. Also prints its largest error against
+``--repeats``; XLA splits large loops over the cores, ``taskset -c 0`` for
+one). XLA's CPU backend vectorises products, quotients, square roots and
+``exp``, not ``atan2``, ``sin``, ``cos`` or ``tan``; ``ncjax._fastmath.arctan2``
+is a polynomial that vectorises. Also prints its largest error against
 numpy's float64 ``arctan2``. Never asserted in tests.
 """
 

@@ -371,6 +371,7 @@ def _gather_evidence(
     ceiling_v = jnp.where(finite, ceiling_v, cam.height / 4)
     floor_v = jnp.where(finite, floor_v, 3 * cam.height / 4)
     columns = jnp.arange(width, dtype=ceiling_v.dtype)
+    azimuth = column_directions(cam, columns)
     ceiling_rays = pixel_to_ray(cam, columns, ceiling_v)
     floor_rays = pixel_to_ray(cam, columns, floor_v)
 
@@ -392,7 +393,7 @@ def _gather_evidence(
     walls = jax.vmap(ransac_wall, in_axes=(0, None, 0, 0, 0, 0, None, None, None))(
         jax.random.split(key, capacity),
         cam,
-        column_directions(cam, columns)[sampled],
+        azimuth[sampled],
         ceiling_rays[sampled],
         floor_rays[sampled],
         sampled_valid,
@@ -407,7 +408,7 @@ def _gather_evidence(
 
     def errors_of(index):
         """Row errors of wall ``index[column]`` at each column (one wall per column, not K x W)."""
-        return boundary_errors(cam, jax.tree.map(lambda x: x[index], walls), columns, ceiling_v, floor_v)
+        return boundary_errors(cam, jax.tree.map(lambda x: x[index], walls), azimuth, ceiling_v, floor_v)
 
     ceiling_error, floor_error = errors_of(wall)
     ceiling_in, floor_in = usable & (ceiling_error < threshold), usable & (floor_error < threshold)

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ._camera import NonCentralPanorama
-from ._reprojection import range_along, wall_boundary_rows
+from ._reprojection import boundary_rows_along, range_along
 from ._wall import Wall, solve_wall
 
 
@@ -90,17 +90,19 @@ def sample_columns(key: PRNGKeyArray, candidates: Bool[Array, " n"], sample_size
 def boundary_errors(
     cam: NonCentralPanorama,
     wall: Wall,
-    columns: Float[Array, " n"],
+    azimuth: Float[Array, "n 2"],
     ceiling_v: Float[Array, " n"],
     floor_v: Float[Array, " n"],
 ) -> tuple[Float[Array, " n"], Float[Array, " n"]]:
     """Per column, the row distance (pixels) between a wall's reprojected lines and the boundaries.
 
-    The wall's fields broadcast against ``columns`` (one wall, or one per column).
-    ``inf`` where the wall is not in front of the column.
+    Columns are given by their unit horizontal direction ``azimuth``
+    (:func:`ncjax._reprojection.column_directions`, computed once by the
+    caller). The wall's fields broadcast against the columns (one wall, or
+    one per column). ``inf`` where the wall is not in front of the column.
     """
-    ceiling, floor, seen = wall_boundary_rows(
-        cam, wall.direction, wall.distance, wall.ceiling_height, wall.floor_height, columns
+    ceiling, floor, seen = boundary_rows_along(
+        cam, wall.direction, wall.distance, wall.ceiling_height, wall.floor_height, azimuth
     )
     return jnp.where(seen, jnp.abs(ceiling - ceiling_v), jnp.inf), jnp.where(seen, jnp.abs(floor - floor_v), jnp.inf)
 

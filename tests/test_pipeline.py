@@ -76,9 +76,9 @@ def test_inlier_slopes_match_the_row_errors(seed, threshold):
     # rows near the wall's own and anywhere in the image; the top and bottom rows put the band past a pole
     ceiling_v = jnp.where(rng.random(WIDTH) < 0.7, ceiling + rng.normal(0, 2 * threshold, WIDTH), rng.uniform(-1, HEIGHT, WIDTH))
     floor_v = jnp.where(rng.random(WIDTH) < 0.7, floor + rng.normal(0, 2 * threshold, WIDTH), rng.uniform(-1, HEIGHT, WIDTH))
-    ceiling_error, floor_error = boundary_errors(cam, wall, columns, ceiling_v, floor_v)
-    tolerance = threshold * cam.fov_vertical / cam.height
     azimuth = column_directions(cam, columns)
+    ceiling_error, floor_error = boundary_errors(cam, wall, azimuth, ceiling_v, floor_v)
+    tolerance = threshold * cam.fov_vertical / cam.height
     ceiling_band, floor_band = (elevation_band(ncjax.pixel_to_ray(cam, columns, v), azimuth, tolerance) for v in (ceiling_v, floor_v))
     ceiling_in, floor_in = inlier_rows(cam, wall, azimuth, ceiling_band, floor_band)
     for errors, inside in ((ceiling_error, ceiling_in), (floor_error, floor_in)):
