@@ -12,6 +12,7 @@ statistics) and ``optimizer/`` (the optax state and step of an
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import pathlib
 
@@ -123,3 +124,22 @@ def save_model(model: HorizonNet, path: str | os.PathLike) -> None:
 def load_model(path: str | os.PathLike) -> HorizonNet:
     """Load a model saved by :func:`save_model` (or a training checkpoint), in eval mode."""
     return load_checkpoint(path)[0]
+
+
+def load_weights(path: str | os.PathLike, config: HorizonNetConfig) -> HorizonNet:
+    """The weights of a model or checkpoint file in a model built from ``config`` (train mode): a warm start.
+
+    The file's architecture must be ``config``'s, except the corner output's
+    encoding (``corner_base``): that is how a trained model is fine-tuned to a
+    sharper corner target.
+
+    Raises:
+        ValueError: the file was written for another architecture.
+    """
+    stored = HorizonNetConfig.from_json(read_metadata(path)["config"])
+    if dataclasses.replace(stored, corner_base=config.corner_base) != config:
+        raise ValueError(f"{path} holds a {stored}, which cannot start a {config}")
+    model = abstract_model(config)
+    _restore(model, _MODEL_STATE, load_file(path), "model/", str(path))
+    model.train()
+    return model

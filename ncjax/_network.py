@@ -73,6 +73,12 @@ class HorizonNetConfig:
         lstm_layers: stacked bidirectional LSTM layers (2 in HorizonNet).
         step_cols: columns predicted per LSTM position (1, 2 or 4; 4 in HorizonNet).
         dropout: dropout rate between and after the LSTM layers (0.5 in HorizonNet).
+        corner_base: the corner output's encoding ``corner_base**d``, ``d`` in
+            output columns to the nearest corner. HorizonNet's 0.96 (the
+            labels' encoding, DESIGN.md section 5) makes lobes 30-70 columns
+            wide at our 512 output columns, wider than the gaps between close
+            corners; a sharper base separates them. Files written before this
+            field existed load with 0.96.
     """
 
     depth: int = 18
@@ -83,6 +89,7 @@ class HorizonNetConfig:
     lstm_layers: int = 2
     step_cols: int = 4
     dropout: float = 0.5
+    corner_base: float = 0.96
 
     def __post_init__(self):
         if self.depth not in _RESNET_STAGES:
@@ -97,6 +104,8 @@ class HorizonNetConfig:
             raise ValueError("lstm_hidden and lstm_layers must be positive")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if not 0.0 < self.corner_base < 1.0:
+            raise ValueError(f"corner_base must be in (0, 1), got {self.corner_base}")
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True)
@@ -346,7 +355,7 @@ class BoundaryPrediction(NamedTuple):
 
     Attributes:
         ceiling_elevation, floor_elevation: (B, W) boundary elevations, radians (up positive).
-        corner_logit: (B, W) logit of the corner probability (target ``0.96**d``).
+        corner_logit: (B, W) logit of the corner probability (target ``config.corner_base**d``).
     """
 
     ceiling_elevation: Float[Array, "B W"]

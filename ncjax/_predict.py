@@ -6,8 +6,9 @@ and its per-column outputs are resampled back to the input width
 (wrap-aware linear interpolation) with the elevations converted to rows of
 the input height. Rows and columns follow DESIGN.md (pixel centres at
 integers, row 0 at the top). The corner probability is the network's
-``0.96**d`` estimate with ``d`` in columns of the *model* width, stretched to
-the input width.
+``corner_base**d`` estimate (``HorizonNetConfig.corner_base``) with ``d`` in
+columns of the *model* width, stretched to the input width. The pipeline
+uses only its peaks, which any encoding of ``d`` keeps in place.
 """
 
 from __future__ import annotations

@@ -502,19 +502,35 @@ def room_corners_3d(room: Room) -> tuple[Float[Array, "K 3"], Float[Array, "K 3"
     return points[0], points[1]
 
 
+CORNER_LABEL_BASE = 0.96
+
+
 def corner_target(
     corner_u: Float[ArrayLike, " C"], corner_mask: Bool[ArrayLike, " C"], width: int
 ) -> Float[Array, " {width}"]:
     """HorizonNet's corner target ``0.96**d`` per column, d the wrap-around column distance to the nearest corner.
 
-    Zero everywhere when no corner is given.
+    Zero everywhere when no corner is given. A network may be trained on a
+    sharper encoding ``b**d`` of the same distance: :func:`reencode_corner_prob`.
     """
     corner_u = jnp.asarray(corner_u)
     columns = jnp.arange(width, dtype=corner_u.dtype)
     distance = jnp.abs(columns[:, None] - corner_u[None, :]) % width
     distance = jnp.minimum(distance, width - distance)
     nearest = jnp.min(jnp.where(jnp.asarray(corner_mask)[None, :], distance, jnp.inf), axis=1)
-    return jnp.where(jnp.isfinite(nearest), 0.96**nearest, 0.0)
+    return jnp.where(jnp.isfinite(nearest), CORNER_LABEL_BASE**nearest, 0.0)
+
+
+def reencode_corner_prob(
+    corner_prob: Float[ArrayLike, "*shape"], from_base: float, to_base: float
+) -> Float[Array, "*shape"]:
+    """The same distance-to-corner estimate in another encoding: ``from_base**d -> to_base**d``.
+
+    ``d = log p / log from_base``, so ``to_base**d = p**(log to_base / log from_base)``:
+    a monotone map, which keeps every peak and dip of ``corner_prob`` in place.
+    """
+    exponent = math.log(to_base) / math.log(from_base)
+    return jnp.asarray(corner_prob) ** exponent
 
 
 def room_labels(room: Room, cam: NonCentralPanorama, corner_capacity: int | None = None) -> RoomLabels:

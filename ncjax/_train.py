@@ -41,7 +41,7 @@ import optax
 from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
 
-from ._checkpoint import load_checkpoint, save_checkpoint
+from ._checkpoint import load_checkpoint, load_weights, save_checkpoint
 from ._camera import NonCentralPanorama
 from ._dataset import DatasetSample, labels_from_corners, list_samples, read_sample, read_split
 from ._network import (
@@ -55,9 +55,7 @@ from ._network import (
     row_to_elevation,
 )
 from ._network_metrics import network_table
-
-CORNER_BASE = 0.96
-
+from ._rooms import CORNER_LABEL_BASE, reencode_corner_prob
 
 # ----------------------------------------------------------------------------- configuration
 
@@ -138,14 +136,17 @@ def horizonnet_loss(
     floor_v: Float[ArrayLike, "B W"],
     corner_target: Float[ArrayLike, "B W"],
     image_height: int,
+    corner_base: float = CORNER_LABEL_BASE,
 ) -> dict[str, Float[Array, ""]]:
     """HorizonNet's loss: L1 on the boundary elevations (radians) + BCE with logits on the corners.
 
     Args:
         prediction: network output for the batch.
         ceiling_v, floor_v: true boundary rows (pixels of an ``image_height``-row image).
-        corner_target: ``0.96**d`` per column.
+        corner_target: ``0.96**d`` per column (the labels' encoding).
         image_height: rows of the image the labels refer to.
+        corner_base: the network's corner encoding ``corner_base**d``
+            (``HorizonNetConfig.corner_base``); the target is re-encoded to it.
 
     Returns:
         ``{"loss": boundary + corner, "boundary": ..., "corner": ...}``.
@@ -153,6 +154,7 @@ def horizonnet_loss(
     ceiling_error = jnp.abs(prediction.ceiling_elevation - row_to_elevation(ceiling_v, image_height))
     floor_error = jnp.abs(prediction.floor_elevation - row_to_elevation(floor_v, image_height))
     boundary = 0.5 * (jnp.mean(ceiling_error) + jnp.mean(floor_error))
+    corner_target = reencode_corner_prob(corner_target, CORNER_LABEL_BASE, corner_base)
     corner = jnp.mean(optax.sigmoid_binary_cross_entropy(prediction.corner_logit, corner_target))
     return {"loss": boundary + corner, "boundary": boundary, "corner": corner}
 
@@ -221,7 +223,9 @@ def train_step(
 
     def loss_fn(model):
         prediction = model(batch["image"], dropout_key=dropout_key)
-        terms = horizonnet_loss(prediction, batch["ceiling_v"], batch["floor_v"], batch["corner_target"], height)
+        terms = horizonnet_loss(
+            prediction, batch["ceiling_v"], batch["floor_v"], batch["corner_target"], height, model.config.corner_base
+        )
         return terms["loss"], terms
 
     (_, terms), grads = nnx.value_and_grad(loss_fn, has_aux=True)(model)
@@ -234,7 +238,9 @@ def eval_step(model: HorizonNet, batch: dict[str, Array]) -> tuple[dict[str, Arr
     """Loss terms and raw predictions of a batch, no augmentation (call ``model.eval()`` first)."""
     prediction = model(batch["image"])
     height = batch["image"].shape[1]
-    terms = horizonnet_loss(prediction, batch["ceiling_v"], batch["floor_v"], batch["corner_target"], height)
+    terms = horizonnet_loss(
+        prediction, batch["ceiling_v"], batch["floor_v"], batch["corner_target"], height, model.config.corner_base
+    )
     return terms, prediction
 
 
@@ -264,10 +270,10 @@ def latest_checkpoint(checkpoint_dir: str | pathlib.Path) -> pathlib.Path | None
     return files[-1] if files else None
 
 
-def _restore_or_init(config, train_config, checkpoint_dir, seed, resume):
+def _restore_or_init(config, train_config, checkpoint_dir, seed, resume, initial_weights):
     latest = latest_checkpoint(checkpoint_dir) if (resume and checkpoint_dir is not None) else None
     if latest is None:
-        model = init_model(config, seed)
+        model = init_model(config, seed) if initial_weights is None else load_weights(initial_weights, config)
         return model, make_optimizer(model, train_config), 0
     model, optimizer, step = load_checkpoint(latest, lambda m, _: make_optimizer(m, train_config))
     if model.config != config:
@@ -289,6 +295,7 @@ def train(
     seed: int = 0,
     resume: bool = True,
     progress: bool = True,
+    initial_weights: str | pathlib.Path | None = None,
 ) -> TrainResult:
     """Train (or resume training) a :class:`HorizonNet` up to ``steps`` optimisation steps.
 
@@ -309,13 +316,16 @@ def train(
         seed: initialisation and per-step augmentation / dropout keys.
         resume: continue from the latest checkpoint in ``checkpoint_dir`` if any.
         progress: show a tqdm bar with the loss and images per second.
+        initial_weights: a model file to start from instead of a random
+            initialisation (:func:`~ncjax._checkpoint.load_weights`; a fresh
+            optimizer, steps counted from 0). A checkpoint to resume wins.
 
     Returns:
         :class:`TrainResult` with the model in eval mode.
     """
     from tqdm.auto import tqdm
 
-    model, optimizer, start = _restore_or_init(config, train_config, checkpoint_dir, seed, resume)
+    model, optimizer, start = _restore_or_init(config, train_config, checkpoint_dir, seed, resume, initial_weights)
     model.train()
     iterator = data(start) if callable(data) else data
     base_key = step_key_root(seed)
@@ -520,6 +530,9 @@ def folder_batches(arrays: dict[str, np.ndarray], batch_size: int, seed: int) ->
 def evaluate_arrays(model: HorizonNet, arrays: dict[str, np.ndarray], batch_size: int = 8, views: int = 1) -> dict[str, float]:
     """Table netcorExp's row (:func:`~ncjax.network_table`) of a model on :func:`load_split` arrays.
 
+    The corner output is compared in the labels' ``0.96**d`` encoding whatever
+    the model's ``corner_base`` (:func:`~ncjax._rooms.reencode_corner_prob`).
+
     ``views``: the network's output averaged over rolled and mirrored views
     (:func:`~ncjax._network.predict_views`); 1 is the network alone.
     """
@@ -534,6 +547,7 @@ def evaluate_arrays(model: HorizonNet, arrays: dict[str, np.ndarray], batch_size
         rows = prediction_to_rows(prediction, height, width)
         outputs.append([np.asarray(r)[: len(images)] for r in rows])
     ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*outputs))
+    corner_prob = reencode_corner_prob(corner_prob, model.config.corner_base, CORNER_LABEL_BASE)
     table = network_table(
         ceiling_v, floor_v, corner_prob, arrays["ceiling_v"], arrays["floor_v"], arrays["corner_target"]
     )
@@ -554,6 +568,13 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         "first --validation-limit images of the pool), or 'painted'",
     )
     parser.add_argument("--preset", default="compact", help="paper, resnet18 or compact")
+    parser.add_argument(
+        "--corner-base", type=float,
+        help="the corner output's encoding base**d (default: the preset's, HorizonNet's 0.96)",
+    )
+    parser.add_argument(
+        "--init-from", help="start from this model file's weights (fine-tuning) when no checkpoint is resumed"
+    )
     parser.add_argument("--steps", type=int, default=1000, help="total optimisation steps (a resumed run does the rest)")
     parser.add_argument("--batch-size", type=int, default=4)
     parser.add_argument("--checkpoint-dir", default="checkpoints/horizonnet")
@@ -573,6 +594,10 @@ def run_train(args: argparse.Namespace) -> int:
     if args.steps < 1 or args.batch_size < 1:
         raise ValueError(f"--steps and --batch-size must be positive, got {args.steps} and {args.batch_size}")
     config = HorizonNetConfig.preset(args.preset)
+    if args.corner_base is not None:
+        config = dataclasses.replace(config, corner_base=args.corner_base)
+    if args.init_from is not None:
+        load_weights(args.init_from, config)  # a wrong file fails here, before the data is read
     height, width = config.input_height, config.input_width
     train_config = TrainConfig(
         peak_learning_rate=args.learning_rate, warmup_steps=args.warmup_steps, total_steps=args.steps
@@ -595,6 +620,7 @@ def run_train(args: argparse.Namespace) -> int:
         validate_every=args.validate_every,
         seed=args.seed,
         resume=not args.no_resume,
+        initial_weights=args.init_from,
     )
     losses = [h["loss"] for h in result.history if "loss" in h]
     if losses:

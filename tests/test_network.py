@@ -6,8 +6,10 @@ function and shared by the tests (functools.cache); shape and parameter-count
 tests only trace (nnx.eval_shape).
 """
 
+import dataclasses
 import functools
 import itertools
+import json
 import math
 
 import jax
@@ -17,8 +19,8 @@ import pytest
 from flax import nnx
 
 import ncjax
-from ncjax import _network, _predict, _train
-from ncjax._checkpoint import load_checkpoint, read_metadata, save_checkpoint
+from ncjax import _network, _predict, _rooms, _train
+from ncjax._checkpoint import load_checkpoint, load_weights, read_metadata, save_checkpoint
 from ncjax._rooms import Room
 
 TINY = ncjax.HorizonNetConfig(depth=10, width=8, input_height=64, input_width=128, lstm_hidden=16, lstm_layers=1, dropout=0.1)
@@ -98,8 +100,13 @@ def test_config_validation():
         ncjax.HorizonNetConfig(depth=101)
     with pytest.raises(ValueError, match="unknown preset"):
         ncjax.HorizonNetConfig.preset("huge")
+    with pytest.raises(ValueError, match="corner_base"):
+        ncjax.HorizonNetConfig(corner_base=1.0)
     config = ncjax.HorizonNetConfig.preset("compact")
     assert ncjax.HorizonNetConfig.from_json(config.to_json()) == config
+    # Files written before corner_base existed hold HorizonNet's encoding.
+    old_fields = {k: v for k, v in json.loads(config.to_json()).items() if k != "corner_base"}
+    assert ncjax.HorizonNetConfig.from_json(json.dumps(old_fields)).corner_base == 0.96
 
 
 def test_parameter_counts():
@@ -173,6 +180,30 @@ def test_loss_matches_numpy():
     np.testing.assert_allclose(terms["boundary"], boundary, rtol=1e-5)
     np.testing.assert_allclose(terms["corner"], corner, rtol=1e-5)
     np.testing.assert_allclose(terms["loss"], boundary + corner, rtol=1e-5)
+
+
+def test_sharper_corner_encoding():
+    """The loss re-encodes the 0.96**d labels as base**d; re-encoding back recovers them."""
+    rng = np.random.default_rng(1)
+    corners = np.array([3.2, 20.0, 22.0, 90.0])
+    target = np.asarray(_rooms.corner_target(corners, np.ones(4, bool), 128))
+    distance = np.abs(np.arange(128)[:, None] - corners[None, :])
+    distance = np.minimum(distance, 128 - distance).min(axis=1)
+    np.testing.assert_allclose(target, 0.96**distance, rtol=1e-5)
+    sharp = _rooms.reencode_corner_prob(target, 0.96, 0.7)
+    np.testing.assert_allclose(sharp, 0.7**distance, rtol=1e-4, atol=1e-30)
+    np.testing.assert_allclose(_rooms.reencode_corner_prob(sharp, 0.7, 0.96), target, rtol=1e-4)
+    # Peaks and dips stay where they were (a monotone map); the dip between corners 2 columns apart deepens.
+    assert np.array_equal(np.argsort(sharp), np.argsort(target))
+    assert sharp[21] < 0.75 * sharp[20] and target[21] > 0.95 * target[20]
+
+    logits = rng.normal(size=(2, 128)).astype(np.float32)
+    prediction = ncjax.BoundaryPrediction(jnp.zeros((2, 128)), jnp.zeros((2, 128)), jnp.asarray(logits))
+    rows = np.full((2, 128), 10.0)
+    terms = ncjax.horizonnet_loss(prediction, rows, rows, np.stack([target, target]), 64, corner_base=0.7)
+    p = 1 / (1 + np.exp(-logits))
+    expected = np.mean(-(0.7**distance * np.log(p) + (1 - 0.7**distance) * np.log(1 - p)))
+    np.testing.assert_allclose(terms["corner"], expected, rtol=1e-5)
 
 
 def test_augmented_images_match_augmented_labels():
@@ -266,6 +297,22 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path):
         load_checkpoint(tmp_path / "model.safetensors", lambda m, j: None)
     with pytest.raises(FileNotFoundError):
         ncjax.load_model(tmp_path / "missing.safetensors")
+
+
+def test_fine_tuning_starts_from_the_weights_with_a_new_corner_encoding(tmp_path):
+    model = tiny_model()
+    ncjax.save_model(model, tmp_path / "model.safetensors")
+    sharp = dataclasses.replace(TINY, corner_base=0.75)
+    started = load_weights(tmp_path / "model.safetensors", sharp)
+    assert started.config == sharp
+    a, b = params_of(model), params_of(started)
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError, match="cannot start"):
+        load_weights(tmp_path / "model.safetensors", dataclasses.replace(TINY, lstm_hidden=8))
+    # Two steps from those weights; the checkpoint then records the new encoding.
+    result = ncjax.train(sharp, batches, 2, tmp_path / "ck", train_config=TRAIN, checkpoint_every=0,
+                         progress=False, initial_weights=tmp_path / "model.safetensors")
+    assert result.step == 2 and load_checkpoint(tmp_path / "ck" / "step_00000002.safetensors")[0].config == sharp
 
 
 # ----------------------------------------------------------------------------- metrics
