@@ -43,6 +43,7 @@ from ncjax import metrics
 from ncjax._dataset import list_samples, read_sample
 from ncjax._export import CHI2_2D_95, room_height_sigma
 from ncjax._pipeline import LayoutStatus
+from ncjax._checkpoint import load_model
 from ncjax._predict import DEFAULT_VIEWS, default_model
 from ncjax._rooms import corner_target
 
@@ -55,9 +56,8 @@ SOURCES = ("network", "true corners", "true ceiling", "true floor", "exact")
 EXPLAINED_BINS = (0.6, 0.8, 0.9)  # Layout.explained_fraction bins of the quality check
 
 
-def network_outputs(samples, views: int) -> dict[str, np.ndarray]:
+def network_outputs(samples, views: int, model) -> dict[str, np.ndarray]:
     """The network's rows and corner probability, and the exact ones, of the samples."""
-    model = default_model()
     predicted = []
     for start in tqdm(range(0, len(samples), BATCH), desc="network"):
         images = np.stack([s.image for s in samples[start : start + BATCH]])
@@ -164,6 +164,7 @@ def main(argv=None):
     parser.add_argument("--rooms", type=int, default=128, help="test renders per world (those of network_table.py)")
     parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even)")
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--model", help="weights (.safetensors); default: the shipped model")
     parser.add_argument("--branch", choices=("own", "auto"), default="own",
                         help="pipeline world: each test set's own (default) or auto (ncjax reconstruct's default)")
     args = parser.parse_args(argv)
@@ -180,7 +181,7 @@ def main(argv=None):
         folder = str(test_renders(world, args.rooms, args.out))
         samples = [read_sample(folder, name) for name in list_samples(folder)]
         truths = [ground_truth(s, world) for s in samples]
-        outputs = network_outputs(samples, args.views)
+        outputs = network_outputs(samples, args.views, load_model(args.model) if args.model else default_model())
         height, width = samples[0].image.shape[:2]
         cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(np.array([s.rc for s in samples], np.float32))
         keys = jax.random.split(jax.random.key(0), len(samples))
