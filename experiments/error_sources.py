@@ -56,12 +56,12 @@ SOURCES = ("network", "true corners", "true ceiling", "true floor", "exact")
 EXPLAINED_BINS = (0.6, 0.8, 0.9)  # Layout.explained_fraction bins of the quality check
 
 
-def network_outputs(samples, views: int, model) -> dict[str, np.ndarray]:
+def network_outputs(samples, views: int, model, edge_snap) -> dict[str, np.ndarray]:
     """The network's rows and corner probability, and the exact ones, of the samples."""
     predicted = []
     for start in tqdm(range(0, len(samples), BATCH), desc="network"):
         images = np.stack([s.image for s in samples[start : start + BATCH]])
-        predicted.append(ncjax.predict_boundaries(images, model, views=views))
+        predicted.append(ncjax.predict_boundaries(images, model, views=views, edge_snap=edge_snap))
     ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*predicted))
     width = samples[0].image.shape[1]
     return {
@@ -165,12 +165,15 @@ def main(argv=None):
     parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even)")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--model", help="weights (.safetensors); default: the shipped model")
+    parser.add_argument("--no-edge-snap", dest="edge_snap", action="store_const", const=None, default=ncjax.EdgeSnap(),
+                        help="the network's rows as they are, not snapped to the image's edges")
     parser.add_argument("--branch", choices=("own", "auto"), default="own",
                         help="pipeline world: each test set's own (default) or auto (ncjax reconstruct's default)")
     args = parser.parse_args(argv)
     start = time.time()
     lines = [
-        f"Network output averaged over {args.views} view(s); {args.rooms} rooms per world; pipeline world: {args.branch}.",
+        f"Network output averaged over {args.views} view(s); {args.rooms} rooms per world; pipeline world: {args.branch}; "
+        f"rows snapped to the image's edges: {args.edge_snap is not None}.",
         "",
         "| world | input | ok | failed (%) | CE mean (m) | CE median (m) | 3D IoU ok (%) | 3D IoU all (%) | "
         "up-to-scale IoU (%) | scale error median / p90 | signed scale error median |",
@@ -181,7 +184,7 @@ def main(argv=None):
         folder = str(test_renders(world, args.rooms, args.out))
         samples = [read_sample(folder, name) for name in list_samples(folder)]
         truths = [ground_truth(s, world) for s in samples]
-        outputs = network_outputs(samples, args.views, load_model(args.model) if args.model else default_model())
+        outputs = network_outputs(samples, args.views, load_model(args.model) if args.model else default_model(), args.edge_snap)
         height, width = samples[0].image.shape[:2]
         cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(np.array([s.rc for s in samples], np.float32))
         keys = jax.random.split(jax.random.key(0), len(samples))
@@ -211,7 +214,7 @@ def main(argv=None):
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"error_sources_views{args.views}_{args.branch}.md").write_text(table + "\n")
+    (args.out / f"error_sources_views{args.views}_{args.branch}{'' if args.edge_snap else '_no_snap'}.md").write_text(table + "\n")
 
 
 if __name__ == "__main__":

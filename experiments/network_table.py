@@ -90,14 +90,14 @@ def ground_truth(sample, world: str) -> dict:
     }
 
 
-def layouts_of(samples, world: str, model, config: PipelineConfig, views: int):
+def layouts_of(samples, world: str, model, config: PipelineConfig, views: int, edge_snap):
     """Full-pipeline reconstructions and the network's boundaries of the samples, in fixed-size batches."""
     layouts, boundaries = [], []
     for start in tqdm(range(0, len(samples), BATCH), desc=f"reconstruct {world}"):
         chunk = samples[start : start + BATCH]
         chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
         images = np.stack([s.image for s in chunk])
-        result = jax.device_get(reconstruct_batch(images, np.array([s.rc for s in chunk], np.float32), world, model=model, config=config, views=views))
+        result = jax.device_get(reconstruct_batch(images, np.array([s.rc for s in chunk], np.float32), world, model=model, config=config, views=views, edge_snap=edge_snap))
         for index in range(min(BATCH, len(samples) - start)):
             layouts.append(jax.tree.map(lambda x: x[index], result.layout))
             boundaries.append((result.ceiling_v[index], result.floor_v[index], result.corner_prob[index]))
@@ -149,6 +149,8 @@ def main(argv=None):
     parser.add_argument("--corner-threshold", type=float, default=PipelineConfig.corner_threshold)
     parser.add_argument("--nms-radius", type=float, default=PipelineConfig.nms_radius, help="columns at 1024")
     parser.add_argument("--skip-network", action="store_true", help="only the layout tables")
+    parser.add_argument("--no-edge-snap", dest="edge_snap", action="store_const", const=None, default=ncjax.EdgeSnap(),
+                        help="the layouts from the network's rows as they are, not snapped to the image's edges")
     parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even) for the layouts")
     args = parser.parse_args(argv)
     config = PipelineConfig(corner_threshold=args.corner_threshold, nms_radius=args.nms_radius)
@@ -173,7 +175,7 @@ def main(argv=None):
     p = PAPER["netcorExp"]
     lines.append(f"| paper (its test set) | 1 | 499 | {p['precision']} | {p['recall']} | {p['accuracy']} | {p['iou']} | {p['pe_mean']} | {p['pe_std']} |")
 
-    lines += ["", "### Table pipeExp, network predictions", "", f"Network output averaged over {args.views} view(s).", "",
+    lines += ["", "### Table pipeExp, network predictions", "", f"Network output averaged over {args.views} view(s); rows snapped to the image's edges: {args.edge_snap is not None}.", "",
               "| method | world | rooms | occluded rooms | failed (%) | CE (m) | 3D IoU ok (%) | 3D IoU all (%) | paper CE / IoU |",
               "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     comparison = {}
@@ -182,7 +184,7 @@ def main(argv=None):
         samples = [read_sample(folder, name) for name in list_samples(folder)]
         truths = [ground_truth(s, world) for s in samples]
         clear = np.array([not any(s.metadata["corner_is_occlusion"]) for s in samples])
-        layouts, boundaries = layouts_of(samples, world, model, config, args.views)
+        layouts, boundaries = layouts_of(samples, world, model, config, args.views, args.edge_snap)
         results = {"pipeline": scores(layouts, truths), "solvers": scores(solver_layouts(samples, boundaries, world), truths)}
         for method, per_room in results.items():
             for subset, keep in (("no occlusion", clear), ("all", np.ones_like(clear))):
@@ -202,7 +204,7 @@ def main(argv=None):
     table = "\n".join(lines)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
-    suffix = ("_small" if args.small else "") + ("" if args.views == DEFAULT_VIEWS else f"_views{args.views}") + ("" if config == PipelineConfig() else f"_t{args.corner_threshold}_r{args.nms_radius}")
+    suffix = ("_small" if args.small else "") + ("" if args.edge_snap else "_no_snap") + ("" if args.views == DEFAULT_VIEWS else f"_views{args.views}") + ("" if config == PipelineConfig() else f"_t{args.corner_threshold}_r{args.nms_radius}")
     record["pipeline_config"] = {"corner_threshold": args.corner_threshold, "nms_radius": args.nms_radius}
     record["views"] = args.views
     (args.out / f"network_table{suffix}.md").write_text(table + "\n")

@@ -113,6 +113,7 @@ from ._network import (
 )
 from ._network_metrics import boundary_pixel_error, corner_confusion, corner_scores, network_table
 from ._predict import predict_boundaries
+from ._edges import EdgeSnap, snap_to_edges
 from ._train import TrainConfig, horizonnet_loss, train
 
 # The whole method: panorama -> network -> geometry (paper Fig. pipeline)
@@ -186,6 +187,8 @@ __all__ = [
     "point_at",
     "point_to_angles",
     "predict_boundaries",
+    "snap_to_edges",
+    "EdgeSnap",
     "reconstruct",
     "reconstruct_batch",
     "project",

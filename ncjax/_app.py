@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from ._dataset import rc_from_name
+from ._edges import EdgeSnap
 from ._images import PanoramaError, read_panorama
 from ._network import check_views
 from ._predict import DEFAULT_VIEWS
@@ -95,7 +96,7 @@ def write_outputs(out: str, name: str, image: np.ndarray, result, rc: float, wor
     return record
 
 
-def _reconstruct_group(model, items, batch_size, world, views, out, on_done):
+def _reconstruct_group(model, items, batch_size, world, views, edge_snap, out, on_done):
     """Reconstruct same-size images in fixed-size batches; ``on_done(path, record)`` after each image."""
     import jax
 
@@ -106,7 +107,7 @@ def _reconstruct_group(model, items, batch_size, world, views, out, on_done):
         padding = [chunk[-1]] * (batch_size - len(chunk))
         images = np.stack([image for _, _, image, _ in chunk + padding])
         radii = np.array([rc for *_, rc in chunk + padding], np.float32)
-        result = jax.device_get(reconstruct_batch(images, radii, world, model=model, views=views))
+        result = jax.device_get(reconstruct_batch(images, radii, world, model=model, views=views, edge_snap=edge_snap))
         for index, (path, name, image, rc) in enumerate(chunk):
             one = jax.tree.map(lambda x: x[index], tuple(result))
             on_done(path, write_outputs(out, name, image, one, float(rc), world))
@@ -153,11 +154,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         group = groups[image.shape[:2]]
         group.append((path, name, image, radius))
         if len(group) == args.batch:
-            _reconstruct_group(model, group, args.batch, args.world, args.views, args.out, done)
+            _reconstruct_group(model, group, args.batch, args.world, args.views, args.edge_snap, args.out, done)
             group.clear()
     for group in groups.values():
         if group:
-            _reconstruct_group(model, group, args.batch, args.world, args.views, args.out, done)
+            _reconstruct_group(model, group, args.batch, args.world, args.views, args.edge_snap, args.out, done)
     bar.close()
     succeeded = len(args.images) - len(failures)
     print(f"{succeeded} of {len(args.images)} images reconstructed into {args.out}")
@@ -186,7 +187,9 @@ def run_demo(args: argparse.Namespace) -> int:
     os.makedirs(args.out, exist_ok=True)
     print(f"ncjax demo: {truth['image']} ({image.shape[1]} x {image.shape[0]}, rc = {rc} m from its name, "
           f"a {truth['world']} room rendered by ncjax synth and never seen in training)")
-    result = jax.device_get(reconstruct_batch(image[None], np.array([rc], np.float32), args.world, views=args.views))
+    result = jax.device_get(
+        reconstruct_batch(image[None], np.array([rc], np.float32), args.world, views=args.views, edge_snap=args.edge_snap)
+    )
     one = jax.tree.map(lambda x: x[0], tuple(result))
     record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world)
     elapsed = time.perf_counter() - start
@@ -217,17 +220,21 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto")
     parser.add_argument("--model", help="network weights (.safetensors); default: the shipped model")
     parser.add_argument("--batch", type=int, default=4, help="images per jitted call")
-    _add_views_argument(parser)
+    _add_boundary_arguments(parser)
 
 
-def _add_views_argument(parser: argparse.ArgumentParser) -> None:
+def _add_boundary_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--views", type=int, default=DEFAULT_VIEWS,
         help=f"rolled and mirrored views the network averages (1 or even; default {DEFAULT_VIEWS}): more is more accurate and slower",
+    )
+    parser.add_argument(
+        "--no-edge-snap", dest="edge_snap", action="store_const", const=None, default=EdgeSnap(),
+        help="use the network's boundary rows as they are, not snapped to the image's edges",
     )
 
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="ncjax_demo", help="output folder (default ./ncjax_demo)")
     parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto")
-    _add_views_argument(parser)
+    _add_boundary_arguments(parser)

@@ -23,6 +23,7 @@ from flax import nnx
 from jaxtyping import Array, Float, Shaped
 
 from ._checkpoint import load_model
+from ._edges import EdgeSnap, snap_to_edges
 from ._network import HorizonNet, check_views, prediction_to_rows, predict_views
 
 DEFAULT_MODEL_PATH = pathlib.Path(__file__).parent / "models" / "compact.safetensors"
@@ -47,20 +48,28 @@ def default_model() -> HorizonNet:
 
 
 def image_boundaries(
-    model: HorizonNet, images: Shaped[Array, "B H W 3"], views: int = 1
+    model: HorizonNet, images: Shaped[Array, "B H W 3"], views: int = 1, edge_snap: EdgeSnap | None = None
 ) -> tuple[Float[Array, "B W"], Float[Array, "B W"], Float[Array, "B W"]]:
-    """Traced core of :func:`predict_boundaries`: resize, network (over ``views``), rows of the input image."""
+    """Traced core of :func:`predict_boundaries`: resize, network (over ``views``), rows of the input image,
+    snapped to its edges unless ``edge_snap`` is None."""
     batch, height, width = images.shape[:3]
     size = (batch, model.config.input_height, model.config.input_width, 3)
     resized = jax.image.resize(images.astype(jnp.float32) / 255.0, size, method="linear")
-    return prediction_to_rows(predict_views(model, resized, views), height, width)
+    ceiling_v, floor_v, corner_prob = prediction_to_rows(predict_views(model, resized, views), height, width)
+    if edge_snap is not None:
+        snap = jax.vmap(snap_to_edges, in_axes=(0, 0, 0, None))
+        ceiling_v, floor_v = snap(images, ceiling_v, floor_v, edge_snap)
+    return ceiling_v, floor_v, corner_prob
 
 
-_predict = nnx.jit(image_boundaries, static_argnames=("views",))
+_predict = nnx.jit(image_boundaries, static_argnames=("views", "edge_snap"))
 
 
 def predict_boundaries(
-    image: Shaped[np.ndarray, "*batch H W 3"], model: HorizonNet | None = None, views: int = DEFAULT_VIEWS
+    image: Shaped[np.ndarray, "*batch H W 3"],
+    model: HorizonNet | None = None,
+    views: int = DEFAULT_VIEWS,
+    edge_snap: EdgeSnap | None = EdgeSnap(),
 ) -> tuple[Float[np.ndarray, "*batch W"], Float[np.ndarray, "*batch W"], Float[np.ndarray, "*batch W"]]:
     """Ceiling row, floor row and corner probability per column of RGB panoramas.
 
@@ -72,6 +81,9 @@ def predict_boundaries(
             views of the panorama (1, or even; see
             :func:`~ncjax._network.predict_views`): more is more accurate and
             proportionally slower.
+        edge_snap: how the network's rows are moved onto the image's own
+            edges (:func:`~ncjax._edges.snap_to_edges`); None keeps the
+            network's rows.
 
     Returns:
         ``(ceiling_v, floor_v, corner_prob)``, numpy float32 arrays of shape
@@ -84,6 +96,6 @@ def predict_boundaries(
     model = default_model() if model is None else model
     model.eval()
     batch = image if image.ndim == 4 else image[None]
-    rows = _predict(model, jnp.asarray(batch), views=views)
+    rows = _predict(model, jnp.asarray(batch), views=views, edge_snap=edge_snap)
     rows = tuple(np.asarray(r) for r in rows)
     return rows if image.ndim == 4 else tuple(r[0] for r in rows)

@@ -2,8 +2,9 @@
 
 The two blocks of the paper's Fig. pipeline in ONE jitted function: the image
 is resized to the network's input size, the network's per-column outputs are
-brought back to the image's columns and rows (:func:`~ncjax._network.prediction_to_rows`),
-and the geometric pipeline (:func:`~ncjax._pipeline.layout_from_evidence`)
+brought back to the image's columns and rows (:func:`~ncjax._network.prediction_to_rows`)
+and snapped to the full image's edges (:func:`~ncjax._edges.snap_to_edges`), and the
+geometric pipeline (:func:`~ncjax._pipeline.layout_from_evidence`)
 runs on them with each image's own camera radius. Nothing leaves the device
 between the two blocks, and a batch of images is one call.
 """
@@ -20,6 +21,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Float, Key, PRNGKeyArray, Shaped
 
 from ._camera import NonCentralPanorama
+from ._edges import EdgeSnap
 from ._images import panorama_size_error
 from ._network import HorizonNet, check_views
 from ._pipeline import WORLDS, Layout, PipelineConfig, layout_from_evidence
@@ -31,7 +33,8 @@ class Reconstruction(NamedTuple):
 
     Attributes:
         layout: :class:`~ncjax.Layout` with a leading batch axis B.
-        ceiling_v, floor_v: (B, W) the network's boundary rows in image pixels.
+        ceiling_v, floor_v: (B, W) the boundary rows the geometry used, in image
+            pixels (the network's, snapped to the image's edges by default).
         corner_prob: (B, W) the network's corner probability.
     """
 
@@ -41,7 +44,7 @@ class Reconstruction(NamedTuple):
     corner_prob: Float[Array, "B W"]
 
 
-@functools.partial(nnx.jit, static_argnames=("world", "config", "views"))
+@functools.partial(nnx.jit, static_argnames=("world", "config", "views", "edge_snap"))
 def _reconstruct(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
@@ -50,9 +53,10 @@ def _reconstruct(
     world: str,
     config: PipelineConfig,
     views: int,
+    edge_snap: EdgeSnap | None,
 ) -> Reconstruction:
     height, width = images.shape[1:3]
-    ceiling_v, floor_v, corner_prob = image_boundaries(model, images, views)
+    ceiling_v, floor_v, corner_prob = image_boundaries(model, images, views, edge_snap)
 
     def one(ceiling, floor, probability, radius, key):
         cam = NonCentralPanorama(width, height, rc=radius)
@@ -80,6 +84,7 @@ def reconstruct_batch(
     config: PipelineConfig = PipelineConfig(),
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,
+    edge_snap: EdgeSnap | None = EdgeSnap(),
 ) -> Reconstruction:
     """Metric layouts of a batch of panoramas of one size, each with its own radius.
 
@@ -92,6 +97,9 @@ def reconstruct_batch(
         key: RANSAC key (default ``jax.random.key(0)``), split over the batch.
         views: static, rolled and mirrored views the network's output is
             averaged over (1 or even, :func:`ncjax.predict_boundaries`).
+        edge_snap: static; how the network's rows are moved onto the image's
+            edges before the geometry (:func:`~ncjax._edges.snap_to_edges`);
+            None keeps the network's rows.
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).
@@ -114,7 +122,7 @@ def reconstruct_batch(
     model = default_model() if model is None else model
     model.eval()
     keys = jax.random.split(jax.random.key(0) if key is None else key, images.shape[0])
-    return _reconstruct(model, jnp.asarray(images), jnp.asarray(rc), keys, world, config, views)
+    return _reconstruct(model, jnp.asarray(images), jnp.asarray(rc), keys, world, config, views, edge_snap)
 
 
 def reconstruct(
@@ -126,6 +134,7 @@ def reconstruct(
     config: PipelineConfig = PipelineConfig(),
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,
+    edge_snap: EdgeSnap | None = EdgeSnap(),
 ) -> Layout:
     """Metric room layout of one RGB panorama: network, then geometry (paper Fig. pipeline).
 
@@ -136,6 +145,8 @@ def reconstruct(
         model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
         config: :class:`~ncjax.PipelineConfig`.
         key: RANSAC key (default ``jax.random.key(0)``).
+        views: rolled and mirrored views the network averages (1 or even).
+        edge_snap: rows snapped to the image's edges (None: the network's rows).
 
     Returns:
         An unbatched :class:`~ncjax.Layout`; check ``ok`` / ``status``.
@@ -146,6 +157,8 @@ def reconstruct(
         raise ValueError(f"reconstruct takes one image (H, W, 3), got {image.shape}; use reconstruct_batch")
     if (cam.width, cam.height) != image.shape[1::-1]:
         raise ValueError(f"the camera is {cam.width} x {cam.height} but the image {image.shape[1]} x {image.shape[0]}")
-    result = reconstruct_batch(image[None], jnp.reshape(cam.rc, (1,)), world, model=model, config=config, key=key, views=views)
+    result = reconstruct_batch(
+        image[None], jnp.reshape(cam.rc, (1,)), world, model=model, config=config, key=key, views=views, edge_snap=edge_snap
+    )
     return jax.tree.map(lambda x: x[0], result.layout)
 

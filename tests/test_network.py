@@ -356,6 +356,13 @@ def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
     assert np.all((corner_prob >= 0) & (corner_prob <= 1)) and np.all(np.isfinite(ceiling_v))
     batch_ceiling, _, _ = ncjax.predict_boundaries(image[None], model)
     np.testing.assert_allclose(batch_ceiling[0], ceiling_v, atol=1e-5)
+    # The default snaps the network's own rows to the image's edges; the corner output is untouched.
+    raw = ncjax.predict_boundaries(image, model, edge_snap=None)
+    snapped = ncjax.snap_to_edges(jnp.asarray(image), raw[0], raw[1], ncjax.EdgeSnap())
+    np.testing.assert_allclose(ceiling_v, snapped[0], atol=1e-4)
+    np.testing.assert_allclose(floor_v, snapped[1], atol=1e-4)
+    np.testing.assert_array_equal(corner_prob, raw[2])
+    assert not np.allclose(ceiling_v, raw[0])
     with pytest.raises(ValueError, match="uint8"):
         ncjax.predict_boundaries(image.astype(np.float32), model)
     monkeypatch.setattr(_predict, "DEFAULT_MODEL_PATH", tmp_path / "compact.safetensors")
