@@ -115,6 +115,16 @@ def solver_layouts(samples, boundaries, world: str):
     return [jax.tree.map(lambda x: x[i], result) for i in range(len(samples))]
 
 
+def used_row_errors(samples, boundaries) -> dict:
+    """|row - true row| over every column of the samples, per boundary: mean, median, share within 1 px."""
+    out = {}
+    for index, name in ((0, "ceiling"), (1, "floor")):
+        error = np.abs(np.stack([b[index] for b in boundaries]) - np.stack([s.metadata[f"{name}_v"] for s in samples]))
+        out |= {f"{name}_mean": float(error.mean()), f"{name}_median": float(np.median(error)),
+                f"{name}_within_1px": float(np.mean(error < 1))}
+    return out
+
+
 def scores(layouts, truths) -> list[dict]:
     out = []
     for layout, truth in zip(layouts, truths):
@@ -178,7 +188,7 @@ def main(argv=None):
     lines += ["", "### Table pipeExp, network predictions", "", f"Network output averaged over {args.views} view(s); rows snapped to the image's edges: {args.edge_snap is not None}.", "",
               "| method | world | rooms | occluded rooms | failed (%) | CE (m) | 3D IoU ok (%) | 3D IoU all (%) | paper CE / IoU |",
               "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    comparison = {}
+    comparison, row_errors = {}, {}
     for world in SEEDS:
         folder = str(args.out / f"test_renders_{world}_{count}")
         samples = [read_sample(folder, name) for name in list_samples(folder)]
@@ -194,6 +204,7 @@ def main(argv=None):
                 lines.append(f"| {method} | {world} | {s['rooms']} | {subset} | {s['failed']:.1f} | {s['ce']:.3f} | "
                              f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {paper[0]} / {paper[1]} |")
         comparison[world] = summary(results["pipeline"])
+        row_errors[world] = used_row_errors(samples, boundaries)
     lines += ["", "### Table comparison, ncjax rows (pipeline, all test rooms)", "",
               "| world | 3D IoU u2s (%) | 3D IoU (%) | CEN (% of diagonal) | CE (m) | failed (%) | paper: u2s / IoU / CEN / CE |",
               "| --- | --- | --- | --- | --- | --- | --- |"]
@@ -201,6 +212,13 @@ def main(argv=None):
         p = PAPER["comparison"][world]
         lines.append(f"| {world} | {s['iou3d_u2s']:.1f} | {s['iou3d']:.1f} | {s['cen']:.2f} | {s['ce']:.3f} | {s['failed']:.1f} | "
                      f"{p[0]} / {p[1]} / {p[2]} / {p[3]} |")
+    lines += ["", "### The boundary rows the geometry used (full-size image pixels)", "",
+              "| world | ceiling mean / median (px) | ceiling within 1 px | floor mean / median (px) | floor within 1 px |",
+              "| --- | --- | --- | --- | --- |"]
+    for world, e in row_errors.items():
+        record[f"rows_{world}"] = e
+        lines.append(f"| {world} | {e['ceiling_mean']:.2f} / {e['ceiling_median']:.2f} | {100 * e['ceiling_within_1px']:.0f}% | "
+                     f"{e['floor_mean']:.2f} / {e['floor_median']:.2f} | {100 * e['floor_within_1px']:.0f}% |")
     table = "\n".join(lines)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
