@@ -39,6 +39,11 @@ class EdgeSnap:
         min_strength: the weakest edge (colour distance between adjacent rows
             of the blurred image, colours in [0, 1]) a row moves to; where
             nothing in reach is stronger, the network's row stays.
+
+    The defaults were chosen on 96 validation renders (``ncjax synth --seed 11``,
+    valid split; never the test renders) with the shipped network's rows: the
+    share of columns within 1 px of the truth went from 50% to 92% (ceiling)
+    and from 30% to 58% (floor, often hidden by furniture).
     """
 
     radius: float = 3.0
