@@ -1,9 +1,10 @@
 """End-to-end speed of ``ncjax.reconstruct_batch`` (network + geometry), split into its two blocks.
 
 Images: the shipped demo panorama (512 x 1024) repeated. For each batch size:
-the whole jitted call, the network alone (resize + forward + rows) and the
-geometry alone (``layout_from_boundaries`` on the network's output), after
-compilation, median of ``--repeats`` runs; latency per image and images per second.
+the whole jitted call, the network alone (resize + forward + rows), the rows'
+snap to the image's edges alone and the geometry alone (``layout_from_boundaries``
+on the snapped rows), after compilation, median of ``--repeats`` runs; latency
+per image and images per second.
 
     uv run python benchmarks/bench_reconstruct.py [--batches 1 8] [--world manhattan] [--repeats 3] [--views 4]
 """
@@ -54,19 +55,22 @@ def main(argv=None):
     model.eval()
     height, width = image.shape[:2]
     print(f"{jax.devices()[0]}, {os.cpu_count()} CPUs, world {args.world}, image {width} x {height}, {args.views} network view(s)")
-    print("| batch | end to end: compile (s) | per call (s) | images/s | network per call (s) | geometry per call (s) |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("| batch | end to end: compile (s) | per call (s) | images/s | network per call (s) | edge snap per call (s) | geometry per call (s) |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    snap = jax.jit(jax.vmap(ncjax.snap_to_edges))
     for batch in args.batches:
         images = np.repeat(image[None], batch, axis=0)
         radii = np.full(batch, rc, np.float32)
         compile_time, total = timed(lambda: reconstruct_batch(images, radii, args.world, model=model, views=args.views), args.repeats)
-        _, network = timed(lambda: _predict(model, images, views=args.views), args.repeats)
-        ceiling_v, floor_v, corner_prob = _predict(model, images, views=args.views)
+        _, network = timed(lambda: _predict(model, images, views=args.views, edge_snap=None), args.repeats)
+        ceiling_v, floor_v, corner_prob = _predict(model, images, views=args.views, edge_snap=None)
+        _, snapping = timed(lambda: snap(images, ceiling_v, floor_v), args.repeats)
+        ceiling_v, floor_v = snap(images, ceiling_v, floor_v)
         cam = ncjax.NonCentralPanorama(width, height, rc=rc)
         _, geometry = timed(
             lambda: ncjax.layout_from_boundaries(ceiling_v, floor_v, corner_prob, cam, world=args.world), args.repeats
         )
-        print(f"| {batch} | {compile_time:.1f} | {total:.3f} | {batch / total:.2f} | {network:.3f} | {geometry:.3f} |")
+        print(f"| {batch} | {compile_time:.1f} | {total:.3f} | {batch / total:.2f} | {network:.3f} | {snapping:.3f} | {geometry:.3f} |")
 
 
 if __name__ == "__main__":
