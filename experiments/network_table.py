@@ -29,6 +29,7 @@ over the successes.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -45,7 +46,7 @@ from ncjax._checkpoint import load_model
 from ncjax._dataset import list_samples, read_sample, write_dataset
 from ncjax._pipeline import PipelineConfig
 from ncjax._predict import DEFAULT_VIEWS, default_model
-from ncjax._reconstruct import reconstruct_batch
+from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG, reconstruct_batch
 from ncjax._train import evaluate_arrays, load_split
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -156,14 +157,18 @@ def main(argv=None):
     parser.add_argument("--small", action="store_true", help="8 rooms per world")
     parser.add_argument("--model", help="weights (.safetensors); default: the shipped model")
     parser.add_argument("--out", type=Path, default=OUT)
-    parser.add_argument("--corner-threshold", type=float, default=PipelineConfig.corner_threshold)
-    parser.add_argument("--nms-radius", type=float, default=PipelineConfig.nms_radius, help="columns at 1024")
+    parser.add_argument("--corner-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.corner_threshold)
+    parser.add_argument("--nms-radius", type=float, default=NETWORK_PIPELINE_CONFIG.nms_radius, help="columns at 1024")
+    parser.add_argument("--occlusion-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.occlusion_threshold, help="pixels")
     parser.add_argument("--skip-network", action="store_true", help="only the layout tables")
     parser.add_argument("--no-edge-snap", dest="edge_snap", action="store_const", const=None, default=ncjax.EdgeSnap(),
                         help="the layouts from the network's rows as they are, not snapped to the image's edges")
     parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even) for the layouts")
     args = parser.parse_args(argv)
-    config = PipelineConfig(corner_threshold=args.corner_threshold, nms_radius=args.nms_radius)
+    config = dataclasses.replace(
+        NETWORK_PIPELINE_CONFIG, corner_threshold=args.corner_threshold, nms_radius=args.nms_radius,
+        occlusion_threshold=args.occlusion_threshold,
+    )
     count = 8 if args.small else args.rooms
     model = load_model(args.model) if args.model else default_model()
     start = time.time()
@@ -222,8 +227,9 @@ def main(argv=None):
     table = "\n".join(lines)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
-    suffix = ("_small" if args.small else "") + ("" if args.edge_snap else "_no_snap") + ("" if args.views == DEFAULT_VIEWS else f"_views{args.views}") + ("" if config == PipelineConfig() else f"_t{args.corner_threshold}_r{args.nms_radius}")
-    record["pipeline_config"] = {"corner_threshold": args.corner_threshold, "nms_radius": args.nms_radius}
+    suffix = ("_small" if args.small else "") + ("" if args.edge_snap else "_no_snap") + ("" if args.views == DEFAULT_VIEWS else f"_views{args.views}") + ("" if config == NETWORK_PIPELINE_CONFIG else f"_t{args.corner_threshold}_r{args.nms_radius}_o{args.occlusion_threshold}")
+    record["pipeline_config"] = {"corner_threshold": args.corner_threshold, "nms_radius": args.nms_radius,
+                                 "occlusion_threshold": args.occlusion_threshold}
     record["views"] = args.views
     (args.out / f"network_table{suffix}.md").write_text(table + "\n")
     (args.out / f"network_table{suffix}.json").write_text(json.dumps(record, indent=1) + "\n")

@@ -117,7 +117,7 @@ from ._edges import EdgeSnap, snap_to_edges
 from ._train import TrainConfig, horizonnet_loss, train
 
 # The whole method: panorama -> network -> geometry (paper Fig. pipeline)
-from ._reconstruct import Reconstruction, reconstruct, reconstruct_batch
+from ._reconstruct import NETWORK_PIPELINE_CONFIG, Reconstruction, reconstruct, reconstruct_batch
 
 __version__ = "0.1.0"
 
@@ -190,6 +190,7 @@ __all__ = [
     "snap_to_edges",
     "EdgeSnap",
     "reconstruct",
+    "NETWORK_PIPELINE_CONFIG",
     "reconstruct_batch",
     "project",
     "quarter_turn",

@@ -28,6 +28,13 @@ from ._pipeline import WORLDS, Layout, PipelineConfig, layout_from_evidence
 from ._predict import DEFAULT_VIEWS, default_model, image_boundaries
 
 
+# The pipeline's defaults suit exact and white-noise rows (issue 4). Network rows snapped to the image's edges
+# are exact to a fraction of a pixel in most columns, so the noise-scaled part of the occlusion test falls to its
+# floor, but not beside the corners, where two walls' edges mix: a jump there must reach 6 px, not 4, to count as
+# an occlusion. Chosen on 288 validation renders, not the test renders (experiments/RESULTS.md, session 17).
+NETWORK_PIPELINE_CONFIG = PipelineConfig(occlusion_threshold=6.0)
+
+
 class Reconstruction(NamedTuple):
     """What :func:`reconstruct_batch` returns: the layouts and the network's boundaries they came from.
 
@@ -81,7 +88,7 @@ def reconstruct_batch(
     world: str = "manhattan",
     *,
     model: HorizonNet | None = None,
-    config: PipelineConfig = PipelineConfig(),
+    config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
@@ -93,7 +100,8 @@ def reconstruct_batch(
         rc: (B,) radius of each panorama's circle of optical centres, metres.
         world: static: "manhattan", "atlanta" or "auto".
         model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
-        config: static :class:`~ncjax.PipelineConfig`.
+        config: static :class:`~ncjax.PipelineConfig` (default: :data:`NETWORK_PIPELINE_CONFIG`,
+            the pipeline's defaults with the occlusion threshold for snapped network rows).
         key: RANSAC key (default ``jax.random.key(0)``), split over the batch.
         views: static, rolled and mirrored views the network's output is
             averaged over (1 or even, :func:`ncjax.predict_boundaries`).
@@ -131,7 +139,7 @@ def reconstruct(
     world: str = "manhattan",
     *,
     model: HorizonNet | None = None,
-    config: PipelineConfig = PipelineConfig(),
+    config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
@@ -143,7 +151,7 @@ def reconstruct(
         cam: its camera; ``cam.width`` and ``cam.height`` must be the image's.
         world: "manhattan", "atlanta" or "auto".
         model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
-        config: :class:`~ncjax.PipelineConfig`.
+        config: :class:`~ncjax.PipelineConfig` (default: :data:`NETWORK_PIPELINE_CONFIG`).
         key: RANSAC key (default ``jax.random.key(0)``).
         views: rolled and mirrored views the network averages (1 or even).
         edge_snap: rows snapped to the image's edges (None: the network's rows).
