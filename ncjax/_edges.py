@@ -121,7 +121,8 @@ def snap_to_edges(
         snap: static search radius and blur.
 
     Returns:
-        ``(ceiling_v, floor_v)`` snapped, each within ``radius + 1`` rows of its input.
+        ``(ceiling_v, floor_v)`` snapped, each within ``radius + 1`` rows of its input
+        (scaled ``radius``; rows next to the poles may move further).
     """
     image, ceiling_v, floor_v = jnp.asarray(image), jnp.asarray(ceiling_v), jnp.asarray(floor_v)
     height = image.shape[0]
