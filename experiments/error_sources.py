@@ -9,6 +9,9 @@ never seen in training), the full pipeline runs on five inputs:
   boundaries exact as well;
 * ``exact``: every input exact (the pipeline's own limit on these rooms).
 
+The network's rows are snapped to the image's edges unless ``--no-edge-snap``, and
+the pipeline runs with ``reconstruct``'s configuration (``NETWORK_PIPELINE_CONFIG``).
+
 Per row: layout statuses, the failure rate of ``network_table.py`` (not ok, or a
 corner count that differs from the ground truth), mean and median CE of the
 other rooms, 3D IoU over the ok layouts and with failures as 0, the up-to-scale
@@ -45,6 +48,7 @@ from ncjax._export import CHI2_2D_95, room_height_sigma
 from ncjax._pipeline import LayoutStatus
 from ncjax._checkpoint import load_model
 from ncjax._predict import DEFAULT_VIEWS, default_model
+from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
 from ncjax._rooms import corner_target
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -190,7 +194,7 @@ def main(argv=None):
         keys = jax.random.split(jax.random.key(0), len(samples))
         branch = world if args.branch == "own" else "auto"
         for source in tqdm(SOURCES, desc=f"pipeline {world}"):
-            layouts = jax.device_get(compiled("pipeline", branch)(*inputs_of(outputs, source), cams, keys))
+            layouts = jax.device_get(compiled("pipeline", branch, NETWORK_PIPELINE_CONFIG)(*inputs_of(outputs, source), cams, keys))
             r = row(samples, layouts, truths)
             lines.append(
                 f"| {world} | {source} | {r['statuses'].get('OK', 0)} / {len(samples)} | {r['failed']:.1f} | {r['ce_mean']:.3f} | "

@@ -109,10 +109,9 @@ def evaluate(layouts, rooms, labels, world: str):
 
 
 @functools.cache
-def compiled(method: str, world: str):
-    """One jit(vmap) per method and world."""
+def compiled(method: str, world: str, config: PipelineConfig = PipelineConfig()):
+    """One jit(vmap) per method and world (``config``: the pipeline's)."""
     if method == "pipeline":
-        config = PipelineConfig()
         return jax.jit(jax.vmap(lambda c, f, p, cam, k: layout_from_evidence(c, f, p, cam, k, world, config)))
     return jax.jit(jax.vmap(lambda c, f, p, cam, k: solvers_only(c, f, p, cam, world)))
 
