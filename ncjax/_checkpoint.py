@@ -126,19 +126,24 @@ def load_model(path: str | os.PathLike) -> HorizonNet:
     return load_checkpoint(path)[0]
 
 
-def load_weights(path: str | os.PathLike, config: HorizonNetConfig) -> HorizonNet:
-    """The weights of a model or checkpoint file in a model built from ``config`` (train mode): a warm start.
+def check_warm_start(path: str | os.PathLike, config: HorizonNetConfig) -> None:
+    """Raise ValueError unless the file's architecture is ``config``'s, the corner encoding aside (metadata only).
 
-    The file's architecture must be ``config``'s, except the corner output's
-    encoding (``corner_base``): that is how a trained model is fine-tuned to a
+    ``corner_base`` may differ: that is how a trained model is fine-tuned to a
     sharper corner target.
-
-    Raises:
-        ValueError: the file was written for another architecture.
     """
     stored = HorizonNetConfig.from_json(read_metadata(path)["config"])
     if dataclasses.replace(stored, corner_base=config.corner_base) != config:
         raise ValueError(f"{path} holds a {stored}, which cannot start a {config}")
+
+
+def load_weights(path: str | os.PathLike, config: HorizonNetConfig) -> HorizonNet:
+    """The weights of a model or checkpoint file in a model built from ``config`` (train mode): a warm start.
+
+    Raises:
+        ValueError: the file was written for another architecture (:func:`check_warm_start`).
+    """
+    check_warm_start(path, config)
     model = abstract_model(config)
     _restore(model, _MODEL_STATE, load_file(path), "model/", str(path))
     model.train()

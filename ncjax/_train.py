@@ -41,7 +41,7 @@ import optax
 from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
 
-from ._checkpoint import load_checkpoint, load_weights, save_checkpoint
+from ._checkpoint import check_warm_start, load_checkpoint, load_weights, save_checkpoint
 from ._camera import NonCentralPanorama
 from ._dataset import DatasetSample, labels_from_corners, list_samples, read_sample, read_split
 from ._network import (
@@ -597,7 +597,7 @@ def run_train(args: argparse.Namespace) -> int:
     if args.corner_base is not None:
         config = dataclasses.replace(config, corner_base=args.corner_base)
     if args.init_from is not None:
-        load_weights(args.init_from, config)  # a wrong file fails here, before the data is read
+        check_warm_start(args.init_from, config)  # a wrong file fails here, before the data is read
     height, width = config.input_height, config.input_width
     train_config = TrainConfig(
         peak_learning_rate=args.learning_rate, warmup_steps=args.warmup_steps, total_steps=args.steps
