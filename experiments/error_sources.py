@@ -46,8 +46,9 @@ from ncjax import metrics
 from ncjax._dataset import list_samples, read_sample
 from ncjax._export import CHI2_2D_95, room_height_sigma
 from ncjax._pipeline import LayoutStatus
+from ncjax._app import add_boundary_arguments
 from ncjax._checkpoint import load_model
-from ncjax._predict import DEFAULT_VIEWS, default_model
+from ncjax._predict import default_model
 from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
 from ncjax._rooms import corner_target
 
@@ -166,11 +167,9 @@ def _bin_name(index: int) -> str:
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rooms", type=int, default=128, help="test renders per world (those of network_table.py)")
-    parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even)")
+    add_boundary_arguments(parser)
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--model", help="weights (.safetensors); default: the shipped model")
-    parser.add_argument("--no-edge-snap", dest="edge_snap", action="store_const", const=None, default=ncjax.EdgeSnap(),
-                        help="the network's rows as they are, not snapped to the image's edges")
     parser.add_argument("--branch", choices=("own", "auto"), default="own",
                         help="pipeline world: each test set's own (default) or auto (ncjax reconstruct's default)")
     args = parser.parse_args(argv)

@@ -42,6 +42,7 @@ from tqdm import tqdm
 
 import ncjax
 from ncjax import metrics
+from ncjax._app import add_boundary_arguments
 from ncjax._checkpoint import load_model
 from ncjax._dataset import list_samples, read_sample, write_dataset
 from ncjax._pipeline import PipelineConfig
@@ -161,9 +162,7 @@ def main(argv=None):
     parser.add_argument("--nms-radius", type=float, default=NETWORK_PIPELINE_CONFIG.nms_radius, help="columns at 1024")
     parser.add_argument("--occlusion-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.occlusion_threshold, help="pixels")
     parser.add_argument("--skip-network", action="store_true", help="only the layout tables")
-    parser.add_argument("--no-edge-snap", dest="edge_snap", action="store_const", const=None, default=ncjax.EdgeSnap(),
-                        help="the layouts from the network's rows as they are, not snapped to the image's edges")
-    parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even) for the layouts")
+    add_boundary_arguments(parser)
     args = parser.parse_args(argv)
     config = dataclasses.replace(
         NETWORK_PIPELINE_CONFIG, corner_threshold=args.corner_threshold, nms_radius=args.nms_radius,

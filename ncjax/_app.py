@@ -220,10 +220,11 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto")
     parser.add_argument("--model", help="network weights (.safetensors); default: the shipped model")
     parser.add_argument("--batch", type=int, default=4, help="images per jitted call")
-    _add_boundary_arguments(parser)
+    add_boundary_arguments(parser)
 
 
-def _add_boundary_arguments(parser: argparse.ArgumentParser) -> None:
+def add_boundary_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--views`` and ``--no-edge-snap``: how the network's boundaries are made (the CLI and the experiments)."""
     parser.add_argument(
         "--views", type=int, default=DEFAULT_VIEWS,
         help=f"rolled and mirrored views the network averages (1 or even; default {DEFAULT_VIEWS}): more is more accurate and slower",
@@ -237,4 +238,4 @@ def _add_boundary_arguments(parser: argparse.ArgumentParser) -> None:
 def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="ncjax_demo", help="output folder (default ./ncjax_demo)")
     parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto")
-    _add_boundary_arguments(parser)
+    add_boundary_arguments(parser)
