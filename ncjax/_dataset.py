@@ -33,7 +33,7 @@ import io
 import json
 import os
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 
 import cv2
 import jax
@@ -142,7 +142,7 @@ def write_sample(directory: str, name: str, rendering: Rendering, labels: RoomLa
     """Write one sample's files (one instance, unbatched), each atomically; the json last."""
     room_camera = NonCentralPanorama(metadata["width"], metadata["height"], rc=metadata["rc"])
     camera_position = np.asarray(metadata["camera_position"], np.float64)
-    rgb = np.round(np.clip(np.asarray(rendering.rgb), 0, 1) * 255).astype(np.uint8)
+    rgb = rendering_rgb8(rendering)
     _write_png(os.path.join(directory, "img", f"{name}.png"), rgb[..., ::-1])
     depth = np.clip(np.round(np.asarray(rendering.depth, np.float64) * 1000), 0, 65535).astype(np.uint16)
     _write_png(os.path.join(directory, "depth", f"{name}.png"), depth)
@@ -162,6 +162,51 @@ def _check_output_directory(directory: str, overwrite: bool) -> None:
         raise ValueError(f"--out {directory!r} exists and is not a directory")
     if os.path.isdir(directory) and os.listdir(directory) and not overwrite:
         raise ValueError(f"--out {directory!r} is not empty; choose a new directory or pass --overwrite")
+
+
+def _check_counts(n: int, batch_size: int) -> None:
+    if int(n) != n or n < 1:
+        raise ValueError(f"--n must be a positive integer, got {n!r}")
+    if int(batch_size) != batch_size or batch_size < 1:
+        raise ValueError(f"batch size must be a positive integer, got {batch_size!r}")
+
+
+def rendered_samples(
+    n: int,
+    seed: int,
+    config: SynthConfig = SynthConfig(),
+    batch_size: int = 8,
+    progress: Callable[[int], None] | None = None,
+) -> Iterator[tuple[int, Scene, Rendering, RoomLabels]]:
+    """The samples of :func:`write_dataset` in index order, rendered but not written.
+
+    Sample ``i`` is made from ``fold_in(key(seed), i)`` in batches of a fixed
+    size (the last one padded), so a sample does not depend on ``n`` or on
+    ``batch_size``. Yields ``(index, scene, rendering, labels)`` as numpy
+    pytrees; ``progress`` is called with the number of samples after each batch.
+
+    Raises:
+        RuntimeError: a sample's labels are invalid.
+    """
+    _check_counts(n, batch_size)
+    base = jax.random.key(seed)
+    for start in range(0, n, batch_size):
+        indices = np.arange(start, start + batch_size)
+        keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(indices, jnp.uint32))
+        scenes, renderings, labels = jax.device_get(synthesize_batch(keys, config))
+        for offset, index in enumerate(indices[: n - start]):
+            scene, rendering, label = jax.tree.map(lambda x: x[offset], (scenes, renderings, labels))
+            if not bool(label.ok):
+                status = RoomStatus(int(scene.room.status)).name
+                raise RuntimeError(f"sample {index} has invalid labels (room status {status}); try another seed")
+            yield int(index), scene, rendering, label
+        if progress is not None:
+            progress(min(batch_size, n - start))
+
+
+def rendering_rgb8(rendering: Rendering) -> np.ndarray:
+    """The (H, W, 3) uint8 RGB image that the dataset stores for a rendering."""
+    return np.round(np.clip(np.asarray(rendering.rgb), 0, 1) * 255).astype(np.uint8)
 
 
 def write_dataset(
@@ -190,33 +235,19 @@ def write_dataset(
     Returns:
         The sample names, in index order.
     """
-    if int(n) != n or n < 1:
-        raise ValueError(f"--n must be a positive integer, got {n!r}")
-    if int(batch_size) != batch_size or batch_size < 1:
-        raise ValueError(f"batch size must be a positive integer, got {batch_size!r}")
+    _check_counts(n, batch_size)
     _check_output_directory(directory, overwrite)
     for folder in FOLDERS:
         os.makedirs(os.path.join(directory, folder), exist_ok=True)
-    base = jax.random.key(seed)
     names: list[str] = []
     splits: dict[str, list[str]] = {split: [] for split in SPLITS}
-    for start in range(0, n, batch_size):
-        indices = np.arange(start, start + batch_size)
-        keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(indices, jnp.uint32))
-        scenes, renderings, labels = jax.device_get(synthesize_batch(keys, config))
-        for offset, index in enumerate(indices[: n - start]):
-            scene, rendering, label = jax.tree.map(lambda x: x[offset], (scenes, renderings, labels))
-            if not bool(label.ok):
-                status = RoomStatus(int(scene.room.status)).name
-                raise RuntimeError(f"sample {index} has invalid labels (room status {status}); try another seed")
-            world = "atlanta" if bool(scene.room.is_atlanta) else "manhattan"
-            name = sample_name(world, int(index), float(scene.room.rc))
-            cam = NonCentralPanorama(config.width, config.height, rc=scene.room.rc)
-            write_sample(directory, name, rendering, label, sample_metadata(name, scene, label, cam, int(index), seed))
-            names.append(name)
-            splits[split_of(int(index), seed)].append(name)
-        if progress is not None:
-            progress(min(batch_size, n - start))
+    for index, scene, rendering, label in rendered_samples(n, seed, config, batch_size, progress):
+        world = "atlanta" if bool(scene.room.is_atlanta) else "manhattan"
+        name = sample_name(world, index, float(scene.room.rc))
+        cam = NonCentralPanorama(config.width, config.height, rc=scene.room.rc)
+        write_sample(directory, name, rendering, label, sample_metadata(name, scene, label, cam, index, seed))
+        names.append(name)
+        splits[split_of(index, seed)].append(name)
     write_atomic(os.path.join(directory, "split.json"), (json.dumps(splits, indent=1) + "\n").encode())
     return names
 

@@ -116,7 +116,7 @@ class HorizonNetConfig:
 
     @classmethod
     def preset(cls, name: str) -> HorizonNetConfig:
-        """A named configuration (:data:`PRESETS`): "paper", "resnet18" or "compact"."""
+        """A named configuration (:data:`PRESETS`): "paper", "resnet18", "compact" or "compact1024"."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
         return PRESETS[name]
@@ -129,6 +129,9 @@ PRESETS: dict[str, HorizonNetConfig] = {
     "resnet18": HorizonNetConfig(depth=18, width=64, input_height=512, input_width=1024, lstm_hidden=512),
     # The shipped default: half-width ResNet-18 at 256 x 512, small LSTM (<= 4M parameters).
     "compact": HorizonNetConfig(depth=18, width=32, input_height=256, input_width=512, lstm_hidden=96),
+    # The compact network at the full 512 x 1024 input: rows and corners at the
+    # panorama's own resolution, for four times the convolution work.
+    "compact1024": HorizonNetConfig(depth=18, width=32, input_height=512, input_width=1024, lstm_hidden=96),
 }
 
 

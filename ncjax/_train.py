@@ -43,7 +43,18 @@ from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
 
 from ._checkpoint import check_warm_start, load_checkpoint, load_weights, save_checkpoint
 from ._camera import NonCentralPanorama
-from ._dataset import DatasetSample, labels_from_corners, list_samples, read_sample, read_split
+from ._dataset import (
+    SPLITS,
+    DatasetSample,
+    labels_from_corners,
+    list_samples,
+    read_sample,
+    read_split,
+    rendered_samples,
+    rendering_rgb8,
+    split_of,
+)
+from ._render import SynthConfig
 from ._network import (
     BoundaryPrediction,
     HorizonNet,
@@ -55,7 +66,7 @@ from ._network import (
     row_to_elevation,
 )
 from ._network_metrics import network_table
-from ._rooms import CORNER_LABEL_BASE, reencode_corner_prob
+from ._rooms import CORNER_LABEL_BASE, RoomConfig, reencode_corner_prob
 
 # ----------------------------------------------------------------------------- configuration
 
@@ -407,7 +418,7 @@ def painted_batch(key: PRNGKeyArray, batch_size: int, height: int, width: int) -
     :func:`paint_panorama` in random colours. Meant for tests and smoke runs
     until rendered data is wired in.
     """
-    from ._rooms import RoomConfig, random_room, room_labels
+    from ._rooms import random_room, room_labels
 
     room_config = RoomConfig(world="mix", max_walls=8, camera_tries=32, room_tries=2)
 
@@ -443,22 +454,67 @@ def painted_batches(seed: int, batch_size: int, height: int, width: int) -> Call
 
 
 def sample_arrays(sample: DatasetSample, height: int, width: int) -> dict[str, np.ndarray]:
-    """One dataset sample at the network's input size: uint8 image and exact labels in its pixels.
+    """One dataset sample at the network's input size (:func:`network_arrays`)."""
+    return network_arrays(sample.image, sample.rc, sample.ceiling_corners, sample.floor_corners, height, width)
+
+
+def network_arrays(
+    image: np.ndarray, rc: float, ceiling_corners: np.ndarray, floor_corners: np.ndarray, height: int, width: int
+) -> dict[str, np.ndarray]:
+    """A uint8 panorama and its layout at the network's input size: image and exact labels in its pixels.
 
     The image is shrunk with pixel-area averaging (``cv2.INTER_AREA``); the
     labels (boundary rows and the ``0.96**d`` corner target) are recomputed
-    exactly for a camera of that size from the sample's 3D corners
-    (:func:`~ncjax._dataset.labels_from_corners`), so no interpolation blurs
-    the occlusion jumps.
+    exactly for a camera of that size from the 3D corners (camera frame, image
+    order; :func:`~ncjax._dataset.labels_from_corners`), so no interpolation
+    blurs the occlusion jumps.
     """
-    image = cv2.resize(sample.image, (width, height), interpolation=cv2.INTER_AREA)
-    camera = NonCentralPanorama(width, height, rc=sample.rc)
-    labels = labels_from_corners(sample.ceiling_corners, sample.floor_corners, camera)
+    if image.shape[:2] != (height, width):
+        image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+    camera = NonCentralPanorama(width, height, rc=rc)
+    labels = labels_from_corners(ceiling_corners, floor_corners, camera)
     return {
         "image": image,
         "ceiling_v": np.asarray(labels.ceiling_v, np.float32),
         "floor_v": np.asarray(labels.floor_v, np.float32),
         "corner_target": np.asarray(labels.corner_target, np.float32),
+    }
+
+
+SYNTH_COMMAND_CONFIG = SynthConfig(room=RoomConfig(world="mix"))
+"""What ``ncjax synth`` renders by default: world ``mix``, rc 0.3-1.0 m, 512 x 1024."""
+
+
+def rendered_splits(
+    seed: int,
+    n: int,
+    height: int,
+    width: int,
+    batch_size: int = 16,
+    config: SynthConfig = SYNTH_COMMAND_CONFIG,
+    progress: bool = True,
+) -> dict[str, dict[str, np.ndarray]]:
+    """The samples ``ncjax synth --n N --seed SEED`` would write, as :func:`load_split` arrays per split.
+
+    Rendered in memory (the same rooms and pixels as the written files, in
+    index order rather than name order), so a machine with a fast accelerator
+    trains without writing and decoding thousands of files. Splits without
+    samples are left out.
+    """
+    from tqdm.auto import tqdm
+
+    per_split: dict[str, list[dict[str, np.ndarray]]] = {split: [] for split in SPLITS}
+    with tqdm(total=n, desc=f"render seed {seed}", disable=not progress) as bar:
+        for index, scene, rendering, labels in rendered_samples(n, seed, config, batch_size, bar.update):
+            mask = np.asarray(labels.corner_mask)
+            arrays = network_arrays(
+                rendering_rgb8(rendering), float(scene.room.rc), np.asarray(labels.ceiling_corners)[mask],
+                np.asarray(labels.floor_corners)[mask], height, width,
+            )
+            per_split[split_of(index, seed)].append(arrays)
+    return {
+        split: {key: np.stack([a[key] for a in samples]) for key in samples[0]}
+        for split, samples in per_split.items() if samples
     }
 
 
@@ -504,6 +560,46 @@ def load_splits(
         pooled.append(arrays)
         remaining = None if remaining is None else remaining - len(arrays["image"])
     return {key: np.concatenate([arrays[key] for arrays in pooled]) for key in pooled[0]}
+
+
+def parse_synth_source(source: str) -> tuple[int, int] | None:
+    """``(seed, n)`` of a ``synth:SEED:N`` data source, None for a folder path.
+
+    Raises:
+        ValueError: ``synth:`` followed by anything but two integers, N >= 1.
+    """
+    if not source.startswith("synth:"):
+        return None
+    parts = source.split(":")
+    if len(parts) != 3 or not all(p.lstrip("-").isdigit() for p in parts[1:]) or int(parts[2]) < 1:
+        raise ValueError(f"data source {source!r}: expected synth:SEED:N with integers SEED and N >= 1")
+    return int(parts[1]), int(parts[2])
+
+
+def training_data(
+    sources: list[str], height: int, width: int, validation_limit: int | None
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Train and validation arrays pooled, in the given order, from dataset folders and ``synth:SEED:N`` renders.
+
+    A ``synth:SEED:N`` source is rendered in memory (:func:`rendered_splits`);
+    validation takes the first ``validation_limit`` images of the pooled valid
+    splits (None: all).
+    """
+    pooled: dict[str, list[dict[str, np.ndarray]]] = {"train": [], "valid": []}
+    for source in sources:
+        synth = parse_synth_source(source)
+        if synth is None:
+            for split in pooled:
+                pooled[split].append(load_split(source, split, height, width, limit=validation_limit if split == "valid" else None))
+        else:
+            rendered = rendered_splits(*synth, height, width)
+            for split in pooled:
+                if split not in rendered:
+                    raise ValueError(f"data source {source!r} has no {split} samples; render more (N)")
+                pooled[split].append(rendered[split])
+    train_arrays, valid = ({key: np.concatenate([a[key] for a in parts]) for key in parts[0]} for parts in pooled.values())
+    limit = len(valid["image"]) if validation_limit is None else validation_limit
+    return train_arrays, {key: value[:limit] for key, value in valid.items()}
 
 
 def folder_batches(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Callable[[int], Iterator[dict]]:
@@ -564,10 +660,11 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``ncjax train``."""
     parser.add_argument(
         "--data", nargs="+", default=["painted"],
-        help="dataset folders (ncjax synth or the authors'; their splits are pooled, validation takes the "
-        "first --validation-limit images of the pool), or 'painted'",
+        help="dataset folders (ncjax synth or the authors') or synth:SEED:N (the N rooms `ncjax synth --seed SEED` "
+        "writes, rendered in memory); their splits are pooled, validation takes the first --validation-limit "
+        "images of the pool. Or 'painted'",
     )
-    parser.add_argument("--preset", default="compact", help="paper, resnet18 or compact")
+    parser.add_argument("--preset", default="compact", help="paper, resnet18, compact or compact1024")
     parser.add_argument(
         "--corner-base", type=float,
         help="the corner output's encoding base**d (default: the preset's, HorizonNet's 0.96)",
@@ -606,8 +703,8 @@ def run_train(args: argparse.Namespace) -> int:
     if args.data == ["painted"]:
         data = painted_batches(args.seed, args.batch_size, height, width)
     else:
-        data = folder_batches(load_splits(args.data, "train", height, width), args.batch_size, args.seed)
-        valid = load_splits(args.data, "valid", height, width, limit=args.validation_limit)
+        train_arrays, valid = training_data(args.data, height, width, args.validation_limit)
+        data = folder_batches(train_arrays, args.batch_size, args.seed)
         validate = lambda model, step: evaluate_arrays(model, valid)  # noqa: E731
     result = train(
         config,

@@ -219,3 +219,37 @@ def test_evaluate_command_prints_the_network_table(dataset, tmp_path, capsys):
         row = json.load(file)
     assert row["images"] == len(list_split_names(dataset)["train"]) and np.isfinite(row["pe_mean"])
     assert cli.main(["evaluate", "--data", str(tmp_path / "missing"), "--model", path]) == 2
+
+
+def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
+    from _synth import BATCH, CONFIG
+    from ncjax._train import load_split, rendered_splits
+
+    # At half size, so that both routes shrink the image the same way too.
+    height, width = HEIGHT // 2, WIDTH // 2
+    rendered = rendered_splits(7, N, height, width, batch_size=BATCH, config=CONFIG, progress=False)
+    assert sum(len(arrays["image"]) for arrays in rendered.values()) == N
+    for split, arrays in rendered.items():
+        read = load_split(dataset, split, height, width, progress=False)
+        # The folder lists samples by name, the renderer by index: match them by their pixels.
+        order = lambda a: np.argsort([image.tobytes() for image in a["image"]])  # noqa: E731
+        for key in read:
+            np.testing.assert_allclose(arrays[key][order(arrays)], read[key][order(read)], atol=1e-4)
+
+
+@pytest.mark.parametrize(
+    "source, expected",
+    [("synth:11:3200", (11, 3200)), ("synth:-3:1", (-3, 1)), ("data/synth1024", None), ("painted", None)],
+)
+def test_parse_synth_source(source, expected):
+    from ncjax._train import parse_synth_source
+
+    assert parse_synth_source(source) == expected
+
+
+@pytest.mark.parametrize("source", ["synth:11", "synth:a:3", "synth:1:0", "synth:1:2:3", "synth:1:2.5"])
+def test_parse_synth_source_refuses_malformed_sources(source):
+    from ncjax._train import parse_synth_source
+
+    with pytest.raises(ValueError, match="synth:SEED:N"):
+        parse_synth_source(source)
