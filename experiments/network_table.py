@@ -2,7 +2,7 @@
 
 Test set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` at 512 x 1024
 with seeds 99 (Manhattan) and 98 (Atlanta); the shipped model was trained on
-seed 11 only, so none of these rooms, scenes or images was seen in training.
+seeds 11-14 only, so none of these rooms, scenes or images was seen in training.
 They are rendered once into ``experiments/out/test_renders_<world>/`` and reused.
 
 1. Table netcorExp: boundary pixel error (PE, in pixels of a 1024-wide image)

@@ -127,10 +127,10 @@ PRESETS: dict[str, HorizonNetConfig] = {
     "paper": HorizonNetConfig(depth=50, width=64, input_height=512, input_width=1024, lstm_hidden=512),
     # HorizonNet's lighter variant, same input.
     "resnet18": HorizonNetConfig(depth=18, width=64, input_height=512, input_width=1024, lstm_hidden=512),
-    # The shipped default: half-width ResNet-18 at 256 x 512, small LSTM (<= 4M parameters).
+    # Half-width ResNet-18 at 256 x 512, small LSTM (<= 4M parameters): the model shipped until session 18.
     "compact": HorizonNetConfig(depth=18, width=32, input_height=256, input_width=512, lstm_hidden=96),
-    # The compact network at the full 512 x 1024 input: rows and corners at the
-    # panorama's own resolution, for four times the convolution work.
+    # The shipped default: the compact network at the full 512 x 1024 input, rows and
+    # corners at the panorama's own resolution for four times the convolution work.
     "compact1024": HorizonNetConfig(depth=18, width=32, input_height=512, input_width=1024, lstm_hidden=96),
 }
 

@@ -26,7 +26,7 @@ from ._checkpoint import load_model
 from ._edges import EdgeSnap, snap_to_edges
 from ._network import HorizonNet, check_views, prediction_to_rows, predict_views
 
-DEFAULT_MODEL_PATH = pathlib.Path(__file__).parent / "models" / "compact.safetensors"
+DEFAULT_MODEL_PATH = pathlib.Path(__file__).parent / "models" / "compact1024.safetensors"
 # views averaged by default (predict_boundaries, reconstruct): 4 cut the shipped model's boundary error by a tenth
 DEFAULT_VIEWS = 4
 
@@ -37,7 +37,7 @@ def _load_cached(path: str) -> HorizonNet:
 
 
 def default_model() -> HorizonNet:
-    """The shipped model (``ncjax/models/compact.safetensors``), loaded once."""
+    """The shipped model (``ncjax/models/compact1024.safetensors``), loaded once."""
     if not DEFAULT_MODEL_PATH.is_file():
         raise FileNotFoundError(
             f"the default network weights are missing ({DEFAULT_MODEL_PATH}); train a model with "

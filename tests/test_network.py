@@ -365,7 +365,7 @@ def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
     assert not np.allclose(ceiling_v, raw[0])
     with pytest.raises(ValueError, match="uint8"):
         ncjax.predict_boundaries(image.astype(np.float32), model)
-    monkeypatch.setattr(_predict, "DEFAULT_MODEL_PATH", tmp_path / "compact.safetensors")
+    monkeypatch.setattr(_predict, "DEFAULT_MODEL_PATH", tmp_path / "compact1024.safetensors")
     with pytest.raises(FileNotFoundError, match="default network weights"):
         ncjax.predict_boundaries(image)
 
