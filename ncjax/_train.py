@@ -585,9 +585,9 @@ def training_data(
     validation takes the first ``validation_limit`` images of the pooled valid
     splits (None: all).
     """
+    synth_sources = [parse_synth_source(source) for source in sources]  # malformed ones fail before any work
     pooled: dict[str, list[dict[str, np.ndarray]]] = {"train": [], "valid": []}
-    for source in sources:
-        synth = parse_synth_source(source)
+    for source, synth in zip(sources, synth_sources):
         if synth is None:
             for split in pooled:
                 pooled[split].append(load_split(source, split, height, width, limit=validation_limit if split == "valid" else None))

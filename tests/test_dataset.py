@@ -253,3 +253,10 @@ def test_parse_synth_source_refuses_malformed_sources(source):
 
     with pytest.raises(ValueError, match="synth:SEED:N"):
         parse_synth_source(source)
+
+
+def test_training_data_refuses_a_malformed_source_before_reading_the_others(tmp_path):
+    from ncjax._train import training_data
+
+    with pytest.raises(ValueError, match="synth:SEED:N"):
+        training_data([str(tmp_path / "not_a_dataset"), "synth:1:x"], HEIGHT, WIDTH, 4)
