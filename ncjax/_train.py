@@ -548,20 +548,6 @@ def load_split(
     return {key: np.stack([a[key] for a in arrays]) for key in arrays[0]}
 
 
-def load_splits(
-    directories: list[str], split: str, height: int, width: int, limit: int | None = None
-) -> dict[str, np.ndarray]:
-    """:func:`load_split` of several dataset folders, pooled in the given order (``limit``: of the pool)."""
-    pooled, remaining = [], limit
-    for directory in directories:
-        if remaining is not None and remaining <= 0:
-            break
-        arrays = load_split(directory, split, height, width, limit=remaining)
-        pooled.append(arrays)
-        remaining = None if remaining is None else remaining - len(arrays["image"])
-    return {key: np.concatenate([arrays[key] for arrays in pooled]) for key in pooled[0]}
-
-
 def parse_synth_source(source: str) -> tuple[int, int] | None:
     """``(seed, n)`` of a ``synth:SEED:N`` data source, None for a folder path.
 

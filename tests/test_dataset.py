@@ -196,15 +196,18 @@ def test_folder_batches_are_reproducible_and_resumable(dataset):
 
 
 def test_folders_are_pooled_in_order(dataset):
-    from ncjax._train import load_split, load_splits
+    from ncjax._train import load_split, training_data
 
     one = load_split(dataset, "train", HEIGHT, WIDTH, progress=False)
-    count = len(one["image"])
-    pooled = load_splits([dataset, dataset], "train", HEIGHT, WIDTH)
+    one_valid = load_split(dataset, "valid", HEIGHT, WIDTH, progress=False)
+    count, valid_count = len(one["image"]), len(one_valid["image"])
+    pooled, limited = training_data([dataset, dataset], HEIGHT, WIDTH, validation_limit=valid_count + 1)
     assert pooled["image"].shape[0] == 2 * count
     np.testing.assert_array_equal(pooled["ceiling_v"][count:], one["ceiling_v"])
-    limited = load_splits([dataset, dataset], "train", HEIGHT, WIDTH, limit=count + 1)
-    assert limited["image"].shape[0] == count + 1
+    assert limited["image"].shape[0] == valid_count + 1
+    np.testing.assert_array_equal(limited["ceiling_v"][valid_count:], one_valid["ceiling_v"][:1])
+    _, everything = training_data([dataset, dataset], HEIGHT, WIDTH, validation_limit=None)
+    assert everything["image"].shape[0] == 2 * valid_count
 
 
 def test_evaluate_command_prints_the_network_table(dataset, tmp_path, capsys):
