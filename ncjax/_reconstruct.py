@@ -28,11 +28,13 @@ from ._pipeline import WORLDS, Layout, PipelineConfig, layout_from_evidence
 from ._predict import DEFAULT_VIEWS, default_model, image_boundaries
 
 
-# The pipeline's defaults suit exact and white-noise rows (issue 4). Network rows snapped to the image's edges
-# are exact to a fraction of a pixel in most columns, so the noise-scaled part of the occlusion test falls to its
-# floor, but not beside the corners, where two walls' edges mix: a jump there must reach 6 px, not 4, to count as
-# an occlusion. Chosen on 288 validation renders, not the test renders (experiments/RESULTS.md, session 17).
-NETWORK_PIPELINE_CONFIG = PipelineConfig(occlusion_threshold=6.0)
+# The pipeline's defaults suit exact and white-noise rows (issue 4). The network's corner probability has lobes several
+# columns wide, in which NMS over +-2 columns leaves spurious second peaks: +-4 columns and a 0.4 threshold keep one
+# peak per corner more often. Network rows snapped to the image's edges are exact to a fraction of a pixel in most
+# columns, so the noise-scaled part of the occlusion test falls to its floor, but not beside the corners, where two
+# walls' edges mix: a jump there must reach 8 px, not 4, to count as an occlusion. Chosen for the shipped model on
+# tuning renders, never the test renders (experiments/tune_network_pipeline.py; experiments/RESULTS.md, session 19).
+NETWORK_PIPELINE_CONFIG = PipelineConfig(corner_threshold=0.4, nms_radius=4.0, occlusion_threshold=8.0)
 
 
 class Reconstruction(NamedTuple):
@@ -101,7 +103,7 @@ def reconstruct_batch(
         world: static: "manhattan", "atlanta" or "auto".
         model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
         config: static :class:`~ncjax.PipelineConfig` (default: :data:`NETWORK_PIPELINE_CONFIG`,
-            the pipeline's defaults with the occlusion threshold for snapped network rows).
+            the pipeline's defaults with the corner and occlusion settings for the network's output).
         key: RANSAC key (default ``jax.random.key(0)``), split over the batch.
         views: static, rolled and mirrored views the network's output is
             averaged over (1 or even, :func:`ncjax.predict_boundaries`).

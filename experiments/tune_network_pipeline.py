@@ -1,0 +1,130 @@
+"""Choose ``NETWORK_PIPELINE_CONFIG`` on tuning renders: the pipeline's corner and occlusion settings for the shipped model.
+
+Tuning set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` with seeds 71
+(Manhattan) and 72 (Atlanta), the same generator settings as the test renders of
+``network_table.py`` (seeds 99 and 98) and none of the training seeds (11-14), so
+the test renders are never used to choose the configuration. The shipped model's
+boundaries (snapped, ``--views`` views) are computed once and cached in
+``experiments/out/tune_<rooms>_views<V>.npz``; each configuration then runs the
+pipeline alone (``layout_from_evidence``, each room with its own world).
+
+Per configuration and world, as ``network_table.py`` scores it (a failure is a
+layout that is not ok or has the wrong corner count): failures, mean and median
+CE and 3D IoU of the other rooms, on the rooms without occlusion and on all
+rooms, and the 3D IoU over all rooms with failures as 0 ("IoU all0"), which
+rewards both more layouts and better ones: the configuration is chosen by it.
+
+    uv run python experiments/tune_network_pipeline.py                  # 256 rooms per world
+    uv run python experiments/tune_network_pipeline.py --rooms 16 --configs current
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from tqdm import tqdm
+
+import ncjax
+from ncjax._dataset import list_samples, read_sample, write_dataset
+from ncjax._pipeline import layout_from_evidence
+from ncjax._predict import DEFAULT_VIEWS, default_model, predict_boundaries
+from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
+
+sys.path.insert(0, str(Path(__file__).parent))
+from network_table import BATCH, ground_truth, scores, summary  # noqa: E402
+
+OUT = Path(__file__).parent / "out"
+SEEDS = {"manhattan": 71, "atlanta": 72}
+# the corner detection (threshold, NMS half-width in columns) and occlusion test (jump in px) settings compared
+CONFIGS = {
+    "pipeline defaults": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 4.0},
+    "session 17": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 6.0},
+    "nms 3": {"corner_threshold": 0.3, "nms_radius": 3.0, "occlusion_threshold": 6.0},
+    "nms 4": {"corner_threshold": 0.3, "nms_radius": 4.0, "occlusion_threshold": 6.0},
+    "nms 4, occlusion 8": {"corner_threshold": 0.3, "nms_radius": 4.0, "occlusion_threshold": 8.0},
+    "nms 4, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0},
+    "nms 3, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 3.0, "occlusion_threshold": 8.0},
+}
+
+
+def tuning_boundaries(world: str, rooms: int, views: int, out: Path) -> dict:
+    """Rows, corner probability, radii, ground truths and occlusion flags of the tuning renders of ``world`` (cached)."""
+    cache = out / f"tune_{world}_{rooms}_views{views}.npz"
+    folder = out / f"tune_renders_{world}_{rooms}"
+    if not (folder.is_dir() and len(list_samples(str(folder))) == rooms):
+        config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
+        with tqdm(total=rooms, desc=f"render {world} tuning set") as bar:
+            write_dataset(str(folder), rooms, SEEDS[world], config, batch_size=BATCH, overwrite=True, progress=bar.update)
+    samples = [read_sample(str(folder), name) for name in list_samples(str(folder))]
+    data = {
+        "rc": np.array([s.rc for s in samples], np.float32),
+        "truth": [ground_truth(s, world) for s in samples],
+        "clear": np.array([not any(s.metadata["corner_is_occlusion"]) for s in samples]),
+    }
+    if cache.is_file():
+        with np.load(cache) as stored:
+            return data | dict(stored)
+    model, rows = default_model(), []
+    for start in tqdm(range(0, rooms, BATCH), desc=f"network {world}"):
+        chunk = samples[start : start + BATCH]
+        chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
+        rows.append([part[: min(BATCH, rooms - start)] for part in predict_boundaries(np.stack([s.image for s in chunk]), model, views)])
+    boundaries = dict(zip(("ceiling_v", "floor_v", "corner_prob"), (np.concatenate(parts) for parts in zip(*rows))))
+    np.savez(cache, **boundaries)
+    return data | boundaries
+
+
+def pipeline_scores(data: dict, world: str, config: ncjax.PipelineConfig) -> list[dict]:
+    width = data["ceiling_v"].shape[1]
+
+    def one(ceiling_v, floor_v, corner_prob, rc, key):
+        return layout_from_evidence(ceiling_v, floor_v, corner_prob, ncjax.NonCentralPanorama(width, width // 2, rc=rc), key, world, config)
+
+    keys = jax.random.split(jax.random.key(0), len(data["rc"]))
+    layouts = jax.device_get(jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys))
+    return scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rooms", type=int, default=256, help="tuning renders per world")
+    parser.add_argument("--views", type=int, default=DEFAULT_VIEWS)
+    parser.add_argument("--configs", nargs="+", choices=[*CONFIGS, "current"], default=[*CONFIGS, "current"],
+                        help="configurations to compare ('current': NETWORK_PIPELINE_CONFIG)")
+    parser.add_argument("--out", type=Path, default=OUT)
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    start = time.time()
+    data = {world: tuning_boundaries(world, args.rooms, args.views, args.out) for world in SEEDS}
+    lines = [f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {args.views} view(s), snapped rows.", "",
+             "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / CE (m) / 3D IoU (%) | IoU all0 (%) |",
+             "| --- | --- | --- | --- | --- |"]
+    record = {}
+    for name in tqdm(args.configs, desc="configurations"):
+        kwargs = (
+            {key: getattr(NETWORK_PIPELINE_CONFIG, key) for key in CONFIGS["pipeline defaults"]} if name == "current" else CONFIGS[name]
+        )
+        config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **kwargs)
+        for world in SEEDS:
+            per_room = pipeline_scores(data[world], world, config)
+            clear = [r for r, keep in zip(per_room, data[world]["clear"]) if keep]
+            s_clear, s_all = summary(clear), summary(per_room)
+            median = np.median([r["ce"] for r in clear if not r["failed"]] or [np.nan])
+            record[(name, world)] = s_all
+            lines.append(f"| {name} {kwargs} | {world} | {s_clear['failed']:.1f} / {s_clear['ce']:.3f} / {median:.3f} / {s_clear['iou3d']:.1f} | "
+                         f"{s_all['failed']:.1f} / {s_all['ce']:.3f} / {s_all['iou3d']:.1f} | {s_all['iou3d_all']:.1f} |")
+    table = "\n".join(lines)
+    print(table)
+    print(f"total time {time.time() - start:.0f} s")
+    (args.out / f"tune_network_pipeline_{args.rooms}.md").write_text(table + "\n")
+    return record
+
+
+if __name__ == "__main__":
+    main()
