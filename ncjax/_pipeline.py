@@ -51,6 +51,7 @@ from ._adjust import (
     BoundaryObservations,
     LayoutUncertainty,
     adjust_layout,
+    boundary_weights,
     layout_residuals,
     layout_uncertainty,
     loop_corners,
@@ -127,6 +128,11 @@ class PipelineConfig:
             turn as its type says, relative to the best-supported wall's
             direction vote (:func:`manhattan_labels`).
         corner_weight: weight of the corner-plane penalty of the adjustment.
+        min_boundary_noise: the second adjustment pass weights the ceiling and
+            floor rows by the inverse of each boundary's noise, estimated from
+            the first pass's inlier rows and taken as at least this (pixels):
+            exact rows keep equal weights, and a value far above the rows'
+            errors turns the weighting off (:func:`ncjax._adjust.boundary_weights`).
         adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
         adjustment_tolerance: the dogleg stops when a step changes every
             parameter (radians, metres) and every residual (pixels) by less
@@ -173,6 +179,7 @@ class PipelineConfig:
     manhattan_tolerance: float = 5.0
     turn_weight: float = 0.5
     corner_weight: float = 1.0
+    min_boundary_noise: float = 0.5
     adjustment_steps: int = 8
     adjustment_tolerance: float = 1e-4
     adjustment_stride: int = 2
@@ -195,7 +202,7 @@ class PipelineConfig:
             raise ValueError(f"ransac_columns must be >= 2 * sample_size, got {self.ransac_columns}")
         positive = (
             "nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "merge_angle",
-            "manhattan_tolerance", "turn_weight", "adjustment_tolerance",
+            "manhattan_tolerance", "turn_weight", "adjustment_tolerance", "min_boundary_noise",
         )
         for name in positive:
             if not getattr(self, name) > 0:
@@ -694,12 +701,22 @@ def _using(observations: BoundaryObservations, ceiling_used, floor_used) -> Boun
     return eqx.tree_at(lambda o: (o.ceiling_used, o.floor_used), observations, (ceiling_used, floor_used))
 
 
+def _noise_weighted(cam, observations: BoundaryObservations, walls, config) -> BoundaryObservations:
+    """``observations`` with each boundary's rows weighted by the inverse of its noise about ``walls``."""
+    ceiling_error, floor_error = _row_errors(cam, observations, walls)
+    min_noise = config.min_boundary_noise * _scaled(1.0, cam.height, 512)
+    weights = boundary_weights(ceiling_error, floor_error, observations.ceiling_used, observations.floor_used, min_noise)
+    return eqx.tree_at(lambda o: o.row_weights, observations, weights)
+
+
 def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
     """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again.
 
-    The first pass only has to bring the layout within ``inlier_threshold`` of
-    the inlier rows, so it fits a subset of the columns
-    (``inlier_pass_stride``); the second starts next to its optimum.
+    Each pass weights the ceiling and floor rows by the inverse of each boundary's
+    noise about its starting layout (:func:`ncjax._adjust.boundary_weights`). The
+    first pass only has to bring the layout within ``inlier_threshold`` of the
+    inlier rows, so it fits a subset of the columns (``inlier_pass_stride``); the
+    second starts next to its optimum.
 
     Returns:
         The adjusted walls (:func:`ncjax._adjust.adjust_layout`), the fraction of the usable
@@ -707,17 +724,22 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
         :func:`ncjax._adjust.layout_uncertainty` on the rows of the second adjustment.
     """
     observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
-    subset = _strided(observations, config.inlier_pass_stride)
+    subset = _noise_weighted(cam, _strided(observations, config.inlier_pass_stride), (directions, distances, h_c, h_f), config)
     adjusted = adjust_layout(
         cam, subset, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps,
         config.adjustment_tolerance,
     )
     threshold = config.inlier_threshold * _scaled(1.0, cam.height, 512)
     ceiling_error, floor_error = _row_errors(cam, observations, adjusted[:4])
-    inliers = _using(
-        observations,
-        observations.ceiling_used & (jnp.abs(ceiling_error) < threshold),
-        observations.floor_used & (jnp.abs(floor_error) < threshold),
+    inliers = _noise_weighted(
+        cam,
+        _using(
+            observations,
+            observations.ceiling_used & (jnp.abs(ceiling_error) < threshold),
+            observations.floor_used & (jnp.abs(floor_error) < threshold),
+        ),
+        adjusted[:4],
+        config,
     )
     adjusted = adjust_layout(
         cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps, config.adjustment_tolerance

@@ -27,6 +27,7 @@ from ncjax._adjust import (
     _problem_residuals,
     adjust_layout,
     boundary_residuals,
+    boundary_weights,
     correlation_time,
     layout_uncertainty,
     loop_corners,
@@ -164,8 +165,8 @@ def test_boundary_residuals_fast_jvp_matches_autodiff():
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
-@pytest.mark.parametrize("manhattan, stride", [(True, 1), (False, 3)])
-def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride):
+@pytest.mark.parametrize("manhattan, stride, floor_weight", [(True, 1, 1.0), (False, 3, 0.25)])
+def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride, floor_weight):
     batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
@@ -175,7 +176,7 @@ def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride):
     observations = BoundaryObservations(
         columns=jnp.arange(WIDTH)[every], ceiling_v=label.ceiling_v[every], floor_v=label.floor_v[every],
         ceiling_used=used, floor_used=used, column_wall=label.wall_index[every], corner_columns=jnp.zeros(len(room.mask)),
-        corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
+        corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask, row_weights=jnp.array([1.0, floor_weight]),
     )
     turn = 0.02 if manhattan else 0.02 * jnp.cos(jnp.arange(len(room.mask)))
     start = jnp.stack([jnp.cos(turn) * directions[:, 0] - jnp.sin(turn) * directions[:, 1],
@@ -190,6 +191,28 @@ def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride):
     np.testing.assert_allclose(np.abs(np.sum(u * directions, -1))[seen], 1.0, atol=1e-5)
     np.testing.assert_allclose(np.abs(d)[seen], np.abs(distances)[seen], rtol=1e-3)
     np.testing.assert_allclose([h_c, h_f], [room.ceiling_height, room.floor_height], rtol=1e-3)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.floats(0.2, 5.0), st.floats(1.2, 8.0), st.booleans(), st.integers(0, 2**31 - 1))
+def test_boundary_weights_are_the_squared_noise_ratio(ceiling_sigma, ratio, floor_noisier, seed):
+    """Gaussian rows whose noise differs by ``ratio``: the noisier boundary gets about ``1 / ratio^2``, the other 1;
+    unused rows do not count."""
+    rng = np.random.default_rng(seed)
+    sigmas = (ceiling_sigma, ceiling_sigma * ratio) if floor_noisier else (ceiling_sigma * ratio, ceiling_sigma)
+    errors = [rng.normal(0.0, sigma, 20000).astype(np.float32) for sigma in sigmas]
+    used = rng.random(20000) < 0.7
+    outliers = [np.where(used, e, 1e4) for e in errors]  # far off, but unused
+    weights = np.asarray(boundary_weights(*map(jnp.asarray, (*outliers, used, used)), 0.1))
+    noisy = 1 if floor_noisier else 0
+    assert weights[1 - noisy] == 1.0
+    np.testing.assert_allclose(weights[noisy], 1.0 / ratio**2, rtol=0.05)
+
+
+def test_boundary_weights_are_equal_for_exact_or_missing_rows():
+    zeros, used = jnp.zeros(64), jnp.ones(64, bool)
+    np.testing.assert_array_equal(boundary_weights(zeros, 0.3 * jnp.ones(64), used, used, 0.5), [1.0, 1.0])
+    np.testing.assert_array_equal(boundary_weights(zeros, jnp.ones(64), used, ~used, 0.5), [1.0, 1.0])
 
 
 @pytest.mark.parametrize("world", ["manhattan", "atlanta"])
