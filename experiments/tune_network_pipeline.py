@@ -41,7 +41,8 @@ from network_table import BATCH, ground_truth, scores, summary  # noqa: E402
 
 OUT = Path(__file__).parent / "out"
 SEEDS = {"manhattan": 71, "atlanta": 72}
-# the corner detection (threshold, NMS half-width in columns) and occlusion test (jump in px) settings compared
+# the corner detection (threshold, NMS half-width in columns) and occlusion test (jump in px) settings compared,
+# each replacing those of NETWORK_PIPELINE_CONFIG (the rest, e.g. the adjustment's row weights, as it is)
 CONFIGS = {
     "pipeline defaults": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 4.0},
     "session 17": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 6.0},
@@ -50,6 +51,10 @@ CONFIGS = {
     "nms 4, occlusion 8": {"corner_threshold": 0.3, "nms_radius": 4.0, "occlusion_threshold": 8.0},
     "nms 4, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0},
     "nms 3, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 3.0, "occlusion_threshold": 8.0},
+    # the adjustment's ceiling and floor rows weighted alike, as before session 19 (boundary_weights off)
+    "nms 4, occlusion 8, threshold 0.4, equal row weights": {
+        "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "min_boundary_noise": 1e9,
+    },
 }
 
 
