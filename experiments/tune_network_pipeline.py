@@ -13,6 +13,8 @@ layout that is not ok or has the wrong corner count): failures, mean and median
 CE and 3D IoU of the other rooms, on the rooms without occlusion and on all
 rooms, and the 3D IoU over all rooms with failures as 0 ("IoU all0"), which
 rewards both more layouts and better ones: the configuration is chosen by it.
+Then the failures by cause: a layout status other than OK, or too few or too
+many corners.
 
     uv run python experiments/tune_network_pipeline.py                  # 256 rooms per world
     uv run python experiments/tune_network_pipeline.py --rooms 16 --configs current
@@ -21,6 +23,7 @@ rewards both more layouts and better ones: the configuration is chosen by it.
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import sys
 import time
@@ -93,7 +96,20 @@ def pipeline_scores(data: dict, world: str, config: ncjax.PipelineConfig) -> lis
 
     keys = jax.random.split(jax.random.key(0), len(data["rc"]))
     layouts = jax.device_get(jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys))
-    return scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
+    per_room = scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
+    for result, status, count, truth in zip(per_room, layouts.status, layouts.mask.sum(-1), data["truth"]):
+        result.update(status=int(status), corners=int(count), true_corners=len(truth["ceiling_corners"]))
+    return per_room
+
+
+def failure_causes(per_room: list[dict]) -> str:
+    """Why the failed rooms failed: a status other than OK (by name), or too few or too many corners."""
+    causes = collections.Counter(
+        ncjax.LayoutStatus(r["status"]).name if r["status"] else ("too few corners" if r["corners"] < r["true_corners"] else "too many corners")
+        for r in per_room
+        if r["failed"]
+    )
+    return ", ".join(f"{name} {100 * count / len(per_room):.1f}" for name, count in causes.most_common())
 
 
 def main(argv=None):
@@ -110,6 +126,7 @@ def main(argv=None):
     lines = [f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {args.views} view(s), snapped rows.", "",
              "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / CE (m) / 3D IoU (%) | IoU all0 (%) |",
              "| --- | --- | --- | --- | --- |"]
+    causes = ["", "Failures by cause, all rooms (% of the rooms):", ""]
     record = {}
     for name in tqdm(args.configs, desc="configurations"):
         kwargs = (
@@ -124,7 +141,8 @@ def main(argv=None):
             record[(name, world)] = s_all
             lines.append(f"| {name} {kwargs} | {world} | {s_clear['failed']:.1f} / {s_clear['ce']:.3f} / {median:.3f} / {s_clear['iou3d']:.1f} | "
                          f"{s_all['failed']:.1f} / {s_all['ce']:.3f} / {s_all['iou3d']:.1f} | {s_all['iou3d_all']:.1f} |")
-    table = "\n".join(lines)
+            causes.append(f"- {name}, {world}: {failure_causes(per_room)}")
+    table = "\n".join(lines + causes)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     (args.out / f"tune_network_pipeline_{args.rooms}.md").write_text(table + "\n")

@@ -74,9 +74,9 @@ class BoundaryObservations(eqx.Module):
         corner_columns: per wall slot, the detected column of its start corner.
         corner_used: whether that corner is penalised (it is seen in the image).
         wall_mask: which slots hold walls; they are the first ``M`` slots.
-        row_weights: (2,) weights of the ceiling and of the floor rows' residuals in the
-            fit, the inverse of each boundary's noise relative to the less noisy one
-            (:func:`boundary_weights`; default 1 and 1).
+        row_weights: (2,) factors of the ceiling and of the floor rows' residuals in the
+            fit, the squared inverse of each boundary's noise relative to the less noisy
+            one (:func:`boundary_weights`; default 1 and 1).
     """
 
     columns: Int[Array, " N"]
@@ -103,21 +103,27 @@ def boundary_weights(
     Each boundary's noise ``sigma`` is the mean absolute error of its used rows
     times sqrt(pi / 2) (the standard deviation of Gaussian errors), at least
     ``min_noise`` pixels (exact rows: equal weights). The less noisy boundary gets
-    weight 1 and the other ``(sigma_min / sigma)^2``. A network's floor rows, which
-    furniture hides, are several times noisier than its ceiling rows; weighted
-    equally, they dominate the fit of the heights and with them the metric scale.
-    The square, not white noise's ``sigma_min / sigma``: the floor's errors run
-    correlated over whole pieces of furniture, so its rows carry less information
-    than their count suggests. On our tuning renders the square gave lower corner
-    errors than the plain ratio (Manhattan 0.170 -> 0.152 m; experiments/RESULTS.md, session 19).
+    weight 1 and the other ``(sigma_min / sigma)^2``; the residuals are multiplied
+    by the weights, so the least-squares cost weights the squared errors by
+    ``(sigma_min / sigma)^4``. A network's floor rows, which furniture hides, are
+    several times noisier than its ceiling rows; weighted equally, they dominate
+    the fit of the heights and with them the metric scale. The square, not white
+    noise's ``sigma_min / sigma``: the floor's errors run correlated over whole
+    pieces of furniture, so its rows carry less information than their count
+    suggests. On our tuning renders the square gave lower corner errors than the
+    plain ratio (Manhattan 0.170 -> 0.152 m; experiments/RESULTS.md, session 19).
+    A boundary with no used row gets weight 1 (it has no residual to weight)
+    and does not count as the less noisy one.
     """
 
     def noise(error, used):
-        return math.sqrt(math.pi / 2) * jnp.nanmean(jnp.where(used, jnp.abs(error), jnp.nan))
+        count = jnp.sum(used)
+        mean_abs = jnp.sum(jnp.where(used, jnp.abs(error), 0.0)) / jnp.maximum(count, 1)
+        return jnp.where(count > 0, jnp.maximum(math.sqrt(math.pi / 2) * mean_abs, min_noise), jnp.inf)
 
-    sigma = jnp.maximum(jnp.stack([noise(ceiling_error, ceiling_used), noise(floor_error, floor_used)]), min_noise)
-    sigma = jnp.where(jnp.isfinite(sigma), sigma, min_noise)  # no used row: no information, weight 1
-    return (jnp.min(sigma) / sigma) ** 2
+    sigma = jnp.stack([noise(ceiling_error, ceiling_used), noise(floor_error, floor_used)])
+    least = jnp.min(sigma)
+    return jnp.where(jnp.isfinite(sigma), (least / jnp.where(jnp.isfinite(sigma), sigma, 1.0)) ** 2, 1.0)
 
 
 def previous_walls(wall_mask: Bool[Array, " K"]) -> Int[Array, " K"]:
@@ -482,21 +488,22 @@ class LayoutUncertainty(eqx.Module):
     Attributes:
         corner_covariance: (K, 2, 2) covariance of each corner's plan position (m^2); zero for empty slots.
         height_covariance: (2, 2) covariance of ``(h_c, h_f)`` (m^2).
-        row_sigma: the estimated boundary noise, pixels of the boundary with weight 1 (RMS of the used rows'
-            weighted residuals, per degree of freedom).
-        correlation_time: :func:`correlation_time` of those residuals (the covariance is scaled by it).
+        row_sigma: (2,) the estimated noise of the ceiling and of the floor rows, pixels (RMS of each
+            boundary's used rows' residuals, per degree of freedom; 0 for a boundary without used rows).
+        correlation_time: :func:`correlation_time` of those residuals, each boundary's in units of its
+            ``row_sigma`` (the covariance is scaled by it).
     """
 
     corner_covariance: Float[Array, "K 2 2"]
     height_covariance: Float[Array, "2 2"]
-    row_sigma: Float[Array, ""]
+    row_sigma: Float[Array, " 2"]
     correlation_time: Float[Array, ""]
 
 
 def not_computed(capacity: int, dtype) -> LayoutUncertainty:
     """A :class:`LayoutUncertainty` of NaNs, for a pipeline configured without covariances."""
     nan = lambda *shape: jnp.full(shape, jnp.nan, dtype)  # noqa: E731
-    return LayoutUncertainty(nan(capacity, 2, 2), nan(2, 2), nan(), nan())
+    return LayoutUncertainty(nan(capacity, 2, 2), nan(2, 2), nan(2), nan())
 
 
 def layout_uncertainty(
@@ -512,11 +519,14 @@ def layout_uncertainty(
 ) -> LayoutUncertainty:
     """First-order covariance of the corners and heights of a layout that :func:`adjust_layout` returned.
 
-    With ``J`` the Jacobian of the adjustment's residuals in its own
+    With ``J`` the Jacobian of the adjustment's (weighted) residuals in its own
     parameters (one yaw or an angle per wall, distances, heights), the
-    parameter covariance is ``tau sigma^2 (J^T J)^-1``: ``sigma^2`` is the
-    used rows' sum of squared residuals over their count minus the free
-    parameters, ``tau`` their :func:`correlation_time`. It is propagated to
+    parameter covariance is the sandwich ``tau (J^T J)^-1 J^T V J (J^T J)^-1``:
+    ``V`` is diagonal, each boundary's rows at their own variance (their sum of
+    squared residuals over their count minus their share of the free parameters;
+    the corner rows at that of all rows), ``tau`` the rows' :func:`correlation_time`.
+    When both boundaries' weighted rows are equally noisy, as the weights of
+    independent noise would make them, it is ``tau sigma^2 (J^T J)^-1``. It is propagated to
     each corner's plan position through the Jacobian of the corner (where
     consecutive walls meet). It describes the noise of the rows, not a
     wrong wall structure (a missed or extra corner).
@@ -537,20 +547,33 @@ def layout_uncertainty(
     structure = _jacobian_structure(problem, observations)
     jacobian = probe_jacobian(linear, structure, flat.dtype)
     count = observations.columns.shape[0]
-    rows = jnp.stack([values[:count], values[count : 2 * count]])
+    rows = jnp.stack([values[:count], values[count : 2 * count]])  # weighted by observations.row_weights
     used = _used_rows(observations)
     walls = jnp.sum(observations.wall_mask)
     free = 2 + walls + (walls if problem.free_angles else 1)
-    row_variance = jnp.sum(jnp.where(used, rows * rows, 0.0)) / jnp.maximum(jnp.sum(used) - free, 1)
-    tau = correlation_time(rows, used, observations.column_wall, max_lag)
+    squares = jnp.sum(jnp.where(used, rows * rows, 0.0), axis=1)
+    pooled_variance = jnp.sum(squares) / jnp.maximum(jnp.sum(used) - free, 1)
+    # each boundary's own variance (its weighted rows' noise differs when the weights are off), the free
+    # parameters' degrees of freedom shared out by the rows' counts
+    counts = jnp.sum(used, axis=1)
+    degrees = counts * (1.0 - free / jnp.maximum(jnp.sum(counts), 1))
+    boundary_variance = squares / jnp.maximum(degrees, 1.0)
+    unit = rows / jnp.where(boundary_variance > 0, safe_sqrt(boundary_variance), 1.0)[:, None]
+    tau = correlation_time(unit, used, observations.column_wall, max_lag)
+    residual_variance = jnp.concatenate(
+        [jnp.repeat(boundary_variance, count), jnp.full(values.shape[0] - 2 * count, pooled_variance)]
+    )
     # unit columns first: angles (radians) and lengths (metres) differ in scale, and float32
     # inverts the equilibrated normal matrix far more accurately (no negative variances)
     # (the columns are scaled before their products, not after: J^T J spans 1e9 and float32 loses the difference)
     norms = safe_sqrt(squared_column_norms(jacobian, structure))
     scale = inverse_or_zero(norms)
-    cholesky = jnp.linalg.cholesky(normal_matrix(scale_columns(jacobian, structure, scale), structure))
+    scaled = scale_columns(jacobian, structure, scale)
+    cholesky = jnp.linalg.cholesky(normal_matrix(scaled, structure))
     inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))
-    covariance = tau * row_variance * scale[:, None] * inverse * scale[None, :]
+    # the sandwich (J^T J)^-1 J^T V J (J^T J)^-1: the fit's weights need not be the rows' inverse variances
+    spread = normal_matrix(scaled * safe_sqrt(residual_variance)[:, None], structure)
+    covariance = tau * scale[:, None] * (inverse @ spread @ inverse) * scale[None, :]
     singular = ~jnp.all(jnp.isfinite(covariance)) | jnp.any(norms == 0)
     covariance = jnp.where(singular, 0.0, covariance)
 
@@ -562,4 +585,5 @@ def layout_uncertainty(
     corner_covariance = jnp.einsum("kip,pq,kjq->kij", corner_jacobian, covariance, corner_jacobian)
     corner_covariance = jnp.where(observations.wall_mask[:, None, None], jnp.where(singular, jnp.inf, corner_covariance), 0.0)
     height_covariance = jnp.where(singular, jnp.inf, covariance[-2:, -2:])
-    return LayoutUncertainty(corner_covariance, height_covariance, safe_sqrt(row_variance), tau)
+    row_sigma = safe_sqrt(boundary_variance) / observations.row_weights
+    return LayoutUncertainty(corner_covariance, height_covariance, row_sigma, tau)

@@ -128,11 +128,11 @@ class PipelineConfig:
             turn as its type says, relative to the best-supported wall's
             direction vote (:func:`manhattan_labels`).
         corner_weight: weight of the corner-plane penalty of the adjustment.
-        min_boundary_noise: the second adjustment pass weights the ceiling and
-            floor rows by the inverse of each boundary's noise, estimated from
-            the first pass's inlier rows and taken as at least this (pixels):
-            exact rows keep equal weights, and a value far above the rows'
-            errors turns the weighting off (:func:`ncjax._adjust.boundary_weights`).
+        min_boundary_noise: both adjustment passes weight the ceiling and floor
+            rows by the squared inverse of each boundary's noise about the pass's
+            starting layout, taken as at least this (pixels): exact rows keep
+            equal weights, and a value far above the rows' errors turns the
+            weighting off (:func:`ncjax._adjust.boundary_weights`).
         adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
         adjustment_tolerance: the dogleg stops when a step changes every
             parameter (radians, metres) and every residual (pixels) by less
@@ -701,22 +701,25 @@ def _using(observations: BoundaryObservations, ceiling_used, floor_used) -> Boun
     return eqx.tree_at(lambda o: (o.ceiling_used, o.floor_used), observations, (ceiling_used, floor_used))
 
 
-def _noise_weighted(cam, observations: BoundaryObservations, walls, config) -> BoundaryObservations:
-    """``observations`` with each boundary's rows weighted by the inverse of its noise about ``walls``."""
-    ceiling_error, floor_error = _row_errors(cam, observations, walls)
+def _noise_weighted(cam, observations: BoundaryObservations, errors, config) -> BoundaryObservations:
+    """``observations`` with each boundary's rows weighted by the squared inverse of its noise, from its
+    rows' ``errors`` (ceiling, floor) about a layout (:func:`ncjax._adjust.boundary_weights`)."""
     min_noise = config.min_boundary_noise * _scaled(1.0, cam.height, 512)
-    weights = boundary_weights(ceiling_error, floor_error, observations.ceiling_used, observations.floor_used, min_noise)
+    weights = boundary_weights(*errors, observations.ceiling_used, observations.floor_used, min_noise)
     return eqx.tree_at(lambda o: o.row_weights, observations, weights)
 
 
 def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
     """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again.
 
-    Each pass weights the ceiling and floor rows by the inverse of each boundary's
-    noise about its starting layout (:func:`ncjax._adjust.boundary_weights`). The
-    first pass only has to bring the layout within ``inlier_threshold`` of the
-    inlier rows, so it fits a subset of the columns (``inlier_pass_stride``); the
-    second starts next to its optimum.
+    Each pass weights the ceiling and floor rows by the squared inverse of each
+    boundary's noise about its starting layout (:func:`ncjax._adjust.boundary_weights`).
+    The second pass estimates it on its inlier rows, whose errors are cut at
+    ``inlier_threshold``: a boundary noisier than about half the threshold reads
+    as less noisy than it is, which softens the weighting (it was tuned so, on
+    tuning renders). The first pass only has to bring the layout within
+    ``inlier_threshold`` of the inlier rows, so it fits a subset of the columns
+    (``inlier_pass_stride``); the second starts next to its optimum.
 
     Returns:
         The adjusted walls (:func:`ncjax._adjust.adjust_layout`), the fraction of the usable
@@ -724,23 +727,20 @@ def _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c
         :func:`ncjax._adjust.layout_uncertainty` on the rows of the second adjustment.
     """
     observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
-    subset = _noise_weighted(cam, _strided(observations, config.inlier_pass_stride), (directions, distances, h_c, h_f), config)
+    subset = _strided(observations, config.inlier_pass_stride)
+    subset = _noise_weighted(cam, subset, _row_errors(cam, subset, (directions, distances, h_c, h_f)), config)
     adjusted = adjust_layout(
         cam, subset, directions, distances, h_c, h_f, labels, config.corner_weight, config.adjustment_steps,
         config.adjustment_tolerance,
     )
     threshold = config.inlier_threshold * _scaled(1.0, cam.height, 512)
     ceiling_error, floor_error = _row_errors(cam, observations, adjusted[:4])
-    inliers = _noise_weighted(
-        cam,
-        _using(
-            observations,
-            observations.ceiling_used & (jnp.abs(ceiling_error) < threshold),
-            observations.floor_used & (jnp.abs(floor_error) < threshold),
-        ),
-        adjusted[:4],
-        config,
+    inliers = _using(
+        observations,
+        observations.ceiling_used & (jnp.abs(ceiling_error) < threshold),
+        observations.floor_used & (jnp.abs(floor_error) < threshold),
     )
+    inliers = _noise_weighted(cam, inliers, (ceiling_error, floor_error), config)
     adjusted = adjust_layout(
         cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps, config.adjustment_tolerance
     )
