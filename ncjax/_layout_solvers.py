@@ -201,6 +201,7 @@ def solve_atlanta_layout(
     wall_mask: Bool[Array, " K"],
     directions: Float[Array, "K 2"],
     method: str = "refined",
+    boundary_weights: Float[Array, " 2"] | None = None,
 ) -> WallLayout:
     """Atlanta layout solver (Section 4.3): ``A (1, h_c, h_f, d_1..d_K) = 0`` for known directions.
 
@@ -221,12 +222,18 @@ def solve_atlanta_layout(
         wall_mask: which of the K walls exist.
         directions: per-wall horizontal directions (any length and sign).
         method: static, "refined" or "paper".
+        boundary_weights: "refined" only: factors of the ceiling and of the floor
+            rows (default 1 and 1), e.g. :func:`ncjax._adjust.boundary_weights`: a
+            noisier boundary weighted alike can carry the weakly observed metric
+            scale away with it.
 
     Returns:
         The :class:`WallLayout`; output directions are the inputs normalised
         and oriented canonically (camera on the left).
     """
     check_method(method, ("refined", "paper"))
+    if boundary_weights is not None and method != "refined":
+        raise ValueError(f"boundary_weights need method='refined', got {method!r}")
     column_used, column_wall, present, all_seen = _column_bookkeeping(wall_index, wall_mask)
     norm = safe_norm(directions)
     units = jnp.where((norm > 0)[:, None], directions / jnp.where(norm > 0, norm, 1.0)[:, None], jnp.array([1.0, 0.0], directions.dtype))
@@ -240,11 +247,14 @@ def solve_atlanta_layout(
     shared, distance = jnp.concatenate(blocks), jnp.concatenate(distance)
     row_wall = _stacked(column_wall, column_wall)
     if method == "refined":
-        x, d = linear_walls(shared, distance, row_wall, wall_mask.shape[0])
         is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
+        row_weights = None if boundary_weights is None else jnp.where(is_floor, boundary_weights[1], boundary_weights[0])
+        x, d = linear_walls(shared, distance, row_wall, wall_mask.shape[0], row_weights)
         arguments = (_stacked(ceiling_rays, floor_rays), _stacked(column_direction, column_direction), row_wall, is_floor)
-        params, scale_ok = search_scale(jnp.concatenate([x, d]), *arguments, jnp.asarray(FLOOR_DEPTHS, x.dtype))
-        params = refine_walls(params, *arguments, refine_yaw=False)
+        params, scale_ok = search_scale(
+            jnp.concatenate([x, d]), *arguments, jnp.asarray(FLOOR_DEPTHS, x.dtype), row_weights=row_weights
+        )
+        params = refine_walls(params, *arguments, refine_yaw=False, row_weights=row_weights)
         vector = params.at[0].set(1.0)
         scale_ok = scale_ok & jnp.all(jnp.isfinite(params))
     else:

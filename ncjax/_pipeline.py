@@ -314,7 +314,9 @@ class WallEvidence(eqx.Module):
     ``occluded``: the boundaries jump at the corner; ``same_plane``: each of walls ``j - 1`` and ``j`` explains most
     inlier pixels of the other. ``ceiling_trusted`` / ``floor_trusted``: the column's row may enter the joint
     fit: usable, and an inlier of its RANSAC wall when RANSAC fitted one (a segment that holds two planes
-    because a corner was missed keeps only the rows of the plane RANSAC found).
+    because a corner was missed keeps only the rows of the plane RANSAC found). ``row_weights``: the joint
+    solvers' factors of the ceiling and floor rows, from each boundary's noise about the RANSAC walls
+    (:func:`ncjax._adjust.boundary_weights` on the inlier rows of the fitted walls).
     """
 
     ceiling_rays: Float[Array, "W 6"]
@@ -329,6 +331,7 @@ class WallEvidence(eqx.Module):
     ceiling_trusted: Bool[Array, " W"]
     floor_trusted: Bool[Array, " W"]
     weights: Float[Array, " K"]
+    row_weights: Float[Array, " 2"]
     fitted: Bool[Array, " K"]
     both_fitted: Bool[Array, " K"]
     same_plane: Bool[Array, " K"]
@@ -473,6 +476,10 @@ def _gather_evidence(
     jump_threshold = jnp.maximum(config.occlusion_threshold * pixels, config.occlusion_noise_factor * noise)
     occluded = corner_mask & seen_here & seen_before & (jump > jump_threshold)
     previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
+    on_fitted = fitted[wall]
+    row_weights = boundary_weights(
+        ceiling_error, floor_error, ceiling_in & on_fitted, floor_in & on_fitted, config.min_boundary_noise * pixels
+    )
     return WallEvidence(
         ceiling_rays=ceiling_rays,
         floor_rays=floor_rays,
@@ -486,6 +493,7 @@ def _gather_evidence(
         ceiling_trusted=ceiling_in | (usable & ~fitted[wall]),
         floor_trusted=floor_in | (usable & ~fitted[wall]),
         weights=weights.astype(ceiling_v.dtype),
+        row_weights=row_weights,
         fitted=fitted,
         both_fitted=both_fitted,
         same_plane=both_fitted & same_plane,
@@ -824,12 +832,14 @@ def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     fitted = final.observed & evidence.fitted[final.start_wall]
     yaw = manhattan_yaw(evidence.walls.direction[final.start_wall], wall_labels, fitted)
     heights = solve_atlanta_layout(
-        evidence.ceiling_rays, evidence.floor_rays, fit_index, fitted, manhattan_directions(yaw, wall_labels)
+        evidence.ceiling_rays, evidence.floor_rays, fit_index, fitted, manhattan_directions(yaw, wall_labels),
+        boundary_weights=evidence.row_weights,
     )
     plan = _plan_lines(cam, evidence, final, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
     yaw = manhattan_yaw(plan, wall_labels, final.observed)
     solved = solve_atlanta_layout(
-        evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, manhattan_directions(yaw, wall_labels)
+        evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, manhattan_directions(yaw, wall_labels),
+        boundary_weights=evidence.row_weights,
     )
     distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
     adjusted, explained, uncertainty = _refine(
@@ -866,10 +876,14 @@ def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
         fit_index,
         final.observed & evidence.fitted[final.start_wall],
         _group_directions(evidence, merge, final),
+        boundary_weights=evidence.row_weights,
     )
     # every observed wall's direction from its boundary points at those heights
     directions = _plan_lines(cam, evidence, final, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
-    solved = solve_atlanta_layout(evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, directions)
+    solved = solve_atlanta_layout(
+        evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, directions,
+        boundary_weights=evidence.row_weights,
+    )
     directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
     adjusted, explained, uncertainty = _refine(
         cam, evidence, final, ceiling_v, floor_v, directions, distances,

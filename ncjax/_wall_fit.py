@@ -55,7 +55,11 @@ def rotate_2d(vector: Float[Array, "*batch 2"], angle: Float[Array, "*#batch"]) 
 
 
 def linear_walls(
-    shared: Float[Array, "m n"], distance: Float[Array, " m"], row_wall: Int[Array, " m"], num_walls: int
+    shared: Float[Array, "m n"],
+    distance: Float[Array, " m"],
+    row_wall: Int[Array, " m"],
+    num_walls: int,
+    row_weights: Float[Array, " m"] | None = None,
 ) -> tuple[Float[Array, " n"], Float[Array, " K"]]:
     """Least-squares null vector of ``[shared | distance columns]`` with the distances eliminated.
 
@@ -76,12 +80,14 @@ def linear_walls(
         distance: coefficient of the row's wall distance.
         row_wall: the row's wall, -1 for unused rows (they count as zero rows).
         num_walls: static ``K``.
+        row_weights: factor of each unit row (default 1), e.g. to weigh down a noisier boundary.
 
     Returns:
         ``(x, d)``: shared unknowns and distances (0 for walls without rows), one homogeneous scale.
     """
     used = row_wall >= 0
     row_scale = jnp.where(used, inverse_or_zero(safe_norm(jnp.concatenate([shared, distance[:, None]], -1))), 0.0)
+    row_scale = row_scale * _ones_if_none(row_weights, row_wall, shared.dtype)
     shared = shared * row_scale[:, None]
     distance = distance * row_scale
     segment = _segments(row_wall, num_walls)
@@ -90,6 +96,10 @@ def linear_walls(
     projected = shared - distance[:, None] * _per_row(coupling, segment)
     x = scaled_null_space(projected, 1)[:, 0]
     return x, -(coupling @ x)
+
+
+def _ones_if_none(row_weights: Float[Array, " m"] | None, row_wall: Int[Array, " m"], dtype) -> Float[Array, " m"]:
+    return jnp.ones(row_wall.shape, dtype) if row_weights is None else row_weights
 
 
 def _segments(row_wall: Int[Array, " m"], num_walls: int) -> Int[Array, " m"]:
@@ -192,10 +202,12 @@ def residuals_of(
     base_directions: Float[Array, "m 2"],
     row_wall: Int[Array, " m"],
     is_floor: Bool[Array, " m"],
+    row_weights: Float[Array, " m"] | None = None,
 ) -> Float[Array, " m"]:
-    """:func:`angular_residual` of every row (0 for unused rows, ``row_wall`` -1)."""
+    """:func:`angular_residual` of every row times its weight (default 1; 0 for unused rows, ``row_wall`` -1)."""
     arguments, used = _row_arguments(params, geometry, base_directions, row_wall, is_floor)
-    return jnp.where(used, jax.vmap(angular_residual)(*arguments), 0.0)
+    weights = _ones_if_none(row_weights, row_wall, params.dtype)
+    return jnp.where(used, weights * jax.vmap(angular_residual)(*arguments), 0.0)
 
 
 def gauss_newton_step(
@@ -205,12 +217,14 @@ def gauss_newton_step(
     row_wall: Int[Array, " m"],
     is_floor: Bool[Array, " m"],
     refine_yaw: bool,
+    row_weights: Float[Array, " m"] | None = None,
 ) -> tuple[Float[Array, ""], Float[Array, " P"]]:
     """The cost at ``params`` and the Gauss-Newton step from there, on the angular residuals of all used rows.
 
     ``params = (t, h_c, h_f, d_1..d_K)``. Rows with ``row_wall`` -1 are
-    unused. Parameters that no row constrains (absent walls, the yaw when
-    not refined) do not move.
+    unused; each residual is multiplied by its row's weight (default 1).
+    Parameters that no row constrains (absent walls, the yaw when not
+    refined) do not move.
 
     Returns:
         ``(cost, delta)``: the sum of squared residuals at ``params`` (as
@@ -219,7 +233,7 @@ def gauss_newton_step(
     num_walls = params.shape[0] - 3
     arguments, used = _row_arguments(params, geometry, base_directions, row_wall, is_floor)
     residual, (d_yaw, d_height, d_distance) = jax.vmap(jax.value_and_grad(angular_residual, argnums=(0, 1, 2)))(*arguments)
-    mask = used.astype(params.dtype)
+    mask = jnp.where(used, _ones_if_none(row_weights, row_wall, params.dtype), 0.0)
     residual = residual * mask
     d_yaw = d_yaw * mask if refine_yaw else jnp.zeros_like(d_yaw)
     shared = jnp.stack([d_yaw, jnp.where(is_floor, 0.0, d_height), jnp.where(is_floor, d_height, 0.0)], -1) * mask[:, None]
@@ -248,10 +262,14 @@ def _used_geometry(rays: Float[Array, "m 6"], row_wall: Int[Array, " m"]) -> tup
 
 
 def squared_error(
-    geometry: tuple[Array, Array, Array], base_directions: Float[Array, "m 2"], row_wall: Int[Array, " m"], is_floor: Bool[Array, " m"]
+    geometry: tuple[Array, Array, Array],
+    base_directions: Float[Array, "m 2"],
+    row_wall: Int[Array, " m"],
+    is_floor: Bool[Array, " m"],
+    row_weights: Float[Array, " m"] | None = None,
 ):
-    """The maximum-likelihood cost ``params -> sum of squared angular residuals`` of these rows."""
-    return lambda params: jnp.sum(residuals_of(params, geometry, base_directions, row_wall, is_floor) ** 2)
+    """The maximum-likelihood cost ``params -> sum of squared (weighted) angular residuals`` of these rows."""
+    return lambda params: jnp.sum(residuals_of(params, geometry, base_directions, row_wall, is_floor, row_weights) ** 2)
 
 
 _SCALE_SEARCH_ROWS = 512
@@ -264,6 +282,7 @@ def search_scale(
     row_wall: Int[Array, " m"],
     is_floor: Bool[Array, " m"],
     floor_depths: Float[Array, " S"],
+    row_weights: Float[Array, " m"] | None = None,
 ) -> tuple[Float[Array, " P"], Bool[Array, ""]]:
     """The start of :func:`refine_walls` for a linear solution ``(x_0, h_c, h_f, d_1..d_K)`` (Atlanta order).
 
@@ -278,7 +297,8 @@ def search_scale(
     least sum of squared angular residuals wins. On exact data ``vector / x_0``
     has zero cost and is kept. The candidates are scored on at most
     ``_SCALE_SEARCH_ROWS`` evenly strided rows: the grid only brackets the
-    scale, which :func:`refine_walls` then fits on every row.
+    scale, which :func:`refine_walls` then fits on every row. ``row_weights``
+    as for :func:`refine_walls`.
 
     Returns:
         ``(params, ok)``: ``(0, h_c, h_f, d_1..d_K)`` and whether any candidate was finite.
@@ -292,7 +312,10 @@ def search_scale(
     valid = jnp.concatenate([linear_ok[None], jnp.broadcast_to(shape_ok, floor_depths.shape)])
     params = jnp.concatenate([jnp.zeros((candidates.shape[0], 1), vector.dtype), candidates], 1)
     every = slice(None, None, max(1, rays.shape[0] // _SCALE_SEARCH_ROWS))
-    cost = squared_error(_used_geometry(rays[every], row_wall[every]), base_directions[every], row_wall[every], is_floor[every])
+    weights = _ones_if_none(row_weights, row_wall, vector.dtype)[every]
+    cost = squared_error(
+        _used_geometry(rays[every], row_wall[every]), base_directions[every], row_wall[every], is_floor[every], weights
+    )
     costs = jax.vmap(cost)(params)
     costs = jnp.where(valid & jnp.all(jnp.isfinite(params), 1) & jnp.isfinite(costs), costs, jnp.inf)
     return params[jnp.argmin(costs)], jnp.any(jnp.isfinite(costs))
@@ -306,6 +329,7 @@ def refine_walls(
     is_floor: Bool[Array, " m"],
     refine_yaw: bool,
     steps: int = 3,
+    row_weights: Float[Array, " m"] | None = None,
 ) -> Float[Array, " P"]:
     """Gauss-Newton on the angular residuals (:func:`angular_residual`) from ``params``.
 
@@ -318,13 +342,15 @@ def refine_walls(
         refine_yaw: static; False keeps ``t`` (Atlanta: known directions).
         steps: static number of Gauss-Newton steps (3: converged to float
             precision from the linear solutions in our experiments).
+        row_weights: factor of each row's residual (default 1): the inverse of
+            its noise gives the maximum-likelihood fit of rows of unequal noise.
 
     Returns:
         The refined ``(t, h_c, h_f, d_1..d_K)``.
     """
     geometry = _used_geometry(rays, row_wall)
-    cost = squared_error(geometry, base_directions, row_wall, is_floor)
-    linearise = lambda p: gauss_newton_step(p, geometry, base_directions, row_wall, is_floor, refine_yaw)  # noqa: E731
+    cost = squared_error(geometry, base_directions, row_wall, is_floor, row_weights)
+    linearise = lambda p: gauss_newton_step(p, geometry, base_directions, row_wall, is_floor, refine_yaw, row_weights)  # noqa: E731
     current, delta = linearise(params)
     for step in range(steps):
         candidate = params + delta

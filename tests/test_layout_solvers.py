@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from test_wall import (
@@ -197,3 +198,37 @@ def test_scale_search_recovers_a_scale_the_linear_solve_lost():
     np.testing.assert_allclose(refined[1:], truth, atol=1e-3)
     exact, _ = search_scale(jnp.concatenate([jnp.ones(1), truth]), *arguments, depths)
     np.testing.assert_allclose(exact[1:], truth, rtol=1e-6, atol=1e-6)  # an exact linear solution is kept
+
+
+def test_atlanta_boundary_weights_follow_the_cleaner_boundary():
+    """Exact ceiling rows, floor rows with 2 px noise: weighting the floor down recovers the ceiling's
+    height and the walls far better than weighting both alike; exact rows are exact with any weights."""
+    room = sample_room(5, "atlanta")
+    noise = 2.0 * jax.random.normal(jax.random.key(0), (8,) + room["floor_v"].shape)
+
+    @jax.jit
+    def solve(floor_noise, weights):
+        ceiling_rays, floor_rays = boundary_rays(room["cam"], room["ceiling_v"], room["floor_v"] + floor_noise)
+        layout = ncjax.solve_atlanta_layout(
+            ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], boundary_weights=weights
+        )
+        distance_error = jnp.max(jnp.where(room["mask"], jnp.abs(layout.distances - room["distances"]), 0.0))
+        return jnp.abs(layout.ceiling_height - room["h_c"]), distance_error
+
+    down = jnp.array([1.0, 0.01])
+    for error in solve(jnp.zeros_like(room["floor_v"]), down):
+        assert float(error) < 5e-3
+    alike = jax.vmap(solve, in_axes=(0, None))(noise, jnp.ones(2))
+    weighted = jax.vmap(solve, in_axes=(0, None))(noise, down)
+    for even, down_weighted in zip(alike, weighted):
+        assert float(jnp.median(down_weighted)) < 0.3 * float(jnp.median(even)), (down_weighted, even)
+
+
+def test_boundary_weights_need_the_refined_solver():
+    room = sample_room(5, "atlanta")
+    ceiling_rays, floor_rays = rays(room)
+    with pytest.raises(ValueError, match="refined"):
+        ncjax.solve_atlanta_layout(
+            ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], method="paper",
+            boundary_weights=jnp.ones(2),
+        )
