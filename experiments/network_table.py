@@ -29,6 +29,7 @@ over the successes.
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import json
 import math
@@ -127,14 +128,37 @@ def used_row_errors(samples, boundaries) -> dict:
     return out
 
 
+def _field(layout, name: str):
+    return layout.get(name) if isinstance(layout, dict) else getattr(layout, name, None)
+
+
 def scores(layouts, truths) -> list[dict]:
+    """Per room: the metrics of an ok layout, whether it failed, its status (-1: unknown) and corner counts."""
     out = []
     for layout, truth in zip(layouts, truths):
-        ok = bool(layout["ok"] if isinstance(layout, dict) else layout.ok)
+        ok = bool(_field(layout, "ok"))
         result = metrics.evaluate_layout(layout, truth) if ok else None
         failed = result is None or not math.isfinite(result["ce"])
-        out.append({"failed": failed, **({} if result is None else result)})
+        status, mask = _field(layout, "status"), _field(layout, "mask")
+        out.append({
+            "failed": failed,
+            "status": (0 if ok else -1) if status is None else int(status),
+            "corners": -1 if mask is None else int(np.sum(mask)),
+            "true_corners": len(truth["ceiling_corners"]),
+            **({} if result is None else result),
+        })
     return out
+
+
+def failure_causes(per_room: list[dict]) -> str:
+    """Why the failed rooms failed, in % of all rooms: a status other than OK (by name), or too few or too many corners."""
+    def cause(r):
+        if r["status"]:
+            return ncjax.LayoutStatus(r["status"]).name if r["status"] > 0 else "not ok"
+        return "too few corners" if r["corners"] < r["true_corners"] else "too many corners"
+
+    causes = collections.Counter(cause(r) for r in per_room if r["failed"])
+    return ", ".join(f"{name} {100 * count / len(per_room):.1f}" for name, count in causes.most_common())
 
 
 def summary(results: list[dict]) -> dict:
@@ -192,7 +216,7 @@ def main(argv=None):
     lines += ["", "### Table pipeExp, network predictions", "", f"Network output averaged over {args.views} view(s); rows snapped to the image's edges: {args.edge_snap is not None}.", "",
               "| method | world | rooms | occluded rooms | failed (%) | CE (m) | 3D IoU ok (%) | 3D IoU all (%) | paper CE / IoU |",
               "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    comparison, row_errors = {}, {}
+    comparison, row_errors, causes = {}, {}, {}
     for world in SEEDS:
         folder = str(args.out / f"test_renders_{world}_{count}")
         samples = [read_sample(folder, name) for name in list_samples(folder)]
@@ -208,7 +232,11 @@ def main(argv=None):
                 lines.append(f"| {method} | {world} | {s['rooms']} | {subset} | {s['failed']:.1f} | {s['ce']:.3f} | "
                              f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {paper[0]} / {paper[1]} |")
         comparison[world] = summary(results["pipeline"])
+        causes[world] = failure_causes(results["pipeline"])
         row_errors[world] = used_row_errors(samples, boundaries)
+    lines += ["", "Pipeline failures by cause, all rooms (% of the rooms):", ""]
+    lines += [f"- {world}: {text}" for world, text in causes.items()]
+    record["failure_causes"] = causes
     lines += ["", "### Table comparison, ncjax rows (pipeline, all test rooms)", "",
               "| world | 3D IoU u2s (%) | 3D IoU (%) | CEN (% of diagonal) | CE (m) | failed (%) | paper: u2s / IoU / CEN / CE |",
               "| --- | --- | --- | --- | --- | --- | --- |"]

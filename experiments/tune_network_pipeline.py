@@ -23,7 +23,6 @@ many corners.
 from __future__ import annotations
 
 import argparse
-import collections
 import dataclasses
 import sys
 import time
@@ -40,7 +39,7 @@ from ncjax._predict import DEFAULT_VIEWS, default_model, predict_boundaries
 from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
 
 sys.path.insert(0, str(Path(__file__).parent))
-from network_table import BATCH, ground_truth, scores, summary  # noqa: E402
+from network_table import BATCH, failure_causes, ground_truth, scores, summary  # noqa: E402
 
 OUT = Path(__file__).parent / "out"
 SEEDS = {"manhattan": 71, "atlanta": 72}
@@ -96,20 +95,7 @@ def pipeline_scores(data: dict, world: str, config: ncjax.PipelineConfig) -> lis
 
     keys = jax.random.split(jax.random.key(0), len(data["rc"]))
     layouts = jax.device_get(jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys))
-    per_room = scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
-    for result, status, count, truth in zip(per_room, layouts.status, layouts.mask.sum(-1), data["truth"]):
-        result.update(status=int(status), corners=int(count), true_corners=len(truth["ceiling_corners"]))
-    return per_room
-
-
-def failure_causes(per_room: list[dict]) -> str:
-    """Why the failed rooms failed: a status other than OK (by name), or too few or too many corners."""
-    causes = collections.Counter(
-        ncjax.LayoutStatus(r["status"]).name if r["status"] else ("too few corners" if r["corners"] < r["true_corners"] else "too many corners")
-        for r in per_room
-        if r["failed"]
-    )
-    return ", ".join(f"{name} {100 * count / len(per_room):.1f}" for name, count in causes.most_common())
+    return scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
 
 
 def main(argv=None):
