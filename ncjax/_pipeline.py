@@ -20,8 +20,12 @@
    Atlanta branch: RANSAC directions, walls of one plane merged when their
    directions also agree within ``merge_angle``, a wall in the vertical
    plane of the corner ray at each occlusion, the Atlanta layout solver.
-5. Final adjustment (:mod:`ncjax._adjust`, optimistix least squares) of both branches: the
-   paper adjusts the Atlanta branch only; the Manhattan branch keeps one yaw.
+   Both branches' solvers weight the ceiling and floor rows by each
+   boundary's noise about the RANSAC walls (not in the paper: a network's
+   floor rows are several times noisier than its ceiling rows).
+5. Final adjustment (:mod:`ncjax._adjust`, optimistix least squares) of both branches, its
+   rows weighted likewise: the paper adjusts the Atlanta branch only; the Manhattan branch
+   keeps one yaw.
 6. Corners where consecutive walls meet.
 
 ``world="auto"`` (not in the paper) runs both branches and keeps the one that
@@ -128,11 +132,12 @@ class PipelineConfig:
             turn as its type says, relative to the best-supported wall's
             direction vote (:func:`manhattan_labels`).
         corner_weight: weight of the corner-plane penalty of the adjustment.
-        min_boundary_noise: both adjustment passes weight the ceiling and floor
-            rows by the squared inverse of each boundary's noise about the pass's
-            starting layout, taken as at least this (pixels): exact rows keep
-            equal weights, and a value far above the rows' errors turns the
-            weighting off (:func:`ncjax._adjust.boundary_weights`).
+        min_boundary_noise: the joint solvers and both adjustment passes weight
+            the ceiling and floor rows by the squared inverse of each boundary's
+            noise (about the RANSAC walls, about each pass's starting layout),
+            taken as at least this (pixels): exact rows keep equal weights, and
+            a value far above the rows' errors turns all the weighting off
+            (:func:`ncjax._adjust.boundary_weights`).
         adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
         adjustment_tolerance: the dogleg stops when a step changes every
             parameter (radians, metres) and every residual (pixels) by less
@@ -316,7 +321,8 @@ class WallEvidence(eqx.Module):
     fit: usable, and an inlier of its RANSAC wall when RANSAC fitted one (a segment that holds two planes
     because a corner was missed keeps only the rows of the plane RANSAC found). ``row_weights``: the joint
     solvers' factors of the ceiling and floor rows, from each boundary's noise about the RANSAC walls
-    (:func:`ncjax._adjust.boundary_weights` on the inlier rows of the fitted walls).
+    (:func:`ncjax._adjust.boundary_weights` on the inlier rows of the fitted walls: cut at the inlier
+    threshold, so a boundary much noisier than half of it reads as less noisy than it is).
     """
 
     ceiling_rays: Float[Array, "W 6"]
@@ -361,6 +367,11 @@ class FinalWalls(eqx.Module):
 
 def _scaled(value: float, size: int, reference: int) -> float:
     return value * size / reference
+
+
+def _min_noise(config: PipelineConfig, cam: NonCentralPanorama) -> float:
+    """``min_boundary_noise`` in this panorama's pixels."""
+    return config.min_boundary_noise * _scaled(1.0, cam.height, 512)
 
 
 def _nms_radius(config: PipelineConfig, width: int) -> int:
@@ -478,7 +489,7 @@ def _gather_evidence(
     previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
     on_fitted = fitted[wall]
     row_weights = boundary_weights(
-        ceiling_error, floor_error, ceiling_in & on_fitted, floor_in & on_fitted, config.min_boundary_noise * pixels
+        ceiling_error, floor_error, ceiling_in & on_fitted, floor_in & on_fitted, _min_noise(config, cam)
     )
     return WallEvidence(
         ceiling_rays=ceiling_rays,
@@ -490,8 +501,8 @@ def _gather_evidence(
         column_wall=column_wall,
         walls=walls,
         usable=usable,
-        ceiling_trusted=ceiling_in | (usable & ~fitted[wall]),
-        floor_trusted=floor_in | (usable & ~fitted[wall]),
+        ceiling_trusted=ceiling_in | (usable & ~on_fitted),
+        floor_trusted=floor_in | (usable & ~on_fitted),
         weights=weights.astype(ceiling_v.dtype),
         row_weights=row_weights,
         fitted=fitted,
@@ -712,8 +723,7 @@ def _using(observations: BoundaryObservations, ceiling_used, floor_used) -> Boun
 def _noise_weighted(cam, observations: BoundaryObservations, errors, config) -> BoundaryObservations:
     """``observations`` with each boundary's rows weighted by the squared inverse of its noise, from its
     rows' ``errors`` (ceiling, floor) about a layout (:func:`ncjax._adjust.boundary_weights`)."""
-    min_noise = config.min_boundary_noise * _scaled(1.0, cam.height, 512)
-    weights = boundary_weights(*errors, observations.ceiling_used, observations.floor_used, min_noise)
+    weights = boundary_weights(*errors, observations.ceiling_used, observations.floor_used, _min_noise(config, cam))
     return eqx.tree_at(lambda o: o.row_weights, observations, weights)
 
 

@@ -25,6 +25,10 @@ stages they share.
    which is why they are several times less accurate under noise (see
    experiments/RESULTS.md). On exact data both stages are exact.
 
+Both stages (and :func:`search_scale`) take optional per-row weights, the
+factors of the rows' residuals: the pipeline weighs down a boundary noisier
+than the other (:func:`ncjax._adjust.boundary_weights`).
+
 The Gauss-Newton step uses the structure of the problem: each residual
 depends on ``t``, one height and one distance, so the normal equations are
 assembled with per-wall sums and solved through the 3 x 3 Schur complement
@@ -343,7 +347,9 @@ def refine_walls(
         steps: static number of Gauss-Newton steps (3: converged to float
             precision from the linear solutions in our experiments).
         row_weights: factor of each row's residual (default 1): the inverse of
-            its noise gives the maximum-likelihood fit of rows of unequal noise.
+            its noise gives the maximum-likelihood fit of rows of unequal
+            independent noise (the pipeline uses its square,
+            :func:`ncjax._adjust.boundary_weights`).
 
     Returns:
         The refined ``(t, h_c, h_f, d_1..d_K)``.

@@ -213,7 +213,7 @@ def test_atlanta_boundary_weights_follow_the_cleaner_boundary():
             ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], boundary_weights=weights
         )
         distance_error = jnp.max(jnp.where(room["mask"], jnp.abs(layout.distances - room["distances"]), 0.0))
-        return jnp.abs(layout.ceiling_height - room["h_c"]), distance_error
+        return jnp.abs(layout.ceiling_height - room["h_c"]), distance_error, jnp.abs(layout.floor_height - room["h_f"])
 
     down = jnp.array([1.0, 0.01])
     for error in solve(jnp.zeros_like(room["floor_v"]), down):
@@ -222,6 +222,64 @@ def test_atlanta_boundary_weights_follow_the_cleaner_boundary():
     weighted = jax.vmap(solve, in_axes=(0, None))(noise, down)
     for even, down_weighted in zip(alike, weighted):
         assert float(jnp.median(down_weighted)) < 0.3 * float(jnp.median(even)), (down_weighted, even)
+
+
+def _weighted_problem(x64=False):
+    """A noisy Atlanta room's stacked rows for the :mod:`ncjax._wall_fit` stages, with random row weights."""
+    room = sample_room(5, "atlanta")
+    noise = jax.random.normal(jax.random.key(1), (2,) + room["floor_v"].shape)
+    ceiling_rays, floor_rays = boundary_rays(room["cam"], room["ceiling_v"] + noise[0], room["floor_v"] + noise[1])
+    column_wall = jnp.where(room["mask"][jnp.maximum(room["wall_index"], 0)] & (room["wall_index"] >= 0), room["wall_index"], -1)
+    row_wall = jnp.concatenate([column_wall, column_wall])
+    directions = room["directions"][jnp.maximum(room["wall_index"], 0)]
+    is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
+    arguments = (jnp.concatenate([ceiling_rays, floor_rays]), jnp.concatenate([directions, directions]), row_wall, is_floor)
+    truth = jnp.concatenate([jnp.zeros(1), jnp.stack([room["h_c"], room["h_f"]]), jnp.where(room["mask"], room["distances"], 0.0)])
+    weights = jax.random.uniform(jax.random.key(2), row_wall.shape, minval=0.05, maxval=1.0)
+    return room, arguments, truth, weights
+
+
+def test_weighted_gauss_newton_step_is_the_weighted_least_squares_step(x64):
+    """The structured step equals the least-squares step of the weighted residuals' dense Jacobian."""
+    room, (rays_, base, row_wall, is_floor), truth, weights = _weighted_problem()
+    start = truth * jnp.concatenate([jnp.ones(1), jnp.full(2, 1.03), jnp.full(truth.shape[0] - 3, 0.97)])
+    geometry = ncjax._wall_fit._used_geometry(rays_, row_wall)
+    cost, delta = ncjax._wall_fit.gauss_newton_step(start, geometry, base, row_wall, is_floor, False, weights)
+
+    def residuals(p):
+        return ncjax._wall_fit.residuals_of(p, geometry, base, row_wall, is_floor, weights)
+
+    jacobian = jax.jacfwd(residuals)(start)
+    # the yaw (not refined: Atlanta) and absent walls' distances stay
+    free = np.asarray(jnp.any(jacobian != 0, axis=0)) & (np.arange(start.shape[0]) > 0)
+    assert free[1] and free[2] and not free.all()
+    expected = np.linalg.lstsq(np.asarray(jacobian)[:, free], -np.asarray(residuals(start)), rcond=None)[0]
+    np.testing.assert_allclose(cost, np.sum(np.asarray(residuals(start)) ** 2), rtol=1e-10)
+    np.testing.assert_allclose(np.asarray(delta)[free], expected, rtol=1e-6, atol=1e-9)
+    np.testing.assert_array_equal(np.asarray(delta)[~free], 0.0)
+
+
+def test_equal_row_weights_change_nothing():
+    """Every row weighted alike (here 0.3) gives the stages' unweighted results: only ratios of weights count."""
+    room, arguments, truth, _ = _weighted_problem()
+    rays_, base, row_wall, is_floor = arguments
+    equal = jnp.full(row_wall.shape, 0.3)
+    shared, distance = jax.random.normal(jax.random.key(3), (row_wall.shape[0], 3)), jax.random.normal(jax.random.key(4), row_wall.shape)
+    plain, weighted = (ncjax._wall_fit.linear_walls(shared, distance, row_wall, CAPACITY, w) for w in (None, equal))
+    sign = jnp.sign(jnp.dot(plain[0], weighted[0]))
+    np.testing.assert_allclose(sign * weighted[0], plain[0], rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(sign * weighted[1], plain[1], rtol=1e-4, atol=1e-5)
+    x, d = ncjax._wall_fit.linear_walls(shared, distance, row_wall, CAPACITY, jnp.where(is_floor, 1.0, 0.1))
+    cosine = jnp.abs(jnp.dot(x, plain[0])) / (jnp.linalg.norm(x) * jnp.linalg.norm(plain[0]))
+    assert float(cosine) < 0.9999  # unequal weights do change the null vector
+    depths = jnp.asarray(ncjax._layout_solvers.FLOOR_DEPTHS, truth.dtype)
+    vector = truth.at[0].set(0.8)  # the room at 1.25 times its scale
+    start, _ = search_scale(vector, *arguments, depths)
+    np.testing.assert_array_equal(search_scale(vector, *arguments, depths, row_weights=equal)[0], start)
+    np.testing.assert_allclose(
+        refine_walls(start, *arguments, refine_yaw=False, row_weights=equal), refine_walls(start, *arguments, refine_yaw=False),
+        rtol=1e-4, atol=1e-5,
+    )
 
 
 def test_boundary_weights_need_the_refined_solver():

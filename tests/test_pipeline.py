@@ -471,6 +471,26 @@ def test_noisy_rows_do_not_fake_occlusions():
     assert occluded_fraction(ncjax.PipelineConfig(occlusion_noise_factor=0.0)) > 0.4
 
 
+def test_joint_solver_weights_follow_the_row_noise():
+    """Floor rows three times noisier than the ceiling's: the evidence weighs the floor down for the joint
+    solvers (the ceiling keeps 1); a huge ``min_boundary_noise`` turns the weighting off."""
+    batch, labels = rooms("manhattan", "none")
+    noise = jax.random.normal(jax.random.key(6), (2,) + labels.ceiling_v.shape) * jnp.array([0.3, 1.0])[:, None, None]
+    cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
+    keys = jax.random.split(jax.random.key(0), labels.ceiling_v.shape[0])
+
+    def row_weights(config):
+        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: _gather_evidence(c, f, p, cam, k, config)))(
+            labels.ceiling_v + noise[0], labels.floor_v + noise[1], labels.corner_target, cams, keys
+        )
+        return np.asarray(evidence.row_weights)
+
+    weights = row_weights(ncjax.PipelineConfig())
+    np.testing.assert_array_equal(weights[:, 0], 1.0)
+    assert np.all(weights[:, 1] < 0.5), weights  # (0.3 / 1)^2 = 0.09, more as the inlier cut trims the floor's errors
+    np.testing.assert_array_equal(row_weights(ncjax.PipelineConfig(min_boundary_noise=1e9)), 1.0)
+
+
 def test_bad_arguments_raise():
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.5)
     rows = jnp.zeros(WIDTH)
