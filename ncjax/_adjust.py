@@ -53,6 +53,7 @@ from ._sparse_normal import (
     JacobianStructure,
     SparseNormalCholesky,
     distinct_slots,
+    jacobian_product,
     normal_matrix,
     probe_jacobian,
     scale_columns,
@@ -490,8 +491,8 @@ class LayoutUncertainty(eqx.Module):
         height_covariance: (2, 2) covariance of ``(h_c, h_f)`` (m^2).
         row_sigma: (2,) the estimated noise of the ceiling and of the floor rows, pixels (RMS of each
             boundary's used rows' residuals, per degree of freedom; 0 for a boundary without used rows).
-        correlation_time: :func:`correlation_time` of those residuals, each boundary's in units of its
-            ``row_sigma`` (the covariance is scaled by it).
+        correlation_time: :func:`correlation_time` of the used rows' weighted residuals (the covariance
+            is scaled by it).
     """
 
     corner_covariance: Float[Array, "K 2 2"]
@@ -558,8 +559,8 @@ def layout_uncertainty(
     counts = jnp.sum(used, axis=1)
     degrees = counts * (1.0 - free / jnp.maximum(jnp.sum(counts), 1))
     boundary_variance = squares / jnp.maximum(degrees, 1.0)
-    unit = rows / jnp.where(boundary_variance > 0, safe_sqrt(boundary_variance), 1.0)[:, None]
-    tau = correlation_time(unit, used, observations.column_wall, max_lag)
+    # on the weighted rows: exact rows, whose residuals are float rounding, do not count
+    tau = correlation_time(rows, used, observations.column_wall, max_lag)
     residual_variance = jnp.concatenate(
         [jnp.repeat(boundary_variance, count), jnp.full(values.shape[0] - 2 * count, pooled_variance)]
     )
@@ -571,9 +572,14 @@ def layout_uncertainty(
     scaled = scale_columns(jacobian, structure, scale)
     cholesky = jnp.linalg.cholesky(normal_matrix(scaled, structure))
     inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))
-    # the sandwich (J^T J)^-1 J^T V J (J^T J)^-1: the fit's weights need not be the rows' inverse variances
-    spread = normal_matrix(scaled * safe_sqrt(residual_variance)[:, None], structure)
-    covariance = tau * scale[:, None] * (inverse @ spread @ inverse) * scale[None, :]
+    # the sandwich (J^T J)^-1 J^T V J (J^T J)^-1 (the fit's weights need not be the rows' inverse
+    # variances) as the Gram matrix of V^1/2 J (J^T J)^-1: positive semi-definite in float32 too, which
+    # the product of the three matrices is not where J^T J is ill-conditioned
+    spread = jax.vmap(
+        lambda column: jacobian_product(scaled * safe_sqrt(residual_variance)[:, None], structure, column),
+        in_axes=1, out_axes=1,
+    )(inverse)
+    covariance = tau * scale[:, None] * (spread.T @ spread) * scale[None, :]
     singular = ~jnp.all(jnp.isfinite(covariance)) | jnp.any(norms == 0)
     covariance = jnp.where(singular, 0.0, covariance)
 

@@ -305,6 +305,36 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
         np.testing.assert_allclose(np.median(uncertainty.row_sigma[kind], 0), [1.0, floor_noise], rtol=0.15)
 
 
+@pytest.mark.parametrize("manhattan", [True, False])
+def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
+    """Noisy ceiling rows, exact floor rows (the floor's variance 0): the covariances stay positive
+    semi-definite, the floor height's variance included."""
+    batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
+    checked = 0
+    for room, label in [(pick(batch, i), pick(labels, i)) for i in range(4)]:
+        cam = room.camera(WIDTH, HEIGHT)
+        directions, distances = ncjax.room_walls(room)[:2]
+        wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if manhattan else None
+        used = jnp.ones(WIDTH, bool)
+        noise = jax.random.normal(jax.random.key(7), (WIDTH,))
+        observations = BoundaryObservations(
+            columns=jnp.arange(WIDTH), ceiling_v=label.ceiling_v + noise, floor_v=label.floor_v,
+            ceiling_used=used, floor_used=used, column_wall=label.wall_index, corner_columns=jnp.zeros(len(room.mask)),
+            corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
+            row_weights=boundary_weights(noise, jnp.zeros(WIDTH), used, used, 0.1),
+        )
+        walls = adjust_layout(cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
+        uncertainty = layout_uncertainty(cam, observations, *walls, wall_labels)
+        corners = np.asarray(uncertainty.corner_covariance)[np.asarray(room.mask)]
+        if not np.all(np.isfinite(corners)):
+            continue  # a wall that no column sees: J^T J is singular, the covariance infinite by design
+        checked += 1
+        assert np.all(np.linalg.eigvalsh(corners) >= -1e-9), np.linalg.eigvalsh(corners).min()
+        assert np.all(np.diag(np.asarray(uncertainty.height_covariance)) >= 0)
+        assert float(uncertainty.correlation_time) < 3.0  # white ceiling noise; the floor's rounding does not count
+    assert checked >= 2
+
+
 def test_correlation_time_matches_a_direct_sum():
     """tau = 1 + 2 sum of the lag correlations up to the first non-positive one, pairs on one wall only (cyclic)."""
     rng = np.random.default_rng(3)
