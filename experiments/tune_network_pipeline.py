@@ -53,7 +53,7 @@ CONFIGS = {
     "nms 4, occlusion 8": {"corner_threshold": 0.3, "nms_radius": 4.0, "occlusion_threshold": 8.0},
     "nms 4, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0},
     "nms 3, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 3.0, "occlusion_threshold": 8.0},
-    # the adjustment's ceiling and floor rows weighted alike, as before session 19 (boundary_weights off)
+    # the ceiling and floor rows weighted alike in the joint solvers and the adjustment, as before session 19
     "nms 4, occlusion 8, threshold 0.4, equal row weights": {
         "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "min_boundary_noise": 1e9,
     },

@@ -112,7 +112,8 @@ def boundary_weights(
     noise's ``sigma_min / sigma``: the floor's errors run correlated over whole
     pieces of furniture, so its rows carry less information than their count
     suggests. On our tuning renders the square gave lower corner errors than the
-    plain ratio (Manhattan 0.170 -> 0.152 m; experiments/RESULTS.md, session 19).
+    plain ratio (mean CE without occlusion: Manhattan 0.165 -> 0.164 m, Atlanta
+    0.209 -> 0.178 m; experiments/RESULTS.md, session 19).
     A boundary with no used row gets weight 1 (it has no residual to weight)
     and does not count as the less noisy one.
     """

@@ -177,18 +177,25 @@ def test_layout_corners_of_parallel_walls_are_invalid_not_nan():
     assert not bool(jnp.any(lone_valid)) and bool(jnp.all(lone == 0))
 
 
+def _stacked_rows(room, ceiling_rays, floor_rays):
+    """The Atlanta arguments ``(rays, base_directions, row_wall, is_floor)`` of the :mod:`ncjax._wall_fit`
+    stages (ceiling rows, then floor rows) and the true ``(h_c, h_f, d_1..d_K)``."""
+    column_wall = jnp.where(room["mask"][jnp.maximum(room["wall_index"], 0)] & (room["wall_index"] >= 0), room["wall_index"], -1)
+    directions = room["directions"][jnp.maximum(room["wall_index"], 0)]
+    is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
+    arguments = (
+        jnp.concatenate([ceiling_rays, floor_rays]), jnp.concatenate([directions, directions]),
+        jnp.concatenate([column_wall, column_wall]), is_floor,
+    )
+    truth = jnp.concatenate([jnp.stack([room["h_c"], room["h_f"]]), jnp.where(room["mask"], room["distances"], 0.0)])
+    return arguments, truth
+
+
 def test_scale_search_recovers_a_scale_the_linear_solve_lost():
     """A linear solution whose ``x_0`` (the metric scale) came out with the wrong sign is
     re-scaled by the likelihood: the room's shape survives, the refinement recovers the room."""
     room = sample_room(3, "atlanta")
-    ceiling_rays, floor_rays = rays(room)
-    column_wall = jnp.where(room["mask"][jnp.maximum(room["wall_index"], 0)] & (room["wall_index"] >= 0), room["wall_index"], -1)
-    row_wall = jnp.concatenate([column_wall, column_wall])
-    stacked_rays = jnp.concatenate([ceiling_rays, floor_rays])
-    directions = room["directions"][jnp.maximum(room["wall_index"], 0)]
-    is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
-    truth = jnp.concatenate([jnp.stack([room["h_c"], room["h_f"]]), jnp.where(room["mask"], room["distances"], 0.0)])
-    arguments = (stacked_rays, jnp.concatenate([directions, directions]), row_wall, is_floor)
+    arguments, truth = _stacked_rows(room, *rays(room))
     depths = jnp.asarray(ncjax._layout_solvers.FLOOR_DEPTHS, truth.dtype)
     corrupted = 0.37 * jnp.concatenate([jnp.array([-1.0]), truth])  # right shape, x_0 of the wrong sign
     start, ok = search_scale(corrupted, *arguments, depths)
@@ -224,24 +231,18 @@ def test_atlanta_boundary_weights_follow_the_cleaner_boundary():
         assert float(jnp.median(down_weighted)) < 0.3 * float(jnp.median(even)), (down_weighted, even)
 
 
-def _weighted_problem(x64=False):
+def _weighted_problem():
     """A noisy Atlanta room's stacked rows for the :mod:`ncjax._wall_fit` stages, with random row weights."""
     room = sample_room(5, "atlanta")
     noise = jax.random.normal(jax.random.key(1), (2,) + room["floor_v"].shape)
-    ceiling_rays, floor_rays = boundary_rays(room["cam"], room["ceiling_v"] + noise[0], room["floor_v"] + noise[1])
-    column_wall = jnp.where(room["mask"][jnp.maximum(room["wall_index"], 0)] & (room["wall_index"] >= 0), room["wall_index"], -1)
-    row_wall = jnp.concatenate([column_wall, column_wall])
-    directions = room["directions"][jnp.maximum(room["wall_index"], 0)]
-    is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
-    arguments = (jnp.concatenate([ceiling_rays, floor_rays]), jnp.concatenate([directions, directions]), row_wall, is_floor)
-    truth = jnp.concatenate([jnp.zeros(1), jnp.stack([room["h_c"], room["h_f"]]), jnp.where(room["mask"], room["distances"], 0.0)])
-    weights = jax.random.uniform(jax.random.key(2), row_wall.shape, minval=0.05, maxval=1.0)
-    return room, arguments, truth, weights
+    arguments, truth = _stacked_rows(room, *boundary_rays(room["cam"], room["ceiling_v"] + noise[0], room["floor_v"] + noise[1]))
+    weights = jax.random.uniform(jax.random.key(2), arguments[2].shape, minval=0.05, maxval=1.0)
+    return arguments, jnp.concatenate([jnp.zeros(1), truth]), weights
 
 
 def test_weighted_gauss_newton_step_is_the_weighted_least_squares_step(x64):
     """The structured step equals the least-squares step of the weighted residuals' dense Jacobian."""
-    room, (rays_, base, row_wall, is_floor), truth, weights = _weighted_problem()
+    (rays_, base, row_wall, is_floor), truth, weights = _weighted_problem()
     start = truth * jnp.concatenate([jnp.ones(1), jnp.full(2, 1.03), jnp.full(truth.shape[0] - 3, 0.97)])
     geometry = ncjax._wall_fit._used_geometry(rays_, row_wall)
     cost, delta = ncjax._wall_fit.gauss_newton_step(start, geometry, base, row_wall, is_floor, False, weights)
@@ -261,7 +262,7 @@ def test_weighted_gauss_newton_step_is_the_weighted_least_squares_step(x64):
 
 def test_equal_row_weights_change_nothing():
     """Every row weighted alike (here 0.3) gives the stages' unweighted results: only ratios of weights count."""
-    room, arguments, truth, _ = _weighted_problem()
+    arguments, truth, _ = _weighted_problem()
     rays_, base, row_wall, is_floor = arguments
     equal = jnp.full(row_wall.shape, 0.3)
     shared, distance = jax.random.normal(jax.random.key(3), (row_wall.shape[0], 3)), jax.random.normal(jax.random.key(4), row_wall.shape)

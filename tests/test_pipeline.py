@@ -259,6 +259,17 @@ def test_adjustment_structure_gives_the_dense_normal_matrix(world):
 SMOOTHING = 9  # columns averaged into one noise value: errors correlated along the wall like a network's
 
 
+def _noisy_label_rows(room, label, ceiling_noise, floor_noise) -> BoundaryObservations:
+    """Every column's exact rows plus the given noise, weighted as the pipeline weights them, no corner penalty."""
+    used = jnp.ones(WIDTH, bool)
+    return BoundaryObservations(
+        columns=jnp.arange(WIDTH), ceiling_v=label.ceiling_v + ceiling_noise, floor_v=label.floor_v + floor_noise,
+        ceiling_used=used, floor_used=used, column_wall=label.wall_index, corner_columns=jnp.zeros(len(room.mask)),
+        corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
+        row_weights=boundary_weights(ceiling_noise, floor_noise, used, used, 0.1),
+    )
+
+
 @pytest.mark.parametrize("manhattan, floor_noise", [(True, 1.0), (False, 3.0)])
 def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
     """Rows of a known room with 1 px ceiling noise and ``floor_noise`` px floor noise, white or averaged over
@@ -270,7 +281,6 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
     directions, distances = ncjax.room_walls(room)[:2]
     wall_labels, _ = manhattan_frame(directions, room.mask.astype(directions.dtype))
     wall_labels = wall_labels if manhattan else None
-    used = jnp.ones(WIDTH, bool)
     draws = 48
     white = jax.random.normal(jax.random.key(1), (draws, 2, WIDTH))
     samples = jax.random.normal(jax.random.key(2), (draws, 2, WIDTH + SMOOTHING - 1))
@@ -278,13 +288,7 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
     smooth = jax.vmap(jax.vmap(lambda x: jnp.convolve(x, box, mode="valid")))(samples)
 
     def one(noise):
-        noise = noise.at[1].multiply(floor_noise)
-        observations = BoundaryObservations(
-            columns=jnp.arange(WIDTH), ceiling_v=label.ceiling_v + noise[0], floor_v=label.floor_v + noise[1],
-            ceiling_used=used, floor_used=used, column_wall=label.wall_index, corner_columns=jnp.zeros(len(room.mask)),
-            corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
-            row_weights=boundary_weights(noise[0], noise[1], used, used, 0.1),
-        )
+        observations = _noisy_label_rows(room, label, noise[0], floor_noise * noise[1])
         walls = adjust_layout(cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
         corners, _ = loop_corners(walls[0], walls[1], room.mask)
         return corners, layout_uncertainty(cam, observations, *walls, wall_labels)
@@ -315,14 +319,7 @@ def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
         cam = room.camera(WIDTH, HEIGHT)
         directions, distances = ncjax.room_walls(room)[:2]
         wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if manhattan else None
-        used = jnp.ones(WIDTH, bool)
-        noise = jax.random.normal(jax.random.key(7), (WIDTH,))
-        observations = BoundaryObservations(
-            columns=jnp.arange(WIDTH), ceiling_v=label.ceiling_v + noise, floor_v=label.floor_v,
-            ceiling_used=used, floor_used=used, column_wall=label.wall_index, corner_columns=jnp.zeros(len(room.mask)),
-            corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
-            row_weights=boundary_weights(noise, jnp.zeros(WIDTH), used, used, 0.1),
-        )
+        observations = _noisy_label_rows(room, label, jax.random.normal(jax.random.key(7), (WIDTH,)), jnp.zeros(WIDTH))
         walls = adjust_layout(cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
         uncertainty = layout_uncertainty(cam, observations, *walls, wall_labels)
         corners = np.asarray(uncertainty.corner_covariance)[np.asarray(room.mask)]
