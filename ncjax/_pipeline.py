@@ -12,11 +12,12 @@
    single walls' noisy scale). Consecutive walls each of which explains the
    other's pixels may be one wall split by a spurious corner.
 4. Manhattan branch: each wall labelled ``u`` / ``u_perp`` (any yaw) from its
-   direction and the corner types together (a least-cost labelling of the
-   wall cycle); consecutive walls of one class are merged when they are one
-   plane, otherwise (an occlusion, or a narrow wall whose two corners gave
-   one peak) a perpendicular wall is inserted through the nearer corner;
-   the Manhattan layout solver.
+   direction (RANSAC's; for a wall RANSAC could not fit, its plan line at the
+   heights of the fitted walls' joint solve) and the corner types together (a
+   least-cost labelling of the wall cycle); consecutive walls of one class are
+   merged when they are one plane, otherwise (an occlusion, or a narrow wall
+   whose two corners gave one peak) a perpendicular wall is inserted through
+   the nearer corner; the Manhattan layout solver.
    Atlanta branch: RANSAC directions, walls of one plane merged when their
    directions also agree within ``merge_angle``, a wall in the vertical
    plane of the corner ray at each occlusion, the Atlanta layout solver.
@@ -130,7 +131,11 @@ class PipelineConfig:
             a tie (:func:`choose_manhattan`).
         turn_weight: Manhattan labelling: cost of a corner whose walls do not
             turn as its type says, relative to the best-supported wall's
-            direction vote (:func:`manhattan_labels`).
+            direction vote (:func:`manhattan_labels`). Small: the walls'
+            directions decide and the corner types break ties. Corners
+            that the detector merged make the expected turns wrong, and on
+            the network's rows a weight of 0.5 mislabelled walls in many
+            rooms (experiments/RESULTS.md, session 21).
         corner_weight: weight of the corner-plane penalty of the adjustment.
         min_boundary_noise: the joint solvers and both adjustment passes weight
             the ceiling and floor rows by the squared inverse of each boundary's
@@ -182,7 +187,7 @@ class PipelineConfig:
     merge_fraction: float = 0.8
     merge_angle: float = 5.0
     manhattan_tolerance: float = 5.0
-    turn_weight: float = 0.5
+    turn_weight: float = 0.02
     corner_weight: float = 1.0
     min_boundary_noise: float = 0.5
     adjustment_steps: int = 8
@@ -586,25 +591,55 @@ def cyclic_binary_labels(
     return labels[jnp.argmin(costs)].astype(jnp.int32)
 
 
-def manhattan_labels(evidence: WallEvidence, turn_weight: float) -> Int[Array, " K"]:
+def manhattan_labels(
+    evidence: WallEvidence, directions: Float[Array, "K 2"], support: Float[Array, " K"], turn_weight: float
+) -> Int[Array, " K"]:
     """Manhattan class of each RANSAC wall, from its direction and the corner types together.
 
     Walls turn by 90 degrees at every corner that is neither an occlusion nor
-    a split of one plane, and each fitted wall's direction votes for its class
-    (:func:`manhattan_frame`) with its share of the inliers, less as it
-    deviates from the frame. The labelling that disagrees least with both
+    a split of one plane, and each wall's direction votes for its class
+    (:func:`manhattan_frame`) with its share of the ``support`` (its rows),
+    less as it deviates from the frame. The labelling that disagrees least with both
     (:func:`cyclic_binary_labels`; a disagreeing corner costs ``turn_weight``,
-    the best-supported wall 1) survives noisy single-wall directions, unfitted
-    narrow walls and corners the detector missed (an odd number of turns).
+    the best-supported wall 1) survives noisy single-wall directions, walls
+    without a direction (zero support) and corners the detector missed (an odd
+    number of turns: the corner that does not turn goes where the walls' own
+    directions agree).
     """
     mask = evidence.corner_mask
-    by_direction, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
-    confidence = evidence.weights / jnp.maximum(jnp.max(evidence.weights), 1.0) * (1 - deviation / (math.pi / 4))
+    by_direction, deviation = manhattan_frame(directions, support)
+    confidence = support / jnp.maximum(jnp.max(support), 1.0) * (1 - deviation / (math.pi / 4))
     unary = confidence[:, None] * (by_direction[:, None] != jnp.arange(2)[None, :])
     turn_expected = ~evidence.occluded & ~evidence.same_plane
     same_cost = jnp.where(turn_expected, turn_weight, 0.0)
     turn_cost = jnp.where(turn_expected, 0.0, turn_weight)
     return cyclic_binary_labels(unary, same_cost, turn_cost, mask)
+
+
+def _segment_directions(
+    cam: NonCentralPanorama, evidence: WallEvidence, ceiling_v, floor_v, config: PipelineConfig
+) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
+    """Per RANSAC segment, a direction and its support (rows) for :func:`manhattan_labels`.
+
+    A fitted wall keeps its RANSAC direction and inlier count. A segment RANSAC
+    could not fit (a narrow wall: a few degrees of rows fix its own metric scale
+    poorly, so the single-wall solver fails) gets the direction of the plan line
+    through its boundary points at the ceiling and floor heights of the fitted
+    walls' joint solve, whose rows fix the heights well, with its trusted rows as support.
+    """
+    heights = solve_atlanta_layout(
+        evidence.ceiling_rays, evidence.floor_rays, _fit_index(evidence, evidence.column_wall), evidence.fitted,
+        evidence.walls.direction, boundary_weights=evidence.row_weights,
+    )
+    plan = _plan_lines(cam, evidence, evidence.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
+    usable_plan = heights.ok & jnp.all(jnp.isfinite(plan), axis=-1)
+    capacity = evidence.corner_mask.shape[0]
+    rows = (evidence.ceiling_trusted & evidence.floor_trusted).astype(evidence.weights.dtype) * 2
+    counts = jax.ops.segment_sum(rows, jnp.where(evidence.column_wall >= 0, evidence.column_wall, capacity), capacity + 1)
+    by_plan = ~evidence.fitted & evidence.corner_mask & usable_plan
+    directions = jnp.where(by_plan[:, None], plan, evidence.walls.direction)
+    support = jnp.where(by_plan, counts[:capacity], evidence.weights)
+    return directions, support
 
 
 def _final_walls(
@@ -704,9 +739,9 @@ def _strided(observations: BoundaryObservations, stride: int) -> BoundaryObserva
     )
 
 
-def _fit_index(evidence: WallEvidence, final: FinalWalls) -> Int[Array, " W"]:
-    """Columns fed to the joint solvers: those whose ceiling and floor rows are both trusted (:class:`WallEvidence`)."""
-    return jnp.where(evidence.ceiling_trusted & evidence.floor_trusted, final.column_wall, -1)
+def _fit_index(evidence: WallEvidence, column_wall: Int[Array, " W"]) -> Int[Array, " W"]:
+    """Columns fed to the joint solvers, by wall: those whose ceiling and floor rows are both trusted (:class:`WallEvidence`)."""
+    return jnp.where(evidence.ceiling_trusted & evidence.floor_trusted, column_wall, -1)
 
 
 def _row_errors(cam, observations: BoundaryObservations, walls) -> tuple[Float[Array, " N"], Float[Array, " N"]]:
@@ -828,24 +863,25 @@ def _several_corners(evidence: WallEvidence) -> Bool[Array, ""]:
 
 def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
-    labels = manhattan_labels(evidence, config.turn_weight)
+    labels = manhattan_labels(evidence, *_segment_directions(cam, evidence, ceiling_v, floor_v, config), config.turn_weight)
     same_class = labels[_previous(evidence)] == labels
     # Manhattan walls never meet at 0 degrees: consecutive walls of one class are one plane split by a
-    # spurious corner, unless the boundaries jump there or both were fitted and neither explains the other
-    # (a wall between them that the corner detector merged into one peak, or a small occlusion)
-    one_plane = ~evidence.occluded & (evidence.same_plane | ~evidence.both_fitted)
+    # spurious corner if both were fitted and each explains the other's rows; otherwise a wall lies between
+    # them, one whose corners the detector merged into one peak, or an occluded one. A wall that RANSAC could
+    # not fit is no sign of a spurious corner (narrow walls between close corners are the usual reason)
+    one_plane = ~evidence.occluded & evidence.same_plane
     merge = evidence.corner_mask & same_class & one_plane & _several_corners(evidence)
     insert = evidence.corner_mask & same_class & ~one_plane
     final = _final_walls(evidence, merge, insert, True, config.sample_size)
     wall_labels = jnp.where(final.inserted, 1 - labels[final.start_wall], labels[final.start_wall])
-    fit_index = _fit_index(evidence, final)
+    fit_index = _fit_index(evidence, final.column_wall)
     fitted = final.observed & evidence.fitted[final.start_wall]
     yaw = manhattan_yaw(evidence.walls.direction[final.start_wall], wall_labels, fitted)
     heights = solve_atlanta_layout(
         evidence.ceiling_rays, evidence.floor_rays, fit_index, fitted, manhattan_directions(yaw, wall_labels),
         boundary_weights=evidence.row_weights,
     )
-    plan = _plan_lines(cam, evidence, final, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
+    plan = _plan_lines(cam, evidence, final.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
     yaw = manhattan_yaw(plan, wall_labels, final.observed)
     solved = solve_atlanta_layout(
         evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, manhattan_directions(yaw, wall_labels),
@@ -859,15 +895,15 @@ def _manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     return _assemble(cam, evidence, final, *adjusted[:4], explained, uncertainty, heights.ok & solved.ok, True, config)
 
 
-def _plan_lines(cam, evidence, final, ceiling_v, floor_v, h_c, h_f) -> Float[Array, "K 2"]:
-    """Per final wall, the direction of the plan line through its boundary points at heights ``h_c``, ``h_f``."""
+def _plan_lines(cam, evidence, column_wall, ceiling_v, floor_v, h_c, h_f) -> Float[Array, "K 2"]:
+    """Per wall of ``column_wall`` (-1: none), the direction of the plan line through its boundary points at heights ``h_c``, ``h_f``."""
     columns = jnp.arange(cam.width, dtype=ceiling_v.dtype)
     ceiling, ceiling_ok = boundary_points(cam, columns, jnp.where(evidence.finite, ceiling_v, 0.0), h_c)
     floor, floor_ok = boundary_points(cam, columns, jnp.where(evidence.finite, floor_v, 0.0), h_f)
     points = jnp.concatenate([ceiling, floor])
     ok = jnp.concatenate([ceiling_ok, floor_ok]) & jnp.tile(evidence.usable, 2)
-    wall = jnp.tile(final.column_wall, 2)  # -1 (no wall): dropped
-    directions, _ = fit_plan_lines(points, ok.astype(points.dtype), wall, final.mask.shape[0])
+    wall = jnp.tile(column_wall, 2)  # -1 (no wall): dropped
+    directions, _ = fit_plan_lines(points, ok.astype(points.dtype), wall, evidence.corner_mask.shape[0])
     return directions
 
 
@@ -879,7 +915,7 @@ def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     merge = evidence.same_plane & parallel & ~evidence.occluded & _several_corners(evidence)
     insert = evidence.occluded
     final = _final_walls(evidence, merge, insert, False, config.sample_size)
-    fit_index = _fit_index(evidence, final)
+    fit_index = _fit_index(evidence, final.column_wall)
     heights = solve_atlanta_layout(
         evidence.ceiling_rays,
         evidence.floor_rays,
@@ -889,7 +925,7 @@ def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
         boundary_weights=evidence.row_weights,
     )
     # every observed wall's direction from its boundary points at those heights
-    directions = _plan_lines(cam, evidence, final, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
+    directions = _plan_lines(cam, evidence, final.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height)
     solved = solve_atlanta_layout(
         evidence.ceiling_rays, evidence.floor_rays, fit_index, final.observed, directions,
         boundary_weights=evidence.row_weights,

@@ -7,6 +7,7 @@ import functools
 import itertools
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -33,7 +34,16 @@ from ncjax._adjust import (
     layout_uncertainty,
     loop_corners,
 )
-from ncjax._pipeline import _batched_layout_jit, _gather_evidence, choose_manhattan, cyclic_binary_labels, manhattan_frame
+from ncjax._pipeline import (
+    _batched_layout_jit,
+    _gather_evidence,
+    _manhattan_layout,
+    _segment_directions,
+    choose_manhattan,
+    cyclic_binary_labels,
+    manhattan_frame,
+)
+from ncjax._rooms import corner_target
 from ncjax._ransac import boundary_errors, elevation_band, inlier_rows, num_hypotheses, wall_columns
 from ncjax._reprojection import boundary_points, column_directions, fit_plan_line, fit_plan_lines, wall_boundary_rows
 from ncjax._wall import make_wall
@@ -478,6 +488,56 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     strict = ncjax.PipelineConfig(max_room_height=1.0)
     layout = ncjax.layout_from_boundaries(label.ceiling_v, label.floor_v, label.corner_target, cam, config=strict)
     assert int(layout.status) == ncjax.LayoutStatus.DEGENERATE_LAYOUT
+
+
+def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
+    """The two corners of a Manhattan room's narrowest wall given as one peak (as the network's lobes merge
+    close corners), the wall after that peak one that RANSAC could not fit (a narrow wall's usual fate) and
+    the boundaries' jump at the peak lost in the rows' noise (no occlusion seen): the unfitted wall votes with the direction of its plan line at the fitted walls' heights, the walls
+    around the peak get one class, and the wall between them is inserted. Merging the two walls instead (a
+    spurious corner) would lose both corners."""
+    batch, labels = rooms("manhattan", "none")
+    room, label = pick(batch, 1), pick(labels, 1)
+    cam = room.camera(WIDTH, HEIGHT)
+    corners = np.asarray(label.corner_u)[np.asarray(label.corner_mask)]
+    count = len(corners)
+    gaps = (np.roll(corners, -1) - corners) % WIDTH
+    narrow = int(np.argmin(gaps))
+    peak = (corners[narrow] + gaps[narrow] / 2) % WIDTH
+    kept = np.append(np.delete(corners, [narrow, (narrow + 1) % count]), peak)
+    target = corner_target(kept, np.ones(len(kept), bool), WIDTH)
+    config = ncjax.PipelineConfig()
+    evidence = _gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
+    slots = np.flatnonzero(np.asarray(evidence.corner_mask))
+    assert len(slots) == count - 1
+    at_peak = slots[np.argmin(np.abs((np.asarray(evidence.corner_columns)[slots] - peak + WIDTH / 2) % WIDTH - WIDTH / 2))]
+    assert bool(evidence.fitted[at_peak])
+    unfitted = evidence.fitted.at[at_peak].set(False)
+    wrong = jnp.array([math.cos(0.7), math.sin(0.7)], evidence.walls.direction.dtype)
+    evidence = eqx.tree_at(
+        lambda e: (e.fitted, e.both_fitted, e.same_plane, e.occluded, e.weights, e.walls.direction),
+        evidence,
+        (
+            unfitted,
+            unfitted & unfitted[(jnp.arange(unfitted.shape[0]) - 1) % len(slots)],
+            jnp.zeros_like(evidence.same_plane),
+            jnp.zeros_like(evidence.occluded),
+            evidence.weights.at[at_peak].set(0.0),
+            evidence.walls.direction.at[at_peak].set(wrong),
+        ),
+    )
+    directions, support = _segment_directions(cam, evidence, label.ceiling_v, label.floor_v, config)
+    after = np.asarray(label.ceiling_corners)[[(narrow + 1) % count, (narrow + 2) % count], :2]
+    true_direction = (after[1] - after[0]) / np.linalg.norm(after[1] - after[0])
+    estimate = np.asarray(directions[at_peak])
+    assert abs(estimate[0] * true_direction[1] - estimate[1] * true_direction[0]) < math.sin(math.radians(1.0))
+    assert float(support[at_peak]) > 0
+    others = slots[slots != at_peak]
+    np.testing.assert_array_equal(np.asarray(directions)[others], np.asarray(evidence.walls.direction)[others])
+    layout = _manhattan_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
+    assert bool(layout.ok) and int(jnp.sum(layout.inserted)) == 1
+    result = metrics.evaluate_layout(layout, room)
+    assert result["ce"] < 0.1 and result["iou3d"] > 0.95, result
 
 
 def test_noisy_rows_do_not_fake_occlusions():
