@@ -20,7 +20,10 @@
    the nearer corner; the Manhattan layout solver.
    Atlanta branch: RANSAC directions, walls of one plane merged when their
    directions also agree within ``merge_angle``, a wall in the vertical
-   plane of the corner ray at each occlusion, the Atlanta layout solver.
+   plane of the corner ray at each occlusion, the Atlanta layout solver;
+   then also such a wall at each corner whose two walls meet more than
+   ``max_corner_offset`` columns from it (not in the paper: a narrow wall
+   whose two corners gave one peak), and the solver again.
    Both branches' solvers weight the ceiling and floor rows by each
    boundary's noise about the RANSAC walls (not in the paper: a network's
    floor rows are several times noisier than its ceiling rows).
@@ -64,8 +67,9 @@ from ._adjust import (
     manhattan_yaw,
     not_computed,
     previous_walls,
+    wrap_columns,
 )
-from ._camera import NonCentralPanorama, pixel_to_ray
+from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_ray
 from ._corners import column_walls, distance_to_corners, find_corners, side_extrapolation
 from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
@@ -126,6 +130,12 @@ class PipelineConfig:
             differ by less than this (degrees): a shallow corner between two
             walls seen far away passes the pixel test (Manhattan merges
             walls of one class, see :func:`_manhattan_layout`).
+        max_corner_offset: Atlanta: where two observed walls meet farther than
+            this (columns) from their corner's column, or not at all, the
+            corner's peak holds two corners (the network's lobes merge close
+            ones) and a wall is inserted between them in the corner ray's
+            plane, as at an occlusion. Chosen on the tuning renders
+            (experiments/RESULTS.md, session 21): 24-128 did about alike.
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             RANSAC wall from the Manhattan frame for the Manhattan branch to win
             a tie (:func:`choose_manhattan`).
@@ -186,6 +196,7 @@ class PipelineConfig:
     occlusion_noise_factor: float = 5.0
     merge_fraction: float = 0.8
     merge_angle: float = 5.0
+    max_corner_offset: float = 32.0
     manhattan_tolerance: float = 5.0
     turn_weight: float = 0.02
     corner_weight: float = 1.0
@@ -211,7 +222,7 @@ class PipelineConfig:
         if self.ransac_columns < 2 * self.sample_size:
             raise ValueError(f"ransac_columns must be >= 2 * sample_size, got {self.ransac_columns}")
         positive = (
-            "nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "merge_angle",
+            "nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "merge_angle", "max_corner_offset",
             "manhattan_tolerance", "turn_weight", "adjustment_tolerance", "min_boundary_noise",
         )
         for name in positive:
@@ -907,13 +918,12 @@ def _plan_lines(cam, evidence, column_wall, ceiling_v, floor_v, h_c, h_f) -> Flo
     return directions
 
 
-def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
-    """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
-    ransac_directions = evidence.walls.direction
-    turn = cross_2d(ransac_directions[_previous(evidence)], ransac_directions)
-    parallel = jnp.abs(turn) < math.sin(math.radians(config.merge_angle))
-    merge = evidence.same_plane & parallel & ~evidence.occluded & _several_corners(evidence)
-    insert = evidence.occluded
+def _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, config):
+    """The Atlanta wall loop after merging and insertion, and its walls from the joint solver.
+
+    Returns:
+        ``(final, ok, directions, distances, ceiling_height, floor_height)``.
+    """
     final = _final_walls(evidence, merge, insert, False, config.sample_size)
     fit_index = _fit_index(evidence, final.column_wall)
     heights = solve_atlanta_layout(
@@ -931,11 +941,41 @@ def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
         boundary_weights=evidence.row_weights,
     )
     directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
-    adjusted, explained, uncertainty = _refine(
-        cam, evidence, final, ceiling_v, floor_v, directions, distances,
-        solved.ceiling_height, solved.floor_height, None, config,
-    )
-    return _assemble(cam, evidence, final, *adjusted[:4], explained, uncertainty, heights.ok & solved.ok, False, config)
+    return final, heights.ok & solved.ok, directions, distances, solved.ceiling_height, solved.floor_height
+
+
+def corner_offsets(
+    cam: NonCentralPanorama,
+    directions: Float[Array, "K 2"],
+    distances: Float[Array, " K"],
+    wall_mask: Bool[Array, " K"],
+    corner_columns: Float[Array, " K"],
+) -> Float[Array, " K"]:
+    """Per corner ``k``, how far (columns) from ``corner_columns[k]`` walls ``k - 1`` and ``k`` meet (inf: they do not)."""
+    points, meet = loop_corners(directions, distances, wall_mask)
+    column, _ = angles_to_pixel(cam, jnp.arctan2(points[:, 1], points[:, 0]), 0.0)
+    offset = jnp.abs(wrap_columns(column - corner_columns, cam.width))
+    return jnp.where(meet & jnp.isfinite(offset), offset, jnp.inf)
+
+
+def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
+    """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
+    ransac_directions = evidence.walls.direction
+    turn = cross_2d(ransac_directions[_previous(evidence)], ransac_directions)
+    parallel = jnp.abs(turn) < math.sin(math.radians(config.merge_angle))
+    merge = evidence.same_plane & parallel & ~evidence.occluded & _several_corners(evidence)
+    insert = evidence.occluded
+    final, _, directions, distances, _, _ = _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, config)
+    # two observed walls that meet far from their corner's column (or are parallel) hold a wall between them
+    # whose two corners gave one peak: it is inserted in the corner ray's plane, as at an occlusion
+    both_observed = final.observed & final.observed[previous_walls(final.mask)]
+    offsets = corner_offsets(cam, directions, distances, final.mask, final.corner_columns)
+    stray = both_observed & (offsets > _scaled(config.max_corner_offset, cam.width, 1024))
+    capacity = insert.shape[0]
+    insert = insert.at[jnp.where(stray, final.start_wall, capacity)].set(True, mode="drop")
+    final, ok, directions, distances, h_c, h_f = _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, config)
+    adjusted, explained, uncertainty = _refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, None, config)
+    return _assemble(cam, evidence, final, *adjusted[:4], explained, uncertainty, ok, False, config)
 
 
 def _assemble(

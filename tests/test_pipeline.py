@@ -37,7 +37,9 @@ from ncjax._adjust import (
 from ncjax._pipeline import (
     _batched_layout_jit,
     _gather_evidence,
+    _atlanta_layout,
     _manhattan_layout,
+    corner_offsets,
     _segment_directions,
     choose_manhattan,
     cyclic_binary_labels,
@@ -490,22 +492,28 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     assert int(layout.status) == ncjax.LayoutStatus.DEGENERATE_LAYOUT
 
 
-def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
-    """The two corners of a Manhattan room's narrowest wall given as one peak (as the network's lobes merge
-    close corners), the wall after that peak one that RANSAC could not fit (a narrow wall's usual fate) and
-    the boundaries' jump at the peak lost in the rows' noise (no occlusion seen): the unfitted wall votes with the direction of its plan line at the fitted walls' heights, the walls
-    around the peak get one class, and the wall between them is inserted. Merging the two walls instead (a
-    spurious corner) would lose both corners."""
-    batch, labels = rooms("manhattan", "none")
-    room, label = pick(batch, 1), pick(labels, 1)
-    cam = room.camera(WIDTH, HEIGHT)
+def _one_peak_for_the_narrowest_wall(label):
+    """The corner target with the two corners of the narrowest wall replaced by one peak between them."""
     corners = np.asarray(label.corner_u)[np.asarray(label.corner_mask)]
-    count = len(corners)
     gaps = (np.roll(corners, -1) - corners) % WIDTH
     narrow = int(np.argmin(gaps))
     peak = (corners[narrow] + gaps[narrow] / 2) % WIDTH
-    kept = np.append(np.delete(corners, [narrow, (narrow + 1) % count]), peak)
-    target = corner_target(kept, np.ones(len(kept), bool), WIDTH)
+    kept = np.append(np.delete(corners, [narrow, (narrow + 1) % len(corners)]), peak)
+    return corner_target(kept, np.ones(len(kept), bool), WIDTH), peak, narrow
+
+
+def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
+    """The two corners of a Manhattan room's narrowest wall given as one peak (as the network's lobes merge
+    close corners), the wall after that peak one that RANSAC could not fit (a narrow wall's usual fate) and
+    the boundaries' jump at the peak lost in the rows' noise (no occlusion seen). The unfitted wall votes
+    with the direction of its plan line at the fitted walls' heights, the walls around the peak get one
+    class, and the wall between them is inserted. Merging the two walls instead (as for a spurious corner)
+    would lose both corners."""
+    batch, labels = rooms("manhattan", "none")
+    room, label = pick(batch, 1), pick(labels, 1)
+    cam = room.camera(WIDTH, HEIGHT)
+    count = int(np.sum(np.asarray(label.corner_mask)))
+    target, peak, narrow = _one_peak_for_the_narrowest_wall(label)
     config = ncjax.PipelineConfig()
     evidence = _gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
     slots = np.flatnonzero(np.asarray(evidence.corner_mask))
@@ -538,6 +546,53 @@ def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     assert bool(layout.ok) and int(jnp.sum(layout.inserted)) == 1
     result = metrics.evaluate_layout(layout, room)
     assert result["ce"] < 0.1 and result["iou3d"] > 0.95, result
+
+
+def test_corner_offsets_are_zero_at_the_true_corners_and_inf_for_parallel_walls():
+    batch, _ = rooms("manhattan", "none")
+    room = pick(batch, 0)
+    cam = room.camera(WIDTH, HEIGHT)
+    directions, distances = ncjax.room_walls(room)[:2]
+    corners = jnp.concatenate([room.corners, jnp.full((room.corners.shape[0], 1), room.ceiling_height)], -1)
+    columns, _ = ncjax.project(cam, corners)
+    mask = room.mask
+    offsets = corner_offsets(cam, directions, distances, mask, jnp.where(mask, columns, 0.0))
+    assert float(jnp.max(jnp.where(mask, offsets, 0.0))) < 1e-2
+    # without wall 1, walls 0 and 2 (parallel in a Manhattan room) do not meet
+    keep = np.flatnonzero(np.asarray(mask))
+    keep = np.delete(keep, 1)
+    dropped = corner_offsets(cam, directions[keep], distances[keep], jnp.ones(len(keep), bool), columns[keep])
+    assert np.isinf(float(dropped[1])) and np.all(np.isfinite(np.asarray(dropped)[np.arange(len(keep)) != 1]))
+
+
+def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
+    """An Atlanta room's narrowest wall given as one peak and no boundary jump seen there: its two walls
+    meet far from the peak's column (or not at all), so a wall is inserted between them in the corner
+    ray's plane, and the layout has every corner; with a huge ``max_corner_offset`` it has one fewer."""
+    batch, labels = rooms("atlanta", "none")
+
+    def one_narrow_wall(index):
+        corners = np.asarray(pick(labels, index).corner_u)[np.asarray(pick(labels, index).corner_mask)]
+        gaps = np.sort((np.roll(corners, -1) - corners) % WIDTH)
+        return 2 <= gaps[0] and gaps[1] > 3 * gaps[0]
+
+    index = next(i for i in range(6) if bool(pick(labels, i).ok) and one_narrow_wall(i))
+    room, label = pick(batch, index), pick(labels, index)
+    cam = room.camera(WIDTH, HEIGHT)
+    target, _, _ = _one_peak_for_the_narrowest_wall(label)
+
+    def layout(config):
+        evidence = _gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
+        evidence = eqx.tree_at(lambda e: e.occluded, evidence, jnp.zeros_like(evidence.occluded))
+        return _atlanta_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
+
+    count = int(np.sum(np.asarray(label.corner_mask)))
+    found = layout(ncjax.PipelineConfig())
+    assert bool(found.ok) and int(jnp.sum(found.mask)) == count and int(jnp.sum(found.inserted)) == 1
+    result = metrics.evaluate_layout(found, label)
+    assert result["iou3d"] > 0.95, result
+    missed = layout(ncjax.PipelineConfig(max_corner_offset=1e6))
+    assert int(jnp.sum(missed.mask)) == count - 1 and int(jnp.sum(missed.inserted)) == 0
 
 
 def test_noisy_rows_do_not_fake_occlusions():
