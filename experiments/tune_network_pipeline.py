@@ -57,6 +57,17 @@ CONFIGS = {
     "nms 4, occlusion 8, threshold 0.4, equal row weights": {
         "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "min_boundary_noise": 1e9,
     },
+    # the Manhattan labelling's corner-type weight of sessions 1-20 (session 21: 0.02, the walls' directions decide)
+    "nms 4, occlusion 8, threshold 0.4, turn weight 0.5": {
+        "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "turn_weight": 0.5,
+    },
+    # Atlanta: no wall inserted where a corner's walls meet far from its peak (before session 21), or other offsets
+    **{
+        f"nms 4, occlusion 8, threshold 0.4, corner offset {offset:g}": {
+            "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "max_corner_offset": offset,
+        }
+        for offset in (16.0, 64.0, 1e6)
+    },
 }
 
 
