@@ -199,17 +199,28 @@ def boundary_residuals(
 _boundary_residuals_fast_jvp = _local_jacobian_jvp(boundary_residuals, 4)
 
 
+def corner_column_offset(
+    directions: Float[Array, "2 2"],
+    distances: Float[Array, " 2"],
+    cam: NonCentralPanorama,
+    corner_column: Float[ArrayLike, ""],
+) -> tuple[Float[Array, ""], Bool[Array, ""]]:
+    """Column error (pixels) of the corner where wall ``(directions[0], distances[0])`` meets the next
+    wall, and whether the two meet (not parallel)."""
+    point, meet = wall_planes_meet(directions[0], distances[0], directions[1], distances[1])
+    corner_u, _ = angles_to_pixel(cam, arctan2(point[1], point[0]), 0.0)
+    return wrap_columns(corner_u - corner_column, cam.width), meet
+
+
 def corner_residual(
     angles: Float[Array, " 2"],
     distances: Float[Array, " 2"],
     cam: NonCentralPanorama,
     corner_column: Float[ArrayLike, ""],
 ) -> Float[Array, ""]:
-    """Column error (pixels) of the corner where wall ``(angles[0], distances[0])`` meets the next wall."""
+    """:func:`corner_column_offset` of two walls given by their angles."""
     directions = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1)
-    point, _ = wall_planes_meet(directions[0], distances[0], directions[1], distances[1])
-    corner_u, _ = angles_to_pixel(cam, arctan2(point[1], point[0]), 0.0)
-    return wrap_columns(corner_u - corner_column, cam.width)
+    return corner_column_offset(directions, distances, cam, corner_column)[0]
 
 
 def _residual_terms(

@@ -60,6 +60,7 @@ from ._adjust import (
     LayoutUncertainty,
     adjust_layout,
     boundary_weights,
+    corner_column_offset,
     layout_residuals,
     layout_uncertainty,
     loop_corners,
@@ -67,9 +68,8 @@ from ._adjust import (
     manhattan_yaw,
     not_computed,
     previous_walls,
-    wrap_columns,
 )
-from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_ray
+from ._camera import NonCentralPanorama, pixel_to_ray
 from ._corners import column_walls, distance_to_corners, find_corners, side_extrapolation
 from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
@@ -952,10 +952,12 @@ def corner_offsets(
     corner_columns: Float[Array, " K"],
 ) -> Float[Array, " K"]:
     """Per corner ``k``, how far (columns) from ``corner_columns[k]`` walls ``k - 1`` and ``k`` meet (inf: they do not)."""
-    points, meet = loop_corners(directions, distances, wall_mask)
-    column, _ = angles_to_pixel(cam, jnp.arctan2(points[:, 1], points[:, 0]), 0.0)
-    offset = jnp.abs(wrap_columns(column - corner_columns, cam.width))
-    return jnp.where(meet & jnp.isfinite(offset), offset, jnp.inf)
+    previous = previous_walls(wall_mask)
+    offset, meet = jax.vmap(corner_column_offset, in_axes=(0, 0, None, 0))(
+        jnp.stack([directions[previous], directions], 1), jnp.stack([distances[previous], distances], 1), cam, corner_columns
+    )
+    offset = jnp.abs(offset)
+    return jnp.where((meet | ~wall_mask) & jnp.isfinite(offset), offset, jnp.inf)
 
 
 def _atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:

@@ -56,6 +56,10 @@ def _release_compiled_programs():
     they made a 2-core CI run abort inside XLA's compiler in the last modules.
     """
     yield
+    _drop_compiled_programs()
+
+
+def _drop_compiled_programs():
     jax.clear_caches()
     gc.collect()
 
@@ -76,8 +80,7 @@ def _release_compiled_programs_near_the_map_limit():
     limit, and tests/test_pipeline.py alone reached 62,000 (session 21)."""
     yield
     if _memory_maps() > 45_000:
-        jax.clear_caches()
-        gc.collect()
+        _drop_compiled_programs()
 
 
 @pytest.fixture
