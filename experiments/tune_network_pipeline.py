@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -33,6 +34,7 @@ import numpy as np
 from tqdm import tqdm
 
 import ncjax
+from ncjax._adjust import room_height_sigma
 from ncjax._dataset import list_samples, read_sample, write_dataset
 from ncjax._pipeline import layout_from_evidence
 from ncjax._predict import DEFAULT_VIEWS, default_model, predict_boundaries
@@ -45,6 +47,7 @@ OUT = Path(__file__).parent / "out"
 SEEDS = {"manhattan": 71, "atlanta": 72}
 # the corner detection (threshold, NMS half-width in columns) and occlusion test (jump in px) settings compared,
 # each replacing those of NETWORK_PIPELINE_CONFIG (the rest, e.g. the adjustment's row weights, as it is)
+NO_SCALE_TEST = "nms 4, occlusion 8, threshold 0.4, no scale test"
 CONFIGS = {
     "pipeline defaults": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 4.0},
     "session 17": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 6.0},
@@ -68,7 +71,11 @@ CONFIGS = {
         }
         for offset in (16.0, 64.0, 1e6)
     },
+    # no layout fails for an uncertain scale (before session 22): the scale test's thresholds are compared on its layouts
+    NO_SCALE_TEST: {"corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "max_height_uncertainty": math.inf},
 }
+# relative standard deviations of the room height compared as PipelineConfig.max_height_uncertainty
+SCALE_TEST_THRESHOLDS = (0.04, 0.06, 0.08, 0.1, 0.15, 0.2, math.inf)
 
 
 def tuning_boundaries(world: str, rooms: int, views: int, out: Path) -> dict:
@@ -106,7 +113,32 @@ def pipeline_scores(data: dict, world: str, config: ncjax.PipelineConfig) -> lis
 
     keys = jax.random.split(jax.random.key(0), len(data["rc"]))
     layouts = jax.device_get(jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys))
-    return scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
+    per_room = scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
+    relative_sigma = np.asarray(room_height_sigma(layouts.height_covariance)) / (layouts.ceiling_height - layouts.floor_height)
+    return [room | {"relative_height_sigma": float(sigma)} for room, sigma in zip(per_room, relative_sigma)]
+
+
+def scale_test_table(per_room: dict[str, list[dict]]) -> list[str]:
+    """Per threshold of the relative height sigma: how many ok layouts it fails and how wrong they were.
+
+    Args:
+        per_room: world -> the per-room scores of a configuration without the scale test.
+    """
+    lines = ["", "Scale test (`max_height_uncertainty`) on the layouts of the configuration without it, per world: "
+             "the ok layouts it would fail (% of all rooms), their CE median (m) and the share of them with CE > 0.3 m; "
+             "then the CE mean / median (m) of the layouts it keeps.", "",
+             "| threshold | world | failed by the test (%) | their CE median | CE > 0.3 m (%) | kept: CE mean / median |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    for threshold in SCALE_TEST_THRESHOLDS:
+        for world, rooms in per_room.items():
+            good = [r for r in rooms if not r["failed"]]
+            ce = np.array([r["ce"] for r in good])
+            flagged = np.array([not r["relative_height_sigma"] <= threshold for r in good])
+            share = 100 * np.mean(ce[flagged] > 0.3) if flagged.any() else math.nan
+            lines.append(f"| {threshold:g} | {world} | {100 * flagged.sum() / len(rooms):.1f} | "
+                         f"{np.median(ce[flagged]) if flagged.any() else math.nan:.3f} | {share:.0f} | "
+                         f"{ce[~flagged].mean():.3f} / {np.median(ce[~flagged]):.3f} |")
+    return lines
 
 
 def main(argv=None):
@@ -124,7 +156,7 @@ def main(argv=None):
              "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / CE (m) / 3D IoU (%) | IoU all0 (%) |",
              "| --- | --- | --- | --- | --- |"]
     causes = ["", "Failures by cause, all rooms (% of the rooms):", ""]
-    record = {}
+    record, unscaled = {}, {}
     for name in tqdm(args.configs, desc="configurations"):
         kwargs = (
             {key: getattr(NETWORK_PIPELINE_CONFIG, key) for key in CONFIGS["pipeline defaults"]} if name == "current" else CONFIGS[name]
@@ -139,7 +171,9 @@ def main(argv=None):
             lines.append(f"| {name} {kwargs} | {world} | {s_clear['failed']:.1f} / {s_clear['ce']:.3f} / {median:.3f} / {s_clear['iou3d']:.1f} | "
                          f"{s_all['failed']:.1f} / {s_all['ce']:.3f} / {s_all['iou3d']:.1f} | {s_all['iou3d_all']:.1f} |")
             causes.append(f"- {name}, {world}: {failure_causes(per_room)}")
-    table = "\n".join(lines + causes)
+            if name == NO_SCALE_TEST:
+                unscaled[world] = per_room
+    table = "\n".join(lines + causes + (scale_test_table(unscaled) if unscaled else []))
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     (args.out / f"tune_network_pipeline_{args.rooms}.md").write_text(table + "\n")

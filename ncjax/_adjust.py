@@ -519,6 +519,17 @@ def not_computed(capacity: int, dtype) -> LayoutUncertainty:
     return LayoutUncertainty(nan(capacity, 2, 2), nan(2, 2), nan(2), nan())
 
 
+def room_height_sigma(height_covariance: Float[ArrayLike, "*#batch 2 2"]) -> Float[Array, "*batch"]:
+    """Standard deviation (m) of the room height ``h_c - h_f`` under a covariance of ``(h_c, h_f)``.
+
+    Infinite where the covariance is not finite (a fit that does not
+    determine the heights, or covariances not computed).
+    """
+    covariance = jnp.asarray(height_covariance)
+    variance = covariance[..., 0, 0] + covariance[..., 1, 1] - 2 * covariance[..., 0, 1]
+    return jnp.where(jnp.isfinite(variance), jnp.sqrt(jnp.maximum(jnp.nan_to_num(variance), 0.0)), jnp.inf)
+
+
 def layout_uncertainty(
     cam: NonCentralPanorama,
     observations: BoundaryObservations,

@@ -27,6 +27,7 @@ from ._dataset import rc_from_name
 from ._edges import EdgeSnap
 from ._images import PanoramaError, read_panorama
 from ._network import check_views
+from ._pipeline import LayoutStatus
 from ._predict import DEFAULT_VIEWS
 
 MAX_RC = 3.0  # metres; the capture rigs have radii of tens of centimetres
@@ -140,7 +141,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
     def done(path, record):
         if not record["ok"]:
-            failures[path] = f"{path}: no layout found ({record['status']}); see {record['name']}_overlay.png"
+            reason = LayoutStatus[record["status"]].reason
+            failures[path] = f"{path}: no layout found ({record['status']}: {reason}); see {record['name']}_overlay.png"
         bar.update()
 
     for path, name in zip(args.images, names):
@@ -194,7 +196,7 @@ def run_demo(args: argparse.Namespace) -> int:
     record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world)
     elapsed = time.perf_counter() - start
     if not record["ok"]:
-        print(f"no layout found: {record['status']}", file=sys.stderr)
+        print(f"no layout found: {record['status']} ({LayoutStatus[record['status']].reason})", file=sys.stderr)
         return 1
     scores = metrics.evaluate_layout(one[0], truth)
     true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]

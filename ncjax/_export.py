@@ -61,6 +61,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
 from matplotlib.ticker import MultipleLocator
 
+from . import _adjust
 from ._camera import NonCentralPanorama, project
 from ._files import write_atomic
 from ._pipeline import WORLDS, Layout, LayoutStatus
@@ -134,8 +135,7 @@ def _numbers(array, number=_number) -> list:
 
 def room_height_sigma(layout: Layout) -> float:
     """Standard deviation (m) of ``h_c - h_f`` under :attr:`ncjax.Layout.height_covariance` (inf if unknown)."""
-    (ceiling, both), (_, floor) = np.asarray(layout.height_covariance, np.float64)
-    return math.sqrt(max(ceiling + floor - 2 * both, 0.0)) if math.isfinite(ceiling + floor + both) else math.inf
+    return float(_adjust.room_height_sigma(np.asarray(layout.height_covariance, np.float64)))
 
 
 def _significant(x) -> float | None:

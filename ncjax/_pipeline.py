@@ -68,6 +68,7 @@ from ._adjust import (
     manhattan_yaw,
     not_computed,
     previous_walls,
+    room_height_sigma,
 )
 from ._camera import NonCentralPanorama, pixel_to_ray
 from ._corners import column_walls, distance_to_corners, find_corners, side_extrapolation
@@ -83,17 +84,43 @@ _CORRELATION_COLUMNS = 256.0
 
 
 class LayoutStatus(enum.IntEnum):
-    """Why a layout failed (``Layout.status``); the first failing check in this order wins."""
+    """Why a layout failed (``Layout.status``); the first failing check in this order wins (see :attr:`reason`)."""
 
     OK = 0
-    NO_SCALE = 1  # rc = 0: a central panorama has no metric scale
-    INVALID_INPUT = 2  # too few finite boundary rows
-    NO_CORNERS = 3  # no corner probability peak above the threshold
-    TOO_MANY_WALLS = 4  # more corners or walls than the capacity K
-    TOO_FEW_WALLS = 5  # fewer than 3 walls (4 in a Manhattan room)
-    WALL_FIT_FAILED = 6  # RANSAC fitted fewer than 2 walls
-    SOLVER_FAILED = 7  # the joint layout solver failed
-    DEGENERATE_LAYOUT = 8  # parallel consecutive walls, ceiling not above the camera, ...
+    NO_SCALE = 1
+    INVALID_INPUT = 2
+    NO_CORNERS = 3
+    TOO_MANY_WALLS = 4
+    TOO_FEW_WALLS = 5
+    WALL_FIT_FAILED = 6
+    SOLVER_FAILED = 7
+    DEGENERATE_LAYOUT = 8
+    UNCERTAIN_SCALE = 9
+
+    @property
+    def reason(self) -> str:
+        """What the status means, in words for the person who ran the reconstruction."""
+        return _STATUS_REASONS[self]
+
+
+_STATUS_REASONS = {
+    LayoutStatus.OK: "a layout was found",
+    LayoutStatus.NO_SCALE: "rc = 0: a central panorama has no metric scale",
+    LayoutStatus.INVALID_INPUT: "too few columns have finite boundary rows",
+    LayoutStatus.NO_CORNERS: "no corner probability peak reaches the threshold",
+    LayoutStatus.TOO_MANY_WALLS: "more corners or walls than the layout's capacity K",
+    LayoutStatus.TOO_FEW_WALLS: "fewer than 3 walls (4 in a Manhattan room)",
+    LayoutStatus.WALL_FIT_FAILED: "RANSAC fitted fewer than 2 walls",
+    LayoutStatus.SOLVER_FAILED: "the joint layout solver failed",
+    LayoutStatus.DEGENERATE_LAYOUT: (
+        "implausible layout: consecutive walls parallel, ceiling not above or floor not below the camera, "
+        "room taller than max_room_height or corners farther than max_corner_distance"
+    ),
+    LayoutStatus.UNCERTAIN_SCALE: (
+        "the boundaries do not fix the room's scale: the room height's standard deviation exceeds "
+        "max_height_uncertainty of the height (rc small for the room's size, or walls the boundaries leave free)"
+    ),
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,6 +202,14 @@ class PipelineConfig:
             (a Jacobian of the final adjustment: 10-20% of the batched throughput
             in our benchmark); False leaves them NaN.
         min_finite_fraction: fraction of columns with finite rows needed.
+        max_height_uncertainty: a layout whose room height ``h_c - h_f`` has a
+            standard deviation (:attr:`Layout.height_covariance`) above this
+            fraction of the height fails with ``UNCERTAIN_SCALE``: the rows do
+            not fix its scale (a baseline ``rc`` small for the room's size, or
+            walls whose positions the rows leave free, where the covariance
+            is infinite). Off (inf) by default; the network's configuration
+            sets it (``ncjax._reconstruct.NETWORK_PIPELINE_CONFIG``). Needs
+            ``covariance``.
         max_room_height: a layout whose ceiling is more than this above its
             floor (metres) is implausible (DEGENERATE_LAYOUT), e.g. a wall fit
             whose scale ran away.
@@ -208,6 +243,7 @@ class PipelineConfig:
     chunk_size: int = 32
     covariance: bool = True
     min_finite_fraction: float = 0.5
+    max_height_uncertainty: float = math.inf
     max_room_height: float = 10.0
     max_corner_distance: float = 50.0
 
@@ -223,11 +259,13 @@ class PipelineConfig:
             raise ValueError(f"ransac_columns must be >= 2 * sample_size, got {self.ransac_columns}")
         positive = (
             "nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "merge_angle", "max_corner_offset",
-            "manhattan_tolerance", "turn_weight", "adjustment_tolerance", "min_boundary_noise",
+            "manhattan_tolerance", "turn_weight", "adjustment_tolerance", "min_boundary_noise", "max_height_uncertainty",
         )
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if math.isfinite(self.max_height_uncertainty) and not self.covariance:
+            raise ValueError("max_height_uncertainty needs covariance=True (it tests the height's covariance)")
         if self.occlusion_noise_factor < 0:
             raise ValueError(f"occlusion_noise_factor must be >= 0, got {self.occlusion_noise_factor}")
         for name in ("adjustment_stride", "inlier_pass_stride"):
@@ -1001,6 +1039,8 @@ def _assemble(
     finite = jnp.all(jnp.isfinite(points)) & jnp.isfinite(ceiling_height) & jnp.isfinite(floor_height)
     farthest = jnp.max(jnp.where(mask, jnp.linalg.norm(jnp.where(mask[:, None], points, 0.0), axis=-1), 0.0))
     plausible = (ceiling_height - floor_height <= config.max_room_height) & (farthest <= config.max_corner_distance)
+    height_sigma = room_height_sigma(uncertainty.height_covariance)
+    scale_unknown = height_sigma > config.max_height_uncertainty * (ceiling_height - floor_height)
     failed = jnp.stack(
         [
             ~(cam.rc > 1e-6),
@@ -1011,6 +1051,7 @@ def _assemble(
             jnp.sum(final.observed) < 2,
             ~solver_ok,
             ~(jnp.all(meet) & finite & (ceiling_height > 0) & (floor_height < 0) & plausible),
+            scale_unknown,
         ]
     )
     status = jnp.where(jnp.any(failed), jnp.argmax(failed) + 1, LayoutStatus.OK).astype(jnp.int32)

@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+import ncjax
 from ncjax import cli
 from ncjax._app import DEMO_DIR
 from ncjax._images import PanoramaError, read_panorama
@@ -127,7 +128,7 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
         if record["ok"]:
             assert record["status"] == "OK" and record["room_height"] > 0 and len(record["ceiling_corners"]) >= 3
         else:
-            assert f"{name}.png: no layout found ({record['status']})" in errors
+            assert f"{name}.png: no layout found ({record['status']}: {ncjax.LayoutStatus[record['status']].reason})" in errors
     # Dropping the alpha channel gives exactly the layout of the RGB file.
     records = [json.loads((out / f"{n}.json").read_text()) for n in ("room_R06825", "rgba_R06825")]
     assert records[0]["ceiling_corners"] == records[1]["ceiling_corners"]

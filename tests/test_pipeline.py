@@ -33,6 +33,7 @@ from ncjax._adjust import (
     layout_residuals,
     layout_uncertainty,
     loop_corners,
+    room_height_sigma,
 )
 from ncjax._pipeline import (
     _batched_layout_jit,
@@ -492,6 +493,24 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     assert int(layout.status) == ncjax.LayoutStatus.DEGENERATE_LAYOUT
 
 
+def test_scale_test_fails_layouts_whose_height_sigma_exceeds_the_threshold():
+    """Rows with 1 px of noise: the layout's relative room-height sigma is positive and finite; a scale
+    test just below it fails the same layout with UNCERTAIN_SCALE, which the default (off) never does."""
+    batch, labels = rooms("manhattan", "none")
+    room, label = pick(batch, 0), pick(labels, 0)
+    cam = room.camera(WIDTH, HEIGHT)
+    noise = jax.random.normal(jax.random.key(8), (2, WIDTH))
+    rows = (label.ceiling_v + noise[0], label.floor_v + noise[1], label.corner_target)
+    layout = ncjax.layout_from_boundaries(*rows, cam)
+    assert bool(layout.ok)
+    relative = float(room_height_sigma(layout.height_covariance) / (layout.ceiling_height - layout.floor_height))
+    assert 0.0 < relative < 0.1, relative
+    strict = ncjax.PipelineConfig(max_height_uncertainty=0.9 * relative)
+    uncertain = ncjax.layout_from_boundaries(*rows, cam, config=strict)
+    assert int(uncertain.status) == ncjax.LayoutStatus.UNCERTAIN_SCALE and not bool(uncertain.ok)
+    np.testing.assert_allclose(uncertain.ceiling_corners, layout.ceiling_corners, atol=1e-5)  # only the status differs
+
+
 def _one_peak_for_the_narrowest_wall(label):
     """The corner target with the two corners of the narrowest wall replaced by one peak between them."""
     corners = np.asarray(label.corner_u)[np.asarray(label.corner_mask)]
@@ -646,6 +665,10 @@ def test_bad_arguments_raise():
         ncjax.PipelineConfig(adjustment_stride=0)
     with pytest.raises(ValueError, match="occlusion_noise_factor"):
         ncjax.PipelineConfig(occlusion_noise_factor=-1.0)
+    with pytest.raises(ValueError, match="max_height_uncertainty must be > 0"):
+        ncjax.PipelineConfig(max_height_uncertainty=0.0)
+    with pytest.raises(ValueError, match="needs covariance"):
+        ncjax.PipelineConfig(max_height_uncertainty=0.1, covariance=False)
 
 
 def test_gradients_through_the_pipeline_are_finite_and_match_finite_differences():
@@ -737,3 +760,8 @@ def test_auto_world_choice(manhattan_ok, atlanta_ok, manhattan_explained, atlant
         jnp.array(manhattan_ok), jnp.array(atlanta_ok), jnp.float32(manhattan_explained), jnp.float32(atlanta_explained), jnp.array(in_frame)
     )
     assert bool(chosen) is expected
+
+
+def test_every_status_has_a_reason():
+    reasons = [status.reason for status in ncjax.LayoutStatus]
+    assert all(reasons) and len(set(reasons)) == len(reasons)
