@@ -14,7 +14,9 @@ CE and 3D IoU of the other rooms, on the rooms without occlusion and on all
 rooms, and the 3D IoU over all rooms with failures as 0 ("IoU all0"), which
 rewards both more layouts and better ones: the configuration is chosen by it.
 Then the failures by cause: a layout status other than OK, or too few or too
-many corners.
+many corners. Last, the scale test (``max_height_uncertainty``): on the layouts
+of the configuration without it, how many ok layouts each threshold would fail
+and how far off they were (a failure rate cannot choose it: it only adds failures).
 
     uv run python experiments/tune_network_pipeline.py                  # 256 rooms per world
     uv run python experiments/tune_network_pipeline.py --rooms 16 --configs current

@@ -79,16 +79,23 @@ def radius_of(path: str, rc: float | None) -> float:
     return from_name
 
 
+def failure_message(record: dict) -> str:
+    """Why the layout of a JSON record is not ok, for the person who ran the reconstruction."""
+    status = record["status"]
+    found = "layout of uncertain scale written" if record["floor_corners"] else "no layout found"
+    return f"{found} ({status}: {LayoutStatus[status].reason})"
+
+
 def write_outputs(out: str, name: str, image: np.ndarray, result, rc: float, world: str, extra: dict | None = None):
     """All files of one image; returns the JSON record."""
     from ._camera import NonCentralPanorama
-    from ._export import draw_overlay, draw_plan, layout_record, write_json, write_mesh, write_png
+    from ._export import draw_overlay, draw_plan, has_geometry, layout_record, write_json, write_mesh, write_png
 
     layout, ceiling_v, floor_v, corner_prob = result
     cam = NonCentralPanorama(image.shape[1], image.shape[0], rc=rc)
     record = layout_record(layout, cam, name=name, world=world, extra=extra)
     stem = os.path.join(out, name)
-    if record["ok"]:
+    if has_geometry(layout):
         write_mesh(stem, layout)
     overlay = draw_overlay(image, layout, cam, ceiling_v=ceiling_v, floor_v=floor_v, corner_prob=corner_prob)
     write_png(f"{stem}_overlay.png", overlay)
@@ -141,8 +148,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
     def done(path, record):
         if not record["ok"]:
-            reason = LayoutStatus[record["status"]].reason
-            failures[path] = f"{path}: no layout found ({record['status']}: {reason}); see {record['name']}_overlay.png"
+            failures[path] = f"{path}: {failure_message(record)}; see {record['name']}_overlay.png"
         bar.update()
 
     for path, name in zip(args.images, names):
@@ -196,7 +202,7 @@ def run_demo(args: argparse.Namespace) -> int:
     record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world)
     elapsed = time.perf_counter() - start
     if not record["ok"]:
-        print(f"no layout found: {record['status']} ({LayoutStatus[record['status']].reason})", file=sys.stderr)
+        print(failure_message(record), file=sys.stderr)
         return 1
     scores = metrics.evaluate_layout(one[0], truth)
     true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]

@@ -15,7 +15,8 @@ a complete one and nothing is left half-written.
 
 JSON schema, version 1 (lengths in metres, camera frame of DESIGN.md section 1,
 floats rounded to 6 decimals, covariances to 6 significant digits; quantities of a
-failed layout are ``null`` and its lists empty)::
+failed layout are ``null`` and its lists empty, except for an ``UNCERTAIN_SCALE`` layout,
+which keeps them with ``ok`` false: see :func:`has_geometry`)::
 
     name, schema_version, ok, status (LayoutStatus name), status_code, world
     (requested: manhattan/atlanta/auto), branch (manhattan/atlanta),
@@ -89,6 +90,19 @@ def _status_name(layout: Layout) -> str:
     return LayoutStatus(int(np.asarray(layout.status))).name
 
 
+def _failure_label(layout: Layout) -> str:
+    return "UNCERTAIN SCALE" if has_geometry(layout) else f"no layout: {_status_name(layout)}"
+
+
+def has_geometry(layout: Layout) -> bool:
+    """Whether the layout's walls and corners are complete: it is ok, or failed only the scale test.
+
+    An ``UNCERTAIN_SCALE`` layout keeps its geometry in every output (record,
+    mesh, overlay, plan), marked as such: its shape may serve up to scale.
+    """
+    return bool(np.asarray(layout.ok)) or int(np.asarray(layout.status)) == LayoutStatus.UNCERTAIN_SCALE
+
+
 def _valid_corners(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
     """The valid ceiling and floor corners (n, 3), float64, image order.
 
@@ -148,7 +162,8 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
     """The JSON record of a layout (schema version 1, see the module docstring).
 
     A failed layout (``ok`` False) still gets a record: ``ok`` false, its
-    status, empty corner and wall lists and ``null`` heights, area and perimeter.
+    status, empty corner and wall lists and ``null`` heights, area and perimeter
+    (an ``UNCERTAIN_SCALE`` layout keeps them all, see :func:`has_geometry`).
 
     Args:
         layout: one unbatched layout.
@@ -196,7 +211,7 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
         "room_height_sigma": None,
         "walls": [],
     }
-    if ok:
+    if has_geometry(layout):
         mask = np.asarray(layout.mask, bool)
         ceiling_height = float(np.asarray(layout.ceiling_height))
         floor_height = float(np.asarray(layout.floor_height))
@@ -339,7 +354,7 @@ def room_mesh(layout: Layout) -> tuple[Float[np.ndarray, "V 3"], Int[np.ndarray,
     edge is shared by exactly two faces, in opposite directions.
 
     Args:
-        layout: one unbatched layout with ``ok`` True.
+        layout: one unbatched layout with its geometry (:func:`has_geometry`).
 
     Returns:
         ``vertices`` (2n, 3) metres, camera frame: the n ceiling corners then
@@ -350,7 +365,7 @@ def room_mesh(layout: Layout) -> tuple[Float[np.ndarray, "V 3"], Int[np.ndarray,
     Raises:
         ValueError: for a failed layout or one with fewer than 3 corners.
     """
-    if not bool(np.asarray(layout.ok)):
+    if not has_geometry(layout):
         raise ValueError(f"no mesh for a failed layout (status {_status_name(layout)})")
     ceiling, floor = _valid_corners(layout)
     n = len(floor)
@@ -535,7 +550,8 @@ def draw_overlay(
       at the image seam and where points are not visible;
     - the corner probability, if given, as a plot strip along the bottom.
 
-    A failed layout draws only the network's outputs and a "no layout" label.
+    A failed layout draws only the network's outputs and a "no layout" label;
+    an ``UNCERTAIN_SCALE`` one is drawn with an "uncertain scale" label.
 
     Args:
         image: the panorama, RGB uint8 (H, W, 3).
@@ -565,7 +581,7 @@ def draw_overlay(
         if rows is not None:
             _draw_curve(canvas, columns, np.asarray(rows, np.float64), NETWORK_COLOUR, thickness)
 
-    if bool(np.asarray(layout.ok)):
+    if has_geometry(layout):
         ceiling, floor = _valid_corners(layout)
         inserted = np.asarray(layout.inserted, bool)[np.asarray(layout.mask, bool)]
         n = len(ceiling)
@@ -588,11 +604,11 @@ def draw_overlay(
             for edge in range(2):  # ceiling, floor
                 _draw_curve(canvas, u_edges[edge, k], v_edges[edge, k], colour, thickness)
             _draw_curve(canvas, u_vertical[k], v_vertical[k], LAYOUT_COLOUR, thickness)
-    else:
+    if not bool(np.asarray(layout.ok)):
         scale = height / 512
         cv2.putText(
             canvas,
-            f"no layout: {_status_name(layout)}",
+            _failure_label(layout),
             (round(8 * scale), round(32 * scale)),
             cv2.FONT_HERSHEY_SIMPLEX,
             scale,
@@ -659,9 +675,9 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     """
     figure = Figure(figsize=(6, 6), dpi=100)
     axes = figure.add_subplot()
-    if not bool(np.asarray(layout.ok)):
+    if not has_geometry(layout):
         axes.set_axis_off()
-        axes.text(0.5, 0.5, f"no layout: {_status_name(layout)}", ha="center", va="center", fontsize=16)
+        axes.text(0.5, 0.5, _failure_label(layout), ha="center", va="center", fontsize=16)
         if title:
             axes.set_title(title)
         return _figure_to_rgb(figure)
@@ -714,6 +730,8 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         f"ceiling {ceiling_height:.2f} m, floor {floor_height:.2f} m, height {ceiling_height - floor_height:.2f}{spread} m, "
         f"area {abs(signed_area(plan)):.2f} m²"
     )
+    if not bool(np.asarray(layout.ok)):
+        summary = f"{_failure_label(layout)}: {summary}"
     axes.set_title(f"{title}\n{summary}" if title else summary, fontsize=10)
     figure.tight_layout()
     return _figure_to_rgb(figure)

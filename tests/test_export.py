@@ -131,6 +131,23 @@ def test_failed_layout_record_is_strict_json(tmp_path):
     assert json.loads((tmp_path / "bad.json").read_text()) == record
 
 
+def test_uncertain_scale_layout_keeps_its_geometry_marked_not_ok(tmp_path):
+    """UNCERTAIN_SCALE fails only the scale test: record, mesh, overlay and plan keep the layout, marked."""
+    uncertain = make_layout(RECTANGLE, status=int(ncjax.LayoutStatus.UNCERTAIN_SCALE))
+    record = export.layout_record(uncertain, CAM, name="room", world="auto")
+    assert record["ok"] is False and record["status"] == "UNCERTAIN_SCALE"
+    assert record["floor_corners"] == [[x, y, -1.5] for x, y in RECTANGLE] and record["room_height"] == 2.5
+    assert export.has_geometry(uncertain) and not export.has_geometry(failed_layout())
+    obj, _, _ = export.write_mesh(tmp_path / "room", uncertain)
+    assert obj.is_file()
+    cam = ncjax.NonCentralPanorama(512, 256, rc=0.6)
+    image = np.full((256, 512, 3), 90, np.uint8)
+    drawn = export.draw_overlay(image, make_layout(RECTANGLE), cam)
+    marked = export.draw_overlay(image, uncertain, cam)
+    assert (drawn != image).any() and (marked[:30] != drawn[:30]).any()  # the layout, then the label above it
+    assert not np.array_equal(export.draw_plan(uncertain), export.draw_plan(make_layout(RECTANGLE)))
+
+
 def test_record_rejects_bad_arguments():
     layout = make_layout(RECTANGLE)
     with pytest.raises(ValueError, match="world"):
