@@ -118,6 +118,28 @@ def solver_layouts(samples, boundaries, world: str):
     return [jax.tree.map(lambda x: x[i], result) for i in range(len(samples))]
 
 
+# bins of the narrowest wall's width, in columns of a 1024-wide panorama (16 columns: 5.6 degrees)
+WIDTH_BINS = ((0, 16), (16, 32), (32, math.inf))
+
+
+def narrowest_wall(sample) -> float:
+    """The angular width of the room's narrowest visible wall, in columns of a 1024-wide panorama."""
+    width = sample.image.shape[1]
+    corners = np.sort(np.asarray(sample.metadata["corner_u"], np.float64) % width)
+    gaps = np.diff(np.concatenate([corners, corners[:1] + width]))
+    return float(gaps.min() * 1024 / width)
+
+
+def by_narrowest_wall(per_room: list[dict], narrowest: np.ndarray) -> list[dict]:
+    """Per bin of WIDTH_BINS: the summary of the rooms whose narrowest wall falls in it."""
+    out = []
+    for low, high in WIDTH_BINS:
+        keep = (narrowest >= low) & (narrowest < high)
+        rooms = [r for r, k in zip(per_room, keep) if k]
+        out.append({"low": low, "high": high if math.isfinite(high) else None, **(summary(rooms) if rooms else {"rooms": 0})})
+    return out
+
+
 def used_row_errors(samples, boundaries) -> dict:
     """|row - true row| over every column of the samples, per boundary: mean, median, share within 1 px."""
     out = {}
@@ -217,7 +239,7 @@ def main(argv=None):
     lines += ["", "### Table pipeExp, network predictions", "", f"Network output averaged over {args.views} view(s); rows snapped to the image's edges: {args.edge_snap is not None}.", "",
               "| method | world | rooms | occluded rooms | failed (%) | CE mean / median (m) | 3D IoU ok (%) | 3D IoU all (%) | paper CE / IoU |",
               "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    comparison, row_errors, causes = {}, {}, {}
+    comparison, row_errors, causes, widths = {}, {}, {}, {}
     for world in SEEDS:
         folder = str(args.out / f"test_renders_{world}_{count}")
         samples = [read_sample(folder, name) for name in list_samples(folder)]
@@ -239,10 +261,20 @@ def main(argv=None):
             | {"occluded": not bool(keep)} for r, keep in zip(results["pipeline"], clear)
         ]
         causes[world] = failure_causes(results["pipeline"])
+        narrowest = np.array([narrowest_wall(s) for s in samples])
+        widths[world] = by_narrowest_wall([r for r, k in zip(results["pipeline"], clear) if k], narrowest[clear])
         row_errors[world] = used_row_errors(samples, boundaries)
     lines += ["", "Pipeline failures by cause, all rooms (% of the rooms):", ""]
     lines += [f"- {world}: {text}" for world, text in causes.items()]
     record["failure_causes"] = causes
+    record["pipeline_by_narrowest_wall"] = widths
+    lines += ["", "Pipeline by the room's narrowest wall (columns of a 1024-wide panorama), rooms without occlusion:", "",
+              "| world | narrowest wall (columns) | rooms | failed (%) | CE mean / median (m) | 3D IoU ok (%) |", "| --- | --- | --- | --- | --- | --- |"]
+    for world, bins in widths.items():
+        for b in bins:
+            span = f">= {b['low']:g}" if b["high"] is None else f"{b['low']:g}-{b['high']:g}"
+            lines.append(f"| {world} | {span} | {b['rooms']} | " + (
+                f"{b['failed']:.1f} | {b['ce']:.3f} / {b['ce_median']:.3f} | {b['iou3d']:.1f} |" if b["rooms"] else "- | - | - |"))
     lines += ["", "### Table comparison, ncjax rows (pipeline, all test rooms)", "",
               "| world | 3D IoU u2s (%) | 3D IoU (%) | CEN (% of diagonal) | CE (m) | failed (%) | paper: u2s / IoU / CEN / CE |",
               "| --- | --- | --- | --- | --- | --- | --- |"]

@@ -1,6 +1,7 @@
 """The noise sweep runs end to end in its small version and writes its outputs."""
 
 import importlib.util
+from types import SimpleNamespace
 from pathlib import Path
 
 import numpy as np
@@ -37,3 +38,18 @@ def test_pipeline_table_small(tmp_path):
     assert (tmp_path / "pipeline_table_small.md").stat().st_size > 0
     exact = rows[0]
     assert exact[-1] < 50.0 and exact[5] < 0.01  # failure rate (%), CE (m) on exact boundaries
+
+
+def test_network_table_bins_rooms_by_their_narrowest_wall():
+    path = Path(__file__).parents[1] / "experiments" / "network_table.py"
+    spec = importlib.util.spec_from_file_location("network_table", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    room = lambda width, corners: SimpleNamespace(image=np.zeros((width // 2, width, 3)), metadata={"corner_u": corners})  # noqa: E731
+    assert module.narrowest_wall(room(1024, [1000.0, 10.0, 500.0])) == 34.0  # the wall across the seam
+    assert module.narrowest_wall(room(512, [5.0, 10.0, 300.0])) == 10.0  # columns of a 1024-wide panorama
+    per_room = [{"failed": failed, "ce": 0.1, "ce_median": 0.1, "cen": 0.01, "iou3d": 0.9, "iou3d_up_to_scale": 0.9,
+                 "height_error": 0.0} for failed in (True, False, False)]
+    bins = module.by_narrowest_wall(per_room, np.array([4.0, 20.0, 40.0]))
+    assert [b["rooms"] for b in bins] == [1, 1, 1] and bins[0]["failed"] == 100.0 and bins[2]["failed"] == 0.0
+    assert bins[2]["high"] is None
