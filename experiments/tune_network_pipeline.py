@@ -120,6 +120,30 @@ def pipeline_scores(data: dict, world: str, config: ncjax.PipelineConfig) -> lis
     return [room | {"relative_height_sigma": float(sigma)} for room, sigma in zip(per_room, relative_sigma)]
 
 
+def plot_scale_test(per_room: dict[str, list[dict]], path: Path, threshold: float) -> None:
+    """Corner error against the relative room-height sigma of the ok layouts, per world, with the shipped threshold."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, len(per_room), figsize=(5.5 * len(per_room), 4.5), squeeze=False)
+    for ax, (world, rooms) in zip(axes[0], per_room.items()):
+        good = [r for r in rooms if not r["failed"]]
+        # infinite sigma (a wall the rows leave free) drawn at the right edge
+        sigma = np.array([min(r["relative_height_sigma"], 1.0) if r["relative_height_sigma"] == r["relative_height_sigma"] else 1.0 for r in good])
+        ce = np.array([r["ce"] for r in good])
+        ax.scatter(sigma, ce, s=12, alpha=0.6, c=np.where(sigma > threshold, "tab:red", "tab:blue"))
+        ax.axvline(threshold, color="black", linestyle="--", linewidth=1, label=f"max_height_uncertainty = {threshold:g}")
+        ax.axhline(0.3, color="0.6", linewidth=1, label="CE 0.3 m")
+        ax.set(xscale="log", yscale="log", xlabel="room height sigma / room height (1: infinite)", ylabel="corner error (m)",
+               title=f"{world}: {len(good)} ok layouts, tuning renders")
+        ax.legend(fontsize=8, loc="upper left")
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
 def scale_test_table(per_room: dict[str, list[dict]]) -> list[str]:
     """Per threshold of the relative height sigma: how many ok layouts it fails and how wrong they were.
 
@@ -176,6 +200,8 @@ def main(argv=None):
             if name == NO_SCALE_TEST:
                 unscaled[world] = per_room
     table = "\n".join(lines + causes + (scale_test_table(unscaled) if unscaled else []))
+    if unscaled:
+        plot_scale_test(unscaled, args.out / "scale_test.png", NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     (args.out / f"tune_network_pipeline_{args.rooms}.md").write_text(table + "\n")
