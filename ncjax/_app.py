@@ -82,8 +82,11 @@ def radius_of(path: str, rc: float | None) -> float:
 def failure_message(record: dict) -> str:
     """Why the layout of a JSON record is not ok, for the person who ran the reconstruction."""
     status = record["status"]
-    found = "layout of uncertain scale written" if record["floor_corners"] else "no layout found"
-    return f"{found} ({status}: {LayoutStatus[status].reason})"
+    message = f"{status}: {LayoutStatus[status].reason}"
+    if not record["floor_corners"]:
+        return f"no layout found ({message})"
+    sigma = record["room_height_sigma"]
+    return f"layout of uncertain scale written ({message}; room height {record['room_height']:.2f} ± {sigma or math.inf:.2f} m)"
 
 
 def write_outputs(out: str, name: str, image: np.ndarray, result, rc: float, world: str, extra: dict | None = None):

@@ -160,6 +160,9 @@ def test_demo_reconstructs_the_shipped_sample(tmp_path, capsys):
 
 
 def test_failure_messages_say_whether_a_layout_was_written():
-    uncertain = {"status": "UNCERTAIN_SCALE", "floor_corners": [[1.0, 2.0, -1.5]] * 4}
-    assert failure_message(uncertain) == f"layout of uncertain scale written (UNCERTAIN_SCALE: {ncjax.LayoutStatus.UNCERTAIN_SCALE.reason})"
+    uncertain = {"status": "UNCERTAIN_SCALE", "floor_corners": [[1.0, 2.0, -1.5]] * 4, "room_height": 3.2, "room_height_sigma": 0.41}
+    reason = ncjax.LayoutStatus.UNCERTAIN_SCALE.reason
+    assert failure_message(uncertain) == f"layout of uncertain scale written (UNCERTAIN_SCALE: {reason}; room height 3.20 ± 0.41 m)"
+    free = uncertain | {"room_height_sigma": None}  # JSON null: a wall the rows leave free
+    assert failure_message(free).endswith("room height 3.20 ± inf m)")
     assert failure_message({"status": "NO_CORNERS", "floor_corners": []}).startswith("no layout found (NO_CORNERS: no corner")
