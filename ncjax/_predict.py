@@ -23,6 +23,7 @@ from flax import nnx
 from jaxtyping import Array, Float, Shaped
 
 from ._checkpoint import load_model
+from ._denoise import denoise_for_network
 from ._edges import EdgeSnap, snap_to_edges
 from ._network import HorizonNet, check_views, prediction_to_rows, predict_views
 
@@ -50,15 +51,17 @@ def default_model() -> HorizonNet:
 def image_boundaries(
     model: HorizonNet, images: Shaped[Array, "B H W 3"], views: int = 1, edge_snap: EdgeSnap | None = None
 ) -> tuple[Float[Array, "B W"], Float[Array, "B W"], Float[Array, "B W"]]:
-    """Traced core of :func:`predict_boundaries`: resize, network (over ``views``), rows of the input image,
-    snapped to its edges unless ``edge_snap`` is None."""
+    """Traced core of :func:`predict_boundaries`: noise brought down to the network's training range
+    (:func:`~ncjax._denoise.denoise_for_network`), resize, network (over ``views``), rows of the input
+    image, snapped to its edges unless ``edge_snap`` is None."""
     batch, height, width = images.shape[:3]
     size = (batch, model.config.input_height, model.config.input_width, 3)
-    resized = jax.image.resize(images.astype(jnp.float32) / 255.0, size, method="linear")
+    pixels = jax.vmap(denoise_for_network)(images.astype(jnp.float32) / 255.0)
+    resized = jax.image.resize(pixels, size, method="linear")
     ceiling_v, floor_v, corner_prob = prediction_to_rows(predict_views(model, resized, views), height, width)
     if edge_snap is not None:
         snap = jax.vmap(snap_to_edges, in_axes=(0, 0, 0, None))
-        ceiling_v, floor_v = snap(images, ceiling_v, floor_v, edge_snap)
+        ceiling_v, floor_v = snap(pixels, ceiling_v, floor_v, edge_snap)
     return ceiling_v, floor_v, corner_prob
 
 

@@ -53,3 +53,17 @@ def test_network_table_bins_rooms_by_their_narrowest_wall():
     bins = module.by_narrowest_wall(per_room, np.array([4.0, 20.0, 40.0]))
     assert [b["rooms"] for b in bins] == [1, 1, 1] and bins[0]["failed"] == 100.0 and bins[2]["failed"] == 0.0
     assert bins[2]["high"] is None
+
+
+def test_robustness_degradations_keep_the_image_format():
+    path = Path(__file__).parents[1] / "experiments" / "robustness.py"
+    spec = importlib.util.spec_from_file_location("robustness", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    image = np.random.default_rng(0).integers(0, 256, (16, 32, 3), dtype=np.uint8)
+    for name, (operation, _) in module.DEGRADATIONS.items():
+        degraded = operation(image)
+        assert degraded.shape == image.shape and degraded.dtype == np.uint8, name
+        assert np.array_equal(degraded, image) == (name == "none"), name
+    grey = module.DEGRADATIONS["greyscale"][0](image)
+    assert np.array_equal(grey[..., 0], grey[..., 2])
