@@ -76,6 +76,9 @@ def predict_boundaries(
 ) -> tuple[Float[np.ndarray, "*batch W"], Float[np.ndarray, "*batch W"], Float[np.ndarray, "*batch W"]]:
     """Ceiling row, floor row and corner probability per column of RGB panoramas.
 
+    A panorama noisier than the network's training data is first blurred down to
+    it (:func:`~ncjax._denoise.denoise_for_network`); a clean one is used as it is.
+
     Args:
         image: RGB uint8, (H, W, 3) or a batch (B, H, W, 3), any size.
         model: a :class:`HorizonNet` (put in eval mode here); None for the

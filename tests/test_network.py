@@ -21,6 +21,7 @@ from flax import nnx
 import ncjax
 from ncjax import _network, _predict, _rooms, _train
 from ncjax._checkpoint import load_checkpoint, load_weights, read_metadata, save_checkpoint
+from ncjax._denoise import denoise_for_network
 from ncjax._rooms import Room
 
 TINY = ncjax.HorizonNetConfig(depth=10, width=8, input_height=64, input_width=128, lstm_hidden=16, lstm_layers=1, dropout=0.1)
@@ -356,9 +357,12 @@ def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
     assert np.all((corner_prob >= 0) & (corner_prob <= 1)) and np.all(np.isfinite(ceiling_v))
     batch_ceiling, _, _ = ncjax.predict_boundaries(image[None], model)
     np.testing.assert_allclose(batch_ceiling[0], ceiling_v, atol=1e-5)
-    # The default snaps the network's own rows to the image's edges; the corner output is untouched.
+    # The default snaps the network's own rows to the edges of the image the network saw: a random image is
+    # all noise, so that is the image blurred down to the network's training noise; the corner output is untouched.
     raw = ncjax.predict_boundaries(image, model, edge_snap=None)
-    snapped = ncjax.snap_to_edges(jnp.asarray(image), raw[0], raw[1], ncjax.EdgeSnap())
+    denoised = denoise_for_network(jnp.asarray(image, jnp.float32) / 255.0)
+    assert not np.allclose(denoised, image / 255.0, atol=0.05)
+    snapped = ncjax.snap_to_edges(denoised, raw[0], raw[1], ncjax.EdgeSnap())
     np.testing.assert_allclose(ceiling_v, snapped[0], atol=1e-4)
     np.testing.assert_allclose(floor_v, snapped[1], atol=1e-4)
     np.testing.assert_array_equal(corner_prob, raw[2])
