@@ -34,8 +34,8 @@ def noise_sigma(image: Float[Array, "H W 3"]) -> Float[Array, ""]:
         image: RGB, float in [0, 1].
     """
     luma = to_greyscale(image)[..., 0]
-    rows = (luma[:, :-2] - 2 * luma[:, 1:-1] + luma[:, 2:])  # second difference along each row
-    response = rows[:-2] - 2 * rows[1:-1] + rows[2:]  # then along the columns: the 3 x 3 mask
+    horizontal = luma[:, :-2] - 2 * luma[:, 1:-1] + luma[:, 2:]  # second difference along each row
+    response = horizontal[:-2] - 2 * horizontal[1:-1] + horizontal[2:]  # then along the columns: the 3 x 3 mask
     return math.sqrt(math.pi / 2) / 6 * jnp.mean(jnp.abs(response))
 
 
