@@ -131,7 +131,7 @@ def plot_scale_test(per_room: dict[str, list[dict]], path: Path, threshold: floa
     for ax, (world, rooms) in zip(axes[0], per_room.items()):
         good = [r for r in rooms if not r["failed"]]
         # infinite sigma (a wall the rows leave free) drawn at the right edge
-        sigma = np.array([min(r["relative_height_sigma"], 1.0) if r["relative_height_sigma"] == r["relative_height_sigma"] else 1.0 for r in good])
+        sigma = np.array([1.0 if math.isnan(r["relative_height_sigma"]) else min(r["relative_height_sigma"], 1.0) for r in good])
         ce = np.array([r["ce"] for r in good])
         ax.scatter(sigma, ce, s=12, alpha=0.6, c=np.where(sigma > threshold, "tab:red", "tab:blue"))
         ax.axvline(threshold, color="black", linestyle="--", linewidth=1, label=f"max_height_uncertainty = {threshold:g}")

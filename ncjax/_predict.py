@@ -56,7 +56,7 @@ def image_boundaries(
     image, snapped to its edges unless ``edge_snap`` is None."""
     batch, height, width = images.shape[:3]
     size = (batch, model.config.input_height, model.config.input_width, 3)
-    pixels = jax.vmap(denoise_for_network)(images.astype(jnp.float32) / 255.0)
+    pixels = denoise_for_network(images.astype(jnp.float32) / 255.0)
     resized = jax.image.resize(pixels, size, method="linear")
     ceiling_v, floor_v, corner_prob = prediction_to_rows(predict_views(model, resized, views), height, width)
     if edge_snap is not None:

@@ -360,7 +360,7 @@ def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
     # The default snaps the network's own rows to the edges of the image the network saw: a random image is
     # all noise, so that is the image blurred down to the network's training noise; the corner output is untouched.
     raw = ncjax.predict_boundaries(image, model, edge_snap=None)
-    denoised = denoise_for_network(jnp.asarray(image, jnp.float32) / 255.0)
+    denoised = denoise_for_network(jnp.asarray(image, jnp.float32)[None] / 255.0)[0]
     assert not np.allclose(denoised, image / 255.0, atol=0.05)
     snapped = ncjax.snap_to_edges(denoised, raw[0], raw[1], ncjax.EdgeSnap())
     np.testing.assert_allclose(ceiling_v, snapped[0], atol=1e-4)
