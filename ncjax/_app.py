@@ -20,12 +20,13 @@ import os
 import pathlib
 import sys
 import time
+import warnings
 
 import numpy as np
 
 from ._dataset import rc_from_name
 from ._edges import EdgeSnap
-from ._images import PanoramaError, read_panorama
+from ._images import PanoramaError, PanoramaResizeWarning, read_panorama
 from ._network import check_views
 from ._pipeline import LayoutStatus
 from ._predict import DEFAULT_VIEWS
@@ -156,12 +157,16 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
     for path, name in zip(args.images, names):
         try:
-            image = read_panorama(path)
+            with warnings.catch_warnings(record=True) as notes:
+                warnings.simplefilter("always", PanoramaResizeWarning)
+                image = read_panorama(path)
             radius = radius_of(path, rc)
         except PanoramaError as error:
             failures[path] = str(error)
             bar.update()
             continue
+        for note in notes:
+            bar.write(str(note.message), file=sys.stderr)
         group = groups[image.shape[:2]]
         group.append((path, name, image, radius))
         if len(group) == args.batch:

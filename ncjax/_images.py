@@ -5,21 +5,32 @@ Accepted: anything OpenCV decodes (PNG, JPEG, TIFF, BMP, WebP, ...) as 8- or
 (``round(x / 257)``), greyscale is repeated into three channels and the alpha
 channel is dropped (panoramas have no transparency; the colour is kept as
 stored). The panorama must be full (360 x 180 degrees, width = 2 x height).
+Stitching tools often write a row or a column more or fewer: an image within
+:data:`ASPECT_TOLERANCE` of 2:1 is resized to exactly 2:1 with a
+:class:`PanoramaResizeWarning` (the rows then move by at most that fraction
+of their elevation, under a pixel for rows within 45 degrees of the horizon at
+512 rows); any other shape is refused.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 
 import cv2
 import numpy as np
 
+ASPECT_TOLERANCE = 0.005  # relative departure of width / height from 2 that is resized instead of refused
 _JPEG_END = b"\xff\xd9"
 _PNG_END = b"IEND\xaeB`\x82"
 
 
 class PanoramaError(ValueError):
     """A panorama file that cannot be used (the message says why)."""
+
+
+class PanoramaResizeWarning(UserWarning):
+    """A panorama file a little off 2:1 was resized to exactly 2:1 (the message gives both sizes)."""
 
 
 def _truncation(data: bytes) -> str | None:
@@ -60,8 +71,23 @@ def panorama_size_error(width: int, height: int) -> str | None:
     return None
 
 
+def nearly_full_panorama(width: int, height: int) -> bool:
+    """Whether a ``width x height`` image is within :data:`ASPECT_TOLERANCE` of 2:1 without being 2:1."""
+    return width != 2 * height and height >= 32 and abs(width / (2 * height) - 1) <= ASPECT_TOLERANCE
+
+
+def resize_to_full_panorama(image: np.ndarray) -> np.ndarray:
+    """An (H, W, 3) image resized to (W / 2, W, 3), W rounded to even: every column keeps its azimuth span."""
+    width = 2 * round(image.shape[1] / 2)
+    return cv2.resize(image, (width, width // 2), interpolation=cv2.INTER_AREA)
+
+
 def read_panorama(path: str | os.PathLike) -> np.ndarray:
-    """Read a full panorama as RGB uint8 (H, W, 3).
+    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H.
+
+    Warns:
+        PanoramaResizeWarning: the file is within :data:`ASPECT_TOLERANCE` of
+            2:1 and was resized to exactly 2:1.
 
     Raises:
         PanoramaError: missing, unreadable, truncated, not an image, an
@@ -84,6 +110,15 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
         image = to_rgb8(image)
     except PanoramaError as error:
         raise PanoramaError(f"{path}: {error}") from None
+    if nearly_full_panorama(*image.shape[1::-1]):
+        resized = resize_to_full_panorama(image)
+        warnings.warn(
+            f"{path}: {image.shape[1]} x {image.shape[0]} pixels is not exactly 2:1; "
+            f"resized to {resized.shape[1]} x {resized.shape[0]} as a full 360 x 180 degree panorama",
+            PanoramaResizeWarning,
+            stacklevel=2,
+        )
+        image = resized
     size_error = panorama_size_error(*image.shape[1::-1])
     if size_error:
         raise PanoramaError(f"{path}: {size_error}")

@@ -10,7 +10,7 @@ import pytest
 import ncjax
 from ncjax import cli
 from ncjax._app import DEMO_DIR, failure_message
-from ncjax._images import PanoramaError, read_panorama
+from ncjax._images import PanoramaError, PanoramaResizeWarning, read_panorama
 
 DEMO_TRUTH = json.loads((DEMO_DIR / "ground_truth.json").read_text())
 SMALL = (512, 256)  # (W, H) of the small reconstruct tests: one compilation for all of them
@@ -46,6 +46,17 @@ def test_pixel_formats_become_rgb8(tmp_path):
     # 16 bit: x / 257 rounds back to the 8-bit value
     deep = (rgb.astype(np.uint16) * 257 + np.where(rgb < 255, 100, 0)).astype(np.uint16)
     assert np.array_equal(read_panorama(write_png(tmp_path / "deep.png", deep)), rgb)
+
+
+def test_panoramas_a_pixel_off_2_to_1_are_resized_with_a_warning(tmp_path):
+    rgb = demo_image((512, 255))
+    with pytest.warns(PanoramaResizeWarning, match="512 x 255 pixels is not exactly 2:1; resized to 512 x 256"):
+        read = read_panorama(write_png(tmp_path / "near.png", rgb))
+    assert read.shape == (256, 512, 3)
+    back = cv2.resize(read, (512, 255), interpolation=cv2.INTER_AREA)
+    assert np.abs(back.astype(int) - rgb.astype(int)).mean() < 4  # the same picture, stretched by 0.4%
+    with pytest.raises(PanoramaError, match="not a full 360 x 180"):
+        read_panorama(write_png(tmp_path / "off.png", demo_image((512, 252))))  # 1.6% off: refused
 
 
 @pytest.mark.parametrize(
@@ -103,6 +114,7 @@ def batch_run(tmp_path_factory):
         "cut_R06825": str(folder / "cut_R06825.png"),
         "noradius": write_png(folder / "noradius.png", rgb),
         "wide_R06825": write_png(folder / "wide_R06825.png", demo_image((600, 256))),
+        "near_R06825": write_png(folder / "near_R06825.png", demo_image((512, 255))),
     }
     (folder / "cut_R06825.png").write_bytes(cv2.imencode(".png", rgb)[1].tobytes()[:20000])
     out = folder / "out"
@@ -118,7 +130,8 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
     # json, overlay and plan; a mesh exactly when a layout was found (also one of uncertain scale); a layout that
     # is not ok is listed as a failure.
     _, out, errors = batch_run
-    for name in ("room_R06825", "grey16_R06825", "rgba_R06825"):
+    assert "near_R06825.png: 512 x 255 pixels is not exactly 2:1; resized to 512 x 256" in errors
+    for name in ("room_R06825", "grey16_R06825", "rgba_R06825", "near_R06825"):
         record = json.loads((out / f"{name}.json").read_text())
         assert record["schema_version"] == 1 and record["rc"] == pytest.approx(0.6825)
         assert record["image_size"] == list(SMALL) and record["world"] == "auto"
