@@ -5,6 +5,7 @@ from types import SimpleNamespace
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 
 def test_noise_sweep_small(tmp_path):
@@ -48,11 +49,30 @@ def test_network_table_bins_rooms_by_their_narrowest_wall():
     room = lambda width, corners: SimpleNamespace(image=np.zeros((width // 2, width, 3)), metadata={"corner_u": corners})  # noqa: E731
     assert module.narrowest_wall(room(1024, [1000.0, 10.0, 500.0])) == 34.0  # the wall across the seam
     assert module.narrowest_wall(room(512, [5.0, 10.0, 300.0])) == 10.0  # columns of a 1024-wide panorama
-    per_room = [{"failed": failed, "ce": 0.1, "ce_median": 0.1, "cen": 0.01, "iou3d": 0.9, "iou3d_up_to_scale": 0.9,
+    per_room = [{"returned": not failed, "failed": failed, "ce": 0.1, "ce_median": 0.1, "cen": 0.01, "iou3d": 0.9, "iou3d_up_to_scale": 0.9,
                  "height_error": 0.0} for failed in (True, False, False)]
     bins = module.by_narrowest_wall(per_room, np.array([4.0, 20.0, 40.0]))
     assert [b["rooms"] for b in bins] == [1, 1, 1] and bins[0]["failed"] == 100.0 and bins[2]["failed"] == 0.0
     assert bins[2]["high"] is None
+
+
+def test_network_table_scores_every_returned_layout_also_with_another_corner_count():
+    path = Path(__file__).parents[1] / "experiments" / "network_table.py"
+    spec = importlib.util.spec_from_file_location("network_table", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    scored = {"ce": 0.1, "cen": 0.01, "iou3d_up_to_scale": 0.9, "height_error": 0.0}
+    per_room = [
+        {"returned": True, "failed": False, **scored, "iou3d": 0.9},  # the true corner count
+        {"returned": True, "failed": True, **scored, "ce": float("nan"), "iou3d": 0.7},  # a merged corner: no CE
+        {"returned": False, "failed": True},  # no layout
+    ]
+    s = module.summary(per_room)
+    assert s["failed"] == pytest.approx(200 / 3) and s["iou3d"] == pytest.approx(90.0)
+    assert s["iou3d_all"] == pytest.approx(30.0)  # only the room with the true corner count scores
+    assert s["returned"] == pytest.approx(200 / 3)
+    assert s["iou3d_returned"] == pytest.approx(80.0) and s["iou3d_returned_median"] == pytest.approx(80.0)
+    assert s["iou3d_all_returned"] == pytest.approx(160 / 3)
 
 
 def test_robustness_degradations_keep_the_image_format():
