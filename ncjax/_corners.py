@@ -52,15 +52,27 @@ def refine_peak(corner_prob: Float[Array, " W"], column: Int[Array, ""]) -> Floa
 
 
 def find_corners(
-    corner_prob: Float[Array, " W"], capacity: int, radius: int, threshold: float
+    corner_prob: Float[Array, " W"],
+    capacity: int,
+    radius: int,
+    threshold: float,
+    min_corners: int = 0,
+    fallback_threshold: float = 0.0,
 ) -> tuple[Float[Array, " C"], Bool[Array, " C"], Bool[Array, ""]]:
     """Corner columns: the ``capacity`` strongest peaks, refined, sorted left to right.
+
+    A room has at least ``min_corners`` corners. When fewer peaks reach
+    ``threshold`` (a network unsure of a panorama unlike its training images
+    gives flat lobes), the threshold drops to the ``min_corners``-th strongest
+    peak, but not below ``fallback_threshold``; otherwise nothing changes.
 
     Args:
         corner_prob: per-column corner probability.
         capacity: static number of corner slots ``C``.
         radius: static non-maximum-suppression half-width (columns).
         threshold: minimum peak probability.
+        min_corners: static; 0 keeps ``threshold`` whatever the count.
+        fallback_threshold: the lowest the threshold may drop to.
 
     Returns:
         ``(columns, mask, overflow)``: sub-column positions in ``[-0.5, W - 0.5)``
@@ -68,9 +80,12 @@ def find_corners(
         corners, and whether more peaks than ``capacity`` were found.
     """
     width = corner_prob.shape[0]
-    peak = is_peak(corner_prob, radius, threshold)
-    strength = jnp.where(peak, corner_prob, -jnp.inf)
-    _, strongest = jax.lax.top_k(strength, capacity)
+    candidate = is_peak(corner_prob, radius, min(threshold, fallback_threshold) if min_corners else threshold)
+    strength = jnp.where(candidate, corner_prob, -jnp.inf)
+    values, strongest = jax.lax.top_k(strength, capacity)
+    if min_corners:
+        threshold = jnp.minimum(threshold, values[min(min_corners, capacity) - 1])
+    peak = candidate & (corner_prob >= threshold)
     mask = peak[strongest]
     refined = jax.vmap(refine_peak, in_axes=(None, 0))(corner_prob, strongest)
     refined = jnp.where(refined < -0.5, refined + width, refined)

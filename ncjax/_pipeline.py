@@ -138,6 +138,12 @@ class PipelineConfig:
             fit (``TOO_MANY_WALLS``): the same layouts, and the cost of most
             stages is proportional to the slots (0: always ``capacity``).
         corner_threshold: minimum corner probability of a peak.
+        min_corners: where fewer peaks than this reach ``corner_threshold``
+            (never on our renders: a network unsure of an image unlike its
+            training data), the strongest peaks down to
+            ``fallback_corner_threshold`` make up the count
+            (:func:`~ncjax._corners.find_corners`; 0: off).
+        fallback_corner_threshold: the lowest peak probability ``min_corners`` accepts.
         nms_radius: non-maximum-suppression half-width, columns.
         corner_margin: columns this close to a corner are not used to fit walls.
         success_probability: RANSAC's P (paper: 0.9999).
@@ -220,6 +226,8 @@ class PipelineConfig:
     capacity: int = 32
     compact_capacity: int = 16
     corner_threshold: float = 0.3
+    min_corners: int = 4
+    fallback_corner_threshold: float = 0.1
     nms_radius: float = 2.0
     corner_margin: float = 2.0
     success_probability: float = 0.9999
@@ -271,6 +279,10 @@ class PipelineConfig:
         for name in ("adjustment_stride", "inlier_pass_stride"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1 column, got {getattr(self, name)}")
+        if not 0 <= self.min_corners <= self.capacity:
+            raise ValueError(f"min_corners must be in [0, capacity], got {self.min_corners}")
+        if not 0 <= self.fallback_corner_threshold <= self.corner_threshold:
+            raise ValueError(f"fallback_corner_threshold must be in [0, corner_threshold], got {self.fallback_corner_threshold}")
         if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0 or self.chunk_size < 0:
             raise ValueError("corner_margin, corner_weight, adjustment_steps and chunk_size must be >= 0")
 
@@ -452,7 +464,8 @@ def _gather_evidence(
 
     corner_prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, 0.0)
     corner_columns, corner_mask, overflow = find_corners(
-        corner_prob, capacity, _nms_radius(config, width), config.corner_threshold
+        corner_prob, capacity, _nms_radius(config, width), config.corner_threshold,
+        config.min_corners, config.fallback_corner_threshold,
     )
     column_wall = column_walls(corner_columns, corner_mask, width)
     away = distance_to_corners(corner_columns, corner_mask, width) >= _scaled(config.corner_margin, width, 1024)

@@ -123,6 +123,26 @@ def test_plateau_gives_one_peak_and_wrap_around():
     np.testing.assert_array_equal(walls, [1, 1, 1, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1])
 
 
+@given(st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6), st.integers(0, 6))
+def test_weak_peaks_make_up_the_minimum_corner_count(heights, min_corners):
+    # Six lobes at known columns with peak heights in [0, 1]: the threshold 0.4 keeps the strong ones; when fewer
+    # than `min_corners` are strong, the strongest of those above the fallback 0.1 are added, and none below it.
+    corners = np.arange(6) * 80.0 + 20.0
+    lobes = np.asarray(target(WIDTH, corners))
+    offset = np.abs(np.arange(WIDTH)[:, None] + 0.5 - corners[None])
+    nearest = np.argmin(np.minimum(offset, WIDTH - offset), axis=1)  # the lobe each column belongs to
+    prob = jnp.asarray(lobes * np.asarray(heights)[nearest], jnp.float32)
+    _, mask, _ = find_corners(prob, 8, 2, 0.4, min_corners, 0.1)
+    peaks = np.array([np.asarray(prob)[nearest == k].max() for k in range(6)])
+    usable = np.sort(peaks[peaks >= 0.1])[::-1]
+    strong = int(np.sum(peaks >= 0.4))
+    threshold = min(0.4, usable[min(min_corners, len(usable)) - 1]) if min_corners and len(usable) else 0.4
+    assert int(mask.sum()) == int(np.sum(peaks >= max(threshold, 0.1)))  # ties at the threshold are all kept
+    assert int(mask.sum()) >= min(min_corners, len(usable))
+    _, plain, _ = find_corners(prob, 8, 2, 0.4)
+    assert int(plain.sum()) == strong
+
+
 def test_capacity_overflow_is_reported():
     _, mask, overflow = find_corners(jnp.asarray(target(WIDTH, np.arange(10) * 50.0), jnp.float32), 4, 2, 0.3)
     assert bool(overflow) and int(mask.sum()) == 4
