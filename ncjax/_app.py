@@ -108,8 +108,13 @@ def write_outputs(out: str, name: str, image: np.ndarray, result, rc: float, wor
     return record
 
 
-def _reconstruct_group(model, items, batch_size, world, views, edge_snap, out, on_done):
-    """Reconstruct same-size images in fixed-size batches; ``on_done(path, record)`` after each image."""
+def _reconstruct_group(model, items, batch_size, world, views, edge_snap, out, on_done, on_error):
+    """Reconstruct same-size images in fixed-size batches.
+
+    Calls ``on_done(path, record)`` after each image, or ``on_error(path, message)``
+    for each image of a batch whose reconstruction raised (XLA out of memory,
+    say): the other batches go on.
+    """
     import jax
 
     from ._reconstruct import reconstruct_batch
@@ -119,7 +124,13 @@ def _reconstruct_group(model, items, batch_size, world, views, edge_snap, out, o
         padding = [chunk[-1]] * (batch_size - len(chunk))
         images = np.stack([image for _, _, image, _ in chunk + padding])
         radii = np.array([rc for *_, rc in chunk + padding], np.float32)
-        result = jax.device_get(reconstruct_batch(images, radii, world, model=model, views=views, edge_snap=edge_snap))
+        try:
+            result = jax.device_get(reconstruct_batch(images, radii, world, model=model, views=views, edge_snap=edge_snap))
+        except Exception as error:  # noqa: BLE001 - reported per image; the run goes on with the next batch
+            first_line = (str(error).strip().splitlines() or [""])[0]
+            for path, *_ in chunk:
+                on_error(path, f"{path}: the reconstruction failed ({type(error).__name__}: {first_line})")
+            continue
         for index, (path, name, image, rc) in enumerate(chunk):
             one = jax.tree.map(lambda x: x[index], tuple(result))
             on_done(path, write_outputs(out, name, image, one, float(rc), world))
@@ -155,6 +166,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             failures[path] = f"{path}: {failure_message(record)}; see {record['name']}_overlay.png"
         bar.update()
 
+    def failed(path, message):
+        failures[path] = message
+        bar.update()
+
     for path, name in zip(args.images, names):
         try:
             with warnings.catch_warnings(record=True) as notes:
@@ -170,11 +185,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         group = groups[image.shape[:2]]
         group.append((path, name, image, radius))
         if len(group) == args.batch:
-            _reconstruct_group(model, group, args.batch, args.world, args.views, args.edge_snap, args.out, done)
+            _reconstruct_group(model, group, args.batch, args.world, args.views, args.edge_snap, args.out, done, failed)
             group.clear()
     for group in groups.values():
         if group:
-            _reconstruct_group(model, group, args.batch, args.world, args.views, args.edge_snap, args.out, done)
+            _reconstruct_group(model, group, args.batch, args.world, args.views, args.edge_snap, args.out, done, failed)
     bar.close()
     succeeded = len(args.images) - len(failures)
     print(f"{succeeded} of {len(args.images)} images reconstructed into {args.out}")

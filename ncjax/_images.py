@@ -9,7 +9,10 @@ Stitching tools often write a row or a column more or fewer: an image within
 :data:`ASPECT_TOLERANCE` of 2:1 is resized to exactly 2:1 with a
 :class:`PanoramaResizeWarning` (the rows then move by at most that fraction
 of their elevation, under a pixel for rows within 45 degrees of the horizon at
-512 rows); any other shape is refused.
+512 rows); any other shape is refused. A panorama wider than :data:`MAX_WIDTH`
+is reconstructed at ``MAX_WIDTH x MAX_WIDTH / 2`` (the same warning): the
+network reads 1024 x 512 anyway, and the geometry's memory grows faster than
+the width (4096 columns asked for 27 GB).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import cv2
 import numpy as np
 
 ASPECT_TOLERANCE = 0.005  # relative departure of width / height from 2 that is resized instead of refused
+MAX_WIDTH = 2048  # the widest panorama reconstructed as it is (2.4 GB for a batch of 4 at 2048 x 1024)
 _JPEG_END = b"\xff\xd9"
 _PNG_END = b"IEND\xaeB`\x82"
 
@@ -68,6 +72,11 @@ def panorama_size_error(width: int, height: int) -> str | None:
     """
     if width != 2 * height or height < 32:
         return f"{width} x {height} pixels is not a full 360 x 180 degree panorama (width must be 2 x height, at least 64 x 32)"
+    if width > MAX_WIDTH:
+        return (
+            f"{width} x {height} pixels is wider than {MAX_WIDTH}: the geometry's memory grows faster than the width "
+            f"(4096 columns asked for 27 GB); resize it to {MAX_WIDTH} x {MAX_WIDTH // 2} (ncjax reconstruct does)"
+        )
     return None
 
 
@@ -76,10 +85,17 @@ def nearly_full_panorama(width: int, height: int) -> bool:
     return width != 2 * height and height >= 32 and abs(width / (2 * height) - 1) <= ASPECT_TOLERANCE
 
 
-def resize_to_full_panorama(image: np.ndarray) -> np.ndarray:
-    """An (H, W, 3) image resized to (W / 2, W, 3), W rounded to even: every column keeps its azimuth span."""
-    width = 2 * round(image.shape[1] / 2)
-    return cv2.resize(image, (width, width // 2), interpolation=cv2.INTER_AREA)
+def working_width(width: int, height: int) -> int | None:
+    """The width a panorama read from a file is resized to (then ``height = width / 2``), or None to keep it.
+
+    Near 2:1 images become exactly 2:1 (the width rounded to even), and
+    nothing becomes wider than :data:`MAX_WIDTH`; other shapes are left for
+    :func:`panorama_size_error` to refuse.
+    """
+    near = nearly_full_panorama(width, height)
+    if not (near or (width == 2 * height and width > MAX_WIDTH)):
+        return None
+    return min(2 * round(width / 2), MAX_WIDTH)
 
 
 def read_panorama(path: str | os.PathLike) -> np.ndarray:
@@ -87,7 +103,8 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
 
     Warns:
         PanoramaResizeWarning: the file is within :data:`ASPECT_TOLERANCE` of
-            2:1 and was resized to exactly 2:1.
+            2:1 and was resized to exactly 2:1, or it was wider than
+            :data:`MAX_WIDTH` and was resized to that width.
 
     Raises:
         PanoramaError: missing, unreadable, truncated, not an image, an
@@ -110,10 +127,12 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
         image = to_rgb8(image)
     except PanoramaError as error:
         raise PanoramaError(f"{path}: {error}") from None
-    if nearly_full_panorama(*image.shape[1::-1]):
-        resized = resize_to_full_panorama(image)
+    width = working_width(*image.shape[1::-1])
+    if width is not None:
+        resized = cv2.resize(image, (width, width // 2), interpolation=cv2.INTER_AREA)
+        reason = "is not exactly 2:1" if nearly_full_panorama(*image.shape[1::-1]) else f"is wider than {MAX_WIDTH}"
         warnings.warn(
-            f"{path}: {image.shape[1]} x {image.shape[0]} pixels is not exactly 2:1; "
+            f"{path}: {image.shape[1]} x {image.shape[0]} pixels {reason}; "
             f"resized to {resized.shape[1]} x {resized.shape[0]} as a full 360 x 180 degree panorama",
             PanoramaResizeWarning,
             stacklevel=2,

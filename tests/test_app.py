@@ -10,7 +10,7 @@ import pytest
 import ncjax
 from ncjax import cli
 from ncjax._app import DEMO_DIR, failure_message
-from ncjax._images import PanoramaError, PanoramaResizeWarning, read_panorama
+from ncjax._images import MAX_WIDTH, PanoramaError, PanoramaResizeWarning, read_panorama
 
 DEMO_TRUTH = json.loads((DEMO_DIR / "ground_truth.json").read_text())
 SMALL = (512, 256)  # (W, H) of the small reconstruct tests: one compilation for all of them
@@ -59,6 +59,16 @@ def test_panoramas_a_pixel_off_2_to_1_are_resized_with_a_warning(tmp_path):
         read_panorama(write_png(tmp_path / "off.png", demo_image((512, 252))))  # 1.6% off: refused
 
 
+def test_panoramas_wider_than_the_working_width_are_resized_and_refused_by_the_api(tmp_path):
+    wide = np.zeros((1050, 2100, 3), np.uint8)
+    wide[:, ::2] = 255  # a pattern INTER_AREA averages, not samples
+    with pytest.warns(PanoramaResizeWarning, match=f"2100 x 1050 pixels is wider than {MAX_WIDTH}; resized to 2048 x 1024"):
+        read = read_panorama(write_png(tmp_path / "wide.png", wide))
+    assert read.shape == (1024, 2048, 3) and abs(read.mean() - 127.5) < 2
+    with pytest.raises(ValueError, match=f"wider than {MAX_WIDTH}.*resize it to 2048 x 1024"):
+        ncjax.reconstruct_batch(np.zeros((1, 1050, 2100, 3), np.uint8), np.array([0.5], np.float32))
+
+
 @pytest.mark.parametrize(
     "make, message",
     [
@@ -87,6 +97,22 @@ def test_bad_rc_is_refused_before_anything_is_written(tmp_path, capsys, rc):
     image = write_png(tmp_path / "room.png", demo_image(SMALL))
     assert cli.main(["reconstruct", image, "--rc", rc, "--out", str(out)]) == 2
     assert "--rc" in capsys.readouterr().err and not out.exists()
+
+
+def test_a_batch_that_raises_is_reported_and_the_run_goes_on(tmp_path, capsys, monkeypatch):
+    import ncjax._reconstruct
+
+    def out_of_memory(*args, **kwargs):
+        raise RuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 27027353000 bytes.\nmore detail")
+
+    monkeypatch.setattr(ncjax._reconstruct, "reconstruct_batch", out_of_memory)
+    images = [write_png(tmp_path / f"room{i}_R06825.png", demo_image(SMALL)) for i in range(3)]
+    out = tmp_path / "out"
+    assert cli.main(["reconstruct", *images, "--rc", "auto", "--out", str(out), "--batch", "2"]) == 1
+    errors = capsys.readouterr().err
+    for image in images:  # both batches were tried
+        assert f"{image}: the reconstruction failed (RuntimeError: RESOURCE_EXHAUSTED: Out of memory" in errors
+    assert "more detail" not in errors and list(out.iterdir()) == []
 
 
 def test_images_that_would_overwrite_each_other_are_refused(tmp_path, capsys):
