@@ -9,8 +9,9 @@ augmentation's ranges (greyscale, blur up to 1.2 px, read noise up to 0.02),
 the others beyond them (``ncjax._augment.AugmentConfig``); JPEG is not among them.
 
 Per degradation and world: failures, CE mean / median, 3D IoU of the ok rooms
-and over all rooms with failures as 0 (scored as ``network_table.py``), and the
-mean error of the boundary rows the geometry used.
+and over all rooms with failures as 0, the share of rooms given a layout
+whatever its corner count and that layout's 3D IoU (scored as
+``network_table.py``), and the mean error of the boundary rows the geometry used.
 
     uv run python experiments/robustness.py              # 32 rooms per world
     uv run python experiments/robustness.py --rooms 8
@@ -87,8 +88,9 @@ def main(argv=None):
     model = default_model()
     lines = [f"First {args.rooms} test renders without occlusion per world, {args.views} view(s), rows snapped: {args.edge_snap is not None}, "
              "NETWORK_PIPELINE_CONFIG.", "",
-             "| degradation | in training ranges | world | failed (%) | CE mean / median (m) | 3D IoU ok (%) | IoU all0 (%) | row error ceiling / floor (px) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| degradation | in training ranges | world | failed (%) | CE mean / median (m) | 3D IoU ok (%) | IoU all0 (%) | "
+             "layout returned (%) | 3D IoU of the returned (%) | row error ceiling / floor (px) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     record = {}
     for world in SEEDS:
         folder = str(test_renders(world, TEST_ROOMS, args.out))
@@ -103,7 +105,8 @@ def main(argv=None):
             rows = used_row_errors(samples, boundaries)
             record[f"{name}/{world}"] = s | rows
             lines.append(f"| {name} | {'yes' if trained else 'no'} | {world} | {s['failed']:.1f} | {s['ce']:.3f} / {s['ce_median']:.3f} | "
-                         f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {rows['ceiling_mean']:.2f} / {rows['floor_mean']:.2f} |")
+                         f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {s['returned']:.1f} | {s['iou3d_returned']:.1f} | "
+                         f"{rows['ceiling_mean']:.2f} / {rows['floor_mean']:.2f} |")
     table = "\n".join(lines)
     print(table)
     print(f"total time {time.time() - start:.0f} s")

@@ -34,7 +34,7 @@ class PanoramaError(ValueError):
 
 
 class PanoramaResizeWarning(UserWarning):
-    """A panorama file a little off 2:1 was resized to exactly 2:1 (the message gives both sizes)."""
+    """A panorama file a little off 2:1, or wider than :data:`MAX_WIDTH`, was resized (the message gives both sizes)."""
 
 
 def _truncation(data: bytes) -> str | None:

@@ -143,7 +143,8 @@ class PipelineConfig:
             training data), the strongest peaks down to
             ``fallback_corner_threshold`` make up the count
             (:func:`~ncjax._corners.find_corners`; 0: off).
-        fallback_corner_threshold: the lowest peak probability ``min_corners`` accepts.
+        fallback_corner_threshold: the lowest peak probability ``min_corners``
+            accepts (at or above ``corner_threshold``: no fallback).
         nms_radius: non-maximum-suppression half-width, columns.
         corner_margin: columns this close to a corner are not used to fit walls.
         success_probability: RANSAC's P (paper: 0.9999).
@@ -281,8 +282,8 @@ class PipelineConfig:
                 raise ValueError(f"{name} must be >= 1 column, got {getattr(self, name)}")
         if not 0 <= self.min_corners <= self.capacity:
             raise ValueError(f"min_corners must be in [0, capacity], got {self.min_corners}")
-        if not 0 <= self.fallback_corner_threshold <= self.corner_threshold:
-            raise ValueError(f"fallback_corner_threshold must be in [0, corner_threshold], got {self.fallback_corner_threshold}")
+        if not self.fallback_corner_threshold >= 0:
+            raise ValueError(f"fallback_corner_threshold must be >= 0, got {self.fallback_corner_threshold}")
         if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0 or self.chunk_size < 0:
             raise ValueError("corner_margin, corner_weight, adjustment_steps and chunk_size must be >= 0")
 

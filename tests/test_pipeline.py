@@ -689,6 +689,10 @@ def test_bad_arguments_raise():
         ncjax.PipelineConfig(max_height_uncertainty=0.0)
     with pytest.raises(ValueError, match="needs covariance"):
         ncjax.PipelineConfig(max_height_uncertainty=0.1, covariance=False)
+    with pytest.raises(ValueError, match="min_corners"):
+        ncjax.PipelineConfig(min_corners=33)
+    with pytest.raises(ValueError, match="fallback_corner_threshold"):
+        ncjax.PipelineConfig(fallback_corner_threshold=-0.1)
 
 
 def test_gradients_through_the_pipeline_are_finite_and_match_finite_differences():
