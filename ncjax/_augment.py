@@ -53,10 +53,13 @@ def gaussian_blur(image: Float[Array, "H W 3"], sigma: Float[ArrayLike, ""], rad
     offsets = jnp.arange(-radius, radius + 1)
     weights = jnp.exp(-0.5 * (offsets / jnp.maximum(sigma, 1e-3)) ** 2)
     weights = weights / jnp.sum(weights)
-    horizontal = sum(w * jnp.roll(image, int(o), axis=1) for o, w in zip(range(-radius, radius + 1), weights))
-    # slices of an edge-padded copy, not a gather of (H, 2 radius + 1, W, 3) rows: same sum, a fraction of the memory
+    # slices of one padded copy (wrapped, then edge-padded), which XLA fuses into one pass: shifted copies
+    # (jnp.roll) or a gather of (H, 2 radius + 1, W, 3) rows are materialised, 27 GB for four 4096 x 2048 images
+    height, width = image.shape[:2]
+    wrapped = jnp.pad(image, ((0, 0), (radius, radius), (0, 0)), mode="wrap")
+    horizontal = sum(w * wrapped[:, 2 * radius - k : 2 * radius - k + width] for k, w in enumerate(weights))
     padded = jnp.pad(horizontal, ((radius, radius), (0, 0), (0, 0)), mode="edge")
-    return sum(w * padded[k : k + image.shape[0]] for k, w in enumerate(weights))
+    return sum(w * padded[k : k + height] for k, w in enumerate(weights))
 
 
 @dataclasses.dataclass(frozen=True)

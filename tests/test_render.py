@@ -188,6 +188,16 @@ def test_greyscale_and_blur():
     assert blurred.std() < np.asarray(_IMAGE).std()
 
 
+@pytest.mark.parametrize("sigma, radius", [(1.0, 3), (2.0, 8), (0.5, 1)])
+def test_blur_matches_scipy_wrapping_horizontally_and_clamping_vertically(sigma, radius):
+    from scipy import ndimage
+
+    image = np.asarray(jax.random.uniform(jax.random.key(3), (12, 20, 3)))
+    expected = ndimage.gaussian_filter1d(image, sigma, axis=1, mode="wrap", truncate=radius / sigma)
+    expected = ndimage.gaussian_filter1d(expected, sigma, axis=0, mode="nearest", truncate=radius / sigma)
+    np.testing.assert_allclose(ncjax.gaussian_blur(jnp.asarray(image), sigma, radius), expected, atol=2e-6)
+
+
 def test_random_augment_is_a_pure_batched_function():
     keys = jax.random.split(jax.random.key(1), 3)
     augment = jax.jit(jax.vmap(ncjax.random_augment, in_axes=(0, None)))
