@@ -78,7 +78,7 @@ def solvers_only(ceiling_v, floor_v, corner_prob, cam, world: str):
     columns = jnp.arange(WIDTH, dtype=ceiling_v.dtype)
     ceiling_rays = ncjax.pixel_to_ray(cam, columns, ceiling_v)
     floor_rays = ncjax.pixel_to_ray(cam, columns, floor_v)
-    corners, mask, _ = find_corners(corner_prob, CAPACITY, 2, config.corner_threshold)
+    corners, mask, _ = find_corners(corner_prob, CAPACITY, 2, config.corner_threshold)  # the paper's peaks: no minimum count
     wall_index = column_walls(corners, mask, WIDTH)
     own = wall_index[None, :] == jnp.arange(CAPACITY)[:, None]
     walls = jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m))(own)

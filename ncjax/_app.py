@@ -126,10 +126,11 @@ def _reconstruct_group(model, items, batch_size, world, views, edge_snap, out, o
         radii = np.array([rc for *_, rc in chunk + padding], np.float32)
         try:
             result = jax.device_get(reconstruct_batch(images, radii, world, model=model, views=views, edge_snap=edge_snap))
-        except Exception as error:  # noqa: BLE001 - reported per image; the run goes on with the next batch
+        except RuntimeError as error:  # XLA's errors (out of memory, ...): reported per image, the next batch goes on
             first_line = (str(error).strip().splitlines() or [""])[0]
+            hint = "; try a smaller --batch" if "RESOURCE_EXHAUSTED" in first_line and batch_size > 1 else ""
             for path, *_ in chunk:
-                on_error(path, f"{path}: the reconstruction failed ({type(error).__name__}: {first_line})")
+                on_error(path, f"{path}: the reconstruction failed ({type(error).__name__}: {first_line}){hint}")
             continue
         for index, (path, name, image, rc) in enumerate(chunk):
             one = jax.tree.map(lambda x: x[index], tuple(result))
@@ -175,13 +176,16 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             with warnings.catch_warnings(record=True) as notes:
                 warnings.simplefilter("always", PanoramaResizeWarning)
                 image = read_panorama(path)
+            for note in notes:
+                if issubclass(note.category, PanoramaResizeWarning):
+                    bar.write(str(note.message), file=sys.stderr)
+                else:
+                    warnings.showwarning(note.message, note.category, note.filename, note.lineno)
             radius = radius_of(path, rc)
         except PanoramaError as error:
             failures[path] = str(error)
             bar.update()
             continue
-        for note in notes:
-            bar.write(str(note.message), file=sys.stderr)
         group = groups[image.shape[:2]]
         group.append((path, name, image, radius))
         if len(group) == args.batch:

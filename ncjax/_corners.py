@@ -70,9 +70,9 @@ def find_corners(
         corner_prob: per-column corner probability.
         capacity: static number of corner slots ``C``.
         radius: static non-maximum-suppression half-width (columns).
-        threshold: minimum peak probability.
+        threshold: static minimum peak probability.
         min_corners: static; 0 keeps ``threshold`` whatever the count.
-        fallback_threshold: the lowest the threshold may drop to.
+        fallback_threshold: static; the lowest the threshold may drop to.
 
     Returns:
         ``(columns, mask, overflow)``: sub-column positions in ``[-0.5, W - 0.5)``

@@ -80,17 +80,21 @@ def nearly_full_panorama(width: int, height: int) -> bool:
     return width != 2 * height and height >= 32 and abs(width / (2 * height) - 1) <= ASPECT_TOLERANCE
 
 
-def working_width(width: int, height: int) -> int | None:
-    """The width a panorama read from a file is resized to (then ``height = width / 2``), or None to keep it.
+def working_size(width: int, height: int) -> tuple[int, str] | None:
+    """The width a panorama read from a file is resized to (its height is half) and why, or None to keep it.
 
     Near 2:1 images become exactly 2:1 (the width rounded to even), and
     nothing becomes wider than :data:`MAX_WIDTH`; other shapes are left for
     :func:`panorama_size_error` to refuse.
     """
-    near = nearly_full_panorama(width, height)
-    if not (near or (width == 2 * height and width > MAX_WIDTH)):
+    reasons = []
+    if nearly_full_panorama(width, height):
+        reasons.append("is not exactly 2:1")
+    if width > MAX_WIDTH and (reasons or width == 2 * height):
+        reasons.append(f"is wider than {MAX_WIDTH}")
+    if not reasons:
         return None
-    return min(2 * round(width / 2), MAX_WIDTH)
+    return min(2 * round(width / 2), MAX_WIDTH), " and ".join(reasons)
 
 
 def read_panorama(path: str | os.PathLike) -> np.ndarray:
@@ -122,10 +126,10 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
         image = to_rgb8(image)
     except PanoramaError as error:
         raise PanoramaError(f"{path}: {error}") from None
-    width = working_width(*image.shape[1::-1])
-    if width is not None:
+    resize = working_size(*image.shape[1::-1])
+    if resize is not None:
+        width, reason = resize
         resized = cv2.resize(image, (width, width // 2), interpolation=cv2.INTER_AREA)
-        reason = "is not exactly 2:1" if nearly_full_panorama(*image.shape[1::-1]) else f"is wider than {MAX_WIDTH}"
         warnings.warn(
             f"{path}: {image.shape[1]} x {image.shape[0]} pixels {reason}; "
             f"resized to {resized.shape[1]} x {resized.shape[0]} as a full 360 x 180 degree panorama",

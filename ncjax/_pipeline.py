@@ -139,10 +139,10 @@ class PipelineConfig:
             stages is proportional to the slots (0: always ``capacity``).
         corner_threshold: minimum corner probability of a peak.
         min_corners: where fewer peaks than this reach ``corner_threshold``
-            (never on our renders: a network unsure of an image unlike its
-            training data), the strongest peaks down to
-            ``fallback_corner_threshold`` make up the count
-            (:func:`~ncjax._corners.find_corners`; 0: off).
+            (a network unsure of an image unlike its training data), the
+            strongest peaks down to ``fallback_corner_threshold`` make up the
+            count (:func:`~ncjax._corners.find_corners`; 0: off; at most
+            ``capacity`` and ``compact_capacity``).
         fallback_corner_threshold: the lowest peak probability ``min_corners``
             accepts (at or above ``corner_threshold``: no fallback).
         nms_radius: non-maximum-suppression half-width, columns.
@@ -280,8 +280,9 @@ class PipelineConfig:
         for name in ("adjustment_stride", "inlier_pass_stride"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1 column, got {getattr(self, name)}")
-        if not 0 <= self.min_corners <= self.capacity:
-            raise ValueError(f"min_corners must be in [0, capacity], got {self.min_corners}")
+        slots = min(self.capacity, self.compact_capacity or self.capacity)
+        if not 0 <= self.min_corners <= slots:
+            raise ValueError(f"min_corners must be in [0, {slots}] (capacity and compact_capacity), got {self.min_corners}")
         if not self.fallback_corner_threshold >= 0:
             raise ValueError(f"fallback_corner_threshold must be >= 0, got {self.fallback_corner_threshold}")
         if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0 or self.chunk_size < 0:

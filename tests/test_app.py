@@ -65,6 +65,9 @@ def test_panoramas_wider_than_the_working_width_are_resized(tmp_path):
     with pytest.warns(PanoramaResizeWarning, match=f"2100 x 1050 pixels is wider than {MAX_WIDTH}; resized to 2048 x 1024"):
         read = read_panorama(write_png(tmp_path / "wide.png", wide))
     assert read.shape == (1024, 2048, 3) and abs(read.mean() - 127.5) < 2
+    both = f"2101 x 1050 pixels is not exactly 2:1 and is wider than {MAX_WIDTH}; resized to 2048 x 1024"
+    with pytest.warns(PanoramaResizeWarning, match=both):
+        assert read_panorama(write_png(tmp_path / "both.png", wide[:, :-1].repeat(2, 1)[:, :2101])).shape == (1024, 2048, 3)
 
 
 @pytest.mark.parametrize(
@@ -110,6 +113,7 @@ def test_a_batch_that_raises_is_reported_and_the_run_goes_on(tmp_path, capsys, m
     errors = capsys.readouterr().err
     for image in images:  # both batches were tried
         assert f"{image}: the reconstruction failed (RuntimeError: RESOURCE_EXHAUSTED: Out of memory" in errors
+    assert errors.count("bytes.); try a smaller --batch") == 3
     assert "more detail" not in errors and list(out.iterdir()) == []
 
 

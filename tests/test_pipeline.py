@@ -132,13 +132,16 @@ def test_weak_peaks_make_up_the_minimum_corner_count(heights, min_corners):
     offset = np.abs(np.arange(WIDTH)[:, None] + 0.5 - corners[None])
     nearest = np.argmin(np.minimum(offset, WIDTH - offset), axis=1)  # the lobe each column belongs to
     prob = jnp.asarray(lobes * np.asarray(heights)[nearest], jnp.float32)
-    _, mask, _ = find_corners(prob, 8, 2, 0.4, min_corners, 0.1)
+    columns, mask, _ = find_corners(prob, 8, 2, 0.4, min_corners, 0.1)
     peaks = np.array([np.asarray(prob)[nearest == k].max() for k in range(6)])
     usable = np.sort(peaks[peaks >= 0.1])[::-1]
     strong = int(np.sum(peaks >= 0.4))
     threshold = min(0.4, usable[min(min_corners, len(usable)) - 1]) if min_corners and len(usable) else 0.4
     assert int(mask.sum()) == int(np.sum(peaks >= max(threshold, 0.1)))  # ties at the threshold are all kept
     assert int(mask.sum()) >= min(min_corners, len(usable))
+    kept = np.isin(np.arange(6), nearest[np.round(np.asarray(columns)[np.asarray(mask)]).astype(int) % WIDTH])
+    if kept.any() and not kept.all():
+        assert peaks[kept].min() >= peaks[~kept].max()  # the strongest peaks are the ones kept
     _, plain, _ = find_corners(prob, 8, 2, 0.4)
     assert int(plain.sum()) == strong
 
@@ -691,6 +694,9 @@ def test_bad_arguments_raise():
         ncjax.PipelineConfig(max_height_uncertainty=0.1, covariance=False)
     with pytest.raises(ValueError, match="min_corners"):
         ncjax.PipelineConfig(min_corners=33)
+    with pytest.raises(ValueError, match="min_corners"):
+        ncjax.PipelineConfig(min_corners=20)  # more than the compact first run's 16 slots
+    assert ncjax.PipelineConfig(min_corners=20, compact_capacity=0).min_corners == 20
     with pytest.raises(ValueError, match="fallback_corner_threshold"):
         ncjax.PipelineConfig(fallback_corner_threshold=-0.1)
 
