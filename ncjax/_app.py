@@ -183,8 +183,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                     warnings.showwarning(note.message, note.category, note.filename, note.lineno)
             radius = radius_of(path, rc)
         except PanoramaError as error:
-            failures[path] = str(error)
-            bar.update()
+            failed(path, str(error))
             continue
         group = groups[image.shape[:2]]
         group.append((path, name, image, radius))
