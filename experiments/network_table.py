@@ -161,15 +161,22 @@ def _field(layout, name: str):
 
 
 def scores(layouts, truths) -> list[dict]:
-    """Per room: the metrics of an ok layout, whether it failed, its status (-1: unknown) and corner counts."""
+    """Per room: the metrics of a layout with geometry, whether it failed, its status (-1: unknown) and corner counts.
+
+    ``returned``: the layout is ok. ``written``: ok, or flagged ``UNCERTAIN_SCALE``, whose geometry
+    ``ncjax reconstruct`` writes too (:func:`ncjax._export.has_geometry`); both are scored. A failure
+    is a layout that is not ok or has another corner count than the truth.
+    """
     out = []
     for layout, truth in zip(layouts, truths):
         ok = bool(_field(layout, "ok"))
-        result = metrics.evaluate_layout(layout, truth) if ok else None
-        failed = result is None or not math.isfinite(result["ce"])
         status, mask = _field(layout, "status"), _field(layout, "mask")
+        written = ok or (status is not None and int(status) == ncjax.LayoutStatus.UNCERTAIN_SCALE)
+        result = metrics.evaluate_layout(layout, truth) if written else None
+        failed = not ok or not math.isfinite(result["ce"])
         out.append({
             "returned": ok,
+            "written": written,
             "failed": failed,
             "status": (0 if ok else -1) if status is None else int(status),
             "corners": -1 if mask is None else int(np.sum(mask)),
@@ -202,12 +209,16 @@ def miscounted_layouts(per_room: list[dict]) -> str:
 def summary(results: list[dict]) -> dict:
     good = [r for r in results if not r["failed"]]
     returned = [r["iou3d"] for r in results if r["returned"]]
+    flagged = [r["iou3d"] for r in results if r["written"] and not r["returned"]]
     mean = lambda key: float(np.mean([r[key] for r in good])) if good else math.nan  # noqa: E731
     return {
         "returned": 100.0 * len(returned) / len(results),
         "iou3d_returned": 100 * float(np.mean(returned)) if returned else math.nan,
         "iou3d_returned_median": 100 * float(np.median(returned)) if returned else math.nan,
         "iou3d_all_returned": 100 * float(np.sum(returned)) / len(results),
+        "flagged": 100.0 * len(flagged) / len(results),
+        "iou3d_flagged": 100 * float(np.mean(flagged)) if flagged else math.nan,
+        "iou3d_all_written": 100 * float(np.sum(returned) + np.sum(flagged)) / len(results),
         "rooms": len(results),
         "failed": 100.0 * (1 - len(good) / len(results)),
         "ce": mean("ce"),
@@ -306,12 +317,16 @@ def main(argv=None):
                      f"{p[0]} / {p[1]} / {p[2]} / {p[3]} |")
     lines += ["", "### Every layout returned (pipeline, any corner count)", "",
               "Scores every ok layout, also those whose corner count differs from the ground truth (CE is undefined "
-              "for them); no layout (a status other than OK) counts 0 in the last column.", "",
+              "for them); no layout (a status other than OK) counts 0 in \"3D IoU all rooms\". The last two columns "
+              "also score the layouts flagged UNCERTAIN_SCALE (not ok, but `ncjax reconstruct` writes their geometry "
+              "with the flag and the height's sigma).", "",
               "| world | rooms | layout returned (%) | with the true corner count (%) | 3D IoU mean / median of the returned (%) | "
-              "3D IoU all rooms (%) |", "| --- | --- | --- | --- | --- | --- |"]
+              "3D IoU all rooms (%) | flagged uncertain scale (%), their 3D IoU (%) | 3D IoU all rooms, flagged included (%) |",
+              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for world, s in comparison.items():
         lines.append(f"| {world} | {s['rooms']} | {s['returned']:.1f} | {100 - s['failed']:.1f} | "
-                     f"{s['iou3d_returned']:.1f} / {s['iou3d_returned_median']:.1f} | {s['iou3d_all_returned']:.1f} |")
+                     f"{s['iou3d_returned']:.1f} / {s['iou3d_returned_median']:.1f} | {s['iou3d_all_returned']:.1f} | "
+                     f"{s['flagged']:.1f}, {s['iou3d_flagged']:.1f} | {s['iou3d_all_written']:.1f} |")
     lines += ["", "Returned layouts with another corner count than the ground truth:", ""]
     lines += [f"- {world}: {text}" for world, text in miscounts.items()]
     lines += ["", "### The boundary rows the geometry used (full-size image pixels)", "",

@@ -7,12 +7,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import ncjax
 
-def test_noise_sweep_small(tmp_path):
-    path = Path(__file__).parents[1] / "experiments" / "noise_sweep.py"
-    spec = importlib.util.spec_from_file_location("noise_sweep", path)
+
+def experiment(name: str):
+    """The module of ``experiments/<name>.py``."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "experiments" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
+    return module
+
+def test_noise_sweep_small(tmp_path):
+    module = experiment("noise_sweep")
     results, rc_results, ablation = module.main(["--small", "--out", str(tmp_path)])
     for name in ("noise_sweep.csv", "noise_sweep.png", "rc_sweep.csv", "rc_sweep.png"):
         assert (tmp_path / name).stat().st_size > 0
@@ -31,10 +37,7 @@ def test_noise_sweep_small(tmp_path):
 
 
 def test_pipeline_table_small(tmp_path):
-    path = Path(__file__).parents[1] / "experiments" / "pipeline_table.py"
-    spec = importlib.util.spec_from_file_location("pipeline_table", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = experiment("pipeline_table")
     rows = module.main(["--small", "--out", str(tmp_path)])
     assert (tmp_path / "pipeline_table_small.md").stat().st_size > 0
     exact = rows[0]
@@ -42,14 +45,11 @@ def test_pipeline_table_small(tmp_path):
 
 
 def test_network_table_bins_rooms_by_their_narrowest_wall():
-    path = Path(__file__).parents[1] / "experiments" / "network_table.py"
-    spec = importlib.util.spec_from_file_location("network_table", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = experiment("network_table")
     room = lambda width, corners: SimpleNamespace(image=np.zeros((width // 2, width, 3)), metadata={"corner_u": corners})  # noqa: E731
     assert module.narrowest_wall(room(1024, [1000.0, 10.0, 500.0])) == 34.0  # the wall across the seam
     assert module.narrowest_wall(room(512, [5.0, 10.0, 300.0])) == 10.0  # columns of a 1024-wide panorama
-    per_room = [{"returned": not failed, "failed": failed, "ce": 0.1, "ce_median": 0.1, "cen": 0.01, "iou3d": 0.9, "iou3d_up_to_scale": 0.9,
+    per_room = [{"returned": not failed, "written": not failed, "failed": failed, "ce": 0.1, "ce_median": 0.1, "cen": 0.01, "iou3d": 0.9, "iou3d_up_to_scale": 0.9,
                  "height_error": 0.0} for failed in (True, False, False)]
     bins = module.by_narrowest_wall(per_room, np.array([4.0, 20.0, 40.0]))
     assert [b["rooms"] for b in bins] == [1, 1, 1] and bins[0]["failed"] == 100.0 and bins[2]["failed"] == 0.0
@@ -57,29 +57,38 @@ def test_network_table_bins_rooms_by_their_narrowest_wall():
 
 
 def test_network_table_scores_every_returned_layout_also_with_another_corner_count():
-    path = Path(__file__).parents[1] / "experiments" / "network_table.py"
-    spec = importlib.util.spec_from_file_location("network_table", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = experiment("network_table")
     scored = {"ce": 0.1, "cen": 0.01, "iou3d_up_to_scale": 0.9, "height_error": 0.0}
     per_room = [
-        {"returned": True, "failed": False, **scored, "iou3d": 0.9},  # the true corner count
-        {"returned": True, "failed": True, **scored, "ce": float("nan"), "iou3d": 0.7},  # a merged corner: no CE
-        {"returned": False, "failed": True},  # no layout
+        {"returned": True, "written": True, "failed": False, **scored, "iou3d": 0.9},  # the true corner count
+        {"returned": True, "written": True, "failed": True, **scored, "ce": float("nan"), "iou3d": 0.7},  # a merged corner: no CE
+        {"returned": False, "written": False, "failed": True},  # no layout
+        {"returned": False, "written": True, "failed": True, **scored, "iou3d": 0.4},  # flagged UNCERTAIN_SCALE
     ]
     s = module.summary(per_room)
-    assert s["failed"] == pytest.approx(200 / 3) and s["iou3d"] == pytest.approx(90.0)
-    assert s["iou3d_all"] == pytest.approx(30.0)  # only the room with the true corner count scores
-    assert s["returned"] == pytest.approx(200 / 3)
+    assert s["failed"] == pytest.approx(75.0) and s["iou3d"] == pytest.approx(90.0)
+    assert s["iou3d_all"] == pytest.approx(22.5)  # only the room with the true corner count scores
+    assert s["returned"] == pytest.approx(50.0)
     assert s["iou3d_returned"] == pytest.approx(80.0) and s["iou3d_returned_median"] == pytest.approx(80.0)
-    assert s["iou3d_all_returned"] == pytest.approx(160 / 3)
+    assert s["iou3d_all_returned"] == pytest.approx(40.0)
+    assert s["flagged"] == pytest.approx(25.0) and s["iou3d_flagged"] == pytest.approx(40.0)
+    assert s["iou3d_all_written"] == pytest.approx(50.0)
+
+
+def test_network_table_scores_the_geometry_of_uncertain_scale_layouts_but_counts_them_failed():
+    module = experiment("network_table")
+    square = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]])
+    truth = {"ceiling_corners": np.hstack([square, np.full((4, 1), 1.0)]), "floor_corners": np.hstack([square, np.full((4, 1), -1.5)])}
+    layout = lambda ok, status: {**truth, "ok": ok, "status": status, "mask": np.ones(4, bool)}  # noqa: E731
+    ok, flagged, failed = module.scores([layout(True, 0), layout(False, int(ncjax.LayoutStatus.UNCERTAIN_SCALE)),
+                                         layout(False, int(ncjax.LayoutStatus.DEGENERATE_LAYOUT))], [truth] * 3)
+    assert ok["returned"] and ok["written"] and not ok["failed"] and ok["iou3d"] == pytest.approx(1.0)
+    assert not flagged["returned"] and flagged["written"] and flagged["failed"] and flagged["iou3d"] == pytest.approx(1.0)
+    assert not failed["written"] and failed["failed"] and "iou3d" not in failed
 
 
 def test_robustness_degradations_keep_the_image_format():
-    path = Path(__file__).parents[1] / "experiments" / "robustness.py"
-    spec = importlib.util.spec_from_file_location("robustness", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = experiment("robustness")
     image = np.random.default_rng(0).integers(0, 256, (16, 32, 3), dtype=np.uint8)
     for name, (operation, _) in module.DEGRADATIONS.items():
         degraded = operation(image)
@@ -87,3 +96,13 @@ def test_robustness_degradations_keep_the_image_format():
         assert np.array_equal(degraded, image) == (name == "none"), name
     grey = module.DEGRADATIONS["greyscale"][0](image)
     assert np.array_equal(grey[..., 0], grey[..., 2])
+
+
+def test_resolution_shrinks_by_pixel_area_averaging():
+    module = experiment("resolution")
+    image = np.random.default_rng(0).integers(0, 256, (8, 16, 3), dtype=np.uint8)
+    half = module.shrunk(image, 8)
+    blocks = image.reshape(4, 2, 8, 2, 3).astype(float).mean(axis=(1, 3))
+    assert half.shape == (4, 8, 3) and half.dtype == np.uint8
+    assert np.abs(half.astype(float) - blocks).max() <= 0.5
+    assert module.shrunk(image, 16) is image
