@@ -4,7 +4,8 @@
 (the last one padded, so each size compiles once), runs
 :func:`~ncjax._reconstruct.reconstruct_batch` and writes per image
 ``<name>.json``, ``<name>.obj/.ply/.glb`` (when a layout was found),
-``<name>_overlay.png`` and ``<name>_plan.png``. Every file is written to a
+``<name>_overlay.png`` and ``<name>_plan.png``, and at the end ``summary.csv``
+(one line per input image: its result, heights, area, or why it failed). Every file is written to a
 temporary name and renamed, so an interrupted run leaves no half-written
 file. A bad image is reported and skipped; the command ends with exit code
 1 and the list of failures if any image failed, 2 for bad arguments.
@@ -31,6 +32,8 @@ from ._network import check_views
 from ._pipeline import LayoutStatus
 from ._predict import DEFAULT_VIEWS
 
+WORLD_HELP = ("room model: manhattan (walls at right angles), atlanta (vertical walls at any angles), or auto "
+              "(per panorama, the one whose layout explains more of the boundaries; default)")
 MAX_RC = 3.0  # metres; the capture rigs have radii of tens of centimetres
 DEMO_DIR = pathlib.Path(__file__).parent / "data" / "demo"
 
@@ -88,6 +91,49 @@ def failure_message(record: dict) -> str:
         return f"no layout found ({message})"
     sigma = record["room_height_sigma"]
     return f"layout of uncertain scale written ({message}; room height {record['room_height']:.2f} ± {sigma or math.inf:.2f} m)"
+
+
+SUMMARY_FILE = "summary.csv"
+SUMMARY_COLUMNS = (
+    "file", "name", "result", "status", "corners", "room_height_m", "room_height_sigma_m", "ceiling_height_m",
+    "floor_height_m", "floor_area_m2", "perimeter_m", "branch", "rc_m", "message",
+)
+
+
+def summary_row(path: str, record: dict | None, message: str = "") -> dict:
+    """One image's line of ``summary.csv``: its layout's figures from the JSON record, or why it has none.
+
+    ``result`` is "ok", "uncertain scale" (geometry written, scale unsure), "no layout"
+    (the pipeline found none) or "error" (unreadable file, missing radius, failed batch;
+    ``record`` None).
+    """
+    row = dict.fromkeys(SUMMARY_COLUMNS, "") | {"file": path, "name": pathlib.Path(path).stem, "message": message}
+    if record is None:
+        return row | {"result": "error"}
+    figures = {"room_height_m": "room_height", "room_height_sigma_m": "room_height_sigma", "ceiling_height_m": "ceiling_height",
+               "floor_height_m": "floor_height", "floor_area_m2": "floor_area", "perimeter_m": "perimeter", "rc_m": "rc"}
+    written = bool(record["floor_corners"])
+    return row | {
+        "result": "ok" if record["ok"] else "uncertain scale" if written else "no layout",
+        "status": record["status"],
+        "corners": len(record["floor_corners"]) if written else "",
+        "branch": record["branch"] if written else "",
+        **{column: "" if record[key] is None else f"{record[key]:.4f}" for column, key in figures.items()},
+    }
+
+
+def write_summary(path: str, rows: list[dict]) -> None:
+    """``summary.csv``: one line per input image (:func:`summary_row`), written atomically."""
+    import csv
+    import io
+
+    from ._files import write_atomic
+
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=SUMMARY_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    write_atomic(path, text.getvalue().encode("utf-8"))
 
 
 def write_outputs(out: str, name: str, image: np.ndarray, result, rc: float, world: str, extra: dict | None = None):
@@ -159,16 +205,20 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     enable_compilation_cache()
 
     failures: dict[str, str] = {}
+    summary: dict[str, dict] = {}
     groups: dict[tuple[int, int], list] = collections.defaultdict(list)
     bar = tqdm(total=len(args.images), unit="image", desc="ncjax reconstruct")
 
     def done(path, record):
-        if not record["ok"]:
-            failures[path] = f"{path}: {failure_message(record)}; see {record['name']}_overlay.png"
+        message = "" if record["ok"] else f"{failure_message(record)}; see {record['name']}_overlay.png"
+        if message:
+            failures[path] = f"{path}: {message}"
+        summary[path] = summary_row(path, record, message)
         bar.update()
 
     def failed(path, message):
         failures[path] = message
+        summary[path] = summary_row(path, None, message.removeprefix(f"{path}: "))
         bar.update()
 
     for path, name in zip(args.images, names):
@@ -194,8 +244,9 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         if group:
             _reconstruct_group(model, group, args.batch, args.world, args.views, args.edge_snap, args.out, done, failed)
     bar.close()
+    write_summary(os.path.join(args.out, SUMMARY_FILE), [summary[path] for path in args.images])
     succeeded = len(args.images) - len(failures)
-    print(f"{succeeded} of {len(args.images)} images reconstructed into {args.out}")
+    print(f"{succeeded} of {len(args.images)} images reconstructed into {args.out} (one line per image: {SUMMARY_FILE})")
     if failures:
         print(f"{len(failures)} failed:", file=sys.stderr)
         for reason in failures.values():
@@ -251,7 +302,7 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("images", nargs="+", help="panorama files (full 360 x 180 degrees, width = 2 x height)")
     parser.add_argument("--rc", required=True, help="radius in metres, or 'auto' to read it from the names (_R06101)")
     parser.add_argument("--out", required=True, help="output folder (created if needed)")
-    parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto")
+    parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto", help=WORLD_HELP)
     parser.add_argument("--model", help="network weights (.safetensors); default: the shipped model")
     parser.add_argument("--batch", type=int, default=4, help="images per jitted call")
     add_boundary_arguments(parser)
@@ -271,5 +322,5 @@ def add_boundary_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="ncjax_demo", help="output folder (default ./ncjax_demo)")
-    parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto")
+    parser.add_argument("--world", choices=("auto", "manhattan", "atlanta"), default="auto", help=WORLD_HELP)
     add_boundary_arguments(parser)

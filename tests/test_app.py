@@ -114,7 +114,10 @@ def test_a_batch_that_raises_is_reported_and_the_run_goes_on(tmp_path, capsys, m
     for image in images:  # both batches were tried
         assert f"{image}: the reconstruction failed (RuntimeError: RESOURCE_EXHAUSTED: Out of memory" in errors
     assert errors.count("bytes.); try a smaller --batch") == 3
-    assert "more detail" not in errors and list(out.iterdir()) == []
+    assert "more detail" not in errors
+    assert [path.name for path in out.iterdir()] == ["summary.csv"]  # no image's outputs; the summary lists the three
+    lines = (out / "summary.csv").read_text().splitlines()
+    assert len(lines) == 4 and all(",error,," in line and "Out of memory" in line for line in lines[1:])
 
 
 def test_images_that_would_overwrite_each_other_are_refused(tmp_path, capsys):
@@ -150,14 +153,14 @@ def batch_run(tmp_path_factory):
     with contextlib.redirect_stderr(errors):
         code = cli.main(["reconstruct", *files.values(), "--rc", "auto", "--out", str(out), "--batch", "2",
                          "--world", "auto"])
-    return code, out, errors.getvalue()
+    return code, out, errors.getvalue(), list(files.values())
 
 
 def test_reconstruct_writes_every_output_of_good_images(batch_run):
     # Plumbing, not accuracy (experiments/network_table.py measures that): every decodable image gets its
     # json, overlay and plan; a mesh exactly when a layout was found (also one of uncertain scale); a layout that
     # is not ok is listed as a failure.
-    _, out, errors = batch_run
+    _, out, errors, _ = batch_run
     assert "near_R06825.png: 512 x 255 pixels is not exactly 2:1; resized to 512 x 256" in errors
     for name in ("room_R06825", "grey16_R06825", "rgba_R06825", "near_R06825"):
         record = json.loads((out / f"{name}.json").read_text())
@@ -178,7 +181,7 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
 
 
 def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
-    code, out, errors = batch_run
+    code, out, errors, _ = batch_run
     assert code == 1
     assert "failed:" in errors
     assert "cut_R06825.png: the PNG data ends before its IEND chunk" in errors
@@ -187,6 +190,47 @@ def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
     written = {path.name for path in out.iterdir()}
     assert not any(name.startswith(("cut", "noradius", "wide")) for name in written)
     assert not any(".tmp" in name or name.startswith(".") for name in written), written
+
+
+def test_reconstruct_summarises_every_image_in_one_csv(batch_run):
+    import csv
+
+    _, out, _, files = batch_run
+    with open(out / "summary.csv", newline="") as file:
+        rows = list(csv.DictReader(file))
+    assert [row["file"] for row in rows] == files  # every input, in the order given
+    for row in rows:
+        name = row["name"]
+        if name.startswith(("cut", "noradius", "wide")):
+            assert row["result"] == "error" and row["status"] == "" and row["room_height_m"] == ""
+            assert row["message"] and not row["message"].startswith(row["file"])
+            continue
+        record = json.loads((out / f"{name}.json").read_text())
+        assert row["status"] == record["status"] and row["branch"] in ("manhattan", "atlanta", "")
+        expected = "ok" if record["ok"] else "uncertain scale" if record["floor_corners"] else "no layout"
+        assert row["result"] == expected and (row["message"] == "") == record["ok"]
+        if record["floor_corners"]:
+            assert int(row["corners"]) == len(record["floor_corners"])
+            assert float(row["room_height_m"]) == pytest.approx(record["room_height"], abs=1e-4)
+            assert float(row["floor_area_m2"]) == pytest.approx(record["floor_area"], abs=1e-4)
+    assert "rgba_R06825" in {row["name"] for row in rows if row["result"] != "error"}
+
+
+def test_summary_rows_of_each_result():
+    from ncjax._app import summary_row
+
+    record = {"ok": True, "status": "OK", "branch": "atlanta", "floor_corners": [[0.0, 0.0, -1.5]] * 5, "room_height": 2.5,
+              "room_height_sigma": 0.02, "ceiling_height": 1.0, "floor_height": -1.5, "floor_area": 12.25, "perimeter": 14.0,
+              "rc": 0.6101}
+    ok = summary_row("in/L101_R06101.png", record)
+    assert ok["result"] == "ok" and ok["name"] == "L101_R06101" and ok["corners"] == 5 and ok["room_height_m"] == "2.5000"
+    unsure = summary_row("a.png", record | {"ok": False, "status": "UNCERTAIN_SCALE", "room_height_sigma": None}, "why")
+    assert unsure["result"] == "uncertain scale" and unsure["room_height_sigma_m"] == "" and unsure["message"] == "why"
+    empty = {key: None for key in ("room_height", "room_height_sigma", "ceiling_height", "floor_height", "floor_area", "perimeter")}
+    none = summary_row("b.png", record | empty | {"ok": False, "status": "NO_CORNERS", "floor_corners": []}, "none found")
+    assert none["result"] == "no layout" and none["corners"] == "" and none["branch"] == "" and none["rc_m"] == "0.6101"
+    error = summary_row("c.png", None, "truncated")
+    assert error["result"] == "error" and error["status"] == "" and error["message"] == "truncated"
 
 
 def test_demo_reconstructs_the_shipped_sample(tmp_path, capsys):
