@@ -530,6 +530,14 @@ def room_height_sigma(height_covariance: Float[ArrayLike, "*#batch 2 2"]) -> Flo
     return jnp.where(jnp.isfinite(variance), jnp.sqrt(jnp.maximum(jnp.nan_to_num(variance), 0.0)), jnp.inf)
 
 
+# Added to the equilibrated normal matrix (unit diagonal) before its Cholesky factorisation: a prior
+# variance of 1e6 times each parameter's own scale. float32 Cholesky fails from a condition number of about
+# 1e7 (a wall seen by a few columns at a grazing angle), which made every covariance of the layout infinite;
+# with the ridge only the poorly fixed directions get huge variances (chosen on the tuning renders: 1e-4
+# shrank the sigmas of runaway-scale layouts below the scale test's threshold, 1e-6 did not).
+COVARIANCE_RIDGE = 1e-6
+
+
 def layout_uncertainty(
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
@@ -560,8 +568,12 @@ def layout_uncertainty(
             as for :func:`adjust_layout`; the walls are its result.
         max_lag: static largest lag of :func:`correlation_time`, in observations.
 
+    A parameter that no residual depends on (a wall no used row or corner row
+    sees) is held fixed: the heights and the other walls get their covariance
+    without it, and the corners of that wall an infinite one.
+
     Returns:
-        A :class:`LayoutUncertainty`; infinite where ``J^T J`` is singular.
+        A :class:`LayoutUncertainty`; infinite where ``J^T J`` cannot be inverted.
     """
     problem = _layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
@@ -593,7 +605,8 @@ def layout_uncertainty(
     norms = safe_sqrt(squared_column_norms(jacobian, structure))
     scale = inverse_or_zero(norms)
     scaled = scale_columns(jacobian, structure, scale)
-    cholesky = jnp.linalg.cholesky(normal_matrix(scaled, structure))
+    unconstrained = norms == 0
+    cholesky = jnp.linalg.cholesky(normal_matrix(scaled, structure) + jnp.diag(jnp.where(unconstrained, 1.0, COVARIANCE_RIDGE)))
     inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))
     # the sandwich (J^T J)^-1 J^T V J (J^T J)^-1 (the fit's weights need not be the rows' inverse
     # variances) as the Gram matrix of V^1/2 J (J^T J)^-1: positive semi-definite in float32 too, which
@@ -603,7 +616,7 @@ def layout_uncertainty(
         in_axes=1, out_axes=1,
     )(inverse)
     covariance = tau * scale[:, None] * (spread.T @ spread) * scale[None, :]
-    singular = ~jnp.all(jnp.isfinite(covariance)) | jnp.any(norms == 0)
+    singular = ~jnp.all(jnp.isfinite(covariance))
     covariance = jnp.where(singular, 0.0, covariance)
 
     def corners(f):
@@ -612,7 +625,8 @@ def layout_uncertainty(
 
     corner_jacobian = jax.jacfwd(corners)(flat)  # (K, 2, P)
     corner_covariance = jnp.einsum("kip,pq,kjq->kij", corner_jacobian, covariance, corner_jacobian)
-    corner_covariance = jnp.where(observations.wall_mask[:, None, None], jnp.where(singular, jnp.inf, corner_covariance), 0.0)
+    loose = singular | jnp.any((corner_jacobian != 0) & unconstrained, axis=(1, 2))
+    corner_covariance = jnp.where(observations.wall_mask[:, None, None], jnp.where(loose[:, None, None], jnp.inf, corner_covariance), 0.0)
     height_covariance = jnp.where(singular, jnp.inf, covariance[-2:, -2:])
     row_sigma = safe_sqrt(boundary_variance) / observations.row_weights
     return LayoutUncertainty(corner_covariance, height_covariance, row_sigma, tau)

@@ -360,12 +360,39 @@ def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
         uncertainty = layout_uncertainty(cam, observations, *walls, wall_labels)
         corners = np.asarray(uncertainty.corner_covariance)[np.asarray(room.mask)]
         if not np.all(np.isfinite(corners)):
-            continue  # a wall that no column sees: J^T J is singular, the covariance infinite by design
+            continue  # a wall that no column sees: its corners' covariance is infinite by design
         checked += 1
         assert np.all(np.linalg.eigvalsh(corners) >= -1e-9), np.linalg.eigvalsh(corners).min()
         assert np.all(np.diag(np.asarray(uncertainty.height_covariance)) >= 0)
         assert float(uncertainty.correlation_time) < 3.0  # white ceiling noise; the floor's rounding does not count
     assert checked >= 2
+
+
+@pytest.mark.parametrize("manhattan", [True, False])
+def test_layout_uncertainty_of_a_wall_no_row_sees(manhattan):
+    """One wall's rows unused: its corners' covariance is infinite, the heights' and the other corners' finite;
+    the other walls still fix the heights, about as well as every wall does."""
+    batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
+    room, label = pick(batch, 2), pick(labels, 2)
+    cam = room.camera(WIDTH, HEIGHT)
+    directions, distances = ncjax.room_walls(room)[:2]
+    wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if manhattan else None
+    noise = jax.random.normal(jax.random.key(5), (2, WIDTH))
+    every = _noisy_label_rows(room, label, noise[0], noise[1])
+    hidden = 1
+    seen = label.wall_index != hidden
+    blind = dataclasses.replace(every, ceiling_used=seen, floor_used=seen)
+    walls = adjust_layout(cam, every, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
+    full, partial = (layout_uncertainty(cam, o, *walls, wall_labels) for o in (every, blind))
+    count = int(np.sum(room.mask))
+    touching = np.isin(np.arange(count), [hidden, (hidden + 1) % count])  # wall k runs from corner k to k + 1
+    corners = np.asarray(partial.corner_covariance)[:count]
+    assert np.all(np.isinf(corners[touching])) and np.all(np.isfinite(corners[~touching]))
+    assert np.all(np.isfinite(np.asarray(full.corner_covariance)[:count]))
+    height, full_height = np.asarray(partial.height_covariance), np.asarray(full.height_covariance)
+    assert np.all(np.isfinite(height)) and np.all(np.linalg.eigvalsh(height) >= 0)
+    np.testing.assert_allclose(np.diag(height), np.diag(full_height), rtol=0.5)
+    assert np.all(np.linalg.eigvalsh(corners[~touching]) > 0)
 
 
 def test_correlation_time_matches_a_direct_sum():
