@@ -26,7 +26,9 @@ CE needs the corner counts to match, but 3D IoU does not: a layout that merges
 a jog of a few centimetres into one wall is still a usable room. A fourth
 table ("every layout returned") therefore scores every ok layout whatever its
 corner count: the share of rooms that get one, its 3D IoU, and the IoU over
-all rooms with 0 where no layout was returned.
+all rooms with 0 where no layout was returned. Its last columns also score the
+layouts flagged UNCERTAIN_SCALE, whose geometry ``ncjax reconstruct`` writes
+with the flag: their share and 3D IoU, and the IoU over all rooms with them.
 
     uv run python experiments/network_table.py                # 128 rooms per world
     uv run python experiments/network_table.py --small        # 8 rooms per world
@@ -289,7 +291,7 @@ def main(argv=None):
         comparison[world] = summary(results["pipeline"])
         record[f"pipeline_{world}_per_room"] = [
             {key: float(r[key]) if isinstance(r[key], (float, np.floating)) else r[key]
-             for key in ("failed", "status", "corners", "true_corners", "ce", "iou3d", "height_error") if key in r}
+             for key in ("returned", "written", "failed", "status", "corners", "true_corners", "ce", "iou3d", "height_error") if key in r}
             | {"occluded": not bool(keep)} for r, keep in zip(results["pipeline"], clear)
         ]
         causes[world] = failure_causes(results["pipeline"])

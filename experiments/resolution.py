@@ -66,20 +66,24 @@ def shrunk(image: np.ndarray, width: int) -> np.ndarray:
 
 
 def layouts_at(samples, world: str, width: int):
-    """The ok-or-not layouts of ``samples`` shrunk to ``width``, and the seconds per panorama after the first batch."""
+    """The layouts (ok or not) of ``samples`` shrunk to ``width``, and the seconds per panorama after the first
+    batch (the reconstruction alone: the images are shrunk before the clock starts)."""
+    images = [shrunk(s.image, width) for s in samples]
     layouts, started = [], None
     for start in tqdm(range(0, len(samples), BATCH), desc=f"reconstruct {world} at {width}"):
-        chunk = samples[start : start + BATCH]
+        chunk = list(range(start, min(start + BATCH, len(samples))))
         chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
-        images = np.stack([shrunk(s.image, width) for s in chunk])
-        result = jax.device_get(reconstruct_batch(images, np.array([s.rc for s in chunk], np.float32), world).layout)
+        batch = np.stack([images[i] for i in chunk])
+        radii = np.array([samples[i].rc for i in chunk], np.float32)
+        result = jax.device_get(reconstruct_batch(batch, radii, world).layout)
         layouts += [jax.tree.map(lambda x: x[i], result) for i in range(min(BATCH, len(samples) - start))]
         started = started or (time.perf_counter(), start + BATCH)
     timed = len(samples) - started[1]
     return layouts, (time.perf_counter() - started[0]) / timed if timed > 0 else math.nan
 
 
-def row(layouts, truths) -> dict:
+def width_scores(layouts, truths) -> dict:
+    """One line of the table: the scores of one world's layouts at one width (see the module docstring)."""
     per_room = scores(layouts, truths)
     ok = [r for r in per_room if r["returned"]]
     strict = [r["ce"] for r in ok if not r["failed"]]
@@ -122,7 +126,7 @@ def main(argv=None):
         truths = [ground_truth(s, world) for s in samples]
         for width in args.widths:
             layouts, seconds = layouts_at(samples, world, width)
-            r = row(layouts, truths) | {"seconds_per_panorama": seconds}
+            r = width_scores(layouts, truths) | {"seconds_per_panorama": seconds}
             record[f"{world}_{width}"] = r
             lines.append(f"| {world} | {width} | {r['ok']:.1f} | {r['uncertain_scale']:.1f} | {r['height_error_median']:.3f} / "
                          f"{r['height_error_p90']:.3f} | {r['relative_sigma_median']:.3f} | {r['true_corner_count']:.1f} | "

@@ -530,11 +530,12 @@ def room_height_sigma(height_covariance: Float[ArrayLike, "*#batch 2 2"]) -> Flo
     return jnp.where(jnp.isfinite(variance), jnp.sqrt(jnp.maximum(jnp.nan_to_num(variance), 0.0)), jnp.inf)
 
 
-# Added to the equilibrated normal matrix (unit diagonal) before its Cholesky factorisation: a prior
-# variance of 1e6 times each parameter's own scale. float32 Cholesky fails from a condition number of about
-# 1e7 (a wall seen by a few columns at a grazing angle), which made every covariance of the layout infinite;
-# with the ridge only the poorly fixed directions get huge variances (chosen on the tuning renders: 1e-4
-# shrank the sigmas of runaway-scale layouts below the scale test's threshold, 1e-6 did not).
+# A weak prior on every parameter, in units of its own scale (the equilibrated normal matrix has a unit
+# diagonal): 1e-6 of the information the rows give a parameter that they alone fix, so a standard deviation
+# 1000 times that parameter's. float32
+# Cholesky fails from a condition number of about 1e7 (a wall seen by a few columns at a grazing angle), which
+# made every covariance of the layout infinite; with the prior, a direction the rows fix keeps its variance
+# and one they hardly fix gets about 1e6 times the rows' noise, so whatever depends on it stays uncertain.
 COVARIANCE_RIDGE = 1e-6
 
 
@@ -563,17 +564,19 @@ def layout_uncertainty(
     consecutive walls meet). It describes the noise of the rows, not a
     wrong wall structure (a missed or extra corner).
 
+    A weak prior (``COVARIANCE_RIDGE``) keeps ``J^T J`` invertible in float32:
+    the directions the rows hardly fix get huge variances, not a failed
+    factorisation. A parameter that no residual depends on (a wall that no used
+    row or corner row sees) gets an infinite variance: the corners of that wall,
+    or the heights if it is one of them.
+
     Args:
         cam, observations, directions, distances, ceiling_height, floor_height, labels, corner_weight:
             as for :func:`adjust_layout`; the walls are its result.
         max_lag: static largest lag of :func:`correlation_time`, in observations.
 
-    A parameter that no residual depends on (a wall no used row or corner row
-    sees) is held fixed: the heights and the other walls get their covariance
-    without it, and the corners of that wall an infinite one.
-
     Returns:
-        A :class:`LayoutUncertainty`; infinite where ``J^T J`` cannot be inverted.
+        A :class:`LayoutUncertainty`; infinite where a parameter is free (see above).
     """
     problem = _layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
@@ -605,9 +608,9 @@ def layout_uncertainty(
     norms = safe_sqrt(squared_column_norms(jacobian, structure))
     scale = inverse_or_zero(norms)
     scaled = scale_columns(jacobian, structure, scale)
-    unconstrained = norms == 0
-    cholesky = jnp.linalg.cholesky(normal_matrix(scaled, structure) + jnp.diag(jnp.where(unconstrained, 1.0, COVARIANCE_RIDGE)))
-    inverse = jax.scipy.linalg.cho_solve((cholesky, True), jnp.eye(flat.shape[0], dtype=flat.dtype))
+    identity = jnp.eye(flat.shape[0], dtype=flat.dtype)
+    cholesky = jnp.linalg.cholesky(normal_matrix(scaled, structure) + COVARIANCE_RIDGE * identity)
+    inverse = jax.scipy.linalg.cho_solve((cholesky, True), identity)
     # the sandwich (J^T J)^-1 J^T V J (J^T J)^-1 (the fit's weights need not be the rows' inverse
     # variances) as the Gram matrix of V^1/2 J (J^T J)^-1: positive semi-definite in float32 too, which
     # the product of the three matrices is not where J^T J is ill-conditioned
@@ -615,9 +618,15 @@ def layout_uncertainty(
         lambda column: jacobian_product(scaled * safe_sqrt(residual_variance)[:, None], structure, column),
         in_axes=1, out_axes=1,
     )(inverse)
-    covariance = tau * scale[:, None] * (spread.T @ spread) * scale[None, :]
-    singular = ~jnp.all(jnp.isfinite(covariance))
-    covariance = jnp.where(singular, 0.0, covariance)
+    # the prior's share of the sandwich, (A^-1 (J^T V J + ridge s I) A^-1 with A = J^T J + ridge I): without it a
+    # direction the rows leave free (J v = 0) would get variance 0 instead of s / ridge
+    prior = safe_sqrt(COVARIANCE_RIDGE * pooled_variance) * inverse
+    covariance = tau * scale[:, None] * (spread.T @ spread + prior.T @ prior) * scale[None, :]
+    # a parameter no residual depends on (a wall that no used row or corner row sees, a height without rows) has
+    # scale 0, hence covariance 0: what depends on it is set infinite below
+    unconstrained = norms == 0
+    failed = ~jnp.all(jnp.isfinite(covariance))
+    covariance = jnp.where(failed, 0.0, covariance)
 
     def corners(f):
         wall_directions, wall_distances, _, _ = problem.walls(unravel(f))
@@ -625,8 +634,8 @@ def layout_uncertainty(
 
     corner_jacobian = jax.jacfwd(corners)(flat)  # (K, 2, P)
     corner_covariance = jnp.einsum("kip,pq,kjq->kij", corner_jacobian, covariance, corner_jacobian)
-    loose = singular | jnp.any((corner_jacobian != 0) & unconstrained, axis=(1, 2))
+    loose = failed | jnp.any((corner_jacobian != 0) & unconstrained, axis=(1, 2))
     corner_covariance = jnp.where(observations.wall_mask[:, None, None], jnp.where(loose[:, None, None], jnp.inf, corner_covariance), 0.0)
-    height_covariance = jnp.where(singular, jnp.inf, covariance[-2:, -2:])
+    height_covariance = jnp.where(failed | jnp.any(unconstrained[-2:]), jnp.inf, covariance[-2:, -2:])
     row_sigma = safe_sqrt(boundary_variance) / observations.row_weights
     return LayoutUncertainty(corner_covariance, height_covariance, row_sigma, tau)

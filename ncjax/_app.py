@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import argparse
 import collections
+import csv
+import io
 import json
 import math
 import os
@@ -98,35 +100,45 @@ SUMMARY_COLUMNS = (
     "file", "name", "result", "status", "corners", "room_height_m", "room_height_sigma_m", "ceiling_height_m",
     "floor_height_m", "floor_area_m2", "perimeter_m", "branch", "rc_m", "message",
 )
+# summary.csv's columns taken from the JSON record's keys
+SUMMARY_FIGURES = {
+    "room_height_m": "room_height", "room_height_sigma_m": "room_height_sigma", "ceiling_height_m": "ceiling_height",
+    "floor_height_m": "floor_height", "floor_area_m2": "floor_area", "perimeter_m": "perimeter", "rc_m": "rc",
+}
 
 
 def summary_row(path: str, record: dict | None, message: str = "") -> dict:
     """One image's line of ``summary.csv``: its layout's figures from the JSON record, or why it has none.
 
-    ``result`` is "ok", "uncertain scale" (geometry written, scale unsure), "no layout"
-    (the pipeline found none) or "error" (unreadable file, missing radius, failed batch;
-    ``record`` None).
+    Args:
+        path: the input file as given.
+        record: its JSON record (:func:`write_outputs`), or None when it has none (unreadable file,
+            missing radius, failed batch).
+        message: why the image has no ok layout ("" when it has one).
+
+    Returns:
+        The row, keyed by ``SUMMARY_COLUMNS``. ``result`` is "ok", "uncertain scale" (geometry
+        written, scale unsure), "no layout" (the pipeline found none) or "error" (no record).
+        Figures have 4 decimals; a layout's room-height sigma that the fit leaves open (JSON null)
+        is "inf", as the CLI prints it; empty cells are figures the image does not have.
     """
     row = dict.fromkeys(SUMMARY_COLUMNS, "") | {"file": path, "name": pathlib.Path(path).stem, "message": message}
     if record is None:
         return row | {"result": "error"}
-    figures = {"room_height_m": "room_height", "room_height_sigma_m": "room_height_sigma", "ceiling_height_m": "ceiling_height",
-               "floor_height_m": "floor_height", "floor_area_m2": "floor_area", "perimeter_m": "perimeter", "rc_m": "rc"}
     written = bool(record["floor_corners"])
-    return row | {
+    figures = {column: "" if record[key] is None else f"{record[key]:.4f}" for column, key in SUMMARY_FIGURES.items()}
+    if written and record["room_height_sigma"] is None:
+        figures["room_height_sigma_m"] = "inf"
+    return row | figures | {
         "result": "ok" if record["ok"] else "uncertain scale" if written else "no layout",
         "status": record["status"],
         "corners": len(record["floor_corners"]) if written else "",
         "branch": record["branch"] if written else "",
-        **{column: "" if record[key] is None else f"{record[key]:.4f}" for column, key in figures.items()},
     }
 
 
 def write_summary(path: str, rows: list[dict]) -> None:
     """``summary.csv``: one line per input image (:func:`summary_row`), written atomically."""
-    import csv
-    import io
-
     from ._files import write_atomic
 
     text = io.StringIO()

@@ -1,6 +1,7 @@
 """The product: reading panoramas, ``ncjax reconstruct`` (outputs, bad input, exit codes) and ``ncjax demo``."""
 
 import json
+import math
 import pathlib
 
 import cv2
@@ -206,13 +207,14 @@ def test_reconstruct_summarises_every_image_in_one_csv(batch_run):
             assert row["message"] and not row["message"].startswith(row["file"])
             continue
         record = json.loads((out / f"{name}.json").read_text())
-        assert row["status"] == record["status"] and row["branch"] in ("manhattan", "atlanta", "")
+        assert row["status"] == record["status"] and float(row["rc_m"]) == pytest.approx(0.6825)
         expected = "ok" if record["ok"] else "uncertain scale" if record["floor_corners"] else "no layout"
         assert row["result"] == expected and (row["message"] == "") == record["ok"]
         if record["floor_corners"]:
-            assert int(row["corners"]) == len(record["floor_corners"])
+            assert int(row["corners"]) == len(record["floor_corners"]) and row["branch"] == record["branch"]
             assert float(row["room_height_m"]) == pytest.approx(record["room_height"], abs=1e-4)
             assert float(row["floor_area_m2"]) == pytest.approx(record["floor_area"], abs=1e-4)
+            assert float(row["room_height_sigma_m"]) == pytest.approx(record["room_height_sigma"] or math.inf, abs=1e-4)
     assert "rgba_R06825" in {row["name"] for row in rows if row["result"] != "error"}
 
 
@@ -225,10 +227,11 @@ def test_summary_rows_of_each_result():
     ok = summary_row("in/L101_R06101.png", record)
     assert ok["result"] == "ok" and ok["name"] == "L101_R06101" and ok["corners"] == 5 and ok["room_height_m"] == "2.5000"
     unsure = summary_row("a.png", record | {"ok": False, "status": "UNCERTAIN_SCALE", "room_height_sigma": None}, "why")
-    assert unsure["result"] == "uncertain scale" and unsure["room_height_sigma_m"] == "" and unsure["message"] == "why"
+    assert unsure["result"] == "uncertain scale" and unsure["room_height_sigma_m"] == "inf" and unsure["message"] == "why"
     empty = {key: None for key in ("room_height", "room_height_sigma", "ceiling_height", "floor_height", "floor_area", "perimeter")}
     none = summary_row("b.png", record | empty | {"ok": False, "status": "NO_CORNERS", "floor_corners": []}, "none found")
     assert none["result"] == "no layout" and none["corners"] == "" and none["branch"] == "" and none["rc_m"] == "0.6101"
+    assert none["room_height_sigma_m"] == ""
     error = summary_row("c.png", None, "truncated")
     assert error["result"] == "error" and error["status"] == "" and error["message"] == "truncated"
 

@@ -17,6 +17,7 @@ def experiment(name: str):
     spec.loader.exec_module(module)
     return module
 
+
 def test_noise_sweep_small(tmp_path):
     module = experiment("noise_sweep")
     results, rc_results, ablation = module.main(["--small", "--out", str(tmp_path)])

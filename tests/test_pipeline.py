@@ -395,6 +395,46 @@ def test_layout_uncertainty_of_a_wall_no_row_sees(manhattan):
     assert np.all(np.linalg.eigvalsh(corners[~touching]) > 0)
 
 
+def test_layout_uncertainty_of_a_wall_one_corner_pins():
+    """Atlanta: a wall whose rows are unused and whose start corner alone is observed (two parameters, one
+    constraint: J^T J singular, no column zero) leaves its far corner free: a variance orders of magnitude
+    above the other corners', not the near-zero one of a regularised inverse without its prior."""
+    batch, labels = rooms("atlanta", "none")
+    room, label = pick(batch, 2), pick(labels, 2)
+    cam = room.camera(WIDTH, HEIGHT)
+    directions, distances = ncjax.room_walls(room)[:2]
+    noise = jax.random.normal(jax.random.key(5), (2, WIDTH))
+    every = _noisy_label_rows(room, label, noise[0], noise[1])
+    count, hidden = int(np.sum(room.mask)), 1
+    wall, before = np.asarray(label.wall_index), np.roll(np.asarray(label.wall_index), 1)
+    meets = ((before == hidden - 1) & (wall == hidden)) | ((before == hidden) & (wall == hidden - 1))
+    start_corner = jnp.zeros(len(room.mask)).at[hidden].set(np.flatnonzero(meets)[0] - 0.5)  # between two pixel columns
+    seen = label.wall_index != hidden
+    pinned = dataclasses.replace(every, ceiling_used=seen, floor_used=seen, corner_columns=start_corner,
+                                 corner_used=jnp.arange(len(room.mask)) == hidden)
+    walls = adjust_layout(cam, every, directions, distances, room.ceiling_height, room.floor_height, None)[:4]
+    full, partial = (layout_uncertainty(cam, o, *walls, None) for o in (every, pinned))
+    spread = np.trace(np.asarray(partial.corner_covariance)[:count], axis1=1, axis2=2)
+    far, elsewhere = hidden + 1, ~np.isin(np.arange(count), [hidden, hidden + 1])
+    assert np.all(np.isfinite(spread)) and spread[far] > 1e3 * spread[elsewhere].max(), spread
+    np.testing.assert_allclose(np.diag(partial.height_covariance), np.diag(full.height_covariance), rtol=0.5)
+
+
+def test_layout_uncertainty_of_a_height_no_row_sees():
+    """No ceiling row used: the ceiling height is free, so the room height's sigma is infinite (not 0)."""
+    batch, labels = rooms("manhattan", "none")
+    room, label = pick(batch, 2), pick(labels, 2)
+    cam = room.camera(WIDTH, HEIGHT)
+    directions, distances = ncjax.room_walls(room)[:2]
+    wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0]
+    noise = jax.random.normal(jax.random.key(6), (2, WIDTH))
+    every = _noisy_label_rows(room, label, noise[0], noise[1])
+    floor_only = dataclasses.replace(every, ceiling_used=jnp.zeros(WIDTH, bool))
+    walls = adjust_layout(cam, every, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
+    assert np.isfinite(float(room_height_sigma(layout_uncertainty(cam, every, *walls, wall_labels).height_covariance)))
+    assert np.isinf(float(room_height_sigma(layout_uncertainty(cam, floor_only, *walls, wall_labels).height_covariance)))
+
+
 def test_correlation_time_matches_a_direct_sum():
     """tau = 1 + 2 sum of the lag correlations up to the first non-positive one, pairs on one wall only (cyclic)."""
     rng = np.random.default_rng(3)
