@@ -216,20 +216,16 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     os.makedirs(args.out, exist_ok=True)
     enable_compilation_cache()
 
-    failures: dict[str, str] = {}
-    summary: dict[str, dict] = {}
+    summary: dict[str, dict] = {}  # path -> its summary.csv row, in the order the images finished
     groups: dict[tuple[int, int], list] = collections.defaultdict(list)
     bar = tqdm(total=len(args.images), unit="image", desc="ncjax reconstruct")
 
     def done(path, record):
         message = "" if record["ok"] else f"{failure_message(record)}; see {record['name']}_overlay.png"
-        if message:
-            failures[path] = f"{path}: {message}"
         summary[path] = summary_row(path, record, message)
         bar.update()
 
     def failed(path, message):
-        failures[path] = message
         summary[path] = summary_row(path, None, message.removeprefix(f"{path}: "))
         bar.update()
 
@@ -257,11 +253,12 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             _reconstruct_group(model, group, args.batch, args.world, args.views, args.edge_snap, args.out, done, failed)
     bar.close()
     write_summary(os.path.join(args.out, SUMMARY_FILE), [summary[path] for path in args.images])
+    failures = [f"{path}: {row['message']}" for path, row in summary.items() if row["message"]]
     succeeded = len(args.images) - len(failures)
     print(f"{succeeded} of {len(args.images)} images reconstructed into {args.out} (one line per image: {SUMMARY_FILE})")
     if failures:
         print(f"{len(failures)} failed:", file=sys.stderr)
-        for reason in failures.values():
+        for reason in failures:
             print(f"  {reason}", file=sys.stderr)
         return 1
     return 0
