@@ -54,6 +54,7 @@ from ncjax import metrics
 from ncjax._app import add_boundary_arguments
 from ncjax._checkpoint import load_model
 from ncjax._dataset import list_samples, read_sample, write_dataset
+from ncjax._export import status_has_geometry
 from ncjax._pipeline import PipelineConfig
 from ncjax._predict import DEFAULT_VIEWS, default_model
 from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG, reconstruct_batch
@@ -173,7 +174,7 @@ def scores(layouts, truths) -> list[dict]:
     for layout, truth in zip(layouts, truths):
         ok = bool(_field(layout, "ok"))
         status, mask = _field(layout, "status"), _field(layout, "mask")
-        written = ok or (status is not None and int(status) == ncjax.LayoutStatus.UNCERTAIN_SCALE)
+        written = status_has_geometry(ok, -1 if status is None else status)
         result = metrics.evaluate_layout(layout, truth) if written else None
         failed = not ok or not math.isfinite(result["ce"])
         out.append({

@@ -6,13 +6,17 @@ Tuning set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` with seeds 7
 the test renders are never used to choose the configuration. The shipped model's
 boundaries (snapped, ``--views`` views) are computed once and cached in
 ``experiments/out/tune_<rooms>_views<V>.npz``; each configuration then runs the
-pipeline alone (``layout_from_evidence``, each room with its own world).
+pipeline alone (``layout_from_evidence``, each room with its own world). ``--model``
+runs another model's boundaries through the same configurations (cached under its
+file's name), to compare a new model with the shipped one before it replaces it.
 
 Per configuration and world, as ``network_table.py`` scores it (a failure is a
 layout that is not ok or has the wrong corner count): failures, mean and median
 CE and 3D IoU of the other rooms, on the rooms without occlusion and on all
 rooms, and the 3D IoU over all rooms with failures as 0 ("IoU all0"), which
-rewards both more layouts and better ones: the configuration is chosen by it.
+rewards both more layouts and better ones: the configuration is chosen by it,
+and "returned, IoU all rooms": the ok layouts whatever their corner count, and
+their 3D IoU over all rooms with no layout as 0.
 Then the failures by cause: a layout status other than OK, or too few or too
 many corners. Last, the scale test (``max_height_uncertainty``): on the layouts
 of the configuration without it, how many ok layouts each threshold would fail
@@ -20,6 +24,7 @@ and how far off they were (a failure rate cannot choose it: it only adds failure
 
     uv run python experiments/tune_network_pipeline.py                  # 256 rooms per world
     uv run python experiments/tune_network_pipeline.py --rooms 16 --configs current
+    uv run python experiments/tune_network_pipeline.py --configs current --model my_model.safetensors
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ import ncjax
 from ncjax._adjust import room_height_sigma
 from ncjax._dataset import list_samples, read_sample, write_dataset
 from ncjax._pipeline import layout_from_evidence
+from ncjax._checkpoint import load_model
 from ncjax._predict import DEFAULT_VIEWS, default_model, predict_boundaries
 from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
 
@@ -80,9 +86,14 @@ CONFIGS = {
 SCALE_TEST_THRESHOLDS = (0.04, 0.06, 0.08, 0.1, 0.15, 0.2, math.inf)
 
 
-def tuning_boundaries(world: str, rooms: int, views: int, out: Path) -> dict:
-    """Rows, corner probability, radii, ground truths and occlusion flags of the tuning renders of ``world`` (cached)."""
-    cache = out / f"tune_{world}_{rooms}_views{views}.npz"
+def tuning_boundaries(world: str, rooms: int, views: int, out: Path, model_path: Path | None = None) -> dict:
+    """Rows, corner probability, radii, ground truths, true rows and occlusion flags of the tuning renders of ``world``.
+
+    The rows and corner probability are those of the model in ``model_path``
+    (default: the shipped one), cached per model.
+    """
+    suffix = "" if model_path is None else f"_{model_path.stem}"
+    cache = out / f"tune_{world}_{rooms}_views{views}{suffix}.npz"
     folder = out / f"tune_renders_{world}_{rooms}"
     if not (folder.is_dir() and len(list_samples(str(folder))) == rooms):
         config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
@@ -93,11 +104,12 @@ def tuning_boundaries(world: str, rooms: int, views: int, out: Path) -> dict:
         "rc": np.array([s.rc for s in samples], np.float32),
         "truth": [ground_truth(s, world) for s in samples],
         "clear": np.array([not any(s.metadata["corner_is_occlusion"]) for s in samples]),
+        "true_rows": np.stack([[s.metadata["ceiling_v"] for s in samples], [s.metadata["floor_v"] for s in samples]]),
     }
     if cache.is_file():
         with np.load(cache) as stored:
             return data | dict(stored)
-    model, rows = default_model(), []
+    model, rows = (default_model() if model_path is None else load_model(model_path)), []
     for start in tqdm(range(0, rooms, BATCH), desc=f"network {world}"):
         chunk = samples[start : start + BATCH]
         chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
@@ -105,6 +117,15 @@ def tuning_boundaries(world: str, rooms: int, views: int, out: Path) -> dict:
     boundaries = dict(zip(("ceiling_v", "floor_v", "corner_prob"), (np.concatenate(parts) for parts in zip(*rows))))
     np.savez(cache, **boundaries)
     return data | boundaries
+
+
+def row_errors(data: dict) -> str:
+    """The network's rows against the true ones, per boundary: mean / median |error| (px) and the share within 1 px."""
+    parts = []
+    for name, predicted, true in zip(("ceiling", "floor"), (data["ceiling_v"], data["floor_v"]), data["true_rows"]):
+        error = np.abs(predicted - true)
+        parts.append(f"{name} {error.mean():.2f} / {np.median(error):.2f} px, {100 * np.mean(error < 1):.0f}% within 1 px")
+    return "; ".join(parts)
 
 
 def pipeline_scores(data: dict, world: str, config: ncjax.PipelineConfig) -> list[dict]:
@@ -173,14 +194,20 @@ def main(argv=None):
     parser.add_argument("--views", type=int, default=DEFAULT_VIEWS)
     parser.add_argument("--configs", nargs="+", choices=[*CONFIGS, "current"], default=[*CONFIGS, "current"],
                         help="configurations to compare ('current': NETWORK_PIPELINE_CONFIG)")
+    parser.add_argument("--model", type=Path, help="weights (.safetensors) to run instead of the shipped model")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
+    if args.model is not None and not args.model.is_file():
+        parser.error(f"--model: no such file: {args.model}")
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.time()
-    data = {world: tuning_boundaries(world, args.rooms, args.views, args.out) for world in SEEDS}
-    lines = [f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {args.views} view(s), snapped rows.", "",
-             "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / CE (m) / 3D IoU (%) | IoU all0 (%) |",
-             "| --- | --- | --- | --- | --- |"]
+    data = {world: tuning_boundaries(world, args.rooms, args.views, args.out, args.model) for world in SEEDS}
+    model = "the shipped model" if args.model is None else f"model {args.model.name}"
+    lines = [f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {model}, {args.views} view(s), snapped rows.", "",
+             *(f"- rows, {world}: {row_errors(data[world])}" for world in SEEDS), "",
+             "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / CE (m) / 3D IoU (%) "
+             "| IoU all0 (%) | returned (%), IoU all rooms (%) |",
+             "| --- | --- | --- | --- | --- | --- |"]
     causes = ["", "Failures by cause, all rooms (% of the rooms):", ""]
     record, unscaled = {}, {}
     for name in tqdm(args.configs, desc="configurations"):
@@ -195,7 +222,8 @@ def main(argv=None):
             median = np.median([r["ce"] for r in clear if not r["failed"]] or [np.nan])
             record[(name, world)] = s_all
             lines.append(f"| {name} {kwargs} | {world} | {s_clear['failed']:.1f} / {s_clear['ce']:.3f} / {median:.3f} / {s_clear['iou3d']:.1f} | "
-                         f"{s_all['failed']:.1f} / {s_all['ce']:.3f} / {s_all['iou3d']:.1f} | {s_all['iou3d_all']:.1f} |")
+                         f"{s_all['failed']:.1f} / {s_all['ce']:.3f} / {s_all['iou3d']:.1f} | {s_all['iou3d_all']:.1f} | "
+                         f"{s_all['returned']:.1f}, {s_all['iou3d_all_returned']:.1f} |")
             causes.append(f"- {name}, {world}: {failure_causes(per_room)}")
             if name == NO_SCALE_TEST:
                 unscaled[world] = per_room
@@ -204,7 +232,8 @@ def main(argv=None):
         plot_scale_test(unscaled, args.out / "scale_test.png", NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
-    (args.out / f"tune_network_pipeline_{args.rooms}.md").write_text(table + "\n")
+    suffix = "" if args.model is None else f"_{args.model.stem}"
+    (args.out / f"tune_network_pipeline_{args.rooms}{suffix}.md").write_text(table + "\n")
     return record
 
 

@@ -100,7 +100,12 @@ def has_geometry(layout: Layout) -> bool:
     An ``UNCERTAIN_SCALE`` layout keeps its geometry in every output (record,
     mesh, overlay, plan), marked as such: its shape may serve up to scale.
     """
-    return bool(np.asarray(layout.ok)) or int(np.asarray(layout.status)) == LayoutStatus.UNCERTAIN_SCALE
+    return status_has_geometry(np.asarray(layout.ok), np.asarray(layout.status))
+
+
+def status_has_geometry(ok: bool, status: int) -> bool:
+    """:func:`has_geometry` from a layout's ``ok`` and ``status`` alone (e.g. stored results)."""
+    return bool(ok) or int(status) == LayoutStatus.UNCERTAIN_SCALE
 
 
 def _valid_corners(layout: Layout) -> tuple[np.ndarray, np.ndarray]:

@@ -107,3 +107,20 @@ def test_resolution_shrinks_by_pixel_area_averaging():
     assert half.shape == (4, 8, 3) and half.dtype == np.uint8
     assert np.abs(half.astype(float) - blocks).max() <= 0.5
     assert module.shrunk(image, 16) is image
+
+
+def test_tuning_row_errors_compare_each_boundary_with_its_true_rows():
+    module = experiment("tune_network_pipeline")
+    true_rows = np.stack([np.full((2, 4), 100.0), np.full((2, 4), 400.0)])
+    data = {"ceiling_v": true_rows[0] + [[0.0, 0.0, 0.5, 0.5], [0.0, 0.0, 0.0, -0.5]],
+            "floor_v": true_rows[1] + [[0.0, 4.0, -8.0, 0.5], [0.0, 0.0, -2.0, 1.5]], "true_rows": true_rows}
+    # ceiling |errors| 0 x 5, 0.5 x 3; floor 0 x 3, 0.5, 1.5, 2, 4, 8
+    assert module.row_errors(data) == ("ceiling 0.19 / 0.00 px, 100% within 1 px; "
+                                       "floor 2.00 / 1.00 px, 50% within 1 px")
+
+
+def test_tuning_refuses_a_missing_model_before_any_work(tmp_path):
+    module = experiment("tune_network_pipeline")
+    with pytest.raises(SystemExit) as raised:
+        module.main(["--model", str(tmp_path / "missing.safetensors"), "--out", str(tmp_path / "out")])
+    assert raised.value.code == 2 and not (tmp_path / "out").exists()
