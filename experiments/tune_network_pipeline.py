@@ -5,7 +5,7 @@ Tuning set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` with seeds 7
 ``network_table.py`` (seeds 99 and 98) and none of the training seeds (11-14), so
 the test renders are never used to choose the configuration. The shipped model's
 boundaries (snapped, ``--views`` views) are computed once and cached in
-``experiments/out/tune_<rooms>_views<V>.npz``; each configuration then runs the
+``experiments/out/tune_<world>_<rooms>_views<V>.npz``; each configuration then runs the
 pipeline alone (``layout_from_evidence``, each room with its own world). ``--model``
 runs another model's boundaries through the same configurations (cached under its
 file's name), to compare a new model with the shipped one before it replaces it.
