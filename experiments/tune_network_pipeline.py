@@ -8,7 +8,7 @@ boundaries (snapped, ``--views`` views) are computed once and cached in
 ``experiments/out/tune_<world>_<rooms>_views<V>.npz``; each configuration then runs the
 pipeline alone (``layout_from_evidence``, each room with its own world). ``--model``
 runs another model's boundaries through the same configurations (cached under its
-file's name), to compare a new model with the shipped one before it replaces it.
+file's name and content hash), to compare a new model with the shipped one before it replaces it.
 
 Per configuration and world, as ``network_table.py`` scores it (a failure is a
 layout that is not ok or has the wrong corner count): failures, mean and median
@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import math
 import sys
 import time
@@ -42,9 +43,9 @@ from tqdm import tqdm
 
 import ncjax
 from ncjax._adjust import room_height_sigma
+from ncjax._checkpoint import load_model
 from ncjax._dataset import list_samples, read_sample, write_dataset
 from ncjax._pipeline import layout_from_evidence
-from ncjax._checkpoint import load_model
 from ncjax._predict import DEFAULT_VIEWS, default_model, predict_boundaries
 from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
 
@@ -86,14 +87,21 @@ CONFIGS = {
 SCALE_TEST_THRESHOLDS = (0.04, 0.06, 0.08, 0.1, 0.15, 0.2, math.inf)
 
 
+def model_suffix(model_path: Path | None) -> str:
+    """What names a model's cached rows and tables: nothing for the shipped model, else the file's
+    name and the start of its SHA-256, so that new weights saved under an old name are not mistaken for it."""
+    if model_path is None:
+        return ""
+    return f"_{model_path.stem}_{hashlib.sha256(model_path.read_bytes()).hexdigest()[:8]}"
+
+
 def tuning_boundaries(world: str, rooms: int, views: int, out: Path, model_path: Path | None = None) -> dict:
     """Rows, corner probability, radii, ground truths, true rows and occlusion flags of the tuning renders of ``world``.
 
     The rows and corner probability are those of the model in ``model_path``
-    (default: the shipped one), cached per model.
+    (default: the shipped one), cached per model (:func:`model_suffix`).
     """
-    suffix = "" if model_path is None else f"_{model_path.stem}"
-    cache = out / f"tune_{world}_{rooms}_views{views}{suffix}.npz"
+    cache = out / f"tune_{world}_{rooms}_views{views}{model_suffix(model_path)}.npz"
     folder = out / f"tune_renders_{world}_{rooms}"
     if not (folder.is_dir() and len(list_samples(str(folder))) == rooms):
         config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
@@ -229,11 +237,10 @@ def main(argv=None):
                 unscaled[world] = per_room
     table = "\n".join(lines + causes + (scale_test_table(unscaled) if unscaled else []))
     if unscaled:
-        plot_scale_test(unscaled, args.out / "scale_test.png", NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
+        plot_scale_test(unscaled, args.out / f"scale_test{model_suffix(args.model)}.png", NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
-    suffix = "" if args.model is None else f"_{args.model.stem}"
-    (args.out / f"tune_network_pipeline_{args.rooms}{suffix}.md").write_text(table + "\n")
+    (args.out / f"tune_network_pipeline_{args.rooms}{model_suffix(args.model)}.md").write_text(table + "\n")
     return record
 
 

@@ -124,3 +124,12 @@ def test_tuning_refuses_a_missing_model_before_any_work(tmp_path):
     with pytest.raises(SystemExit) as raised:
         module.main(["--model", str(tmp_path / "missing.safetensors"), "--out", str(tmp_path / "out")])
     assert raised.value.code == 2 and not (tmp_path / "out").exists()
+
+
+def test_tuning_caches_are_named_by_the_model_file_and_its_content(tmp_path):
+    module = experiment("tune_network_pipeline")
+    model = tmp_path / "mine.safetensors"
+    model.write_bytes(b"weights of one run")
+    first = module.model_suffix(model)
+    model.write_bytes(b"weights of another run")
+    assert module.model_suffix(None) == "" and first.startswith("_mine_") and module.model_suffix(model) != first
