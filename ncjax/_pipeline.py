@@ -1,5 +1,12 @@
 """The geometric pipeline: per-column boundaries to a metric layout (paper Section 4.4, Fig. pipeline_geom).
 
+0. Floor rows the ceiling contradicts (not in the paper): every ray of a column
+   leaves one centre in one vertical plane, so ``tan(ceiling elevation) /
+   tan(floor elevation) = h_c / h_f`` in every column. A floor row more than
+   ``floor_consistency_threshold`` pixels from the row that the ceiling row and
+   the panorama's median ratio give is replaced by that row
+   (:func:`ceiling_consistent_floor`): furniture hides the floor-wall line far
+   more often than anything hides the ceiling's.
 1. Corners from the corner probability (:mod:`ncjax._corners`); the columns
    between consecutive corners are one wall.
 2. Per-wall RANSAC with the single-wall solver (:mod:`ncjax._ransac`).
@@ -70,7 +77,7 @@ from ._adjust import (
     previous_walls,
     room_height_sigma,
 )
-from ._camera import NonCentralPanorama, pixel_to_ray
+from ._camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles, pixel_to_ray
 from ._corners import column_walls, distance_to_corners, find_corners, side_extrapolation
 from ._layout_solvers import solve_atlanta_layout
 from ._plucker import cross_2d, horizontal_wall_line
@@ -222,6 +229,10 @@ class PipelineConfig:
             whose scale ran away.
         max_corner_distance: a layout with a corner farther than this from
             the camera (metres) is implausible (DEGENERATE_LAYOUT).
+        floor_consistency_threshold: pixels; a floor row farther than this
+            from the one its column's ceiling row implies is replaced by it
+            (step 0, :func:`ceiling_consistent_floor`). Off (inf) by default;
+            the network's configuration sets it.
     """
 
     capacity: int = 32
@@ -255,6 +266,7 @@ class PipelineConfig:
     max_height_uncertainty: float = math.inf
     max_room_height: float = 10.0
     max_corner_distance: float = 50.0
+    floor_consistency_threshold: float = math.inf
 
     def __post_init__(self):
         if self.capacity < 4:
@@ -1098,6 +1110,37 @@ def _assemble(
     )
 
 
+def ceiling_consistent_floor(
+    cam: NonCentralPanorama, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"], threshold: float
+) -> tuple[Float[Array, " W"], Bool[Array, " W"]]:
+    """Floor rows that contradict their column's ceiling row, replaced by the row it implies (step 0).
+
+    A column's rays all leave one centre on the circle, in one vertical plane
+    (paper eq. pluckerray), so they meet the wall at one horizontal range
+    ``t``: ``tan(phi_c) = h_c / t`` and ``tan(phi_f) = h_f / t``, and
+    ``tan(phi_c) / tan(phi_f) = h_c / h_f`` in every column, whatever the
+    walls. The panorama's median of that ratio gives each column's floor
+    elevation from its ceiling one. The ratio is the image's own, not a
+    prior; the metric scale still comes from the rows' non-central parallax.
+
+    Args:
+        cam: the camera.
+        ceiling_v, floor_v: boundary rows (pixels; NaN = missing).
+        threshold: pixels (at 512 rows); inf keeps every row.
+
+    Returns:
+        ``(floor_v, replaced)``: the rows, and which were replaced.
+    """
+    columns = jnp.arange(ceiling_v.shape[0], dtype=ceiling_v.dtype)
+    _, ceiling_elevation = pixel_to_angles(cam, columns, ceiling_v)
+    azimuth, floor_elevation = pixel_to_angles(cam, columns, floor_v)
+    ratio = jnp.nanmedian(jnp.tan(ceiling_elevation) / jnp.tan(floor_elevation))
+    _, implied = angles_to_pixel(cam, azimuth, jnp.arctan(jnp.tan(ceiling_elevation) / ratio))
+    replaced = jnp.abs(floor_v - implied) > _scaled(threshold, cam.height, 512)
+    replaced = replaced & jnp.isfinite(implied) & (ratio < 0)
+    return jnp.where(replaced, implied, floor_v), replaced
+
+
 def layout_from_evidence(
     ceiling_v: Float[Array, " W"],
     floor_v: Float[Array, " W"],
@@ -1108,6 +1151,8 @@ def layout_from_evidence(
     config: PipelineConfig,
 ) -> Layout:
     """The traceable pipeline for one panorama (no input checks; see :func:`layout_from_boundaries`)."""
+    if math.isfinite(config.floor_consistency_threshold):
+        floor_v, _ = ceiling_consistent_floor(cam, ceiling_v, floor_v, config.floor_consistency_threshold)
     evidence = _gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config)
     if world == "manhattan":
         return _manhattan_layout(evidence, ceiling_v, floor_v, cam, config)

@@ -42,6 +42,7 @@ from ncjax._pipeline import (
     _manhattan_layout,
     corner_offsets,
     _segment_directions,
+    ceiling_consistent_floor,
     choose_manhattan,
     cyclic_binary_labels,
     manhattan_frame,
@@ -862,3 +863,32 @@ def test_auto_world_choice(manhattan_ok, atlanta_ok, manhattan_explained, atlant
 def test_every_status_has_a_reason():
     reasons = [status.reason for status in ncjax.LayoutStatus]
     assert all(reasons) and len(set(reasons)) == len(reasons)
+
+
+# --- step 0: floor rows the ceiling contradicts ----------------------------------------------------------
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 5), st.integers(0, WIDTH - 1), st.integers(1, WIDTH // 3), st.floats(3.0, 10.0), st.booleans())
+def test_floor_rows_the_ceiling_contradicts_are_replaced_by_the_true_rows(room_index, start, length, offset, upwards):
+    """In every column tan(ceiling elevation) / tan(floor elevation) = h_c / h_f, so a block of floor rows moved
+    (furniture hiding the floor-wall line) is found and put back where the ceiling rows say it is."""
+    room, label = pick(rooms("atlanta", "none"), room_index)
+    cam = room.camera(WIDTH, HEIGHT)
+    block = (np.arange(WIDTH) - start) % WIDTH < length
+    moved = np.where(block, label.floor_v + (-offset if upwards else offset), label.floor_v)
+    floor_v, replaced = ceiling_consistent_floor(cam, label.ceiling_v, jnp.asarray(moved), 4.0)  # 2 px at 256 rows
+    np.testing.assert_array_equal(np.asarray(replaced), block)
+    np.testing.assert_allclose(np.asarray(floor_v), np.asarray(label.floor_v), atol=1e-2)
+
+
+def test_floor_consistency_keeps_exact_and_missing_rows():
+    room, label = pick(rooms("manhattan", "none"), 0)
+    cam = room.camera(WIDTH, HEIGHT)
+    floor_v, replaced = ceiling_consistent_floor(cam, label.ceiling_v, label.floor_v, 0.05)
+    assert not np.any(np.asarray(replaced))
+    ceiling_v = label.ceiling_v.at[:20].set(jnp.nan)  # no ceiling row: nothing to say about the floor's
+    moved = label.floor_v.at[:20].add(-8.0).at[20:40].set(jnp.nan)
+    floor_v, replaced = ceiling_consistent_floor(cam, ceiling_v, moved, 2.0)
+    np.testing.assert_array_equal(np.asarray(floor_v[:20]), np.asarray(moved[:20]))
+    assert np.all(np.isnan(np.asarray(floor_v[20:40]))) and not np.any(np.asarray(replaced))
