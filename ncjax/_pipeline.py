@@ -6,7 +6,9 @@
    ``floor_consistency_threshold`` pixels from the row that the ceiling row and
    the panorama's median ratio give is replaced by that row
    (:func:`ceiling_consistent_floor`): furniture hides the floor-wall line far
-   more often than anything hides the ceiling's.
+   more often than anything hides the ceiling's. The replaced rows serve the
+   walls' fits (steps 2-4); the final adjustment and its covariance (step 5)
+   use the measured rows only, so they add no information the image lacks.
 1. Corners from the corner probability (:mod:`ncjax._corners`); the columns
    between consecutive corners are one wall.
 2. Per-wall RANSAC with the single-wall solver (:mod:`ncjax._ransac`).
@@ -403,6 +405,8 @@ class WallEvidence(eqx.Module):
     solvers' factors of the ceiling and floor rows, from each boundary's noise about the RANSAC walls
     (:func:`ncjax._adjust.boundary_weights` on the inlier rows of the fitted walls: cut at the inlier
     threshold, so a boundary much noisier than half of it reads as less noisy than it is).
+    ``floor_measured``: the floor row is the input's, not one that step 0 put where the ceiling row says
+    (those help the walls' fits, but the final adjustment and its covariance use measured rows only).
     """
 
     ceiling_rays: Float[Array, "W 6"]
@@ -416,6 +420,7 @@ class WallEvidence(eqx.Module):
     usable: Bool[Array, " W"]
     ceiling_trusted: Bool[Array, " W"]
     floor_trusted: Bool[Array, " W"]
+    floor_measured: Bool[Array, " W"]
     weights: Float[Array, " K"]
     row_weights: Float[Array, " 2"]
     fitted: Bool[Array, " K"]
@@ -584,6 +589,7 @@ def _gather_evidence(
         usable=usable,
         ceiling_trusted=ceiling_in | (usable & ~on_fitted),
         floor_trusted=floor_in | (usable & ~on_fitted),
+        floor_measured=jnp.ones_like(usable),
         weights=weights.astype(ceiling_v.dtype),
         row_weights=row_weights,
         fitted=fitted,
@@ -796,7 +802,7 @@ def _observations(
         ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
         floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
         ceiling_used=evidence.ceiling_trusted & (final.column_wall >= 0),
-        floor_used=evidence.floor_trusted & (final.column_wall >= 0),
+        floor_used=evidence.floor_trusted & evidence.floor_measured & (final.column_wall >= 0),
         column_wall=final.column_wall,
         corner_columns=final.corner_columns,
         corner_used=final.corner_used,
@@ -1151,9 +1157,11 @@ def layout_from_evidence(
     config: PipelineConfig,
 ) -> Layout:
     """The traceable pipeline for one panorama (no input checks; see :func:`layout_from_boundaries`)."""
+    replaced = jnp.zeros(floor_v.shape, bool)
     if math.isfinite(config.floor_consistency_threshold):
-        floor_v, _ = ceiling_consistent_floor(cam, ceiling_v, floor_v, config.floor_consistency_threshold)
+        floor_v, replaced = ceiling_consistent_floor(cam, ceiling_v, floor_v, config.floor_consistency_threshold)
     evidence = _gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config)
+    evidence = eqx.tree_at(lambda e: e.floor_measured, evidence, ~replaced)
     if world == "manhattan":
         return _manhattan_layout(evidence, ceiling_v, floor_v, cam, config)
     if world == "atlanta":

@@ -37,6 +37,8 @@ from ._predict import DEFAULT_VIEWS, default_model, image_boundaries
 # A layout whose room height the rows fix no better than 8% (one sigma) fails with UNCERTAIN_SCALE: on the tuning
 # renders 91% (Manhattan) and 76% (Atlanta) of the ok layouts that this fails were more than 0.3 m off, and 0.08 is the
 # smallest threshold at which three quarters of them were (RESULTS.md, session 22).
+# Floor rows more than 2 px from the row their column's ceiling row implies are replaced by it for the walls' fits
+# (step 0 of ncjax._pipeline; 2 and 3 px compared on the tuning renders, RESULTS.md, session 25).
 NETWORK_PIPELINE_CONFIG = PipelineConfig(
     corner_threshold=0.4, nms_radius=4.0, occlusion_threshold=8.0, max_height_uncertainty=0.08, floor_consistency_threshold=2.0
 )
