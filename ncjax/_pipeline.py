@@ -283,6 +283,7 @@ class PipelineConfig:
         positive = (
             "nms_radius", "inlier_threshold", "occlusion_threshold", "merge_fraction", "merge_angle", "max_corner_offset",
             "manhattan_tolerance", "turn_weight", "adjustment_tolerance", "min_boundary_noise", "max_height_uncertainty",
+            "floor_consistency_threshold",
         )
         for name in positive:
             if not getattr(self, name) > 0:
@@ -1143,7 +1144,8 @@ def ceiling_consistent_floor(
     ratio = jnp.nanmedian(jnp.tan(ceiling_elevation) / jnp.tan(floor_elevation))
     _, implied = angles_to_pixel(cam, azimuth, jnp.arctan(jnp.tan(ceiling_elevation) / ratio))
     replaced = jnp.abs(floor_v - implied) > _scaled(threshold, cam.height, 512)
-    replaced = replaced & jnp.isfinite(implied) & (ratio < 0)
+    # a ceiling row below the horizon (an outlier) implies nothing about the floor's
+    replaced = replaced & jnp.isfinite(implied) & (ratio < 0) & (ceiling_elevation > 0)
     return jnp.where(replaced, implied, floor_v), replaced
 
 

@@ -892,6 +892,12 @@ def test_floor_consistency_keeps_exact_and_missing_rows():
     floor_v, replaced = ceiling_consistent_floor(cam, ceiling_v, moved, 2.0)
     np.testing.assert_array_equal(np.asarray(floor_v[:20]), np.asarray(moved[:20]))
     assert np.all(np.isnan(np.asarray(floor_v[20:40]))) and not np.any(np.asarray(replaced))
+    # rows all above the horizon (no floor seen): the ratio is positive and says nothing
+    floor_v, replaced = ceiling_consistent_floor(cam, label.ceiling_v, jnp.full(WIDTH, HEIGHT / 4), 2.0)
+    assert not np.any(np.asarray(replaced))
+    below = label.ceiling_v.at[:10].set(HEIGHT * 0.9)  # ceiling outliers below the horizon
+    floor_v, replaced = ceiling_consistent_floor(cam, below, label.floor_v, 2.0)
+    assert not np.any(np.asarray(replaced))
 
 
 def test_floor_rows_hidden_by_furniture_do_not_bias_the_layout():
