@@ -211,6 +211,7 @@ def main(argv=None):
     start = time.time()
     data = {world: tuning_boundaries(world, args.rooms, args.views, args.out, args.model) for world in SEEDS}
     model = "the shipped model" if args.model is None else f"model {args.model.name}"
+    suffix = model_suffix(args.model)  # names this run's table and plot
     lines = [f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {model}, {args.views} view(s), snapped rows.", "",
              *(f"- rows, {world}: {row_errors(data[world])}" for world in SEEDS), "",
              "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / CE (m) / 3D IoU (%) "
@@ -237,10 +238,10 @@ def main(argv=None):
                 unscaled[world] = per_room
     table = "\n".join(lines + causes + (scale_test_table(unscaled) if unscaled else []))
     if unscaled:
-        plot_scale_test(unscaled, args.out / f"scale_test{model_suffix(args.model)}.png", NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
+        plot_scale_test(unscaled, args.out / f"scale_test{suffix}.png", NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
-    (args.out / f"tune_network_pipeline_{args.rooms}{model_suffix(args.model)}.md").write_text(table + "\n")
+    (args.out / f"tune_network_pipeline_{args.rooms}{suffix}.md").write_text(table + "\n")
     return record
 
 
