@@ -5,7 +5,7 @@
 One jitted call per function on ``--size`` float32 elements (best of
 ``--repeats``; XLA splits large loops over the cores, ``taskset -c 0`` for
 one). XLA's CPU backend vectorises products, quotients, square roots and
-``exp``, not ``atan2``, ``sin``, ``cos`` or ``tan``; ``ncjax._fastmath.arctan2``
+``exp``, not ``atan2``, ``sin``, ``cos`` or ``tan``; ``ncjax.geometry.fastmath.arctan2``
 is a polynomial that vectorises. Also prints its largest error against
 numpy's float64 ``arctan2``. Never asserted in tests.
 """
@@ -22,11 +22,11 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ncjax._fastmath import arctan2  # noqa: E402
+from ncjax.geometry.fastmath import arctan2
 
 FUNCTIONS = {
     "jnp.arctan2": jnp.arctan2,
-    "ncjax._fastmath.arctan2": arctan2,
+    "ncjax.geometry.fastmath.arctan2": arctan2,
     "jnp.sin": lambda y, x: jnp.sin(y),
     "jnp.cos": lambda y, x: jnp.cos(y),
     "jnp.tan": lambda y, x: jnp.tan(y),
@@ -54,7 +54,7 @@ def main(argv=None) -> int:
         print(f"{name:>24}: {best / args.size * 1e9:6.2f} ns per element")
     exact = np.arctan2(np.asarray(y, np.float64), np.asarray(x, np.float64))
     error = np.max(np.abs(np.asarray(jax.jit(arctan2)(y, x), np.float64) - exact))
-    print(f"ncjax._fastmath.arctan2: largest error {error:.2e} rad (float32 spacing at pi: {np.spacing(np.float32(np.pi)):.2e})")
+    print(f"ncjax.geometry.fastmath.arctan2: largest error {error:.2e} rad (float32 spacing at pi: {np.spacing(np.float32(np.pi)):.2e})")
     return 0
 
 

@@ -33,7 +33,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import ncjax  # noqa: E402
-from ncjax._pipeline import WORLDS, PipelineConfig  # noqa: E402
+from ncjax.pipeline.config import WORLDS, PipelineConfig
 
 WIDTH, HEIGHT = 1024, 512
 

@@ -22,10 +22,10 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 import ncjax  # noqa: E402
-from ncjax._app import DEMO_DIR  # noqa: E402
-from ncjax._images import read_panorama  # noqa: E402
-from ncjax._predict import DEFAULT_VIEWS, _predict, default_model  # noqa: E402
-from ncjax._reconstruct import reconstruct_batch  # noqa: E402
+from ncjax.cli.reconstruct import DEMO_DIR
+from ncjax.io.images import read_panorama
+from ncjax.network.predict import DEFAULT_VIEWS, _predict, default_model
+from ncjax.reconstruction import reconstruct_batch
 
 
 def timed(function, repeats: int) -> tuple[float, float]:
@@ -50,7 +50,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     name = next(p for p in os.listdir(DEMO_DIR) if p.endswith(".png"))
     image = read_panorama(DEMO_DIR / name)
-    rc = ncjax._dataset.rc_from_name(name)
+    rc = ncjax.synth.dataset.rc_from_name(name)
     model = default_model()
     model.eval()
     height, width = image.shape[:2]

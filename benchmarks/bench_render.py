@@ -31,7 +31,7 @@ def main():
     from jax.sharding import NamedSharding, PartitionSpec
 
     import ncjax
-    from ncjax._render import _batched_render, _batched_scenes
+    from ncjax.synth.render import _batched_render, _batched_scenes
 
     mesh = jax.make_mesh((args.devices,), ("batch",), axis_types=(jax.sharding.AxisType.Auto,))
     sharding = NamedSharding(mesh, PartitionSpec("batch"))

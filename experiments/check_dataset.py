@@ -1,7 +1,7 @@
 """Check a dataset folder written by ``ncjax synth`` with numpy only (no ncjax code).
 
 For every sample: 3D_gt minus cam_pose, projected with the non-central model
-(DESIGN.md section 2: varphi = atan2(y, x), phi = atan2(z, sqrt(x^2 + y^2) - rc))
+(docs/design.md section 2: varphi = atan2(y, x), phi = atan2(z, sqrt(x^2 + y^2) - rc))
 using the rc of the json and of the file name, must land on label_cor within
 1 px; ceiling corners at the room height and floor corners at z = 0 (world);
 the split must not share a layout. Prints the worst errors.

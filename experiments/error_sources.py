@@ -43,14 +43,15 @@ from tqdm import tqdm
 
 import ncjax
 from ncjax import metrics
-from ncjax._dataset import list_samples, read_sample
-from ncjax._export import CHI2_2D_95, room_height_sigma
-from ncjax._pipeline import LayoutStatus
-from ncjax._app import add_boundary_arguments
-from ncjax._checkpoint import load_model
-from ncjax._predict import default_model
-from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
-from ncjax._rooms import corner_target
+from ncjax.cli.reconstruct import add_boundary_arguments
+from ncjax.io.export import layout_height_sigma
+from ncjax.network.checkpoint import load_model
+from ncjax.network.predict import default_model
+from ncjax.pipeline.types import LayoutStatus
+from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
+from ncjax.synth.dataset import list_samples, read_sample
+from ncjax.synth.rooms import corner_target
+from ncjax.viz.plan import CHI2_2D_95
 
 sys.path.insert(0, str(Path(__file__).parent))
 from network_table import OUT, SEEDS, ground_truth, test_renders  # noqa: E402
@@ -104,7 +105,7 @@ def row(samples, layouts, truths) -> dict:
         true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
         height = float(layout.ceiling_height) - float(layout.floor_height)
         scale.append(math.log(height / true_height))
-        height_within.append(abs(height - true_height) <= 1.96 * room_height_sigma(layout))
+        height_within.append(abs(height - true_height) <= 1.96 * layout_height_sigma(layout))
         _, shift = metrics.corner_error(layout, truth)
         if shift is not None:
             inside, sigma, miss = corner_calibration(layout, truth, shift)

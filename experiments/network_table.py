@@ -8,7 +8,7 @@ They are rendered once into ``experiments/out/test_renders_<world>/`` and reused
 1. Table netcorExp: boundary pixel error (PE, in pixels of a 1024-wide image)
    mean and std over images, corner precision / recall / accuracy / IoU with
    the probability and the ``0.96**d`` target binarised at 0.5
-   (:mod:`ncjax._network_metrics`).
+   (:mod:`ncjax.network.scores`).
 2. Table pipeExp, "Network predictions": the network's boundaries through the
    paper's "Solvers" route and through the full pipeline
    (``ncjax.reconstruct_batch``), CE and 3D IoU, Manhattan and Atlanta, on the
@@ -51,14 +51,14 @@ from tqdm import tqdm
 
 import ncjax
 from ncjax import metrics
-from ncjax._app import add_boundary_arguments
-from ncjax._checkpoint import load_model
-from ncjax._dataset import list_samples, read_sample, write_dataset
-from ncjax._export import status_has_geometry
-from ncjax._pipeline import PipelineConfig
-from ncjax._predict import DEFAULT_VIEWS, default_model
-from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG, reconstruct_batch
-from ncjax._train import evaluate_arrays, load_split
+from ncjax.cli.reconstruct import add_boundary_arguments
+from ncjax.io.export import status_has_geometry
+from ncjax.network.checkpoint import load_model
+from ncjax.network.predict import DEFAULT_VIEWS, default_model
+from ncjax.pipeline.config import PipelineConfig
+from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG, reconstruct_batch
+from ncjax.synth.dataset import list_samples, read_sample, write_dataset
+from ncjax.training.data import evaluate_arrays, load_split
 
 sys.path.insert(0, str(Path(__file__).parent))
 from pipeline_table import compiled  # noqa: E402  (the paper's "Solvers" route, shared)
@@ -167,7 +167,7 @@ def scores(layouts, truths) -> list[dict]:
     """Per room: the metrics of a layout with geometry, whether it failed, its status (-1: unknown) and corner counts.
 
     ``returned``: the layout is ok. ``written``: ok, or flagged ``UNCERTAIN_SCALE``, whose geometry
-    ``ncjax reconstruct`` writes too (:func:`ncjax._export.has_geometry`); both are scored. A failure
+    ``ncjax reconstruct`` writes too (:func:`ncjax.io.export.has_geometry`); both are scored. A failure
     is a layout that is not ok or has another corner count than the truth.
     """
     out = []

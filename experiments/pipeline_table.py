@@ -40,8 +40,10 @@ from tqdm import tqdm  # noqa: E402
 
 import ncjax  # noqa: E402
 from ncjax import metrics  # noqa: E402
-from ncjax._corners import column_walls, find_corners  # noqa: E402
-from ncjax._pipeline import PipelineConfig, layout_from_evidence, manhattan_frame  # noqa: E402
+from ncjax.pipeline.config import PipelineConfig
+from ncjax.pipeline.corners import column_walls, find_corners
+from ncjax.pipeline.manhattan import manhattan_frame
+from ncjax.pipeline.run import layout_from_evidence
 
 OUT = Path(__file__).parent / "out"
 WIDTH, HEIGHT = 1024, 512

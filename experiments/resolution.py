@@ -1,7 +1,7 @@
 """Metric accuracy against the panorama's resolution: is the CLI's cap at 2048 columns (``MAX_WIDTH``) costing accuracy?
 
 The network always reads the panorama shrunk to 1024 x 512, but its rows are then
-snapped to the edges of the full-size image (:mod:`ncjax._edges`) and the geometry
+snapped to the edges of the full-size image (:mod:`ncjax.network.edges`) and the geometry
 runs on every column, so a larger panorama could fix the boundaries, and with them
 the metric scale, better.
 
@@ -37,9 +37,9 @@ import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax._adjust import room_height_sigma
-from ncjax._dataset import list_samples, read_sample, write_dataset
-from ncjax._reconstruct import reconstruct_batch
+from ncjax.pipeline.uncertainty import room_height_sigma
+from ncjax.reconstruction import reconstruct_batch
+from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 
 sys.path.insert(0, str(Path(__file__).parent))
 from network_table import ground_truth, scores  # noqa: E402

@@ -6,7 +6,7 @@ without occlusion of ``network_table.py`` (seeds 99 / 98, never used for
 training or tuning) and the degraded images go through ``ncjax.reconstruct_batch``
 with the shipped configuration. Some degradations lie inside the training
 augmentation's ranges (greyscale, blur up to 1.2 px, read noise up to 0.02),
-the others beyond them (``ncjax._augment.AugmentConfig``); JPEG is not among them.
+the others beyond them (``ncjax.synth.augment.AugmentConfig``); JPEG is not among them.
 
 Per degradation and world: failures, CE mean / median, 3D IoU of the ok rooms
 and over all rooms with failures as 0, the share of rooms given a layout
@@ -31,11 +31,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncjax import _augment
-from ncjax._dataset import list_samples, read_sample
-from ncjax._app import add_boundary_arguments
-from ncjax._predict import default_model
-from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
+import ncjax.synth.augment
+from ncjax.cli.reconstruct import add_boundary_arguments
+from ncjax.network.predict import default_model
+from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
+from ncjax.synth.dataset import list_samples, read_sample
 
 sys.path.insert(0, str(Path(__file__).parent))
 from network_table import OUT, SEEDS, ground_truth, layouts_of, scores, summary, test_renders, used_row_errors  # noqa: E402
@@ -44,7 +44,7 @@ TEST_ROOMS = 128  # the renders of network_table.py
 
 
 def _float_op(operation):
-    """An image operation on [0, 1] floats (``ncjax._augment``) applied to an RGB uint8 image."""
+    """An image operation on [0, 1] floats (``ncjax.synth.augment``) applied to an RGB uint8 image."""
 
     def apply(image: np.ndarray) -> np.ndarray:
         result = operation(jnp.asarray(image, jnp.float32) / 255.0)
@@ -66,11 +66,11 @@ def jpeg(quality: int):
 # name -> (operation on an RGB uint8 image, inside the training augmentation's ranges)
 DEGRADATIONS = {
     "none": (lambda image: image, True),
-    "greyscale": (_float_op(_augment.to_greyscale), True),
-    "blur 1 px": (_float_op(lambda x: _augment.gaussian_blur(x, 1.0)), True),
-    "blur 2.5 px": (_float_op(lambda x: _augment.gaussian_blur(x, 2.5, radius=8)), False),
-    "sensor noise 0.05": (_float_op(lambda x: _augment.add_sensor_noise(jax.random.key(0), x, 0.05, 0.05)), False),
-    "dark (exposure x0.25)": (_float_op(lambda x: _augment.adjust_exposure(x, 0.25)), False),
+    "greyscale": (_float_op(ncjax.synth.augment.to_greyscale), True),
+    "blur 1 px": (_float_op(lambda x: ncjax.synth.augment.gaussian_blur(x, 1.0)), True),
+    "blur 2.5 px": (_float_op(lambda x: ncjax.synth.augment.gaussian_blur(x, 2.5, radius=8)), False),
+    "sensor noise 0.05": (_float_op(lambda x: ncjax.synth.augment.add_sensor_noise(jax.random.key(0), x, 0.05, 0.05)), False),
+    "dark (exposure x0.25)": (_float_op(lambda x: ncjax.synth.augment.adjust_exposure(x, 0.25)), False),
     "JPEG quality 30": (jpeg(30), False),
 }
 

@@ -1,4 +1,4 @@
-"""Acceptance of the geometric solvers on exact rays (issue 3).
+"""Acceptance of the geometric solvers on exact rays .
 
 1000 random rooms from ``ncjax.random_room`` without occlusion (500 Manhattan
 at a random yaw, 500 Atlanta), 1024 x 512, rc in 0.3-1.0 m, exact per-column

@@ -42,12 +42,12 @@ import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax._adjust import room_height_sigma
-from ncjax._checkpoint import load_model
-from ncjax._dataset import list_samples, read_sample, write_dataset
-from ncjax._pipeline import layout_from_evidence
-from ncjax._predict import DEFAULT_VIEWS, default_model, predict_boundaries
-from ncjax._reconstruct import NETWORK_PIPELINE_CONFIG
+from ncjax.network.checkpoint import load_model
+from ncjax.network.predict import DEFAULT_VIEWS, default_model, predict_boundaries
+from ncjax.pipeline.run import layout_from_evidence
+from ncjax.pipeline.uncertainty import room_height_sigma
+from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
+from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 
 sys.path.insert(0, str(Path(__file__).parent))
 from network_table import BATCH, failure_causes, ground_truth, scores, summary  # noqa: E402
@@ -59,28 +59,28 @@ SEEDS = {"manhattan": 71, "atlanta": 72}
 NO_SCALE_TEST = "nms 4, occlusion 8, threshold 0.4, no scale test"
 CONFIGS = {
     "pipeline defaults": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 4.0},
-    "session 17": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 6.0},
+    "nms 2, occlusion 6": {"corner_threshold": 0.3, "nms_radius": 2.0, "occlusion_threshold": 6.0},
     "nms 3": {"corner_threshold": 0.3, "nms_radius": 3.0, "occlusion_threshold": 6.0},
     "nms 4": {"corner_threshold": 0.3, "nms_radius": 4.0, "occlusion_threshold": 6.0},
     "nms 4, occlusion 8": {"corner_threshold": 0.3, "nms_radius": 4.0, "occlusion_threshold": 8.0},
     "nms 4, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0},
     "nms 3, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 3.0, "occlusion_threshold": 8.0},
-    # the ceiling and floor rows weighted alike in the joint solvers and the adjustment, as before session 19
+    # the ceiling and floor rows weighted alike in the joint solvers and the adjustment (the paper's weighting)
     "nms 4, occlusion 8, threshold 0.4, equal row weights": {
         "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "min_boundary_noise": 1e9,
     },
-    # the Manhattan labelling's corner-type weight of sessions 1-20 (session 21: 0.02, the walls' directions decide)
+    # a Manhattan labelling whose corner types weigh as much as the walls' directions (the default 0.02: the directions decide)
     "nms 4, occlusion 8, threshold 0.4, turn weight 0.5": {
         "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "turn_weight": 0.5,
     },
-    # Atlanta: no wall inserted where a corner's walls meet far from its peak (before session 21), or other offsets
+    # Atlanta: no wall inserted where a corner's walls meet far from its peak, or other offsets
     **{
         f"nms 4, occlusion 8, threshold 0.4, corner offset {offset:g}": {
             "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "max_corner_offset": offset,
         }
         for offset in (16.0, 64.0, 1e6)
     },
-    # no layout fails for an uncertain scale (before session 22): the scale test's thresholds are compared on its layouts
+    # no layout fails for an uncertain scale: the scale test's thresholds are compared on its layouts
     NO_SCALE_TEST: {"corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "max_height_uncertainty": math.inf},
 }
 # relative standard deviations of the room height compared as PipelineConfig.max_height_uncertainty

@@ -1,11 +1,15 @@
 """ncjax: metric room layouts from single non-central circular panoramas, in JAX.
 
-Modules mirror the paper's pipeline: the camera (Section 3), Plücker geometry
-(Section 3.1), synthetic rooms with exact labels, furnished scenes, their
-rendering and the dataset files (Section 5.1).
+The subpackages follow the data: ``geometry`` (camera, Plücker lines) -> ``network`` (panorama to
+per-column boundaries) -> ``pipeline`` (boundaries to a metric layout, with ``solvers``) -> ``io`` and
+``viz`` (files and pictures); ``synth`` and ``training`` make the network. Everything a user calls is
+exported here; docs/architecture.md maps the stages and the paper's equations to the code.
 """
 
-from ._camera import (
+from . import metrics
+
+# Camera and Plücker geometry (paper Section 3)
+from .geometry.camera import (
     NonCentralPanorama,
     angles_to_pixel,
     angles_to_ray,
@@ -16,7 +20,7 @@ from ._camera import (
     point_to_angles,
     project,
 )
-from ._plucker import (
+from .geometry.plucker import (
     closest_point_to_origin,
     closest_points,
     horizontal_wall_line,
@@ -32,8 +36,43 @@ from ._plucker import (
     side,
     translate_line,
 )
-from . import metrics
-from ._rooms import (
+from .geometry.linalg import null_space, scaled_null_space
+
+# Wall and layout solvers (paper Sections 4.1-4.3, 5.3)
+from .solvers.wall import (
+    HorizontalLine,
+    Wall,
+    solve_horizontal_line,
+    solve_horizontal_lines,
+    solve_wall,
+    solve_wall_minimal,
+)
+from .solvers.layout import (
+    WallLayout,
+    layout_corners,
+    quarter_turn,
+    ray_in_wall_frame,
+    solve_atlanta_layout,
+    solve_manhattan_layout,
+)
+
+# The network (paper Section "Non-central HorizonNet", Table netcorExp)
+from .network.model import BoundaryPrediction, HorizonNet, HorizonNetConfig, count_parameters, init_model
+from .network.checkpoint import load_model, save_model
+from .network.predict import predict_boundaries
+from .network.edges import EdgeSnap, snap_to_edges
+from .network.scores import boundary_pixel_error, corner_confusion, corner_scores, network_table
+
+# The geometric pipeline (paper Section 4.4)
+from .pipeline.config import DEFAULT_WORLD, PipelineConfig
+from .pipeline.types import Layout, LayoutStatus
+from .pipeline.run import layout_from_boundaries
+
+# The whole method: panorama -> network -> geometry (paper Fig. pipeline)
+from .reconstruction import NETWORK_PIPELINE_CONFIG, Reconstruction, reconstruct, reconstruct_batch
+
+# Synthetic rooms, scenes, renders and datasets (paper Section 5.1)
+from .synth.rooms import (
     Room,
     RoomConfig,
     RoomLabels,
@@ -43,31 +82,9 @@ from ._rooms import (
     room_labels,
     room_walls,
 )
-
-# Synthetic data (paper Section 5.1): scenes, rendering, augmentation, dataset files
-from ._augment import (
-    AugmentConfig,
-    add_sensor_noise,
-    adjust_exposure,
-    adjust_gamma,
-    gaussian_blur,
-    random_augment,
-    to_greyscale,
-    white_balance,
-)
-from ._dataset import (
-    DatasetSample,
-    labels_from_corners,
-    list_samples,
-    rc_from_name,
-    read_dataset,
-    read_sample,
-    read_split,
-    sample_name,
-    write_dataset,
-)
-from ._materials import Material, Pattern
-from ._render import (
+from .synth.materials import Material, Pattern
+from .synth.scene import Boxes, Lights, Openings, Scene, SceneConfig, random_scene
+from .synth.render import (
     RenderConfig,
     Rendering,
     Semantic,
@@ -78,55 +95,40 @@ from ._render import (
     synthesize_batch,
     synthesize_scene,
 )
-from ._scene import Boxes, Lights, Openings, Scene, SceneConfig, random_scene
-
-# Geometric solvers (paper Sections 4.1-4.3, 5.3)
-from ._layout_solvers import (
-    WallLayout,
-    layout_corners,
-    quarter_turn,
-    ray_in_wall_frame,
-    solve_atlanta_layout,
-    solve_manhattan_layout,
+from .synth.augment import (
+    AugmentConfig,
+    add_sensor_noise,
+    adjust_exposure,
+    adjust_gamma,
+    gaussian_blur,
+    random_augment,
+    to_greyscale,
+    white_balance,
 )
-from ._linalg import null_space, scaled_null_space
-from ._wall import (
-    HorizontalLine,
-    Wall,
-    solve_horizontal_line,
-    solve_horizontal_lines,
-    solve_wall,
-    solve_wall_minimal,
+from .synth.dataset import (
+    DatasetSample,
+    labels_from_corners,
+    list_samples,
+    rc_from_name,
+    read_dataset,
+    read_sample,
+    read_split,
+    sample_name,
+    write_dataset,
 )
 
-# Geometric pipeline (paper Section 4.4)
-from ._pipeline import Layout, LayoutStatus, PipelineConfig, layout_from_boundaries
-
-# Non-central HorizonNet (paper Section "Non-central HorizonNet", Table netcorExp)
-from ._checkpoint import load_model, save_model
-from ._network import (
-    BoundaryPrediction,
-    HorizonNet,
-    HorizonNetConfig,
-    count_parameters,
-    init_model,
-)
-from ._network_metrics import boundary_pixel_error, corner_confusion, corner_scores, network_table
-from ._predict import predict_boundaries
-from ._edges import EdgeSnap, snap_to_edges
-from ._train import TrainConfig, horizonnet_loss, train
-
-# The whole method: panorama -> network -> geometry (paper Fig. pipeline)
-from ._reconstruct import NETWORK_PIPELINE_CONFIG, Reconstruction, reconstruct, reconstruct_batch
+# Training
+from .training.loop import TrainConfig, horizonnet_loss, train
 
 __version__ = "0.1.0"
 
 __all__ = [
     "AugmentConfig",
     "BoundaryPrediction",
-    "Reconstruction",
     "Boxes",
+    "DEFAULT_WORLD",
     "DatasetSample",
+    "EdgeSnap",
     "HorizonNet",
     "HorizonNetConfig",
     "HorizontalLine",
@@ -134,10 +136,12 @@ __all__ = [
     "LayoutStatus",
     "Lights",
     "Material",
+    "NETWORK_PIPELINE_CONFIG",
     "NonCentralPanorama",
     "Openings",
     "Pattern",
     "PipelineConfig",
+    "Reconstruction",
     "RenderConfig",
     "Rendering",
     "Room",
@@ -187,11 +191,6 @@ __all__ = [
     "point_at",
     "point_to_angles",
     "predict_boundaries",
-    "snap_to_edges",
-    "EdgeSnap",
-    "reconstruct",
-    "NETWORK_PIPELINE_CONFIG",
-    "reconstruct_batch",
     "project",
     "quarter_turn",
     "random_augment",
@@ -202,6 +201,8 @@ __all__ = [
     "read_dataset",
     "read_sample",
     "read_split",
+    "reconstruct",
+    "reconstruct_batch",
     "render",
     "room_corners_3d",
     "room_labels",
@@ -213,6 +214,7 @@ __all__ = [
     "save_model",
     "scaled_null_space",
     "side",
+    "snap_to_edges",
     "solve_atlanta_layout",
     "solve_horizontal_line",
     "solve_horizontal_lines",

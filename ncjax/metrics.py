@@ -41,7 +41,7 @@ def layout_arrays(layout: Any) -> tuple[np.ndarray, np.ndarray]:
         ceiling, floor = layout.ceiling_corners, layout.floor_corners
         mask = getattr(layout, "mask", getattr(layout, "corner_mask", None))
     elif hasattr(layout, "corners") and hasattr(layout, "ceiling_height"):
-        from ._rooms import room_corners_3d
+        from .synth.rooms import room_corners_3d
 
         # Rooms are counter-clockwise; layouts run in image order (decreasing azimuth).
         ceiling, floor = (np.asarray(c)[np.asarray(layout.mask)][::-1] for c in room_corners_3d(layout))
@@ -153,7 +153,7 @@ def line_errors(pred: Any, gt: Any) -> tuple[float, float]:
     pred_lines = lines(np.roll(pred_ceiling, -shift, 0), np.roll(pred_floor, -shift, 0))
     gt_lines = lines(*layout_arrays(gt))
     direction_errors, depth_errors = [], []
-    for (pd, pm), (gd, gm) in zip(pred_lines, gt_lines):
+    for (pd, pm), (gd, gm) in zip(pred_lines, gt_lines, strict=True):
         cosine = np.clip(np.abs(np.sum(pd * gd, -1)), 0.0, 1.0)
         direction_errors.append(np.degrees(np.arccos(cosine)))
         depth_errors.append(np.abs(np.linalg.norm(pm, axis=-1) - np.linalg.norm(gm, axis=-1)))

@@ -22,6 +22,6 @@ def batch(seed: int):
 
 def render_scenes(scenes):
     """Render a batch of BATCH (modified) scenes with the shared compiled renderer."""
-    from ncjax._render import _batched_render
+    from ncjax.synth.render import _batched_render
 
     return jax.device_get(_batched_render(CONFIG)(scenes))

@@ -6,7 +6,7 @@
 - Hypothesis profile sized for 2-core CI machines.
 - XLA's LLVM backend at -O0: the suite's time is mostly compilation.
 - A private XLA compilation cache: the CLI tests switch on the persistent
-  cache (``ncjax._app.enable_compilation_cache``) for the rest of the
+  cache (``ncjax.cli.reconstruct.enable_compilation_cache``) for the rest of the
   session; entries of other runs (other flags, a concurrent writer) must
   not be read back.
 """
@@ -29,13 +29,13 @@ if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
 os.environ["NCJAX_CACHE"] = tempfile.mkdtemp(prefix="ncjax-test-xla-")
 atexit.register(shutil.rmtree, os.environ["NCJAX_CACHE"], ignore_errors=True)
 
-import jax  # noqa: E402
-import pytest  # noqa: E402
-from hypothesis import HealthCheck, settings  # noqa: E402
-from jaxtyping import install_import_hook  # noqa: E402
+import jax
+import pytest
+from hypothesis import HealthCheck, settings
+from jaxtyping import install_import_hook
 
 with install_import_hook("ncjax", "beartype.beartype"):
-    import ncjax  # noqa: E402, F401
+    import ncjax  # noqa: F401  (imported under the type-checking hook)
 
 settings.register_profile(
     "ncjax",
@@ -77,7 +77,7 @@ def _memory_maps() -> int:
 def _release_compiled_programs_near_the_map_limit():
     """Drop the compiled programs after a test that leaves the process near Linux's limit of 65,530
     memory mappings (``vm.max_map_count``): every compiled XLA program holds some, XLA crashes at the
-    limit, and tests/test_pipeline.py alone reached 62,000 (session 21)."""
+    limit, and tests/test_pipeline.py alone reached 62,000."""
     yield
     if _memory_maps() > 45_000:
         _drop_compiled_programs()

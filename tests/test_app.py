@@ -10,12 +10,15 @@ import pytest
 
 import ncjax
 from ncjax import cli
-from ncjax._app import DEMO_DIR, failure_message
-from ncjax._images import MAX_WIDTH, PanoramaError, PanoramaResizeWarning, read_panorama
+from ncjax.cli.reconstruct import DEMO_DIR, failure_message
+from ncjax.io.images import MAX_WIDTH, PanoramaError, PanoramaResizeWarning, read_panorama
 
 DEMO_TRUTH = json.loads((DEMO_DIR / "ground_truth.json").read_text())
 SMALL = (512, 256)  # (W, H) of the small reconstruct tests: one compilation for all of them
-DEMO_LIMITS = {"ce": 2.0, "iou": 40.0}  # the shipped model + pipeline on the demo: 10 of 12 corners, IoU 56.8% (see RESULTS.md)
+DEMO_LIMITS = {
+    "ce": 2.0,
+    "iou": 40.0,
+}  # the shipped model + pipeline on the demo: 10 of 12 corners, IoU 56.8% (see RESULTS.md)
 
 
 def demo_image(size=None):
@@ -63,12 +66,18 @@ def test_panoramas_a_pixel_off_2_to_1_are_resized_with_a_warning(tmp_path):
 def test_panoramas_wider_than_the_working_width_are_resized(tmp_path):
     wide = np.zeros((1050, 2100, 3), np.uint8)
     wide[:, ::2] = 255  # a pattern INTER_AREA averages, not samples
-    with pytest.warns(PanoramaResizeWarning, match=f"2100 x 1050 pixels is wider than {MAX_WIDTH}; resized to 2048 x 1024"):
+    with pytest.warns(
+        PanoramaResizeWarning, match=f"2100 x 1050 pixels is wider than {MAX_WIDTH}; resized to 2048 x 1024"
+    ):
         read = read_panorama(write_png(tmp_path / "wide.png", wide))
     assert read.shape == (1024, 2048, 3) and abs(read.mean() - 127.5) < 2
     both = f"2101 x 1050 pixels is not exactly 2:1 and is wider than {MAX_WIDTH}; resized to 2048 x 1024"
     with pytest.warns(PanoramaResizeWarning, match=both):
-        assert read_panorama(write_png(tmp_path / "both.png", np.zeros((1050, 2101, 3), np.uint8))).shape == (1024, 2048, 3)
+        assert read_panorama(write_png(tmp_path / "both.png", np.zeros((1050, 2101, 3), np.uint8))).shape == (
+            1024,
+            2048,
+            3,
+        )
 
 
 @pytest.mark.parametrize(
@@ -102,12 +111,12 @@ def test_bad_rc_is_refused_before_anything_is_written(tmp_path, capsys, rc):
 
 
 def test_a_batch_that_raises_is_reported_and_the_run_goes_on(tmp_path, capsys, monkeypatch):
-    import ncjax._reconstruct
+    import ncjax.reconstruction
 
     def out_of_memory(*args, **kwargs):
         raise RuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 27027353000 bytes.\nmore detail")
 
-    monkeypatch.setattr(ncjax._reconstruct, "reconstruct_batch", out_of_memory)
+    monkeypatch.setattr(ncjax.reconstruction, "reconstruct_batch", out_of_memory)
     images = [write_png(tmp_path / f"room{i}_R06825.png", demo_image(SMALL)) for i in range(3)]
     out = tmp_path / "out"
     assert cli.main(["reconstruct", *images, "--rc", "auto", "--out", str(out), "--batch", "2"]) == 1
@@ -152,11 +161,13 @@ def batch_run(tmp_path_factory):
     out = folder / "out"
     errors = io.StringIO()
     with contextlib.redirect_stderr(errors):
-        code = cli.main(["reconstruct", *files.values(), "--rc", "auto", "--out", str(out), "--batch", "2",
-                         "--world", "auto"])
+        code = cli.main(
+            ["reconstruct", *files.values(), "--rc", "auto", "--out", str(out), "--batch", "2", "--world", "auto"]
+        )
     return code, out, errors.getvalue(), list(files.values())
 
 
+@pytest.mark.slow
 def test_reconstruct_writes_every_output_of_good_images(batch_run):
     # Plumbing, not accuracy (experiments/network_table.py measures that): every decodable image gets its
     # json, overlay and plan; a mesh exactly when a layout was found (also one of uncertain scale); a layout that
@@ -181,6 +192,7 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
     assert records[0]["ceiling_corners"] == records[1]["ceiling_corners"]
 
 
+@pytest.mark.slow
 def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
     code, out, errors, _ = batch_run
     assert code == 1
@@ -193,6 +205,7 @@ def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
     assert not any(".tmp" in name or name.startswith(".") for name in written), written
 
 
+@pytest.mark.slow
 def test_reconstruct_summarises_every_image_in_one_csv(batch_run):
     import csv
 
@@ -219,23 +232,43 @@ def test_reconstruct_summarises_every_image_in_one_csv(batch_run):
 
 
 def test_summary_rows_of_each_result():
-    from ncjax._app import summary_row
+    from ncjax.cli.reconstruct import summary_row
 
-    record = {"ok": True, "status": "OK", "branch": "atlanta", "floor_corners": [[0.0, 0.0, -1.5]] * 5, "room_height": 2.5,
-              "room_height_sigma": 0.02, "ceiling_height": 1.0, "floor_height": -1.5, "floor_area": 12.25, "perimeter": 14.0,
-              "rc": 0.6101}
+    record = {
+        "ok": True,
+        "status": "OK",
+        "branch": "atlanta",
+        "floor_corners": [[0.0, 0.0, -1.5]] * 5,
+        "room_height": 2.5,
+        "room_height_sigma": 0.02,
+        "ceiling_height": 1.0,
+        "floor_height": -1.5,
+        "floor_area": 12.25,
+        "perimeter": 14.0,
+        "rc": 0.6101,
+    }
     ok = summary_row("in/L101_R06101.png", record)
-    assert ok["result"] == "ok" and ok["name"] == "L101_R06101" and ok["corners"] == 5 and ok["room_height_m"] == "2.5000"
+    assert (
+        ok["result"] == "ok" and ok["name"] == "L101_R06101" and ok["corners"] == 5 and ok["room_height_m"] == "2.5000"
+    )
     unsure = summary_row("a.png", record | {"ok": False, "status": "UNCERTAIN_SCALE", "room_height_sigma": None}, "why")
-    assert unsure["result"] == "uncertain scale" and unsure["room_height_sigma_m"] == "inf" and unsure["message"] == "why"
-    empty = {key: None for key in ("room_height", "room_height_sigma", "ceiling_height", "floor_height", "floor_area", "perimeter")}
-    none = summary_row("b.png", record | empty | {"ok": False, "status": "NO_CORNERS", "floor_corners": []}, "none found")
+    assert (
+        unsure["result"] == "uncertain scale" and unsure["room_height_sigma_m"] == "inf" and unsure["message"] == "why"
+    )
+    empty = {
+        key: None
+        for key in ("room_height", "room_height_sigma", "ceiling_height", "floor_height", "floor_area", "perimeter")
+    }
+    none = summary_row(
+        "b.png", record | empty | {"ok": False, "status": "NO_CORNERS", "floor_corners": []}, "none found"
+    )
     assert none["result"] == "no layout" and none["corners"] == "" and none["branch"] == "" and none["rc_m"] == "0.6101"
     assert none["room_height_sigma_m"] == ""
     error = summary_row("c.png", None, "truncated")
     assert error["result"] == "error" and error["status"] == "" and error["message"] == "truncated"
 
 
+@pytest.mark.slow
 def test_demo_reconstructs_the_shipped_sample(tmp_path, capsys):
     assert cli.main(["demo", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
@@ -248,9 +281,19 @@ def test_demo_reconstructs_the_shipped_sample(tmp_path, capsys):
 
 
 def test_failure_messages_say_whether_a_layout_was_written():
-    uncertain = {"status": "UNCERTAIN_SCALE", "floor_corners": [[1.0, 2.0, -1.5]] * 4, "room_height": 3.2, "room_height_sigma": 0.41}
+    uncertain = {
+        "status": "UNCERTAIN_SCALE",
+        "floor_corners": [[1.0, 2.0, -1.5]] * 4,
+        "room_height": 3.2,
+        "room_height_sigma": 0.41,
+    }
     reason = ncjax.LayoutStatus.UNCERTAIN_SCALE.reason
-    assert failure_message(uncertain) == f"layout of uncertain scale written (UNCERTAIN_SCALE: {reason}; room height 3.20 ± 0.41 m)"
+    assert (
+        failure_message(uncertain)
+        == f"layout of uncertain scale written (UNCERTAIN_SCALE: {reason}; room height 3.20 ± 0.41 m)"
+    )
     free = uncertain | {"room_height_sigma": None}  # JSON null: a wall the rows leave free
     assert failure_message(free).endswith("room height 3.20 ± inf m)")
-    assert failure_message({"status": "NO_CORNERS", "floor_corners": []}).startswith("no layout found (NO_CORNERS: no corner")
+    assert failure_message({"status": "NO_CORNERS", "floor_corners": []}).startswith(
+        "no layout found (NO_CORNERS: no corner"
+    )

@@ -29,7 +29,7 @@ def test_edge_snap_is_on_unless_asked_off():
     import argparse
 
     from ncjax import EdgeSnap
-    from ncjax._app import add_reconstruct_arguments
+    from ncjax.cli.reconstruct import add_reconstruct_arguments
 
     parser = argparse.ArgumentParser()
     add_reconstruct_arguments(parser)
@@ -44,6 +44,91 @@ def test_fine_tuning_from_another_architecture_is_refused(tmp_path, capsys):
     tiny = ncjax.HorizonNetConfig(depth=10, width=8, input_height=64, input_width=128, lstm_hidden=16, lstm_layers=1)
     ncjax.save_model(ncjax.init_model(tiny), tmp_path / "tiny.safetensors")
     checkpoints = tmp_path / "checkpoints"
-    code = cli.main(["train", "--data", "painted", "--steps", "1", "--corner-base", "0.8", "--checkpoint-dir",
-                     str(checkpoints), "--init-from", str(tmp_path / "tiny.safetensors")])
+    code = cli.main(
+        [
+            "train",
+            "--data",
+            "painted",
+            "--steps",
+            "1",
+            "--corner-base",
+            "0.8",
+            "--checkpoint-dir",
+            str(checkpoints),
+            "--init-from",
+            str(tmp_path / "tiny.safetensors"),
+        ]
+    )
     assert code == 2 and "cannot start" in capsys.readouterr().err and not checkpoints.exists()
+
+
+def _parser(add_arguments):
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    return parser
+
+
+def test_every_setting_is_an_option_with_its_default_and_help():
+    import dataclasses
+
+    import ncjax
+    from ncjax.cli.options import attribute_help
+    from ncjax.cli.reconstruct import add_reconstruct_arguments
+    from ncjax.cli.train import add_train_arguments
+
+    for defaults, add_arguments, skipped in (
+        (ncjax.NETWORK_PIPELINE_CONFIG, add_reconstruct_arguments, set()),
+        (ncjax.TrainConfig(), add_train_arguments, {"total_steps"}),  # set by --steps
+    ):
+        help_text = " ".join(_parser(add_arguments).format_help().split())
+        documented = attribute_help(type(defaults))
+        for field in dataclasses.fields(defaults):
+            if field.name in skipped:
+                continue
+            assert documented.get(field.name), f"{type(defaults).__name__}.{field.name} has no docstring line"
+            option = "--" + field.name.replace("_", "-")
+            assert option in help_text, option
+            assert f"(default: {getattr(defaults, field.name)})" in help_text
+
+
+def test_options_replace_only_the_settings_given():
+    import ncjax
+    from ncjax.cli.options import config_from_options
+    from ncjax.cli.reconstruct import add_reconstruct_arguments
+    from ncjax.cli.train import add_train_arguments
+
+    base = ["room.png", "--rc", "0.5", "--out", "out"]
+    parser = _parser(add_reconstruct_arguments)
+    assert config_from_options(parser.parse_args(base), ncjax.NETWORK_PIPELINE_CONFIG) is ncjax.NETWORK_PIPELINE_CONFIG
+    args = parser.parse_args([*base, "--corner-threshold", "0.5", "--no-covariance", "--max-height-uncertainty", "inf"])
+    config = config_from_options(args, ncjax.NETWORK_PIPELINE_CONFIG)
+    expected = ncjax.NETWORK_PIPELINE_CONFIG.__class__(
+        **{
+            **vars(ncjax.NETWORK_PIPELINE_CONFIG),
+            "corner_threshold": 0.5,
+            "covariance": False,
+            "max_height_uncertainty": float("inf"),
+        }
+    )
+    assert config == expected
+    train_args = _parser(add_train_arguments).parse_args(["--learning-rate", "3e-4", "--no-flip"])
+    train_config = config_from_options(train_args, ncjax.TrainConfig(total_steps=10))
+    assert (train_config.peak_learning_rate, train_config.flip, train_config.total_steps) == (3e-4, False, 10)
+    train_args = _parser(add_train_arguments).parse_args(
+        ["--preset", "lite0-1024", "--backbone-learning-rate-scale", "0"]
+    )
+    train_config = config_from_options(train_args, ncjax.TrainConfig())
+    assert train_config == ncjax.TrainConfig(backbone_learning_rate_scale=0.0)
+    assert ncjax.HorizonNetConfig.preset(train_args.preset).backbone == "efficientnet_lite0"
+
+
+def test_a_bad_setting_is_one_line_before_any_work(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = cli.main(
+        ["reconstruct", str(tmp_path / "missing.png"), "--rc", "0.5", "--out", str(out), "--sample-size", "2"]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and "sample_size must be >= 3" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()

@@ -7,11 +7,10 @@ import shutil
 
 import numpy as np
 import pytest
+from _synth import CLI_ARGS, HEIGHT, WIDTH
 
 import ncjax
 from ncjax import cli
-
-from _synth import CLI_ARGS, HEIGHT, WIDTH
 
 N = 6
 
@@ -23,6 +22,7 @@ def dataset(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_written_files_are_mutually_consistent(dataset):
     names = ncjax.list_samples(dataset)
     assert len(names) == N
@@ -41,9 +41,11 @@ def test_written_files_are_mutually_consistent(dataset):
         # label_cor alternates ceiling and floor; 3D_gt holds the N ceiling corners then the N floor ones.
         ordered = np.stack([points[:n], points[n:]], 1).reshape(-1, 3)
         local = ordered - pose
-        # Both ncjax.project and the formulas of DESIGN.md section 2 written out here.
+        # Both ncjax.project and the formulas of docs/design.md section 2 written out here.
         numpy_u = (np.pi - np.arctan2(local[:, 1], local[:, 0])) / (2 * np.pi) * WIDTH - 0.5
-        numpy_v = (np.pi / 2 - np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1]) - meta["rc"])) / np.pi * HEIGHT - 0.5
+        numpy_v = (
+            np.pi / 2 - np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1]) - meta["rc"])
+        ) / np.pi * HEIGHT - 0.5
         for u, v in (ncjax.project(cam, local), (numpy_u, numpy_v)):
             du = np.abs(np.asarray(u) - label_cor[:, 0])
             du = np.minimum(du, WIDTH - du)
@@ -107,7 +109,9 @@ def test_same_seed_same_bytes(dataset, tmp_path):
     for folder in ("img", "label_cor", "3D_gt", "cam_pose", "depth", "semantic", "json"):
         files = sorted(os.listdir(os.path.join(dataset, folder)))
         assert files == sorted(os.listdir(os.path.join(again, folder)))
-        _, mismatch, errors = filecmp.cmpfiles(os.path.join(dataset, folder), os.path.join(again, folder), files, shallow=False)
+        _, mismatch, errors = filecmp.cmpfiles(
+            os.path.join(dataset, folder), os.path.join(again, folder), files, shallow=False
+        )
         assert not mismatch and not errors
     assert filecmp.cmp(os.path.join(dataset, "split.json"), os.path.join(again, "split.json"), shallow=False)
     assert not any(name.startswith(".") for name in os.listdir(os.path.join(again, "img")))  # no temporary files left
@@ -149,7 +153,7 @@ def test_unknown_world_is_an_argparse_error(tmp_path):
 
 
 def test_folder_samples_at_the_network_size_keep_exact_labels(dataset):
-    from ncjax._train import load_split
+    from ncjax.training.data import load_split
 
     for split, members in list_split_names(dataset).items():
         if not members:
@@ -181,7 +185,7 @@ def list_split_names(directory):
 
 
 def test_folder_batches_are_reproducible_and_resumable(dataset):
-    from ncjax._train import folder_batches, load_split
+    from ncjax.training.data import folder_batches, load_split
 
     arrays = load_split(dataset, "train", HEIGHT, WIDTH, progress=False)
     batches = folder_batches(arrays, 2, seed=3)
@@ -196,7 +200,7 @@ def test_folder_batches_are_reproducible_and_resumable(dataset):
 
 
 def test_folders_are_pooled_in_order(dataset):
-    from ncjax._train import load_split, training_data
+    from ncjax.training.data import load_split, training_data
 
     one = load_split(dataset, "train", HEIGHT, WIDTH, progress=False)
     one_valid = load_split(dataset, "valid", HEIGHT, WIDTH, progress=False)
@@ -226,7 +230,8 @@ def test_evaluate_command_prints_the_network_table(dataset, tmp_path, capsys):
 
 def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
     from _synth import BATCH, CONFIG
-    from ncjax._train import load_split, rendered_splits
+
+    from ncjax.training.data import load_split, rendered_splits
 
     # At half size, so that both routes shrink the image the same way too.
     height, width = HEIGHT // 2, WIDTH // 2
@@ -234,8 +239,11 @@ def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
     assert sum(len(arrays["image"]) for arrays in rendered.values()) == N
     for split, arrays in rendered.items():
         read = load_split(dataset, split, height, width, progress=False)
+
         # The folder lists samples by name, the renderer by index: match them by their pixels.
-        order = lambda a: np.argsort([image.tobytes() for image in a["image"]])  # noqa: E731
+        def order(a):
+            return np.argsort([image.tobytes() for image in a["image"]])
+
         for key in read:
             np.testing.assert_allclose(arrays[key][order(arrays)], read[key][order(read)], atol=1e-4)
 
@@ -245,21 +253,21 @@ def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
     [("synth:11:3200", (11, 3200)), ("synth:-3:1", (-3, 1)), ("data/synth1024", None), ("painted", None)],
 )
 def test_parse_synth_source(source, expected):
-    from ncjax._train import parse_synth_source
+    from ncjax.training.data import parse_synth_source
 
     assert parse_synth_source(source) == expected
 
 
 @pytest.mark.parametrize("source", ["synth:11", "synth:a:3", "synth:1:0", "synth:1:2:3", "synth:1:2.5"])
 def test_parse_synth_source_refuses_malformed_sources(source):
-    from ncjax._train import parse_synth_source
+    from ncjax.training.data import parse_synth_source
 
     with pytest.raises(ValueError, match="synth:SEED:N"):
         parse_synth_source(source)
 
 
 def test_training_data_refuses_a_malformed_source_before_reading_the_others(tmp_path):
-    from ncjax._train import training_data
+    from ncjax.training.data import training_data
 
     with pytest.raises(ValueError, match="synth:SEED:N"):
         training_data([str(tmp_path / "not_a_dataset"), "synth:1:x"], HEIGHT, WIDTH, 4)

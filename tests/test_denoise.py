@@ -1,11 +1,11 @@
-"""Noise estimation and the denoising before the network (ncjax._denoise)."""
+"""Noise estimation and the denoising before the network (ncjax.network.denoise)."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncjax._denoise import NOISE_TARGET, denoise_for_network, noise_sigma
+from ncjax.network.denoise import NOISE_TARGET, denoise_for_network, noise_sigma
 
 
 def _scene(height=128, width=256):

@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ncjax
-from ncjax import _edges, _train
+import ncjax.network.edges
+import ncjax.training.data
 
 HEIGHT, WIDTH = 128, 256
 # At 128 rows the default radius (3 rows at 512) would round to 1: reach 3 rows here.
@@ -23,13 +24,13 @@ def painted(phase, amplitude):
     ceiling = 40.0 + amplitude * jnp.sin(2 * jnp.pi * columns / WIDTH + phase)
     floor = 90.0 - 0.7 * amplitude * jnp.cos(4 * jnp.pi * columns / WIDTH + phase)
     colours = jnp.array([[0.9, 0.9, 0.85], [0.6, 0.5, 0.4], [0.3, 0.25, 0.2]])
-    image = _train.paint_panorama(ceiling, floor, columns // 40, HEIGHT, colours)
+    image = ncjax.training.data.paint_panorama(ceiling, floor, columns // 40, HEIGHT, colours)
     return image, ceiling, floor
 
 
 @functools.cache
 def snapper():
-    return jax.jit(lambda image, c, f: _edges.snap_to_edges(image, c, f, SNAP))
+    return jax.jit(lambda image, c, f: ncjax.network.edges.snap_to_edges(image, c, f, SNAP))
 
 
 @settings(max_examples=10, deadline=None)
@@ -83,8 +84,10 @@ def test_uint8_images_and_the_blur():
     assert np.median(np.abs(c8 - ceiling)) < 0.05 and np.median(np.abs(f8 - floor)) < 0.05
     # The blur keeps a constant image, and each row's mean (normalised weights, columns wrapping around).
     stripes = jnp.broadcast_to(jax.random.uniform(jax.random.PRNGKey(1), (1, WIDTH, 3)), (HEIGHT, WIDTH, 3))
-    np.testing.assert_allclose(_edges.blur(jnp.ones((8, 16, 3)), 1.5), 1.0, rtol=1e-6)
-    np.testing.assert_allclose(jnp.mean(_edges.blur(stripes, 1.0), axis=1), jnp.mean(stripes, axis=1), atol=1e-5)
+    np.testing.assert_allclose(ncjax.network.edges.blur(jnp.ones((8, 16, 3)), 1.5), 1.0, rtol=1e-6)
+    np.testing.assert_allclose(
+        jnp.mean(ncjax.network.edges.blur(stripes, 1.0), axis=1), jnp.mean(stripes, axis=1), atol=1e-5
+    )
 
 
 def test_edge_snap_validation():

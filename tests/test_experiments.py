@@ -1,8 +1,8 @@
 """The noise sweep runs end to end in its small version and writes its outputs."""
 
 import importlib.util
-from types import SimpleNamespace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -18,6 +18,7 @@ def experiment(name: str):
     return module
 
 
+@pytest.mark.slow
 def test_noise_sweep_small(tmp_path):
     module = experiment("noise_sweep")
     results, rc_results, ablation = module.main(["--small", "--out", str(tmp_path)])
@@ -37,6 +38,7 @@ def test_noise_sweep_small(tmp_path):
         assert ablation["manhattan/refined"]["corner"] < ablation[f"manhattan/{other}"]["corner"]
 
 
+@pytest.mark.slow
 def test_pipeline_table_small(tmp_path):
     module = experiment("pipeline_table")
     rows = module.main(["--small", "--out", str(tmp_path)])
@@ -47,11 +49,26 @@ def test_pipeline_table_small(tmp_path):
 
 def test_network_table_bins_rooms_by_their_narrowest_wall():
     module = experiment("network_table")
-    room = lambda width, corners: SimpleNamespace(image=np.zeros((width // 2, width, 3)), metadata={"corner_u": corners})  # noqa: E731
+
+    def room(width, corners):
+        return SimpleNamespace(image=np.zeros((width // 2, width, 3)), metadata={"corner_u": corners})
+
     assert module.narrowest_wall(room(1024, [1000.0, 10.0, 500.0])) == 34.0  # the wall across the seam
     assert module.narrowest_wall(room(512, [5.0, 10.0, 300.0])) == 10.0  # columns of a 1024-wide panorama
-    per_room = [{"returned": not failed, "written": not failed, "failed": failed, "ce": 0.1, "ce_median": 0.1, "cen": 0.01, "iou3d": 0.9, "iou3d_up_to_scale": 0.9,
-                 "height_error": 0.0} for failed in (True, False, False)]
+    per_room = [
+        {
+            "returned": not failed,
+            "written": not failed,
+            "failed": failed,
+            "ce": 0.1,
+            "ce_median": 0.1,
+            "cen": 0.01,
+            "iou3d": 0.9,
+            "iou3d_up_to_scale": 0.9,
+            "height_error": 0.0,
+        }
+        for failed in (True, False, False)
+    ]
     bins = module.by_narrowest_wall(per_room, np.array([4.0, 20.0, 40.0]))
     assert [b["rooms"] for b in bins] == [1, 1, 1] and bins[0]["failed"] == 100.0 and bins[2]["failed"] == 0.0
     assert bins[2]["high"] is None
@@ -62,7 +79,14 @@ def test_network_table_scores_every_returned_layout_also_with_another_corner_cou
     scored = {"ce": 0.1, "cen": 0.01, "iou3d_up_to_scale": 0.9, "height_error": 0.0}
     per_room = [
         {"returned": True, "written": True, "failed": False, **scored, "iou3d": 0.9},  # the true corner count
-        {"returned": True, "written": True, "failed": True, **scored, "ce": float("nan"), "iou3d": 0.7},  # a merged corner: no CE
+        {
+            "returned": True,
+            "written": True,
+            "failed": True,
+            **scored,
+            "ce": float("nan"),
+            "iou3d": 0.7,
+        },  # a merged corner: no CE
         {"returned": False, "written": False, "failed": True},  # no layout
         {"returned": False, "written": True, "failed": True, **scored, "iou3d": 0.4},  # flagged UNCERTAIN_SCALE
     ]
@@ -79,12 +103,26 @@ def test_network_table_scores_every_returned_layout_also_with_another_corner_cou
 def test_network_table_scores_the_geometry_of_uncertain_scale_layouts_but_counts_them_failed():
     module = experiment("network_table")
     square = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]])
-    truth = {"ceiling_corners": np.hstack([square, np.full((4, 1), 1.0)]), "floor_corners": np.hstack([square, np.full((4, 1), -1.5)])}
-    layout = lambda ok, status: {**truth, "ok": ok, "status": status, "mask": np.ones(4, bool)}  # noqa: E731
-    ok, flagged, failed = module.scores([layout(True, 0), layout(False, int(ncjax.LayoutStatus.UNCERTAIN_SCALE)),
-                                         layout(False, int(ncjax.LayoutStatus.DEGENERATE_LAYOUT))], [truth] * 3)
+    truth = {
+        "ceiling_corners": np.hstack([square, np.full((4, 1), 1.0)]),
+        "floor_corners": np.hstack([square, np.full((4, 1), -1.5)]),
+    }
+
+    def layout(ok, status):
+        return {**truth, "ok": ok, "status": status, "mask": np.ones(4, bool)}
+
+    ok, flagged, failed = module.scores(
+        [
+            layout(True, 0),
+            layout(False, int(ncjax.LayoutStatus.UNCERTAIN_SCALE)),
+            layout(False, int(ncjax.LayoutStatus.DEGENERATE_LAYOUT)),
+        ],
+        [truth] * 3,
+    )
     assert ok["returned"] and ok["written"] and not ok["failed"] and ok["iou3d"] == pytest.approx(1.0)
-    assert not flagged["returned"] and flagged["written"] and flagged["failed"] and flagged["iou3d"] == pytest.approx(1.0)
+    assert (
+        not flagged["returned"] and flagged["written"] and flagged["failed"] and flagged["iou3d"] == pytest.approx(1.0)
+    )
     assert not failed["written"] and failed["failed"] and "iou3d" not in failed
 
 
@@ -112,11 +150,15 @@ def test_resolution_shrinks_by_pixel_area_averaging():
 def test_tuning_row_errors_compare_each_boundary_with_its_true_rows():
     module = experiment("tune_network_pipeline")
     true_rows = np.stack([np.full((2, 4), 100.0), np.full((2, 4), 400.0)])
-    data = {"ceiling_v": true_rows[0] + [[0.0, 0.0, 0.5, 0.5], [0.0, 0.0, 0.0, -0.5]],
-            "floor_v": true_rows[1] + [[0.0, 4.0, -8.0, 0.5], [0.0, 0.0, -2.0, 1.5]], "true_rows": true_rows}
+    data = {
+        "ceiling_v": true_rows[0] + [[0.0, 0.0, 0.5, 0.5], [0.0, 0.0, 0.0, -0.5]],
+        "floor_v": true_rows[1] + [[0.0, 4.0, -8.0, 0.5], [0.0, 0.0, -2.0, 1.5]],
+        "true_rows": true_rows,
+    }
     # ceiling |errors| 0 x 5, 0.5 x 3; floor 0 x 3, 0.5, 1.5, 2, 4, 8
-    assert module.row_errors(data) == ("ceiling 0.19 / 0.00 px, 100% within 1 px; "
-                                       "floor 2.00 / 1.00 px, 50% within 1 px")
+    assert module.row_errors(data) == (
+        "ceiling 0.19 / 0.00 px, 100% within 1 px; floor 2.00 / 1.00 px, 50% within 1 px"
+    )
 
 
 def test_tuning_refuses_a_missing_model_before_any_work(tmp_path):

@@ -12,13 +12,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 import shapely
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import ncjax
-from ncjax import _export as export
+import ncjax.io.export
+import ncjax.io.mesh
+import ncjax.viz.overlay
+import ncjax.viz.plan
 
 H_C, H_F = 1.0, -1.5
 # Floor plans in image order (decreasing azimuth, so clockwise seen from above), camera at the origin.
@@ -49,7 +52,10 @@ def make_layout(plan, ceiling_height=H_C, floor_height=H_F, *, inserted=(), capa
         return np.concatenate([plan, np.full((n, 1), height)], -1)
 
     columns = (math.pi - np.arctan2(plan[:, 1], plan[:, 0])) / (2 * math.pi) * 1024 - 0.5
-    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+
+    def f32(x):
+        return jnp.asarray(x, jnp.float32)
+
     return ncjax.Layout(
         ceiling_corners=f32(pad(at(ceiling_height))),
         floor_corners=f32(pad(at(floor_height))),
@@ -74,7 +80,9 @@ def make_layout(plan, ceiling_height=H_C, floor_height=H_F, *, inserted=(), capa
 def failed_layout():
     layout = make_layout(RECTANGLE, status=int(ncjax.LayoutStatus.DEGENERATE_LAYOUT))
     nan = jnp.full_like(layout.ceiling_corners, jnp.nan)  # meaningless corners must not leak into the JSON
-    return ncjax.Layout(**{**vars(layout), "ceiling_corners": nan, "floor_corners": nan, "ceiling_height": jnp.float32(jnp.nan)})
+    return ncjax.Layout(
+        **{**vars(layout), "ceiling_corners": nan, "floor_corners": nan, "ceiling_height": jnp.float32(jnp.nan)}
+    )
 
 
 CAM = ncjax.NonCentralPanorama(1024, 512, rc=0.6)
@@ -84,9 +92,16 @@ CAM = ncjax.NonCentralPanorama(1024, 512, rc=0.6)
 
 
 def test_record_of_a_rectangle(tmp_path):
-    record = export.layout_record(make_layout(RECTANGLE), CAM, name="room", world="auto", extra={"image": "room.png"})
+    record = ncjax.io.export.layout_record(
+        make_layout(RECTANGLE), CAM, name="room", world="auto", extra={"image": "room.png"}
+    )
     assert record["schema_version"] == 1 and record["ok"] is True
-    assert (record["status"], record["status_code"], record["world"], record["branch"]) == ("OK", 0, "auto", "manhattan")
+    assert (record["status"], record["status_code"], record["world"], record["branch"]) == (
+        "OK",
+        0,
+        "auto",
+        "manhattan",
+    )
     assert record["explained_fraction"] == pytest.approx(0.9)
     assert record["image_size"] == [1024, 512] and record["units"] == "metres" and record["image"] == "room.png"
     assert record["rc"] == pytest.approx(0.6)
@@ -103,7 +118,7 @@ def test_record_of_a_rectangle(tmp_path):
     # Canonical walls: camera on the left, distance <= 0; the far wall y = 1.8 runs towards -x.
     assert record["walls"][0]["direction"] == [-1.0, 0.0] and record["walls"][0]["distance"] == -1.8
     path = tmp_path / "room.json"
-    export.write_json(path, record)
+    ncjax.io.export.write_json(path, record)
     assert json.loads(path.read_text()) == record
     assert "-0.0," not in path.read_text() and "-0.0]" not in path.read_text()
 
@@ -112,50 +127,50 @@ def test_record_without_covariances():
     layout = make_layout(RECTANGLE)
     nan = jnp.full_like(layout.corner_covariance, jnp.nan)  # PipelineConfig(covariance=False)
     layout = ncjax.Layout(**{**vars(layout), "corner_covariance": nan, "height_covariance": nan[0]})
-    record = export.layout_record(layout, CAM, name="room", world="auto")
+    record = ncjax.io.export.layout_record(layout, CAM, name="room", world="auto")
     assert record["corner_sigma"] == [None] * 4 and record["corner_covariance"] == [[[None, None]] * 2] * 4
     assert record["ceiling_height_sigma"] is record["room_height_sigma"] is None
     json.dumps(record, allow_nan=False)
-    assert export.draw_plan(layout).shape == (600, 600, 3)
+    assert ncjax.viz.plan.draw_plan(layout).shape == (600, 600, 3)
 
 
 def test_failed_layout_record_is_strict_json(tmp_path):
-    record = export.layout_record(failed_layout(), CAM, name="bad", world="manhattan")
+    record = ncjax.io.export.layout_record(failed_layout(), CAM, name="bad", world="manhattan")
     assert record["ok"] is False and record["status"] == "DEGENERATE_LAYOUT" and record["status_code"] == 8
     assert record["ceiling_corners"] == record["floor_corners"] == record["walls"] == []
     assert record["ceiling_height"] is None and record["floor_area"] is None
     assert record["corner_sigma"] == record["corner_covariance"] == [] and record["ceiling_height_sigma"] is None
     text = json.dumps(record, allow_nan=False)
     assert "NaN" not in text
-    export.write_json(tmp_path / "bad.json", record)
+    ncjax.io.export.write_json(tmp_path / "bad.json", record)
     assert json.loads((tmp_path / "bad.json").read_text()) == record
 
 
 def test_uncertain_scale_layout_keeps_its_geometry_marked_not_ok(tmp_path):
     """UNCERTAIN_SCALE fails only the scale test: record, mesh, overlay and plan keep the layout, marked."""
     uncertain = make_layout(RECTANGLE, status=int(ncjax.LayoutStatus.UNCERTAIN_SCALE))
-    record = export.layout_record(uncertain, CAM, name="room", world="auto")
+    record = ncjax.io.export.layout_record(uncertain, CAM, name="room", world="auto")
     assert record["ok"] is False and record["status"] == "UNCERTAIN_SCALE"
     assert record["floor_corners"] == [[x, y, -1.5] for x, y in RECTANGLE] and record["room_height"] == 2.5
-    assert export.has_geometry(uncertain) and not export.has_geometry(failed_layout())
-    obj, _, _ = export.write_mesh(tmp_path / "room", uncertain)
+    assert ncjax.io.export.has_geometry(uncertain) and not ncjax.io.export.has_geometry(failed_layout())
+    obj, _, _ = ncjax.io.mesh.write_mesh(tmp_path / "room", uncertain)
     assert obj.is_file()
     cam = ncjax.NonCentralPanorama(512, 256, rc=0.6)
     image = np.full((256, 512, 3), 90, np.uint8)
-    drawn = export.draw_overlay(image, make_layout(RECTANGLE), cam)
-    marked = export.draw_overlay(image, uncertain, cam)
+    drawn = ncjax.viz.overlay.draw_overlay(image, make_layout(RECTANGLE), cam)
+    marked = ncjax.viz.overlay.draw_overlay(image, uncertain, cam)
     assert (drawn != image).any() and (marked[:30] != drawn[:30]).any()  # the layout, then the label above it
-    assert not np.array_equal(export.draw_plan(uncertain), export.draw_plan(make_layout(RECTANGLE)))
+    assert not np.array_equal(ncjax.viz.plan.draw_plan(uncertain), ncjax.viz.plan.draw_plan(make_layout(RECTANGLE)))
 
 
 def test_record_rejects_bad_arguments():
     layout = make_layout(RECTANGLE)
     with pytest.raises(ValueError, match="world"):
-        export.layout_record(layout, CAM, name="room", world="cuboid")
+        ncjax.io.export.layout_record(layout, CAM, name="room", world="cuboid")
     with pytest.raises(ValueError, match="extra"):
-        export.layout_record(layout, CAM, name="room", world="auto", extra={"status": "fine"})
+        ncjax.io.export.layout_record(layout, CAM, name="room", world="auto", extra={"status": "fine"})
     with pytest.raises(ValueError):
-        export.write_json("unused.json", {"x": float("nan")})
+        ncjax.io.export.write_json("unused.json", {"x": float("nan")})
     assert not os.path.exists("unused.json")
 
 
@@ -179,7 +194,7 @@ def check_room_mesh(vertices, faces, plan, ceiling_height=H_C, floor_height=H_F)
     assert np.sum(walls) == 2 * len(plan)
     np.testing.assert_allclose(unit[walls, 2], 0.0, atol=1e-9)
     centroids = (a + b + c)[walls, :2] / 3
-    for centroid, normal in zip(centroids, unit[walls, :2]):
+    for centroid, normal in zip(centroids, unit[walls, :2], strict=True):
         assert polygon.contains(shapely.Point(centroid + 1e-3 * normal)), "wall normal points out of the room"
     # Watertight and consistently oriented: each directed edge once, its reverse once.
     directed = [(int(f[i]), int(f[(i + 1) % 3])) for f in faces for i in range(3)]
@@ -193,10 +208,10 @@ def check_room_mesh(vertices, faces, plan, ceiling_height=H_C, floor_height=H_F)
 @pytest.mark.parametrize("plan,area", [(RECTANGLE, 12.0), (L_SHAPE, 21.0), (U_SHAPE, 25.0)])
 def test_room_mesh_of_non_convex_rooms(plan, area):
     layout = make_layout(plan, inserted=(1,))
-    vertices, faces = export.room_mesh(layout)
+    vertices, faces = ncjax.io.mesh.room_mesh(layout)
     assert vertices.shape == (2 * len(plan), 3) and faces.shape == (4 * len(plan) - 4, 3)
     check_room_mesh(vertices.astype(np.float64), faces, plan)
-    assert export.layout_record(layout, CAM, name="r", world="manhattan")["floor_area"] == area
+    assert ncjax.io.export.layout_record(layout, CAM, name="r", world="manhattan")["floor_area"] == area
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     assert mesh.is_watertight and mesh.is_winding_consistent
 
@@ -208,17 +223,17 @@ def test_triangulation_of_star_and_collinear_polygons():
     # A spurious corner in the middle of a wall: it may not be cut off alone.
     collinear = np.array([(0, 0), (2, 0), (4, 0), (4, 3), (0, 3)], float)
     for polygon in (star, star[::-1], collinear, collinear[::-1]):
-        triangles = export.triangulate_polygon(polygon)
+        triangles = ncjax.io.mesh.triangulate_polygon(polygon)
         assert triangles.shape == (len(polygon) - 2, 3)
-        area = export._cross(polygon[triangles[:, 0]], polygon[triangles[:, 1]], polygon[triangles[:, 2]]) / 2
+        area = ncjax.io.mesh._cross(polygon[triangles[:, 0]], polygon[triangles[:, 1]], polygon[triangles[:, 2]]) / 2
         assert np.all(area > 1e-9)  # counter-clockwise and non-degenerate
-        assert area.sum() == pytest.approx(abs(export.signed_area(polygon)))
-    check_room_mesh(*export.room_mesh(make_layout(collinear[::-1] - 1.5)), collinear[::-1] - 1.5)
+        assert area.sum() == pytest.approx(abs(ncjax.io.export.signed_area(polygon)))
+    check_room_mesh(*ncjax.io.mesh.room_mesh(make_layout(collinear[::-1] - 1.5)), collinear[::-1] - 1.5)
 
 
 def test_no_mesh_for_a_failed_layout(tmp_path):
     with pytest.raises(ValueError, match="DEGENERATE_LAYOUT"):
-        export.write_mesh(tmp_path / "bad", failed_layout())
+        ncjax.io.mesh.write_mesh(tmp_path / "bad", failed_layout())
     assert list(tmp_path.iterdir()) == []
 
 
@@ -234,8 +249,8 @@ def read_obj(path):
 
 
 def test_obj_and_ply_round_trip(tmp_path):
-    vertices, faces = export.room_mesh(make_layout(L_SHAPE))
-    obj, ply, glb = export.write_mesh(tmp_path / "room", make_layout(L_SHAPE))
+    vertices, faces = ncjax.io.mesh.room_mesh(make_layout(L_SHAPE))
+    obj, ply, glb = ncjax.io.mesh.write_mesh(tmp_path / "room", make_layout(L_SHAPE))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["room.glb", "room.obj", "room.ply"]
     read_vertices, read_faces = read_obj(obj)
     np.testing.assert_allclose(read_vertices, vertices, atol=1e-6)
@@ -246,9 +261,9 @@ def test_obj_and_ply_round_trip(tmp_path):
 
 
 def test_glb_layout_and_axis_conversion(tmp_path):
-    vertices, faces = export.room_mesh(make_layout(U_SHAPE))
+    vertices, faces = ncjax.io.mesh.room_mesh(make_layout(U_SHAPE))
     path = tmp_path / "room.glb"
-    export.write_glb(path, vertices, faces)
+    ncjax.io.mesh.write_glb(path, vertices, faces)
     data = path.read_bytes()
     magic, version, length = struct.unpack_from("<III", data, 0)
     assert (magic, version, length) == (0x46546C67, 2, len(data)) and data[:4] == b"glTF"
@@ -268,7 +283,9 @@ def test_glb_layout_and_axis_conversion(tmp_path):
     assert position["min"] == positions.min(0).tolist() and position["max"] == positions.max(0).tolist()
     view = gltf["bufferViews"][index["bufferView"]]
     assert index["componentType"] == 5125
-    np.testing.assert_array_equal(np.frombuffer(binary, "<u4", index["count"], view["byteOffset"]).reshape(-1, 3), faces)
+    np.testing.assert_array_equal(
+        np.frombuffer(binary, "<u4", index["count"], view["byteOffset"]).reshape(-1, 3), faces
+    )
     # An independent reader agrees.
     mesh = trimesh.load(path, force="mesh", process=False)
     np.testing.assert_allclose(mesh.vertices, expected, atol=1e-6)
@@ -305,7 +322,9 @@ def test_overlay_passes_through_the_exact_boundaries():
     corner_u = np.asarray(labels.corner_u)[np.asarray(labels.corner_mask)]
     image = np.zeros((height, width, 3), np.uint8)
     offset = 12.0  # network rows drawn apart from the layout, to tell them apart
-    overlay = export.draw_overlay(image, make_layout(RECTANGLE), cam, ceiling_v + offset, floor_v - offset, labels.corner_target)
+    overlay = ncjax.viz.overlay.draw_overlay(
+        image, make_layout(RECTANGLE), cam, ceiling_v + offset, floor_v - offset, labels.corner_target
+    )
     assert overlay.dtype == np.uint8 and overlay.shape == image.shape and not image.any()
     columns = [u for u in range(8, width - 8, 23) if np.min(np.abs((u - corner_u + width / 2) % width - width / 2)) > 8]
     assert len(columns) > 10
@@ -324,20 +343,22 @@ def test_overlay_passes_through_the_exact_boundaries():
 
 def test_curves_break_at_the_seam_and_at_nan():
     canvas = np.zeros((32, 64, 3), np.uint8)
-    export._draw_curve(canvas, np.array([60.0, 62.0, 63.0, 0.5, 2.0]), np.full(5, 10.0), (255, 255, 255), 1)
+    ncjax.viz.overlay._draw_curve(canvas, np.array([60.0, 62.0, 63.0, 0.5, 2.0]), np.full(5, 10.0), (255, 255, 255), 1)
     assert canvas[10, 62].any() and canvas[10, 1].any() and not canvas[:, 5:58].any()
-    export._draw_curve(canvas, np.array([10.0, 20.0, np.nan, 30.0, 40.0]), np.full(5, 20.0), (255, 255, 255), 1)
+    ncjax.viz.overlay._draw_curve(
+        canvas, np.array([10.0, 20.0, np.nan, 30.0, 40.0]), np.full(5, 20.0), (255, 255, 255), 1
+    )
     assert canvas[20, 15].any() and canvas[20, 35].any() and not canvas[20, 22:28].any()
 
 
 def test_overlay_checks_sizes_and_draws_failed_layouts():
     image = np.full((256, 512, 3), 90, np.uint8)
     with pytest.raises(ValueError, match="camera size"):
-        export.draw_overlay(image, make_layout(RECTANGLE), CAM)
+        ncjax.viz.overlay.draw_overlay(image, make_layout(RECTANGLE), CAM)
     cam = ncjax.NonCentralPanorama(512, 256, rc=0.6)
     with pytest.raises(ValueError, match="RGB"):
-        export.draw_overlay(image[..., 0], make_layout(RECTANGLE), cam)
-    overlay = export.draw_overlay(image, failed_layout(), cam, np.full(512, 40.0), np.full(512, 200.0))
+        ncjax.viz.overlay.draw_overlay(image[..., 0], make_layout(RECTANGLE), cam)
+    overlay = ncjax.viz.overlay.draw_overlay(image, failed_layout(), cam, np.full(512, 40.0), np.full(512, 200.0))
     assert overlay.shape == image.shape and (overlay[:30] != image[:30]).any()  # the "no layout" label
     # Antialiased lines blend into the neighbouring rows; the line's own row is mostly NETWORK_COLOUR.
     assert overlay[40, 5:-5, 0].min() > 200 and overlay[40, 5:-5, 2].max() < 30 and overlay[200, 5:-5, 0].min() > 200
@@ -353,7 +374,7 @@ def test_corner_ellipses_hold_95_percent(angle, major, minor):
     turn = np.radians(angle)
     rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
     covariance = rotation @ np.diag([major, minor]) @ rotation.T
-    (width, height, got), = export.corner_ellipses(covariance[None])
+    ((width, height, got),) = ncjax.viz.plan.corner_ellipses(covariance[None])
     np.testing.assert_allclose([width, height], 2 * np.sqrt(5.991464547107979 * np.array([major, minor])), rtol=1e-6)
     if major > 1.001 * minor:  # the orientation of a circle is arbitrary
         assert abs((got - angle + 90) % 180 - 90) < 1e-3
@@ -363,14 +384,14 @@ def test_corner_ellipses_hold_95_percent(angle, major, minor):
     across = samples @ np.array([-np.sin(np.radians(got)), np.cos(np.radians(got))])
     inside = (along / half_width) ** 2 + (across / half_height) ** 2 <= 1
     assert abs(np.mean(inside) - 0.95) < 0.01
-    assert np.all(np.isnan(export.corner_ellipses(np.full((1, 2, 2), np.inf))))
+    assert np.all(np.isnan(ncjax.viz.plan.corner_ellipses(np.full((1, 2, 2), np.inf))))
 
 
 def test_plan_images():
-    plan = export.draw_plan(make_layout(L_SHAPE, inserted=(2,)), title="room", rc=0.6)
+    plan = ncjax.viz.plan.draw_plan(make_layout(L_SHAPE, inserted=(2,)), title="room", rc=0.6)
     assert plan.dtype == np.uint8 and plan.shape == (600, 600, 3)
     assert plan.std() > 10  # something drawn on the white figure
-    failed = export.draw_plan(failed_layout(), title="bad")
+    failed = ncjax.viz.plan.draw_plan(failed_layout(), title="bad")
     assert failed.shape == (600, 600, 3) and failed.dtype == np.uint8 and (failed != 255).any()
     assert not np.array_equal(failed, plan)
 
@@ -380,7 +401,7 @@ def test_plan_images():
 
 def test_png_round_trip(tmp_path):
     image = np.random.default_rng(0).integers(0, 256, (20, 30, 3), dtype=np.uint8)
-    export.write_png(tmp_path / "image.png", image)
+    ncjax.io.export.write_png(tmp_path / "image.png", image)
     np.testing.assert_array_equal(cv2.cvtColor(cv2.imread(str(tmp_path / "image.png")), cv2.COLOR_BGR2RGB), image)
     assert os.listdir(tmp_path) == ["image.png"]
 
@@ -388,16 +409,16 @@ def test_png_round_trip(tmp_path):
 @pytest.mark.parametrize("failing", ["fsync", "replace"])
 def test_interrupted_write_keeps_the_old_file(tmp_path, monkeypatch, failing):
     path = tmp_path / "room.json"
-    export.write_json(path, {"version": "old"})
+    ncjax.io.export.write_json(path, {"version": "old"})
 
     def fail(*args, **kwargs):
         raise OSError("disk full")
 
     monkeypatch.setattr(os, failing, fail)
     with pytest.raises(OSError, match="disk full"):
-        export.write_json(path, {"version": "new"})
+        ncjax.io.export.write_json(path, {"version": "new"})
     monkeypatch.undo()
     assert json.loads(path.read_text()) == {"version": "old"}
     assert os.listdir(tmp_path) == ["room.json"]  # no temporary file left behind
-    export.write_json(path, {"version": "new"})
+    ncjax.io.export.write_json(path, {"version": "new"})
     assert json.loads(path.read_text()) == {"version": "new"} and os.listdir(tmp_path) == ["room.json"]

@@ -1,4 +1,4 @@
-"""The vectorising float32 arctangent (ncjax._fastmath) against numpy's float64 one."""
+"""The vectorising float32 arctangent (ncjax.geometry.fastmath) against numpy's float64 one."""
 
 import jax
 import jax.numpy as jnp
@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
-from ncjax._fastmath import arctan2
+from ncjax.geometry.fastmath import arctan2
 
 ULP_AT_PI = np.spacing(np.float32(np.pi))  # 2.4e-7 rad
 

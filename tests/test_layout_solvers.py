@@ -19,8 +19,7 @@ from test_wall import (
 )
 
 import ncjax
-import ncjax._layout_solvers
-from ncjax._wall_fit import refine_walls, search_scale
+from ncjax.solvers.wall_fit import refine_walls, search_scale
 
 N_ROOMS = 40  # per world (experiments/solver_accuracy.py checks 1000)
 
@@ -54,7 +53,9 @@ def _errors(rooms, layout):
         mask=bool(jnp.all(layout.mask == mask)),
         direction=float(jnp.max(jnp.where(mask, direction_error_deg(layout.directions, rooms["directions"]), 0))),
         distance=float(jnp.max(jnp.where(mask, jnp.abs(layout.distances - rooms["distances"]), 0))),
-        heights=float(jnp.max(jnp.abs(layout.ceiling_height - rooms["h_c"]) + jnp.abs(layout.floor_height - rooms["h_f"]))),
+        heights=float(
+            jnp.max(jnp.abs(layout.ceiling_height - rooms["h_c"]) + jnp.abs(layout.floor_height - rooms["h_f"]))
+        ),
         corners=float(jnp.max(jnp.where(mask, corner_error, 0))),
     )
 
@@ -72,6 +73,7 @@ def test_manhattan_float32():
     _check(_errors(rooms, layout), 5e-3, 0.2)
 
 
+@pytest.mark.slow
 def test_manhattan_float64(x64):
     rooms = sample_rooms(0, "manhattan", N_ROOMS)
     _check(_errors(rooms, _manhattan_many(rooms)), 1e-4, 1e-3)
@@ -82,6 +84,7 @@ def test_atlanta_float32():
     _check(_errors(rooms, _atlanta_many(rooms)), 5e-3, 1e-3)
 
 
+@pytest.mark.slow
 def test_atlanta_float64(x64):
     rooms = sample_rooms(1, "atlanta", N_ROOMS)
     _check(_errors(rooms, _atlanta_many(rooms)), 1e-4, 1e-6)
@@ -89,7 +92,10 @@ def test_atlanta_float64(x64):
 
 def _padded(room, capacity):
     """The same room with ``capacity`` wall slots."""
-    pad = lambda x: jnp.concatenate([x, jnp.zeros((capacity - x.shape[0],) + x.shape[1:], x.dtype)])  # noqa: E731
+
+    def pad(x):
+        return jnp.concatenate([x, jnp.zeros((capacity - x.shape[0],) + x.shape[1:], x.dtype)])
+
     return {**room, **{k: pad(room[k]) for k in ("mask", "labels", "directions", "distances", "corners")}}
 
 
@@ -101,7 +107,9 @@ def test_capacity_padding_and_label_swap():
     swapped = jax.jit(_manhattan)({**room, "labels": jnp.where(room["mask"], 1 - room["labels"], 0)})
     np.testing.assert_allclose(a.distances, swapped.distances, atol=1e-4)
     present = room["mask"][:, None]
-    np.testing.assert_allclose(jnp.where(present, a.directions, 0), jnp.where(present, swapped.directions, 0), atol=1e-5)
+    np.testing.assert_allclose(
+        jnp.where(present, a.directions, 0), jnp.where(present, swapped.directions, 0), atol=1e-5
+    )
 
 
 def test_unseen_wall_is_not_ok():
@@ -139,7 +147,13 @@ def _layout_outputs(room, solver):
         layout = solver(room, ceiling_rays, floor_rays)
         corners = ncjax.layout_corners(layout.ceiling_lines, layout.mask)
         return jnp.concatenate(
-            [layout.directions[:4].ravel(), layout.distances[:4], layout.ceiling_height[None], layout.floor_height[None], corners[:4].ravel()]
+            [
+                layout.directions[:4].ravel(),
+                layout.distances[:4],
+                layout.ceiling_height[None],
+                layout.floor_height[None],
+                corners[:4].ravel(),
+            ]
         )
 
     return f
@@ -153,6 +167,7 @@ def _atlanta_from(room, ceiling_rays, floor_rays):
     return ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"])
 
 
+@pytest.mark.slow
 def test_layout_gradients(x64):
     """jacfwd = jacrev = finite differences for both solvers, axis-aligned room included."""
     room = box_room(AXIS_ALIGNED, h_f=-1.4, capacity=6)
@@ -178,14 +193,18 @@ def test_layout_corners_of_parallel_walls_are_invalid_not_nan():
 
 
 def _stacked_rows(room, ceiling_rays, floor_rays):
-    """The Atlanta arguments ``(rays, base_directions, row_wall, is_floor)`` of the :mod:`ncjax._wall_fit`
+    """The Atlanta arguments ``(rays, base_directions, row_wall, is_floor)`` of the :mod:`ncjax.solvers.wall_fit`
     stages (ceiling rows, then floor rows) and the true ``(h_c, h_f, d_1..d_K)``."""
-    column_wall = jnp.where(room["mask"][jnp.maximum(room["wall_index"], 0)] & (room["wall_index"] >= 0), room["wall_index"], -1)
+    column_wall = jnp.where(
+        room["mask"][jnp.maximum(room["wall_index"], 0)] & (room["wall_index"] >= 0), room["wall_index"], -1
+    )
     directions = room["directions"][jnp.maximum(room["wall_index"], 0)]
     is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
     arguments = (
-        jnp.concatenate([ceiling_rays, floor_rays]), jnp.concatenate([directions, directions]),
-        jnp.concatenate([column_wall, column_wall]), is_floor,
+        jnp.concatenate([ceiling_rays, floor_rays]),
+        jnp.concatenate([directions, directions]),
+        jnp.concatenate([column_wall, column_wall]),
+        is_floor,
     )
     truth = jnp.concatenate([jnp.stack([room["h_c"], room["h_f"]]), jnp.where(room["mask"], room["distances"], 0.0)])
     return arguments, truth
@@ -196,7 +215,7 @@ def test_scale_search_recovers_a_scale_the_linear_solve_lost():
     re-scaled by the likelihood: the room's shape survives, the refinement recovers the room."""
     room = sample_room(3, "atlanta")
     arguments, truth = _stacked_rows(room, *rays(room))
-    depths = jnp.asarray(ncjax._layout_solvers.FLOOR_DEPTHS, truth.dtype)
+    depths = jnp.asarray(ncjax.solvers.layout.FLOOR_DEPTHS, truth.dtype)
     corrupted = 0.37 * jnp.concatenate([jnp.array([-1.0]), truth])  # right shape, x_0 of the wrong sign
     start, ok = search_scale(corrupted, *arguments, depths)
     assert ok
@@ -227,15 +246,17 @@ def test_atlanta_boundary_weights_follow_the_cleaner_boundary():
         assert float(error) < 5e-3
     alike = jax.vmap(solve, in_axes=(0, None))(noise, jnp.ones(2))
     weighted = jax.vmap(solve, in_axes=(0, None))(noise, down)
-    for even, down_weighted in zip(alike, weighted):
+    for even, down_weighted in zip(alike, weighted, strict=True):
         assert float(jnp.median(down_weighted)) < 0.3 * float(jnp.median(even)), (down_weighted, even)
 
 
 def _weighted_problem():
-    """A noisy Atlanta room's stacked rows for the :mod:`ncjax._wall_fit` stages, with random row weights."""
+    """A noisy Atlanta room's stacked rows for the :mod:`ncjax.solvers.wall_fit` stages, with random row weights."""
     room = sample_room(5, "atlanta")
     noise = jax.random.normal(jax.random.key(1), (2,) + room["floor_v"].shape)
-    arguments, truth = _stacked_rows(room, *boundary_rays(room["cam"], room["ceiling_v"] + noise[0], room["floor_v"] + noise[1]))
+    arguments, truth = _stacked_rows(
+        room, *boundary_rays(room["cam"], room["ceiling_v"] + noise[0], room["floor_v"] + noise[1])
+    )
     weights = jax.random.uniform(jax.random.key(2), arguments[2].shape, minval=0.05, maxval=1.0)
     return arguments, jnp.concatenate([jnp.zeros(1), truth]), weights
 
@@ -244,11 +265,11 @@ def test_weighted_gauss_newton_step_is_the_weighted_least_squares_step(x64):
     """The structured step equals the least-squares step of the weighted residuals' dense Jacobian."""
     (rays_, base, row_wall, is_floor), truth, weights = _weighted_problem()
     start = truth * jnp.concatenate([jnp.ones(1), jnp.full(2, 1.03), jnp.full(truth.shape[0] - 3, 0.97)])
-    geometry = ncjax._wall_fit._used_geometry(rays_, row_wall)
-    cost, delta = ncjax._wall_fit.gauss_newton_step(start, geometry, base, row_wall, is_floor, False, weights)
+    geometry = ncjax.solvers.wall_fit._used_geometry(rays_, row_wall)
+    cost, delta = ncjax.solvers.wall_fit.gauss_newton_step(start, geometry, base, row_wall, is_floor, False, weights)
 
     def residuals(p):
-        return ncjax._wall_fit.residuals_of(p, geometry, base, row_wall, is_floor, weights)
+        return ncjax.solvers.wall_fit.residuals_of(p, geometry, base, row_wall, is_floor, weights)
 
     jacobian = jax.jacfwd(residuals)(start)
     # the yaw (not refined: Atlanta) and absent walls' distances stay
@@ -265,21 +286,28 @@ def test_equal_row_weights_change_nothing():
     arguments, truth, _ = _weighted_problem()
     rays_, base, row_wall, is_floor = arguments
     equal = jnp.full(row_wall.shape, 0.3)
-    shared, distance = jax.random.normal(jax.random.key(3), (row_wall.shape[0], 3)), jax.random.normal(jax.random.key(4), row_wall.shape)
-    plain, weighted = (ncjax._wall_fit.linear_walls(shared, distance, row_wall, CAPACITY, w) for w in (None, equal))
+    shared, distance = (
+        jax.random.normal(jax.random.key(3), (row_wall.shape[0], 3)),
+        jax.random.normal(jax.random.key(4), row_wall.shape),
+    )
+    plain, weighted = (
+        ncjax.solvers.wall_fit.linear_walls(shared, distance, row_wall, CAPACITY, w) for w in (None, equal)
+    )
     sign = jnp.sign(jnp.dot(plain[0], weighted[0]))
     np.testing.assert_allclose(sign * weighted[0], plain[0], rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(sign * weighted[1], plain[1], rtol=1e-4, atol=1e-5)
-    x, d = ncjax._wall_fit.linear_walls(shared, distance, row_wall, CAPACITY, jnp.where(is_floor, 1.0, 0.1))
+    x, d = ncjax.solvers.wall_fit.linear_walls(shared, distance, row_wall, CAPACITY, jnp.where(is_floor, 1.0, 0.1))
     cosine = jnp.abs(jnp.dot(x, plain[0])) / (jnp.linalg.norm(x) * jnp.linalg.norm(plain[0]))
     assert float(cosine) < 0.9999  # unequal weights do change the null vector
-    depths = jnp.asarray(ncjax._layout_solvers.FLOOR_DEPTHS, truth.dtype)
+    depths = jnp.asarray(ncjax.solvers.layout.FLOOR_DEPTHS, truth.dtype)
     vector = truth.at[0].set(0.8)  # the room at 1.25 times its scale
     start, _ = search_scale(vector, *arguments, depths)
     np.testing.assert_array_equal(search_scale(vector, *arguments, depths, row_weights=equal)[0], start)
     np.testing.assert_allclose(
-        refine_walls(start, *arguments, refine_yaw=False, row_weights=equal), refine_walls(start, *arguments, refine_yaw=False),
-        rtol=1e-4, atol=1e-5,
+        refine_walls(start, *arguments, refine_yaw=False, row_weights=equal),
+        refine_walls(start, *arguments, refine_yaw=False),
+        rtol=1e-4,
+        atol=1e-5,
     )
 
 
@@ -288,6 +316,11 @@ def test_boundary_weights_need_the_refined_solver():
     ceiling_rays, floor_rays = rays(room)
     with pytest.raises(ValueError, match="refined"):
         ncjax.solve_atlanta_layout(
-            ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], method="paper",
+            ceiling_rays,
+            floor_rays,
+            room["wall_index"],
+            room["mask"],
+            room["directions"],
+            method="paper",
             boundary_weights=jnp.ones(2),
         )

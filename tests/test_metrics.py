@@ -57,7 +57,10 @@ def test_corner_matching_is_cyclic_and_counts_must_agree():
     ce, shift = metrics.corner_error(_layout(SQUARE), _layout(L_SHAPE))
     assert math.isnan(ce) and shift is None
     summary = metrics.aggregate(
-        [metrics.evaluate_layout(_layout(SQUARE), _layout(L_SHAPE)), metrics.evaluate_layout(_layout(SQUARE), _layout(SQUARE))]
+        [
+            metrics.evaluate_layout(_layout(SQUARE), _layout(L_SHAPE)),
+            metrics.evaluate_layout(_layout(SQUARE), _layout(SQUARE)),
+        ]
     )
     assert summary["failure_rate"] == pytest.approx(0.5) and summary["ce"] == pytest.approx(0.0)
 
@@ -95,4 +98,6 @@ def test_bad_layouts_are_rejected():
     with pytest.raises(TypeError, match="not a layout"):
         metrics.evaluate_layout(object(), _layout(SQUARE))
     with pytest.raises(ValueError, match="corners"):
-        metrics.evaluate_layout({"ceiling_corners": np.zeros((4, 2)), "floor_corners": np.zeros((4, 2))}, _layout(SQUARE))
+        metrics.evaluate_layout(
+            {"ceiling_corners": np.zeros((4, 2)), "floor_corners": np.zeros((4, 2))}, _layout(SQUARE)
+        )

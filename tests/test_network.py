@@ -1,9 +1,11 @@
 """Non-central HorizonNet: shapes, wrap-awareness, parameter counts, loss, augmentations,
-checkpoints, resume, Table netcorExp metrics, predict_boundaries.
+checkpoints, resume, Table netcorExp metrics, predict_boundaries, the EfficientNet-Lite0
+backbone, the shipped model's outputs.
 
-One tiny configuration (ResNet-10, 64 x 128) is compiled once per jitted
-function and shared by the tests (functools.cache); shape and parameter-count
-tests only trace (nnx.eval_shape).
+One tiny configuration per backbone (ResNet-10 and EfficientNet-Lite0 with a
+one-layer LSTM, 64 x 128) is compiled once per jitted function and shared by
+the tests (functools.cache); shape and parameter-count tests only trace
+(nnx.eval_shape).
 """
 
 import dataclasses
@@ -19,12 +21,22 @@ import pytest
 from flax import nnx
 
 import ncjax
-from ncjax import _network, _predict, _rooms, _train
-from ncjax._checkpoint import load_checkpoint, load_weights, read_metadata, save_checkpoint
-from ncjax._denoise import denoise_for_network
-from ncjax._rooms import Room
+import ncjax.network.model
+import ncjax.network.predict
+import ncjax.synth.rooms
+import ncjax.training.data
+import ncjax.training.loop
+from ncjax.network import efficientnet
+from ncjax.network.checkpoint import load_checkpoint, load_weights, read_metadata, save_checkpoint
+from ncjax.network.denoise import denoise_for_network
+from ncjax.synth.rooms import Room
 
-TINY = ncjax.HorizonNetConfig(depth=10, width=8, input_height=64, input_width=128, lstm_hidden=16, lstm_layers=1, dropout=0.1)
+TINY = ncjax.HorizonNetConfig(
+    depth=10, width=8, input_height=64, input_width=128, lstm_hidden=16, lstm_layers=1, dropout=0.1
+)
+LITE0_TINY = ncjax.HorizonNetConfig(
+    backbone="efficientnet_lite0", input_height=64, input_width=128, lstm_hidden=16, lstm_layers=1, dropout=0.1
+)
 TRAIN = ncjax.TrainConfig(peak_learning_rate=3e-3, warmup_steps=3, total_steps=40)
 BATCH = 4
 
@@ -32,6 +44,11 @@ BATCH = 4
 @functools.cache
 def tiny_model():
     return ncjax.init_model(TINY, seed=0)
+
+
+@functools.cache
+def lite0_model():
+    return ncjax.init_model(LITE0_TINY, seed=0)
 
 
 def convex_room(key, rc=0.5, n=6):
@@ -61,8 +78,15 @@ def painted_samples(count=8):
         room = convex_room(k_room)
         labels = ncjax.room_labels(room, room.camera(TINY.input_width, TINY.input_height))
         colours = jax.random.uniform(k_colour, (3, 3), minval=0.1, maxval=0.9)
-        image = _train.paint_panorama(labels.ceiling_v, labels.floor_v, labels.wall_index, TINY.input_height, colours)
-        return {"image": image, "ceiling_v": labels.ceiling_v, "floor_v": labels.floor_v, "corner_target": labels.corner_target}
+        image = ncjax.training.data.paint_panorama(
+            labels.ceiling_v, labels.floor_v, labels.wall_index, TINY.input_height, colours
+        )
+        return {
+            "image": image,
+            "ceiling_v": labels.ceiling_v,
+            "floor_v": labels.floor_v,
+            "corner_target": labels.corner_target,
+        }
 
     return jax.jit(jax.vmap(one))(jax.random.split(jax.random.PRNGKey(0), count))
 
@@ -82,15 +106,18 @@ def params_of(model):
 # ----------------------------------------------------------------------------- architecture
 
 
+@pytest.mark.parametrize("backbone", ncjax.network.model.BACKBONES)
 @pytest.mark.parametrize("height, width", [(32, 64), (64, 128), (96, 160), (64, 256)])
-def test_output_shapes_follow_input_shape(height, width):
-    config = ncjax.HorizonNetConfig(depth=10, width=8, input_height=height, input_width=width, lstm_hidden=8)
-    model = _network.abstract_model(config)
+def test_output_shapes_follow_input_shape(height, width, backbone):
+    config = ncjax.HorizonNetConfig(
+        backbone=backbone, depth=10, width=8, input_height=height, input_width=width, lstm_hidden=8
+    )
+    model = ncjax.network.model.abstract_model(config)
     model.eval()
     images = jax.ShapeDtypeStruct((2, height, width, 3), jnp.float32)
     features = nnx.eval_shape(lambda m, x: m.column_features(x), model, images)
     prediction = nnx.eval_shape(lambda m, x: m(x), model, images)
-    assert features.shape == (2, width // 4, _network.column_feature_size(config))
+    assert features.shape == (2, width // 4, ncjax.network.model.column_feature_size(config))
     assert [p.shape for p in prediction] == [(2, width)] * 3
 
 
@@ -117,24 +144,27 @@ def test_parameter_counts():
     # (b_ih and b_hh): 4 gates x 512 x 2 directions x 2 layers = 8,192 fewer.
     paper = ncjax.HorizonNetConfig.preset("paper")
     assert ncjax.count_parameters(paper) == 81_570_348 - 8_192 == 81_562_156
-    abstract = _network.abstract_model(paper)
-    count = lambda node: sum(math.prod(x.shape) for x in jax.tree.leaves(nnx.state(node, nnx.Param)))  # noqa: E731
+    abstract = ncjax.network.model.abstract_model(paper)
+
+    def count(node):
+        return sum(math.prod(x.shape) for x in jax.tree.leaves(nnx.state(node, nnx.Param)))
+
     assert count(abstract.backbone) == 25_557_032 - 2_049_000  # torchvision resnet50 minus its fc layer
     assert count(abstract.compressions) == 45_450_720
     assert count(abstract.lstm) == 12_599_296 - 8_192
-    assert _network.column_feature_size(paper) == 1024  # HorizonNet's c_last at 512 rows
+    assert ncjax.network.model.column_feature_size(paper) == 1024  # HorizonNet's c_last at 512 rows
     assert ncjax.count_parameters(ncjax.HorizonNetConfig.preset("compact")) <= 4_000_000
 
 
 def test_resample_columns_wraps_around():
     width, out = 16, 64
     x = np.random.default_rng(0).normal(size=(width, 3)).astype(np.float32)
-    result = np.asarray(_network.resample_columns(jnp.asarray(x), out))
+    result = np.asarray(ncjax.network.model.resample_columns(jnp.asarray(x), out))
     centres = (np.arange(out) + 0.5) * width / out - 0.5
     expected = np.stack([np.interp(centres, np.arange(width), x[:, c], period=width) for c in range(3)], -1)
     np.testing.assert_allclose(result, expected, atol=1e-6)
     # Rolling the input by one column rolls the output by the factor.
-    rolled = np.asarray(_network.resample_columns(jnp.roll(jnp.asarray(x), 1, axis=0), out))
+    rolled = np.asarray(ncjax.network.model.resample_columns(jnp.roll(jnp.asarray(x), 1, axis=0), out))
     np.testing.assert_allclose(rolled, np.roll(result, out // width, axis=0), atol=1e-6)
 
 
@@ -154,11 +184,11 @@ def test_convolutional_features_roll_with_the_panorama():
 
 def test_elevation_row_round_trip():
     rows = jnp.array([-0.5, 0.0, 31.5, 63.5])
-    elevation = _network.row_to_elevation(rows, 64)
+    elevation = ncjax.network.model.row_to_elevation(rows, 64)
     np.testing.assert_allclose(elevation[2], 0.0, atol=1e-7)  # the horizon is between rows 31 and 32
-    np.testing.assert_allclose(_network.elevation_to_row(elevation, 64), rows, atol=1e-5)
+    np.testing.assert_allclose(ncjax.network.model.elevation_to_row(elevation, 64), rows, atol=1e-5)
     prediction = ncjax.BoundaryPrediction(jnp.full((1, 8), 0.0), jnp.full((1, 8), -math.pi / 4), jnp.zeros((1, 8)))
-    ceiling_v, floor_v, corner_prob = _network.prediction_to_rows(prediction, height=64, width=32)
+    ceiling_v, floor_v, corner_prob = ncjax.network.model.prediction_to_rows(prediction, height=64, width=32)
     assert ceiling_v.shape == (1, 32)
     np.testing.assert_allclose(ceiling_v, 31.5, atol=1e-5)
     np.testing.assert_allclose(floor_v, 47.5, atol=1e-5)
@@ -174,7 +204,10 @@ def test_loss_matches_numpy():
     ceiling_v, floor_v = rng.uniform(0, 16, (2, 16)), rng.uniform(16, 32, (2, 16))
     target = rng.uniform(0, 1, (2, 16))
     terms = ncjax.horizonnet_loss(ncjax.BoundaryPrediction(*map(jnp.asarray, pred)), ceiling_v, floor_v, target, 32)
-    elevation = lambda v: np.pi / 2 - np.pi * (v + 0.5) / 32  # noqa: E731
+
+    def elevation(v):
+        return np.pi / 2 - np.pi * (v + 0.5) / 32
+
     boundary = 0.5 * (np.abs(pred[0] - elevation(ceiling_v)).mean() + np.abs(pred[1] - elevation(floor_v)).mean())
     p = 1 / (1 + np.exp(-pred[2]))
     corner = np.mean(-(target * np.log(p) + (1 - target) * np.log(1 - p)))
@@ -187,13 +220,13 @@ def test_sharper_corner_encoding():
     """The loss re-encodes the 0.96**d labels as base**d; re-encoding back recovers them."""
     rng = np.random.default_rng(1)
     corners = np.array([3.2, 20.0, 22.0, 90.0])
-    target = np.asarray(_rooms.corner_target(corners, np.ones(4, bool), 128))
+    target = np.asarray(ncjax.synth.rooms.corner_target(corners, np.ones(4, bool), 128))
     distance = np.abs(np.arange(128)[:, None] - corners[None, :])
     distance = np.minimum(distance, 128 - distance).min(axis=1)
     np.testing.assert_allclose(target, 0.96**distance, rtol=1e-5)
-    sharp = _rooms.reencode_corner_prob(target, 0.96, 0.7)
+    sharp = ncjax.synth.rooms.reencode_corner_prob(target, 0.96, 0.7)
     np.testing.assert_allclose(sharp, 0.7**distance, rtol=1e-4, atol=1e-30)
-    np.testing.assert_allclose(_rooms.reencode_corner_prob(sharp, 0.7, 0.96), target, rtol=1e-4)
+    np.testing.assert_allclose(ncjax.synth.rooms.reencode_corner_prob(sharp, 0.7, 0.96), target, rtol=1e-4)
     # Peaks and dips stay where they were (a monotone map); the dip between corners 2 columns apart deepens.
     assert np.array_equal(np.argsort(sharp), np.argsort(target))
     assert sharp[21] < 0.75 * sharp[20] and target[21] > 0.95 * target[20]
@@ -211,18 +244,26 @@ def test_augmented_images_match_augmented_labels():
     samples = painted_samples()
     colours = jnp.array([[0.9, 0.8, 0.7], [0.5, 0.6, 0.2], [0.2, 0.3, 0.4]])
     geometric_only = ncjax.TrainConfig(max_gamma=1.0, max_brightness=0.0, greyscale_probability=0.0)
-    augment = jax.jit(_train.augment_sample, static_argnums=2)
+    augment = jax.jit(ncjax.training.loop.augment_sample, static_argnums=2)
     flips = []
     for i in range(6):
         sample = {k: v[i % 8] for k, v in samples.items()}
-        sample["image"] = _train.paint_panorama(sample["ceiling_v"], sample["floor_v"], jnp.zeros(128, int), 64, colours)
+        sample["image"] = ncjax.training.data.paint_panorama(
+            sample["ceiling_v"], sample["floor_v"], jnp.zeros(128, int), 64, colours
+        )
         out = augment(jax.random.PRNGKey(i), sample, geometric_only)
-        repainted = _train.paint_panorama(out["ceiling_v"], out["floor_v"], jnp.zeros(128, int), 64, colours)
+        repainted = ncjax.training.data.paint_panorama(
+            out["ceiling_v"], out["floor_v"], jnp.zeros(128, int), 64, colours
+        )
         np.testing.assert_allclose(out["image"], repainted, atol=1e-6)
         # The labels are the original ones rolled, possibly after a flip: find which.
         ceiling = np.asarray(sample["ceiling_v"])
-        candidates = [(f, s) for f in (False, True) for s in range(128)
-                      if np.array_equal(np.roll(ceiling[::-1] if f else ceiling, s), out["ceiling_v"])]
+        candidates = [
+            (f, s)
+            for f in (False, True)
+            for s in range(128)
+            if np.array_equal(np.roll(ceiling[::-1] if f else ceiling, s), out["ceiling_v"])
+        ]
         assert len(candidates) == 1
         flip, shift = candidates[0]
         for key in ("floor_v", "corner_target"):
@@ -239,21 +280,25 @@ def test_flip_is_the_mirrored_room():
     cam = room.camera(128, 64)
     room_labels = jax.jit(ncjax.room_labels)
     labels, mirror_labels = room_labels(room, cam), room_labels(mirrored, cam)
-    sample = {"image": jnp.zeros((64, 128, 3)), "ceiling_v": labels.ceiling_v, "floor_v": labels.floor_v,
-              "corner_target": labels.corner_target}
-    flipped = _train.flip_panorama(sample)
+    sample = {
+        "image": jnp.zeros((64, 128, 3)),
+        "ceiling_v": labels.ceiling_v,
+        "floor_v": labels.floor_v,
+        "corner_target": labels.corner_target,
+    }
+    flipped = ncjax.training.loop.flip_panorama(sample)
     np.testing.assert_allclose(flipped["ceiling_v"], mirror_labels.ceiling_v, atol=1e-3)
     np.testing.assert_allclose(flipped["floor_v"], mirror_labels.floor_v, atol=1e-3)
     np.testing.assert_allclose(flipped["corner_target"], mirror_labels.corner_target, atol=1e-3)
-    rolled = _train.roll_panorama(sample, 5)
+    rolled = ncjax.training.loop.roll_panorama(sample, 5)
     np.testing.assert_array_equal(rolled["floor_v"], np.roll(labels.floor_v, 5))
 
 
 def test_photometric_changes():
     image = jax.random.uniform(jax.random.PRNGKey(0), (4, 8, 3))
-    np.testing.assert_allclose(_train.adjust_photometric(image, 1.0, 1.0, False), image, atol=1e-7)
-    np.testing.assert_allclose(_train.adjust_photometric(image, 2.0, 1.0, False), image**2, atol=1e-7)
-    grey = np.asarray(_train.adjust_photometric(image, 1.0, 0.5, True))
+    np.testing.assert_allclose(ncjax.training.loop.adjust_photometric(image, 1.0, 1.0, False), image, atol=1e-7)
+    np.testing.assert_allclose(ncjax.training.loop.adjust_photometric(image, 2.0, 1.0, False), image**2, atol=1e-7)
+    grey = np.asarray(ncjax.training.loop.adjust_photometric(image, 1.0, 0.5, True))
     np.testing.assert_allclose(grey[..., 0], grey[..., 2])
     np.testing.assert_allclose(grey[..., 1], 0.5 * image @ jnp.array([0.299, 0.587, 0.114]), atol=1e-6)
 
@@ -261,6 +306,7 @@ def test_photometric_changes():
 # ----------------------------------------------------------------------------- training, checkpoints, resume
 
 
+@pytest.mark.slow
 def test_training_reduces_loss_and_resume_continues(tmp_path):
     straight = ncjax.train(TINY, batches, 24, tmp_path / "a", train_config=TRAIN, checkpoint_every=0, progress=False)
     losses = [h["loss"] for h in straight.history]
@@ -278,12 +324,16 @@ def test_training_reduces_loss_and_resume_continues(tmp_path):
 
 def test_checkpoint_round_trip_is_bit_exact(tmp_path):
     model = ncjax.init_model(TINY, seed=0)
-    optimizer = _train.make_optimizer(model, TRAIN)
+    optimizer = ncjax.training.loop.make_optimizer(model, TRAIN)
     batch = next(batches(0))
-    _train.train_step(model, optimizer, batch, jax.random.fold_in(_train.step_key_root(0), 0), TRAIN)
+    ncjax.training.loop.train_step(
+        model, optimizer, batch, jax.random.fold_in(ncjax.training.loop.step_key_root(0), 0), TRAIN
+    )
     path = tmp_path / "ckpt.safetensors"
     save_checkpoint(path, model, optimizer, step=1, train_config_json=TRAIN.to_json())
-    loaded, loaded_optimizer, step = load_checkpoint(path, lambda m, j: _train.make_optimizer(m, ncjax.TrainConfig.from_json(j)))
+    loaded, loaded_optimizer, step = load_checkpoint(
+        path, lambda m, j: ncjax.training.loop.make_optimizer(m, ncjax.TrainConfig.from_json(j))
+    )
     assert step == 1 and loaded.config == TINY
     assert ncjax.TrainConfig.from_json(read_metadata(path)["train_config"]) == TRAIN
     for saved, restored in [(model, loaded), (optimizer, loaded_optimizer)]:
@@ -300,6 +350,7 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path):
         ncjax.load_model(tmp_path / "missing.safetensors")
 
 
+@pytest.mark.slow
 def test_fine_tuning_starts_from_the_weights_with_a_new_corner_encoding(tmp_path):
     model = tiny_model()
     ncjax.save_model(model, tmp_path / "model.safetensors")
@@ -311,8 +362,16 @@ def test_fine_tuning_starts_from_the_weights_with_a_new_corner_encoding(tmp_path
     with pytest.raises(ValueError, match="cannot start"):
         load_weights(tmp_path / "model.safetensors", dataclasses.replace(TINY, lstm_hidden=8))
     # Two steps from those weights; the checkpoint then records the new encoding.
-    result = ncjax.train(sharp, batches, 2, tmp_path / "ck", train_config=TRAIN, checkpoint_every=0,
-                         progress=False, initial_weights=tmp_path / "model.safetensors")
+    result = ncjax.train(
+        sharp,
+        batches,
+        2,
+        tmp_path / "ck",
+        train_config=TRAIN,
+        checkpoint_every=0,
+        progress=False,
+        initial_weights=tmp_path / "model.safetensors",
+    )
     assert result.step == 2 and load_checkpoint(tmp_path / "ck" / "step_00000002.safetensors")[0].config == sharp
 
 
@@ -336,8 +395,12 @@ def test_corner_metrics_on_hand_made_columns():
     assert np.isnan(ncjax.corner_scores(jnp.array([0, 0, 3, 7]))["precision"])
 
     table = ncjax.network_table(
-        jnp.stack([target, target]) * 0 + 10.0, jnp.full((2, 10), 20.0), jnp.stack([prob, target]),
-        jnp.array([[11.0] * 10, [10.0] * 10]), jnp.full((2, 10), 20.0), jnp.stack([target, target]),
+        jnp.stack([target, target]) * 0 + 10.0,
+        jnp.full((2, 10), 20.0),
+        jnp.stack([prob, target]),
+        jnp.array([[11.0] * 10, [10.0] * 10]),
+        jnp.full((2, 10), 20.0),
+        jnp.stack([target, target]),
     )
     # Image 0: ceiling off by 1 px at W = 10 -> 0.5 * 1024 / 10; image 1: exact.
     np.testing.assert_allclose(table["pe_mean"], 0.25 * 102.4, rtol=1e-6)
@@ -369,7 +432,7 @@ def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
     assert not np.allclose(ceiling_v, raw[0])
     with pytest.raises(ValueError, match="uint8"):
         ncjax.predict_boundaries(image.astype(np.float32), model)
-    monkeypatch.setattr(_predict, "DEFAULT_MODEL_PATH", tmp_path / "compact1024.safetensors")
+    monkeypatch.setattr(ncjax.network.predict, "DEFAULT_MODEL_PATH", tmp_path / "compact1024.safetensors")
     with pytest.raises(FileNotFoundError, match="default network weights"):
         ncjax.predict_boundaries(image)
 
@@ -380,15 +443,145 @@ def test_averaged_views_follow_the_panorama_symmetries():
     model.eval()
     images = jax.random.uniform(jax.random.key(3), (1, TINY.input_height, TINY.input_width, 3))
     width = TINY.input_width
-    averaged = _network.predict_views(model, images, 4)
-    mirrored = _network.predict_views(model, images[:, :, ::-1], 4)
-    turned = _network.predict_views(model, jnp.roll(images, width // 2, axis=2), 4)
-    for field, flipped, rolled in zip(averaged, mirrored, turned):
+    averaged = ncjax.network.model.predict_views(model, images, 4)
+    mirrored = ncjax.network.model.predict_views(model, images[:, :, ::-1], 4)
+    turned = ncjax.network.model.predict_views(model, jnp.roll(images, width // 2, axis=2), 4)
+    for field, flipped, rolled in zip(averaged, mirrored, turned, strict=True):
         np.testing.assert_allclose(flipped[:, ::-1], field, atol=1e-5)
         np.testing.assert_allclose(rolled, jnp.roll(field, width // 2, axis=1), atol=1e-5)
-    single = _network.predict_views(model, images, 1)
+    single = ncjax.network.model.predict_views(model, images, 1)
     np.testing.assert_array_equal(single.ceiling_elevation, model(images).ceiling_elevation)
     assert not np.allclose(single.ceiling_elevation, averaged.ceiling_elevation)
     for bad in (0, 3, -2):
         with pytest.raises(ValueError, match="views"):
             ncjax.predict_boundaries(np.zeros((64, 128, 3), np.uint8), model, views=bad)
+
+
+# ----------------------------------------------------------------------------- the EfficientNet-Lite0 backbone
+
+
+def test_shipped_model_outputs_are_unchanged():
+    """The shipped file (written before the backbone choice existed) loads as the ResNet network it was
+    and gives the outputs it gave then (values computed with the code of that time)."""
+    path = ncjax.network.predict.DEFAULT_MODEL_PATH
+    assert "backbone" not in json.loads(read_metadata(path)["config"])
+    model = ncjax.load_model(path)
+    assert model.config == ncjax.HorizonNetConfig.preset("compact1024") and model.config.backbone == "resnet"
+    rows, columns, channels = np.arange(512)[:, None, None], np.arange(64)[None, :, None], np.arange(3)
+    image = 0.5 + 0.25 * np.sin(0.037 * rows + channels) + 0.2 * np.cos(0.21 * columns + 2 * channels)
+    prediction = nnx.jit(lambda m, x: m(x))(model, jnp.asarray(image, jnp.float32)[None])
+    expected = {
+        "ceiling_elevation": [0.837494, 0.937519, 0.989915, 1.013732, 1.012165, 0.996485, 0.982058, 0.929809],
+        "floor_elevation": [-0.819735, -0.913908, -0.966203, -0.987449, -0.982400, -0.967805, -0.954718, -0.900652],
+        "corner_logit": [-0.922056, -0.898291, -0.762826, -0.708173, -0.714452, -0.669154, -0.563618, -0.614401],
+    }
+    for field, values in expected.items():
+        np.testing.assert_allclose(np.asarray(getattr(prediction, field))[0, ::8], values, atol=1e-5)
+
+
+def test_efficientnet_backbone_configuration():
+    lite0, compact = (ncjax.HorizonNetConfig.preset(name) for name in ("lite0-1024", "compact1024"))
+    assert lite0.backbone == "efficientnet_lite0" and compact.backbone == "resnet"
+    assert dataclasses.replace(lite0, backbone="resnet") == compact  # same input size, LSTM and heads
+    assert ncjax.network.model.stage_channels(lite0) == efficientnet.LITE0_FEATURE_CHANNELS == (24, 40, 112, 320)
+    # Maps of 128, 64, 32 and 16 rows compressed to 8, 4, 2 and 1 rows of 3, 5, 14 and 40 channels.
+    assert ncjax.network.model.column_feature_size(lite0) == 3 * 8 + 5 * 4 + 14 * 2 + 40 * 1
+    assert ncjax.HorizonNetConfig.from_json(lite0.to_json()) == lite0
+    # Files written before the backbone field existed hold ResNet networks.
+    old_fields = {k: v for k, v in json.loads(compact.to_json()).items() if k != "backbone"}
+    assert ncjax.HorizonNetConfig.from_json(json.dumps(old_fields)) == compact
+    with pytest.raises(ValueError, match="backbone"):
+        ncjax.HorizonNetConfig(backbone="efficientnet_b7")
+
+
+def test_efficientnet_backbone_parameter_counts():
+    lite0 = ncjax.HorizonNetConfig.preset("lite0-1024")
+    backbone = ncjax.network.model.abstract_model(lite0).backbone
+    assert set(nnx.state(backbone)) == {"stem", "stages"}  # no head convolution, no classifier
+    with pytest.raises(ValueError, match="without its classifier"):
+        backbone(jnp.zeros((1, 32, 64, 3)))
+    assert sum(math.prod(x.shape) for x in jax.tree.leaves(nnx.state(backbone, nnx.Param))) == 2_958_848
+    assert efficientnet.count_parameters(classifier=False) == 2_958_848
+    assert ncjax.count_parameters(lite0) == 4_300_934
+    assert ncjax.count_parameters(ncjax.HorizonNetConfig.preset("compact1024")) == 3_907_848
+
+
+def test_init_model_starts_the_efficientnet_backbone_from_imagenet():
+    model, other_seed = lite0_model(), ncjax.init_model(LITE0_TINY, seed=1)
+    imagenet = params_of(efficientnet.load_efficientnet_lite0(circular_width=True))
+    backbone = params_of(model.backbone)
+    assert backbone.keys() == {k for k in imagenet if not k.startswith(("head/", "classifier/"))}
+    for name, value in backbone.items():  # weights and batch-norm statistics
+        np.testing.assert_array_equal(value, imagenet[name], err_msg=name)
+    assert all(np.array_equal(value, params_of(other_seed.backbone)[name]) for name, value in backbone.items())
+    # The rest is random, from the seed; the model starts in train mode.
+    assert not np.array_equal(model.head.kernel.get_value(), other_seed.head.kernel.get_value())
+    assert not other_seed.backbone.stem.norm.use_running_average
+
+
+def test_efficientnet_backbone_features_roll_with_the_panorama():
+    model = lite0_model()
+    model.eval()
+    images = jax.random.uniform(jax.random.PRNGKey(1), (2, LITE0_TINY.input_height, LITE0_TINY.input_width, 3))
+    prediction = nnx.jit(lambda m, x: m(x))(model, images)
+    assert all(p.shape == (2, LITE0_TINY.input_width) and np.all(np.isfinite(p)) for p in prediction)
+    features = nnx.jit(lambda m, x: m.column_features(x))
+    reference = np.asarray(features(model, images))
+    assert reference.shape == (2, LITE0_TINY.input_width // 4, ncjax.network.model.column_feature_size(LITE0_TINY))
+    for shift in (32, 96):
+        rolled = np.asarray(features(model, jnp.roll(images, shift, axis=2)))
+        np.testing.assert_allclose(rolled, np.roll(reference, shift // LITE0_TINY.step_cols, axis=1), atol=1e-4)
+
+
+def test_efficientnet_backbone_model_round_trip(tmp_path):
+    model = lite0_model()
+    ncjax.save_model(model, tmp_path / "lite0.safetensors")
+    assert json.loads(read_metadata(tmp_path / "lite0.safetensors")["config"])["backbone"] == "efficientnet_lite0"
+    loaded = ncjax.load_model(tmp_path / "lite0.safetensors")
+    assert loaded.config == LITE0_TINY
+    a, b = params_of(model), params_of(loaded)
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_backbone_learning_rate_scale_scales_the_backbone_updates():
+    """One AdamW update: the backbone moves ``scale`` times as far, the rest as with the full learning rate."""
+    with pytest.raises(ValueError, match="backbone_learning_rate_scale"):
+        ncjax.TrainConfig(backbone_learning_rate_scale=-0.1)
+    steps = {}
+    for scale in (1.0, 0.25):
+        model = nnx.clone(tiny_model())
+        before = params_of(model)
+        optimizer = ncjax.training.loop.make_optimizer(
+            model, dataclasses.replace(TRAIN, warmup_steps=0, backbone_learning_rate_scale=scale)
+        )
+        # Gradients of ones; jitted, an update compiles faster than its eager ops.
+        nnx.jit(lambda o, m: o.update(m, jax.tree.map(jnp.ones_like, nnx.state(m, nnx.Param))))(optimizer, model)
+        after = params_of(model)
+        steps[scale] = {name: after[name] - before[name] for name in after}
+    assert np.all(steps[1.0]["backbone/stem/conv/conv/kernel"] < 0)
+    for name, full in steps[1.0].items():
+        if name.startswith("backbone/"):
+            np.testing.assert_allclose(steps[0.25][name], 0.25 * full, atol=1e-7, err_msg=name)
+        else:
+            np.testing.assert_array_equal(steps[0.25][name], full, err_msg=name)
+
+
+@pytest.mark.slow
+def test_frozen_efficientnet_backbone_keeps_its_weights_in_a_train_step():
+    frozen = dataclasses.replace(TRAIN, warmup_steps=0, backbone_learning_rate_scale=0.0)
+    model = nnx.clone(lite0_model())
+    model.train()
+    optimizer = ncjax.training.loop.make_optimizer(model, frozen)
+    before = params_of(model)
+    key = jax.random.fold_in(ncjax.training.loop.step_key_root(0), 0)
+    terms = ncjax.training.loop.train_step(model, optimizer, next(batches(0)), key, frozen)
+    after = params_of(model)
+    assert np.isfinite(float(terms["loss"]))
+    weights = ["/".join(map(str, path)) for path, _ in nnx.to_flat_state(nnx.state(model, nnx.Param))]
+    for name in weights:
+        if name.startswith("backbone/"):
+            np.testing.assert_array_equal(after[name], before[name], err_msg=name)
+    assert not np.array_equal(after["head/kernel"], before["head/kernel"])
+    assert not np.array_equal(after["lstm/forward/0/cell/dense_i/kernel"], before["lstm/forward/0/cell/dense_i/kernel"])
+    # The batch-norm statistics follow the data in train mode, frozen or not.
+    assert not np.array_equal(after["backbone/stem/norm/mean"], before["backbone/stem/norm/mean"])

@@ -17,41 +17,39 @@ from hypothesis import strategies as st
 
 import ncjax
 from ncjax import metrics
-from ncjax._corners import column_walls, find_corners, is_peak
-from ncjax._plucker import wall_planes_meet
-from ncjax._adjust import (
+from ncjax.geometry.plucker import wall_planes_meet
+from ncjax.geometry.reprojection import (
+    boundary_points,
+    column_directions,
+    fit_plan_line,
+    fit_plan_lines,
+    wall_boundary_rows,
+)
+from ncjax.pipeline.adjust import (
     BoundaryObservations,
     _boundary_residuals_fast_jvp,
-    _jacobian_structure,
-    _layout_problem,
-    _observed_directions,
-    _problem_residuals,
     adjust_layout,
     boundary_residuals,
     boundary_weights,
-    correlation_time,
+    jacobian_structure,
+    layout_problem,
     layout_residuals,
-    layout_uncertainty,
     loop_corners,
-    room_height_sigma,
+    observation_directions,
+    problem_residuals,
 )
-from ncjax._pipeline import (
-    _batched_layout_jit,
-    _gather_evidence,
-    _atlanta_layout,
-    _manhattan_layout,
-    corner_offsets,
-    _segment_directions,
-    ceiling_consistent_floor,
-    choose_manhattan,
-    cyclic_binary_labels,
-    manhattan_frame,
-)
-from ncjax._rooms import corner_target
-from ncjax._ransac import boundary_errors, elevation_band, inlier_rows, num_hypotheses, wall_columns
-from ncjax._reprojection import boundary_points, column_directions, fit_plan_line, fit_plan_lines, wall_boundary_rows
-from ncjax._wall import make_wall
-from ncjax._sparse_normal import normal_matrix, probe_jacobian
+from ncjax.pipeline.atlanta import atlanta_layout, corner_offsets
+from ncjax.pipeline.config import static_part, traced_part
+from ncjax.pipeline.corners import column_walls, find_corners, is_peak
+from ncjax.pipeline.evidence import gather_evidence
+from ncjax.pipeline.floor_check import ceiling_consistent_floor
+from ncjax.pipeline.manhattan import _segment_directions, cyclic_binary_labels, manhattan_frame, manhattan_layout
+from ncjax.pipeline.run import _batched_layout_jit, _layout_jit, choose_manhattan
+from ncjax.pipeline.sparse_normal import normal_matrix, probe_jacobian
+from ncjax.pipeline.uncertainty import correlation_time, layout_uncertainty, room_height_sigma
+from ncjax.solvers.ransac import boundary_errors, elevation_band, inlier_rows, num_hypotheses, wall_columns
+from ncjax.solvers.wall import make_wall
+from ncjax.synth.rooms import corner_target
 
 WIDTH, HEIGHT = 512, 256
 
@@ -88,14 +86,22 @@ def test_inlier_slopes_match_the_row_errors(seed, threshold):
     heights = jnp.float32(rng.uniform(0.2, 3.0)), jnp.float32(-rng.uniform(0.2, 2.0))
     wall = make_wall(direction, jnp.float32(rng.uniform(-4.0, 4.0)), *heights, jnp.array(True))
     columns = jnp.arange(WIDTH, dtype=jnp.float32)
-    ceiling, floor, _ = wall_boundary_rows(cam, wall.direction, wall.distance, wall.ceiling_height, wall.floor_height, columns)
+    ceiling, floor, _ = wall_boundary_rows(
+        cam, wall.direction, wall.distance, wall.ceiling_height, wall.floor_height, columns
+    )
     # rows near the wall's own and anywhere in the image; the top and bottom rows put the band past a pole
-    ceiling_v = jnp.where(rng.random(WIDTH) < 0.7, ceiling + rng.normal(0, 2 * threshold, WIDTH), rng.uniform(-1, HEIGHT, WIDTH))
-    floor_v = jnp.where(rng.random(WIDTH) < 0.7, floor + rng.normal(0, 2 * threshold, WIDTH), rng.uniform(-1, HEIGHT, WIDTH))
+    ceiling_v = jnp.where(
+        rng.random(WIDTH) < 0.7, ceiling + rng.normal(0, 2 * threshold, WIDTH), rng.uniform(-1, HEIGHT, WIDTH)
+    )
+    floor_v = jnp.where(
+        rng.random(WIDTH) < 0.7, floor + rng.normal(0, 2 * threshold, WIDTH), rng.uniform(-1, HEIGHT, WIDTH)
+    )
     azimuth = column_directions(cam, columns)
     ceiling_error, floor_error = boundary_errors(cam, wall, azimuth, ceiling_v, floor_v)
     tolerance = threshold * cam.fov_vertical / cam.height
-    ceiling_band, floor_band = (elevation_band(ncjax.pixel_to_ray(cam, columns, v), azimuth, tolerance) for v in (ceiling_v, floor_v))
+    ceiling_band, floor_band = (
+        elevation_band(ncjax.pixel_to_ray(cam, columns, v), azimuth, tolerance) for v in (ceiling_v, floor_v)
+    )
     ceiling_in, floor_in = inlier_rows(cam, wall, azimuth, ceiling_band, floor_band)
     for errors, inside in ((ceiling_error, ceiling_in), (floor_error, floor_in)):
         errors, inside = np.asarray(errors), np.asarray(inside)
@@ -181,7 +187,16 @@ def test_boundary_residuals_fast_jvp_matches_autodiff():
     """The local-Jacobian JVP of the adjustment's per-column residuals equals JAX's own, for every argument."""
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
     direction = jnp.array([jnp.cos(0.3), jnp.sin(0.3)])
-    args = (direction, jnp.array(-2.1), jnp.array(1.2), jnp.array(-1.4), cam, column_directions(cam, 17.3), jnp.array(40.0), jnp.array(90.0))
+    args = (
+        direction,
+        jnp.array(-2.1),
+        jnp.array(1.2),
+        jnp.array(-1.4),
+        cam,
+        column_directions(cam, 17.3),
+        jnp.array(40.0),
+        jnp.array(90.0),
+    )
     fast = _boundary_residuals_fast_jvp
     key = jax.random.key(5)
     for trial in range(3):
@@ -195,11 +210,17 @@ def test_boundary_residuals_fast_jvp_matches_autodiff():
     jacobian = jax.vmap(jax.jacrev(fast, argnums=argnums), in_axes=(0, 0, None, None, None, 0, 0, 0))
     angles = jnp.linspace(0.1, 0.5, 4)
     batched = (
-        jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1), jnp.full(4, -2.0), args[2], args[3], cam,
-        column_directions(cam, jnp.arange(4.0) + 10), jnp.full(4, 40.0), jnp.full(4, 90.0),
+        jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1),
+        jnp.full(4, -2.0),
+        args[2],
+        args[3],
+        cam,
+        column_directions(cam, jnp.arange(4.0) + 10),
+        jnp.full(4, 40.0),
+        jnp.full(4, 90.0),
     )
     expected = jax.vmap(jax.jacrev(boundary_residuals, argnums=argnums), in_axes=(0, 0, None, None, None, 0, 0, 0))
-    for got, want in zip(jacobian(*batched), expected(*batched)):
+    for got, want in zip(jacobian(*batched), expected(*batched), strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
@@ -212,15 +233,29 @@ def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride, 
     every = slice(None, None, stride)  # PipelineConfig.adjustment_stride
     used = jnp.ones(WIDTH, bool)[every]
     observations = BoundaryObservations(
-        columns=jnp.arange(WIDTH)[every], ceiling_v=label.ceiling_v[every], floor_v=label.floor_v[every],
-        ceiling_used=used, floor_used=used, column_wall=label.wall_index[every], corner_columns=jnp.zeros(len(room.mask)),
-        corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask, row_weights=jnp.array([1.0, floor_weight]),
+        columns=jnp.arange(WIDTH)[every],
+        ceiling_v=label.ceiling_v[every],
+        floor_v=label.floor_v[every],
+        ceiling_used=used,
+        floor_used=used,
+        column_wall=label.wall_index[every],
+        corner_columns=jnp.zeros(len(room.mask)),
+        corner_used=jnp.zeros(len(room.mask), bool),
+        wall_mask=room.mask,
+        row_weights=jnp.array([1.0, floor_weight]),
     )
     turn = 0.02 if manhattan else 0.02 * jnp.cos(jnp.arange(len(room.mask)))
-    start = jnp.stack([jnp.cos(turn) * directions[:, 0] - jnp.sin(turn) * directions[:, 1],
-                       jnp.sin(turn) * directions[:, 0] + jnp.cos(turn) * directions[:, 1]], -1)
+    start = jnp.stack(
+        [
+            jnp.cos(turn) * directions[:, 0] - jnp.sin(turn) * directions[:, 1],
+            jnp.sin(turn) * directions[:, 0] + jnp.cos(turn) * directions[:, 1],
+        ],
+        -1,
+    )
     labels_, _ = manhattan_frame(directions, room.mask.astype(directions.dtype))
-    adjust = jax.jit(functools.partial(adjust_layout, labels=labels_ if manhattan else None, corner_weight=1.0, steps=8))
+    adjust = jax.jit(
+        functools.partial(adjust_layout, labels=labels_ if manhattan else None, corner_weight=1.0, steps=8)
+    )
     u, d, h_c, h_f, improved = adjust(
         cam, observations, start, 1.05 * distances, 0.95 * room.ceiling_height, 0.95 * room.floor_height
     )
@@ -268,21 +303,29 @@ def test_adjustment_structure_gives_the_dense_normal_matrix(world):
     labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if world == "manhattan" else None
     columns = jnp.arange(WIDTH)
     observations = BoundaryObservations(
-        columns=columns, ceiling_v=label.ceiling_v + 0.3, floor_v=label.floor_v - 0.2,
-        ceiling_used=columns % 5 != 0, floor_used=columns % 7 != 0, column_wall=jnp.where(columns % 11 == 0, -1, label.wall_index),
-        corner_columns=jnp.linspace(0, WIDTH, len(room.mask)), corner_used=room.mask, wall_mask=room.mask,
+        columns=columns,
+        ceiling_v=label.ceiling_v + 0.3,
+        floor_v=label.floor_v - 0.2,
+        ceiling_used=columns % 5 != 0,
+        floor_used=columns % 7 != 0,
+        column_wall=jnp.where(columns % 11 == 0, -1, label.wall_index),
+        corner_columns=jnp.linspace(0, WIDTH, len(room.mask)),
+        corner_used=room.mask,
+        wall_mask=room.mask,
         row_weights=jnp.array([1.0, 0.25]),
     )
     assert not bool(jnp.all(room.mask)), "the room should leave empty slots"
-    problem = _layout_problem(directions, 1.02 * distances, room.ceiling_height, room.floor_height, labels, room.mask)
+    problem = layout_problem(directions, 1.02 * distances, room.ceiling_height, room.floor_height, labels, room.mask)
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
 
     def residuals(f):
-        return _problem_residuals(problem, unravel(f), cam, observations, _observed_directions(cam, observations), 1.0)
+        return problem_residuals(problem, unravel(f), cam, observations, observation_directions(cam, observations), 1.0)
 
-    structure = _jacobian_structure(problem, observations)
+    structure = jacobian_structure(problem, observations)
     dense = jax.jit(jax.jacfwd(residuals))(flat)
-    probed = jax.jit(lambda f: normal_matrix(probe_jacobian(jax.linearize(residuals, f)[1], structure, f.dtype), structure))(flat)
+    probed = jax.jit(
+        lambda f: normal_matrix(probe_jacobian(jax.linearize(residuals, f)[1], structure, f.dtype), structure)
+    )(flat)
     scale = np.abs(dense.T @ dense).max()
     np.testing.assert_allclose(probed / scale, dense.T @ dense / scale, atol=1e-6)
     # the fitted rows are the layout's residuals times each boundary's weight
@@ -300,13 +343,20 @@ def _noisy_label_rows(room, label, ceiling_noise, floor_noise) -> BoundaryObserv
     """Every column's exact rows plus the given noise, weighted as the pipeline weights them, no corner penalty."""
     used = jnp.ones(WIDTH, bool)
     return BoundaryObservations(
-        columns=jnp.arange(WIDTH), ceiling_v=label.ceiling_v + ceiling_noise, floor_v=label.floor_v + floor_noise,
-        ceiling_used=used, floor_used=used, column_wall=label.wall_index, corner_columns=jnp.zeros(len(room.mask)),
-        corner_used=jnp.zeros(len(room.mask), bool), wall_mask=room.mask,
+        columns=jnp.arange(WIDTH),
+        ceiling_v=label.ceiling_v + ceiling_noise,
+        floor_v=label.floor_v + floor_noise,
+        ceiling_used=used,
+        floor_used=used,
+        column_wall=label.wall_index,
+        corner_columns=jnp.zeros(len(room.mask)),
+        corner_used=jnp.zeros(len(room.mask), bool),
+        wall_mask=room.mask,
         row_weights=boundary_weights(ceiling_noise, floor_noise, used, used, 0.1),
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("manhattan, floor_noise", [(True, 1.0), (False, 3.0)])
 def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
     """Rows of a known room with 1 px ceiling noise and ``floor_noise`` px floor noise, white or averaged over
@@ -326,7 +376,9 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
 
     def one(noise):
         observations = _noisy_label_rows(room, label, noise[0], floor_noise * noise[1])
-        walls = adjust_layout(cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
+        walls = adjust_layout(
+            cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels
+        )[:4]
         corners, _ = loop_corners(walls[0], walls[1], room.mask)
         return corners, layout_uncertainty(cam, observations, *walls, wall_labels)
 
@@ -346,6 +398,7 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
         np.testing.assert_allclose(np.median(uncertainty.row_sigma[kind], 0), [1.0, floor_noise], rtol=0.15)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("manhattan", [True, False])
 def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
     """Noisy ceiling rows, exact floor rows (the floor's variance 0): the covariances stay positive
@@ -357,7 +410,9 @@ def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
         directions, distances = ncjax.room_walls(room)[:2]
         wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if manhattan else None
         observations = _noisy_label_rows(room, label, jax.random.normal(jax.random.key(7), (WIDTH,)), jnp.zeros(WIDTH))
-        walls = adjust_layout(cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
+        walls = adjust_layout(
+            cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels
+        )[:4]
         uncertainty = layout_uncertainty(cam, observations, *walls, wall_labels)
         corners = np.asarray(uncertainty.corner_covariance)[np.asarray(room.mask)]
         if not np.all(np.isfinite(corners)):
@@ -411,8 +466,13 @@ def test_layout_uncertainty_of_a_wall_one_corner_pins():
     meets = ((before == hidden - 1) & (wall == hidden)) | ((before == hidden) & (wall == hidden - 1))
     start_corner = jnp.zeros(len(room.mask)).at[hidden].set(np.flatnonzero(meets)[0] - 0.5)  # between two pixel columns
     seen = label.wall_index != hidden
-    pinned = dataclasses.replace(every, ceiling_used=seen, floor_used=seen, corner_columns=start_corner,
-                                 corner_used=jnp.arange(len(room.mask)) == hidden)
+    pinned = dataclasses.replace(
+        every,
+        ceiling_used=seen,
+        floor_used=seen,
+        corner_columns=start_corner,
+        corner_used=jnp.arange(len(room.mask)) == hidden,
+    )
     walls = adjust_layout(cam, every, directions, distances, room.ceiling_height, room.floor_height, None)[:4]
     full, partial = (layout_uncertainty(cam, o, *walls, None) for o in (every, pinned))
     spread = np.trace(np.asarray(partial.corner_covariance)[:count], axis1=1, axis2=2)
@@ -433,14 +493,21 @@ def test_layout_uncertainty_of_a_height_no_row_sees():
     floor_only = dataclasses.replace(every, ceiling_used=jnp.zeros(WIDTH, bool))
     walls = adjust_layout(cam, every, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
     assert np.isfinite(float(room_height_sigma(layout_uncertainty(cam, every, *walls, wall_labels).height_covariance)))
-    assert np.isinf(float(room_height_sigma(layout_uncertainty(cam, floor_only, *walls, wall_labels).height_covariance)))
+    assert np.isinf(
+        float(room_height_sigma(layout_uncertainty(cam, floor_only, *walls, wall_labels).height_covariance))
+    )
 
 
 def test_correlation_time_matches_a_direct_sum():
     """tau = 1 + 2 sum of the lag correlations up to the first non-positive one, pairs on one wall only (cyclic)."""
     rng = np.random.default_rng(3)
     count, max_lag = 96, 12
-    smooth = np.stack([np.convolve(np.tile(rng.normal(size=count), 2), np.ones(4) / 4, "same")[count // 2 : count // 2 + count] for _ in range(2)])
+    smooth = np.stack(
+        [
+            np.convolve(np.tile(rng.normal(size=count), 2), np.ones(4) / 4, "same")[count // 2 : count // 2 + count]
+            for _ in range(2)
+        ]
+    )
     used = rng.random((2, count)) < 0.8
     column_wall = np.repeat([2, 0, 1, -1, 2], [20, 30, 25, 6, 15])
     used &= column_wall >= 0
@@ -468,7 +535,12 @@ def test_wall_rows_match_exact_labels():
         wall = label.wall_index
         columns = jnp.arange(WIDTH, dtype=jnp.float32)
         ceiling, floor, seen = wall_boundary_rows(
-            room.camera(WIDTH, HEIGHT), directions[wall], distances[wall], room.ceiling_height, room.floor_height, columns
+            room.camera(WIDTH, HEIGHT),
+            directions[wall],
+            distances[wall],
+            room.ceiling_height,
+            room.floor_height,
+            columns,
         )
         assert bool(jnp.all(seen))
         np.testing.assert_allclose(ceiling, label.ceiling_v, atol=2e-3)
@@ -499,6 +571,7 @@ def test_wall_planes_meet_like_plucker_lines():
 # --- the pipeline on exact boundaries --------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("world,occlusion", [("manhattan", "none"), ("atlanta", "none"), ("manhattan", "required")])
 def test_exact_boundaries_give_the_room(world, occlusion):
     batch, labels = rooms(world, occlusion)
@@ -520,6 +593,7 @@ def test_exact_boundaries_give_the_room(world, occlusion):
     assert good >= 4  # 512 x 256: corners a few columns apart may merge
 
 
+@pytest.mark.slow
 def test_batch_auto_world_and_shapes():
     """A batch of two rooms, each with its own camera (rc), in a (1, 2) batch shape."""
     batch, labels = rooms("manhattan", "none")
@@ -529,7 +603,9 @@ def test_batch_auto_world_and_shapes():
     stacked = [x[None] for x in (two.ceiling_v, two.floor_v, two.corner_target)]
     cam = jax.tree.map(lambda x: x[None], cams)
     layout = ncjax.layout_from_boundaries(*stacked, cam, world="auto")
-    assert layout.ceiling_corners.shape == (1, 2, 32, 3) and layout.mask.shape == (1, 2, 32) and layout.ok.shape == (1, 2)
+    assert (
+        layout.ceiling_corners.shape == (1, 2, 32, 3) and layout.mask.shape == (1, 2, 32) and layout.ok.shape == (1, 2)
+    )
     assert layout.corner_covariance.shape == (1, 2, 32, 2, 2) and layout.height_covariance.shape == (1, 2, 2, 2)
     assert bool(jnp.all(jnp.isfinite(layout.corner_covariance)))
     assert bool(jnp.all(layout.ok)) and bool(jnp.all(layout.manhattan))
@@ -540,13 +616,16 @@ def test_batch_auto_world_and_shapes():
         ncjax.layout_from_boundaries(*stacked, cams, world="auto")
 
 
+@pytest.mark.slow
 def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun():
     batch, labels = rooms("manhattan", "required")
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
     rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
     # chunks of 4: the compact run of the six rooms is a loop over one chunk and a remainder of two
     full = ncjax.PipelineConfig(capacity=16, compact_capacity=0, covariance=False, chunk_size=4)
-    layout = ncjax.layout_from_boundaries(*rows, cams, config=dataclasses.replace(full, compact_capacity=8))
+    layout = ncjax.layout_from_boundaries(
+        *rows, cams, config=dataclasses.replace(full, compact_capacity=8), world="manhattan"
+    )
     walls = np.asarray(layout.mask).sum(1)
     assert layout.mask.shape == (6, 16) and bool(jnp.all(layout.ok))
     assert (walls > 8).any() and (walls <= 8).any(), walls  # both the compact run and the rerun count
@@ -556,13 +635,16 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
     # four rooms, across the chunk and the remainder, with all the slots from the start in one vmap
     last = slice(2, 6)
     keys = jax.random.split(jax.random.key(0), 6)[last]
-    expected = _batched_layout_jit(*(x[last] for x in rows), pick(cams, last), keys, "manhattan", full, 16)
+    expected = _batched_layout_jit(
+        *(x[last] for x in rows), pick(cams, last), keys, traced_part(full), "manhattan", static_part(full), 16
+    )
     np.testing.assert_array_equal(layout.mask[last], expected.mask)
     np.testing.assert_array_equal(layout.status[last], expected.status)
     np.testing.assert_allclose(layout.ceiling_corners[last], expected.ceiling_corners, atol=1e-4)
     np.testing.assert_allclose(layout.floor_corners[last], expected.floor_corners, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     batch, labels = rooms("manhattan", "none")
     room, label = pick(batch, 0), pick(labels, 0)
@@ -571,16 +653,25 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     cases = {
         ncjax.LayoutStatus.INVALID_INPUT: (nan, nan, label.corner_target, cam),
         ncjax.LayoutStatus.NO_CORNERS: (label.ceiling_v, label.floor_v, jnp.zeros(WIDTH), cam),
-        ncjax.LayoutStatus.NO_SCALE: (label.ceiling_v, label.floor_v, label.corner_target, ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.0)),
+        ncjax.LayoutStatus.NO_SCALE: (
+            label.ceiling_v,
+            label.floor_v,
+            label.corner_target,
+            ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.0),
+        ),
     }
     for status, args in cases.items():
-        layout = ncjax.layout_from_boundaries(*args)
+        layout = ncjax.layout_from_boundaries(*args, world="manhattan")
         assert int(layout.status) == status and not bool(layout.ok)
         assert bool(jnp.all(jnp.isfinite(layout.ceiling_corners)))
     # The same exact room, valid with the defaults, is implausible for a 1 m room-height limit.
-    assert bool(ncjax.layout_from_boundaries(label.ceiling_v, label.floor_v, label.corner_target, cam).ok)
+    assert bool(
+        ncjax.layout_from_boundaries(label.ceiling_v, label.floor_v, label.corner_target, cam, world="manhattan").ok
+    )
     strict = ncjax.PipelineConfig(max_room_height=1.0)
-    layout = ncjax.layout_from_boundaries(label.ceiling_v, label.floor_v, label.corner_target, cam, config=strict)
+    layout = ncjax.layout_from_boundaries(
+        label.ceiling_v, label.floor_v, label.corner_target, cam, config=strict, world="manhattan"
+    )
     assert int(layout.status) == ncjax.LayoutStatus.DEGENERATE_LAYOUT
 
 
@@ -592,14 +683,22 @@ def test_scale_test_fails_layouts_whose_height_sigma_exceeds_the_threshold():
     cam = room.camera(WIDTH, HEIGHT)
     noise = jax.random.normal(jax.random.key(8), (2, WIDTH))
     rows = (label.ceiling_v + noise[0], label.floor_v + noise[1], label.corner_target)
-    layout = ncjax.layout_from_boundaries(*rows, cam)
+    layout = ncjax.layout_from_boundaries(*rows, cam, world="manhattan")
     assert bool(layout.ok)
     relative = float(room_height_sigma(layout.height_covariance) / (layout.ceiling_height - layout.floor_height))
     assert 0.0 < relative < 0.1, relative
+    compiled = _layout_jit._cache_size()
     strict = ncjax.PipelineConfig(max_height_uncertainty=0.9 * relative)
-    uncertain = ncjax.layout_from_boundaries(*rows, cam, config=strict)
+    uncertain = ncjax.layout_from_boundaries(*rows, cam, config=strict, world="manhattan")
     assert int(uncertain.status) == ncjax.LayoutStatus.UNCERTAIN_SCALE and not bool(uncertain.ok)
     np.testing.assert_allclose(uncertain.ceiling_corners, layout.ceiling_corners, atol=1e-5)  # only the status differs
+    # thresholds are traced: another value reuses the compiled pipeline, and acts
+    blind = ncjax.PipelineConfig(corner_threshold=1.5, fallback_corner_threshold=1.5)
+    assert (
+        int(ncjax.layout_from_boundaries(*rows, cam, config=blind, world="manhattan").status)
+        == ncjax.LayoutStatus.NO_CORNERS
+    )
+    assert _layout_jit._cache_size() == compiled
 
 
 def _one_peak_for_the_narrowest_wall(label):
@@ -612,6 +711,7 @@ def _one_peak_for_the_narrowest_wall(label):
     return corner_target(kept, np.ones(len(kept), bool), WIDTH), peak, narrow
 
 
+@pytest.mark.slow
 def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     """The two corners of a Manhattan room's narrowest wall given as one peak (as the network's lobes merge
     close corners), the wall after that peak one that RANSAC could not fit (a narrow wall's usual fate) and
@@ -625,10 +725,12 @@ def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     count = int(np.sum(np.asarray(label.corner_mask)))
     target, peak, narrow = _one_peak_for_the_narrowest_wall(label)
     config = ncjax.PipelineConfig()
-    evidence = _gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
+    evidence = gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
     slots = np.flatnonzero(np.asarray(evidence.corner_mask))
     assert len(slots) == count - 1
-    at_peak = slots[np.argmin(np.abs((np.asarray(evidence.corner_columns)[slots] - peak + WIDTH / 2) % WIDTH - WIDTH / 2))]
+    at_peak = slots[
+        np.argmin(np.abs((np.asarray(evidence.corner_columns)[slots] - peak + WIDTH / 2) % WIDTH - WIDTH / 2))
+    ]
     assert bool(evidence.fitted[at_peak])
     unfitted = evidence.fitted.at[at_peak].set(False)
     wrong = jnp.array([math.cos(0.7), math.sin(0.7)], evidence.walls.direction.dtype)
@@ -652,7 +754,7 @@ def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     assert float(support[at_peak]) > 0
     others = slots[slots != at_peak]
     np.testing.assert_array_equal(np.asarray(directions)[others], np.asarray(evidence.walls.direction)[others])
-    layout = _manhattan_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
+    layout = manhattan_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
     assert bool(layout.ok) and int(jnp.sum(layout.inserted)) == 1
     result = metrics.evaluate_layout(layout, room)
     assert result["ce"] < 0.1 and result["iou3d"] > 0.95, result
@@ -675,6 +777,7 @@ def test_corner_offsets_are_zero_at_the_true_corners_and_inf_for_parallel_walls(
     assert np.isinf(float(dropped[1])) and np.all(np.isfinite(np.asarray(dropped)[np.arange(len(keep)) != 1]))
 
 
+@pytest.mark.slow
 def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
     """An Atlanta room's narrowest wall given as one peak and no boundary jump seen there: its two walls
     meet far from the peak's column (or not at all), so a wall is inserted between them in the corner
@@ -692,9 +795,9 @@ def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
     target, _, _ = _one_peak_for_the_narrowest_wall(label)
 
     def layout(config):
-        evidence = _gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
+        evidence = gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
         evidence = eqx.tree_at(lambda e: e.occluded, evidence, jnp.zeros_like(evidence.occluded))
-        return _atlanta_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
+        return atlanta_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
 
     count = int(np.sum(np.asarray(label.corner_mask)))
     found = layout(ncjax.PipelineConfig())
@@ -705,6 +808,7 @@ def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
     assert int(jnp.sum(missed.mask)) == count - 1 and int(jnp.sum(missed.inserted)) == 0
 
 
+@pytest.mark.slow
 def test_noisy_rows_do_not_fake_occlusions():
     """2 px of white noise on the rows of rooms without occlusions: a fixed 4 px jump threshold sees
     occlusions at most corners; scaled by the rows' own noise (the default) it sees almost none."""
@@ -714,7 +818,7 @@ def test_noisy_rows_do_not_fake_occlusions():
     keys = jax.random.split(jax.random.key(0), labels.ceiling_v.shape[0])
 
     def occluded_fraction(config):
-        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: _gather_evidence(c, f, p, cam, k, config)))(
+        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: gather_evidence(c, f, p, cam, k, config)))(
             labels.ceiling_v + noise[0], labels.floor_v + noise[1], labels.corner_target, cams, keys
         )
         return float(jnp.sum(evidence.occluded) / jnp.sum(evidence.corner_mask))
@@ -732,7 +836,7 @@ def test_joint_solver_weights_follow_the_row_noise():
     keys = jax.random.split(jax.random.key(0), labels.ceiling_v.shape[0])
 
     def row_weights(config):
-        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: _gather_evidence(c, f, p, cam, k, config)))(
+        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: gather_evidence(c, f, p, cam, k, config)))(
             labels.ceiling_v + noise[0], labels.floor_v + noise[1], labels.corner_target, cams, keys
         )
         return np.asarray(evidence.row_weights)
@@ -749,7 +853,7 @@ def test_bad_arguments_raise():
     with pytest.raises(ValueError, match="world"):
         ncjax.layout_from_boundaries(rows, rows, rows, cam, world="gothic")
     with pytest.raises(ValueError, match="cam.width"):
-        ncjax.layout_from_boundaries(rows[:-1], rows[:-1], rows[:-1], cam)
+        ncjax.layout_from_boundaries(rows[:-1], rows[:-1], rows[:-1], cam, world="manhattan")
     with pytest.raises(ValueError, match="capacity"):
         ncjax.PipelineConfig(capacity=2)
     with pytest.raises(ValueError, match="adjustment_stride"):
@@ -769,13 +873,16 @@ def test_bad_arguments_raise():
         ncjax.PipelineConfig(fallback_corner_threshold=-0.1)
 
 
+@pytest.mark.slow
 def test_gradients_through_the_pipeline_are_finite_and_match_finite_differences():
     batch, labels = rooms("manhattan", "none")
     room, label = pick(batch, 1), pick(labels, 1)
     cam = room.camera(WIDTH, HEIGHT)
 
     def height(ceiling_v):
-        return ncjax.layout_from_boundaries(ceiling_v, label.floor_v, label.corner_target, cam).ceiling_height
+        return ncjax.layout_from_boundaries(
+            ceiling_v, label.floor_v, label.corner_target, cam, world="manhattan"
+        ).ceiling_height
 
     gradient = jax.grad(height)(label.ceiling_v)
     assert bool(jnp.all(jnp.isfinite(gradient))) and float(jnp.abs(gradient).sum()) > 0
@@ -801,7 +908,9 @@ def test_cyclic_labels_are_the_least_cost_labelling(seed, count):
         total = sum(unary[j, labels[j]] for j in range(count))
         return total + sum((same_cost if labels[j - 1] == labels[j] else turn_cost)[j] for j in range(count))
 
-    labels = np.asarray(cyclic_binary_labels(jnp.asarray(unary), jnp.asarray(same_cost), jnp.asarray(turn_cost), jnp.asarray(valid)))
+    labels = np.asarray(
+        cyclic_binary_labels(jnp.asarray(unary), jnp.asarray(same_cost), jnp.asarray(turn_cost), jnp.asarray(valid))
+    )
     best = min(cost(candidate) for candidate in itertools.product((0, 1), repeat=count))
     np.testing.assert_allclose(cost(labels[:count]), best, rtol=1e-6)
 
@@ -855,7 +964,11 @@ def test_plan_line_without_spread_has_finite_gradients(weights):
 )
 def test_auto_world_choice(manhattan_ok, atlanta_ok, manhattan_explained, atlanta_explained, in_frame, expected):
     chosen = choose_manhattan(
-        jnp.array(manhattan_ok), jnp.array(atlanta_ok), jnp.float32(manhattan_explained), jnp.float32(atlanta_explained), jnp.array(in_frame)
+        jnp.array(manhattan_ok),
+        jnp.array(atlanta_ok),
+        jnp.float32(manhattan_explained),
+        jnp.float32(atlanta_explained),
+        jnp.array(in_frame),
     )
     assert bool(chosen) is expected
 
@@ -911,7 +1024,9 @@ def test_floor_rows_hidden_by_furniture_do_not_bias_the_layout():
     errors = {}
     for threshold in (math.inf, 2.0):
         config = dataclasses.replace(ncjax.PipelineConfig(), floor_consistency_threshold=threshold)
-        layout = ncjax.layout_from_boundaries(label.ceiling_v, floor_v, label.corner_target, cam, world="manhattan", config=config)
+        layout = ncjax.layout_from_boundaries(
+            label.ceiling_v, floor_v, label.corner_target, cam, world="manhattan", config=config
+        )
         assert bool(layout.ok)
         errors[threshold] = metrics.evaluate_layout(layout, room)["ce"]
     assert errors[math.inf] > 3e-3 and errors[2.0] < 1e-4, errors  # measured: 8 mm and 1 um

@@ -9,13 +9,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import shapely
+from _synth import BATCH, CONFIG, HEIGHT, WIDTH, batch, render_scenes
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
 import ncjax
-from ncjax._scene import PARTS_PER_PIECE
-
-from _synth import BATCH, CONFIG, HEIGHT, WIDTH, batch, render_scenes
+from ncjax.synth.furniture import PARTS_PER_PIECE
 
 WALL_LIKE = (ncjax.Semantic.WALL, ncjax.Semantic.OPENING)
 
@@ -67,7 +66,12 @@ def _empty_box_room(scenes, half_x, half_y, rc):
     capacity = scenes.room.corners.shape[1]
     corners = np.zeros((BATCH, capacity, 2), np.float32)
     for i in range(BATCH):
-        corners[i, :4] = [[half_x[i], -half_y[i]], [half_x[i], half_y[i]], [-half_x[i], half_y[i]], [-half_x[i], -half_y[i]]]
+        corners[i, :4] = [
+            [half_x[i], -half_y[i]],
+            [half_x[i], half_y[i]],
+            [-half_x[i], half_y[i]],
+            [-half_x[i], -half_y[i]],
+        ]
     mask = np.broadcast_to(np.arange(capacity) < 4, (BATCH, capacity))
     scenes = eqx.tree_at(
         lambda s: (s.room.corners, s.room.mask, s.room.rc), scenes, (corners, mask, np.asarray(rc, np.float32))
@@ -83,11 +87,18 @@ def test_depth_of_an_empty_box_room_is_analytic():
     renderings = render_scenes(_empty_box_room(scenes, half_x, half_y, rc))
     u, v = np.meshgrid(np.arange(WIDTH) + 0.5, np.arange(HEIGHT) + 0.5)
     azimuth, elevation = np.pi - 2 * np.pi * u / WIDTH, np.pi / 2 - np.pi * v / HEIGHT
-    direction = np.stack([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], -1)
+    direction = np.stack(
+        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], -1
+    )
     for i in range(BATCH):
         origin = rc[i] * np.stack([np.cos(azimuth), np.sin(azimuth), np.zeros_like(azimuth)], -1)
-        bounds = np.array([[-half_x[i], half_x[i]], [-half_y[i], half_y[i]],
-                           [float(scenes.room.floor_height[i]), float(scenes.room.ceiling_height[i])]])
+        bounds = np.array(
+            [
+                [-half_x[i], half_x[i]],
+                [-half_y[i], half_y[i]],
+                [float(scenes.room.floor_height[i]), float(scenes.room.ceiling_height[i])],
+            ]
+        )
         with np.errstate(divide="ignore"):
             # Inside a box, the ray leaves through the plane ahead on each axis.
             exits = (np.where(direction > 0, bounds[:, 1], bounds[:, 0]) - origin) / direction
@@ -110,11 +121,14 @@ def test_furniture_never_overlaps_stays_inside_and_clears_the_camera():
             for b in np.nonzero(boxes.mask)[0]:
                 c, s = boxes.rotation[b]
                 axes = np.array([[c, s], [-s, c]])
-                corners = boxes.centre[b, :2] + (np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * boxes.half_size[b, :2]) @ axes
+                corners = (
+                    boxes.centre[b, :2]
+                    + (np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * boxes.half_size[b, :2]) @ axes
+                )
                 footprints.append(shapely.Polygon(corners))
                 z_ranges.append(boxes.centre[b, 2] + np.array([-1, 1]) * boxes.half_size[b, 2])
                 pieces.append(b // PARTS_PER_PIECE if b < slots * PARTS_PER_PIECE else slots + b)
-            for a, (footprint, z_range, piece) in enumerate(zip(footprints, z_ranges, pieces)):
+            for a, (footprint, z_range, piece) in enumerate(zip(footprints, z_ranges, pieces, strict=True)):
                 assert floor_plan.buffer(1e-4).contains(footprint)
                 assert room.floor_height - 1e-5 <= z_range[0] and z_range[1] <= room.ceiling_height + 1e-5
                 # The circle of optical centres (z = 0) is never inside a box.
@@ -184,7 +198,11 @@ def test_greyscale_and_blur():
     blurred = np.asarray(ncjax.gaussian_blur(_IMAGE, 1.0))
     # Wrapping horizontally, a blur of a horizontally constant image keeps it;
     # the mean of each row is kept (the kernel is normalised).
-    np.testing.assert_allclose(blurred.mean(1), np.asarray(ncjax.gaussian_blur(_IMAGE.mean(1, keepdims=True) * jnp.ones_like(_IMAGE), 1.0)).mean(1), atol=1e-5)
+    np.testing.assert_allclose(
+        blurred.mean(1),
+        np.asarray(ncjax.gaussian_blur(_IMAGE.mean(1, keepdims=True) * jnp.ones_like(_IMAGE), 1.0)).mean(1),
+        atol=1e-5,
+    )
     assert blurred.std() < np.asarray(_IMAGE).std()
 
 
@@ -217,13 +235,15 @@ _angle = st.floats(0.0, 2 * np.pi)
 
 def _rectangle(centre, half, angle):
     rotation = np.array([np.cos(angle), np.sin(angle)])
-    corners = np.asarray(ncjax._scene.rectangle_corners(jnp.asarray(centre), jnp.asarray(half), jnp.asarray(rotation)))
+    corners = np.asarray(
+        ncjax.synth.furniture.rectangle_corners(jnp.asarray(centre), jnp.asarray(half), jnp.asarray(rotation))
+    )
     return rotation, shapely.Polygon(corners)
 
 
 @functools.cache
 def _overlap():
-    return jax.jit(ncjax._scene.rectangles_overlap)
+    return jax.jit(ncjax.synth.furniture.rectangles_overlap)
 
 
 @given(_coordinate, _coordinate, _half, _half, _angle, _coordinate, _coordinate, _half, _half, _angle)
@@ -232,14 +252,23 @@ def test_rectangle_overlap_agrees_with_shapely(x1, y1, w1, h1, a1, x2, y2, w2, h
     rotation_b, polygon_b = _rectangle((x2, y2), (w2, h2), a2)
     distance = polygon_a.distance(polygon_b)
     assume(abs(distance) > 1e-3 or polygon_a.intersection(polygon_b).area > 1e-3)
-    overlap = bool(_overlap()(jnp.array([x1, y1]), jnp.array([w1, h1]), jnp.asarray(rotation_a),
-                              jnp.array([x2, y2]), jnp.array([w2, h2]), jnp.asarray(rotation_b), 0.0))
+    overlap = bool(
+        _overlap()(
+            jnp.array([x1, y1]),
+            jnp.array([w1, h1]),
+            jnp.asarray(rotation_a),
+            jnp.array([x2, y2]),
+            jnp.array([w2, h2]),
+            jnp.asarray(rotation_b),
+            0.0,
+        )
+    )
     assert overlap == (distance == 0.0)
 
 
 @functools.cache
 def _interval():
-    return jax.jit(ncjax._render.box_interval_2d)
+    return jax.jit(ncjax.synth.render.box_interval_2d)
 
 
 @given(_coordinate, _coordinate, _half, _half, _angle, _angle)
@@ -247,8 +276,12 @@ def test_box_interval_agrees_with_shapely(x, y, w, h, yaw, heading):
     rotation, polygon = _rectangle((x, y), (w, h), yaw)
     assume(polygon.distance(shapely.Point(0, 0)) > 1e-3)
     direction = np.array([np.cos(heading), np.sin(heading)])
-    t_in, t_out, normal = (np.asarray(a) for a in _interval()(
-        jnp.zeros(2), jnp.asarray(direction), jnp.array([x, y]), jnp.array([w, h]), jnp.asarray(rotation)))
+    t_in, t_out, normal = (
+        np.asarray(a)
+        for a in _interval()(
+            jnp.zeros(2), jnp.asarray(direction), jnp.array([x, y]), jnp.array([w, h]), jnp.asarray(rotation)
+        )
+    )
     ray = shapely.LineString([(0, 0), tuple(100 * direction)])
     crossing = ray.intersection(polygon)
     hit = t_in < t_out and t_out > 0

@@ -10,13 +10,16 @@ import numpy as np
 import pytest
 
 import ncjax
-from ncjax._rooms import distance_to_walls, polygon_area
+from ncjax.geometry.polygon import polygon_area
+from ncjax.synth.rooms import distance_to_walls
 
 W, H = 256, 128
 
 
 def _box_room(half=2.0, h_c=1.0, h_f=-1.5, rc=0.5, capacity=8):
-    corners = jnp.zeros((capacity, 2)).at[:4].set(jnp.array([[half, -half], [half, half], [-half, half], [-half, -half]]))
+    corners = (
+        jnp.zeros((capacity, 2)).at[:4].set(jnp.array([[half, -half], [half, half], [-half, half], [-half, -half]]))
+    )
     return ncjax.Room(
         corners=corners,
         mask=jnp.arange(capacity) < 4,
@@ -44,7 +47,9 @@ def test_box_room_labels_by_hand(x64):
     assert float(labels.floor_v[0]) == pytest.approx(expected_floor, abs=1e-9)
     assert int(labels.wall_index[0]) == 2
     # Corners at azimuths 135, 45, -45, -135 degrees, left to right.
-    expected_u = [(math.pi - a) / (2 * math.pi) * W - 0.5 for a in (3 * math.pi / 4, math.pi / 4, -math.pi / 4, -3 * math.pi / 4)]
+    expected_u = [
+        (math.pi - a) / (2 * math.pi) * W - 0.5 for a in (3 * math.pi / 4, math.pi / 4, -math.pi / 4, -3 * math.pi / 4)
+    ]
     assert int(labels.corner_mask.sum()) == 4
     np.testing.assert_allclose(labels.corner_u[:4], expected_u, atol=1e-9)
     np.testing.assert_allclose(labels.ceiling_corners[:4], [[-2, 2, 1], [2, 2, 1], [2, -2, 1], [-2, -2, 1]], atol=1e-9)
@@ -91,7 +96,7 @@ def mixed_rooms():
 def test_same_key_same_room():
     a = _generate(MIXED, 100, seed=7)
     b = _generate(MIXED, 100, seed=7)
-    for leaf_a, leaf_b in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+    for leaf_a, leaf_b in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
         np.testing.assert_array_equal(leaf_a, leaf_b)
     assert not np.allclose(a.corners[0], a.corners[1])
 
@@ -120,7 +125,10 @@ def test_random_rooms_are_valid(mixed_rooms):
 
 
 def test_labels_are_exact_projections_of_boundary_points(mixed_rooms, x64):
-    rooms = jax.tree.map(lambda leaf: jnp.asarray(np.asarray(leaf).astype(np.float64) if np.asarray(leaf).dtype == np.float32 else leaf), mixed_rooms)
+    rooms = jax.tree.map(
+        lambda leaf: jnp.asarray(np.asarray(leaf).astype(np.float64) if np.asarray(leaf).dtype == np.float32 else leaf),
+        mixed_rooms,
+    )
 
     def check(room):
         cam = room.camera(W, H)
@@ -131,9 +139,9 @@ def test_labels_are_exact_projections_of_boundary_points(mixed_rooms, x64):
         column_error = jnp.max(jnp.abs(jnp.stack([u_c, u_f]) - columns))
         row_error = jnp.maximum(jnp.max(jnp.abs(v_c - labels.ceiling_v)), jnp.max(jnp.abs(v_f - labels.floor_v)))
         # Each boundary point lies on the wall the label names.
-        edges = ncjax._rooms.polygon_edges(room.corners, room.mask)[labels.wall_index]
+        edges = ncjax.synth.rooms.polygon_edges(room.corners, room.mask)[labels.wall_index]
         a, b, p = edges[:, 0], edges[:, 1], labels.ceiling_points[:, :2]
-        off_wall = jnp.abs(ncjax._rooms._cross2(b - a, p - a)) / jnp.linalg.norm(b - a, axis=-1)
+        off_wall = jnp.abs(ncjax.synth.rooms._cross2(b - a, p - a)) / jnp.linalg.norm(b - a, axis=-1)
         return labels.ok, column_error, row_error, jnp.max(off_wall)
 
     ok, column_error, row_error, off_wall = jax.jit(jax.vmap(check))(rooms)
@@ -181,7 +189,13 @@ def test_failure_is_reported_not_hidden():
 
 @pytest.mark.parametrize(
     "kwargs",
-    [dict(world="paris"), dict(occlusion="maybe"), dict(min_walls=5), dict(max_walls=16), dict(height_range=(3.0, 2.0))],
+    [
+        dict(world="paris"),
+        dict(occlusion="maybe"),
+        dict(min_walls=5),
+        dict(max_walls=16),
+        dict(height_range=(3.0, 2.0)),
+    ],
 )
 def test_bad_config_is_rejected(kwargs):
     with pytest.raises(ValueError):

@@ -9,7 +9,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ncjax._sparse_normal import (
+from ncjax.pipeline.sparse_normal import (
     JacobianStructure,
     SparseNormalCholesky,
     distinct_slots,

@@ -16,7 +16,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import ncjax
-from ncjax import _linalg, _wall
+import ncjax.geometry.linalg
+import ncjax.solvers.wall
 
 WIDTH, HEIGHT = 256, 128
 CAPACITY = 12
@@ -123,7 +124,7 @@ def test_rows_are_side():
     u = jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1)
     d, h_c, h_f = jax.random.normal(k2, (3, 50))
     ray = ncjax.angles_to_ray(0.4, *jax.random.uniform(k3, (2, 50), minval=-1.5, maxval=1.5))
-    ceiling, floor = _wall.wall_rows(ray, ray)
+    ceiling, floor = ncjax.solvers.wall.wall_rows(ray, ray)
     unknown = jnp.concatenate([u, h_c[:, None] * u, h_f[:, None] * u, d[:, None]], -1)
     np.testing.assert_allclose(jnp.sum(ceiling * unknown, -1), ncjax.side(ray, _line_of(u, d, h_c)), atol=1e-5)
     np.testing.assert_allclose(jnp.sum(floor * unknown, -1), ncjax.side(ray, _line_of(u, d, h_f)), atol=1e-5)
@@ -131,11 +132,11 @@ def test_rows_are_side():
 
 def test_parallel_quadratic_is_cross_product():
     a0, a1, b0, b1 = jax.random.normal(jax.random.PRNGKey(1), (4, 2))
-    p, r, t = _wall.parallel_quadratic(a0, a1, b0, b1)
+    p, r, t = ncjax.solvers.wall.parallel_quadratic(a0, a1, b0, b1)
     for alpha, beta in [(0.3, -1.2), (1.0, 0.5)]:
         a, b = alpha * a0 + beta * a1, alpha * b0 + beta * b1
         np.testing.assert_allclose(p * alpha**2 + r * alpha * beta + t * beta**2, a[0] * b[1] - a[1] * b[0], rtol=1e-5)
-    for theta in _wall.quadratic_root_angles(jnp.array([p, r, t])):
+    for theta in ncjax.solvers.wall.quadratic_root_angles(jnp.array([p, r, t])):
         alpha, beta = jnp.cos(theta), jnp.sin(theta)
         np.testing.assert_allclose(p * alpha**2 + r * alpha * beta + t * beta**2, 0.0, atol=1e-5)
 
@@ -157,7 +158,10 @@ WALL_COLUMNS = 24  # single walls seen by fewer columns (< 34 degrees here) are 
 def _errors(rooms, walls):
     columns = jnp.sum(rooms["wall_index"][:, :, None] == jnp.arange(CAPACITY), 1)
     mask = rooms["mask"] & (columns >= WALL_COLUMNS)
-    worst = lambda x: float(jnp.max(jnp.where(mask, x, 0.0)))  # noqa: E731
+
+    def worst(x):
+        return float(jnp.max(jnp.where(mask, x, 0.0)))
+
     return dict(
         direction=worst(direction_error_deg(walls.direction, rooms["directions"])),
         distance=worst(jnp.abs(walls.distance - rooms["distances"])),
@@ -219,7 +223,7 @@ def test_order_and_masked_rows(seed):
     perm = jax.random.permutation(jax.random.PRNGKey(seed), ceiling_rays.shape[0])
     garbage = jnp.where(mask[:, None], ceiling_rays, jnp.nan)
     shuffled = _solve_jit(garbage[perm], floor_rays[perm], mask[perm], mask[perm])
-    for a, b in zip(jax.tree.leaves(reference), jax.tree.leaves(shuffled)):
+    for a, b in zip(jax.tree.leaves(reference), jax.tree.leaves(shuffled), strict=True):
         np.testing.assert_allclose(a, b, atol=2e-4)
 
 
@@ -233,7 +237,9 @@ def _wall_outputs(room, wall_id, method="paper"):
     def f(rows):
         ceiling_rays, floor_rays = _wall_rays(room, rows)
         wall = ncjax.solve_wall(ceiling_rays, floor_rays, mask, mask, method=method)
-        return jnp.concatenate([wall.direction, wall.distance[None], wall.ceiling_height[None], wall.floor_height[None]])
+        return jnp.concatenate(
+            [wall.direction, wall.distance[None], wall.ceiling_height[None], wall.floor_height[None]]
+        )
 
     return f
 
@@ -262,10 +268,13 @@ def check_gradients(f, x, eps=1e-6, rtol=1e-3, directions=6):
     np.testing.assert_allclose(forward, numeric, atol=rtol * scale)
     pairing_forward = jnp.sum((w * forward).reshape(directions, -1), -1)
     pairing_reverse = jnp.sum((reverse * v).reshape(directions, -1), -1)
-    np.testing.assert_allclose(pairing_forward, pairing_reverse, rtol=1e-8, atol=1e-10 * float(jnp.max(jnp.abs(pairing_forward))))
+    np.testing.assert_allclose(
+        pairing_forward, pairing_reverse, rtol=1e-8, atol=1e-10 * float(jnp.max(jnp.abs(pairing_forward)))
+    )
     return reverse
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("axis_aligned", "method"), [(True, "paper"), (False, "paper"), (True, "refined")])
 def test_wall_gradients(x64, axis_aligned, method):
     room = box_room(AXIS_ALIGNED) if axis_aligned else sample_room(6, "manhattan")
@@ -293,10 +302,12 @@ def test_null_space_gradient_with_repeated_singular_values(x64):
     assert bool(jnp.any(jnp.isnan(jax.jacrev(naive_projector)(a))))
 
 
-_sorted_svd = jax.jit(jax.vmap(_linalg._sorted_svd))
+_sorted_svd = jax.jit(jax.vmap(ncjax.geometry.linalg._sorted_svd))
 
 
-@given(seed=st.integers(0, 2**31 - 1), kind=st.sampled_from(["random", "rank_deficient", "repeated_column", "zero_column"]))
+@given(
+    seed=st.integers(0, 2**31 - 1), kind=st.sampled_from(["random", "rank_deficient", "repeated_column", "zero_column"])
+)
 def test_sorted_svd_matches_numpy(seed, kind):
     """Gram-Schmidt + one-sided Jacobi: numpy's singular values, orthonormal vectors, the same null space."""
     with jax.enable_x64(True):
@@ -316,7 +327,9 @@ def _check_sorted_svd(seed, kind):
     _, s, vt = np.linalg.svd(a, full_matrices=False)
     scale = s[:, :1] ** 2
     np.testing.assert_allclose(np.asarray(squared) / scale, (s[:, ::-1] ** 2) / scale, atol=1e-12)
-    np.testing.assert_allclose(np.einsum("bij,bik->bjk", vectors, vectors), np.broadcast_to(np.eye(6), (4, 6, 6)), atol=1e-12)
+    np.testing.assert_allclose(
+        np.einsum("bij,bik->bjk", vectors, vectors), np.broadcast_to(np.eye(6), (4, 6, 6)), atol=1e-12
+    )
     smallest, reference = np.asarray(vectors)[:, :, 0], vt[:, -1, :]
     if kind != "random":  # an exact null vector: the same line
         np.testing.assert_allclose(np.abs(np.einsum("bi,bi->b", smallest, reference)), 1.0, atol=1e-10)
@@ -326,10 +339,14 @@ def test_minimal_solver(x64):
     room = sample_room(7, "atlanta")
     ceiling_rays, floor_rays = rays(room)
     index = jnp.nonzero(room["wall_index"] == 2, size=4)[0]
-    walls, valid = jax.jit(ncjax.solve_wall_minimal)(ceiling_rays[index[jnp.array([0, 3])]], floor_rays[index[jnp.array([1, 2])]])
+    walls, valid = jax.jit(ncjax.solve_wall_minimal)(
+        ceiling_rays[index[jnp.array([0, 3])]], floor_rays[index[jnp.array([1, 2])]]
+    )
     assert walls.distance.shape == (3,) and valid.shape == (3,)
     assert bool(jnp.any(valid))
-    error = jnp.where(valid, jnp.abs(walls.distance - room["distances"][2]) + jnp.abs(walls.ceiling_height - room["h_c"]), jnp.inf)
+    error = jnp.where(
+        valid, jnp.abs(walls.distance - room["distances"][2]) + jnp.abs(walls.ceiling_height - room["h_c"]), jnp.inf
+    )
     assert float(jnp.min(error)) < 1e-6
     best = int(jnp.argmin(error))
     assert float(direction_error_deg(walls.direction[best], room["directions"][2])) < 1e-4
@@ -350,9 +367,12 @@ def test_horizontal_line_baseline():
             np.testing.assert_allclose(line.height, height, atol=2e-3)
 
 
-_segment_null_spaces = jax.jit(_linalg.segment_scaled_null_spaces, static_argnums=(2, 3))
+_segment_null_spaces = jax.jit(ncjax.geometry.linalg.segment_scaled_null_spaces, static_argnums=(2, 3))
 _masked_null_spaces = jax.jit(
-    jax.vmap(lambda a, segments, s: _linalg.scaled_null_space(jnp.where((segments == s)[:, None], a, 0.0), 2), (None, None, 0))
+    jax.vmap(
+        lambda a, segments, s: ncjax.geometry.linalg.scaled_null_space(jnp.where((segments == s)[:, None], a, 0.0), 2),
+        (None, None, 0),
+    )
 )
 
 
@@ -369,7 +389,10 @@ def test_segment_null_spaces_match_masked_ones(seed):
         want = np.asarray(_masked_null_spaces(jnp.asarray(np.nan_to_num(a)), jnp.asarray(segments), jnp.arange(6)))
         assert np.all(np.isfinite(got))
         for s in range(6):  # the same span (each basis is orthonormal in its equilibrated space)
-            projector = lambda b: b @ np.linalg.pinv(b)  # noqa: E731
+
+            def projector(b):
+                return b @ np.linalg.pinv(b)
+
             np.testing.assert_allclose(projector(got[s]), projector(want[s]), atol=1e-8)
 
 
@@ -385,9 +408,12 @@ def test_batched_baseline_matches_one_line_at_a_time():
     ok = np.asarray(single.ok)
     assert ok.sum() >= 5  # lines seen by >= 4 columns
     for field in ("direction", "distance", "height"):
-        np.testing.assert_allclose(np.asarray(getattr(batched, field))[ok], np.asarray(getattr(single, field))[ok], rtol=2e-4, atol=1e-4)  # float32, sums in another order
+        np.testing.assert_allclose(
+            np.asarray(getattr(batched, field))[ok], np.asarray(getattr(single, field))[ok], rtol=2e-4, atol=1e-4
+        )  # float32, sums in another order
 
 
+@pytest.mark.slow
 def test_batched_baseline_gradient(x64):
     """Derivatives of the batched fit match central differences (rows of every line perturbed at once)."""
     room = sample_room(9, "manhattan")
@@ -401,6 +427,8 @@ def test_batched_baseline_gradient(x64):
     tangent = jnp.asarray(np.random.default_rng(0).normal(size=WIDTH))
     _, derivative = jax.jvp(distances, (room["ceiling_v"],), (tangent,))
     step = 1e-4
-    central = (distances(room["ceiling_v"] + step * tangent) - distances(room["ceiling_v"] - step * tangent)) / (2 * step)
+    central = (distances(room["ceiling_v"] + step * tangent) - distances(room["ceiling_v"] - step * tangent)) / (
+        2 * step
+    )
     assert np.all(np.isfinite(np.asarray(derivative)))
     np.testing.assert_allclose(derivative, central, rtol=1e-3, atol=1e-6)

@@ -1,0 +1,178 @@
+"""The ``ncjax`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import re
+import sys
+
+CONVENTIONS = """\
+frame      metres, right-handed, z up (revolution axis), circle of optical centres in z = 0
+azimuth    varphi = pi - 2 pi (u + 0.5) / W   (decreases to the right)
+elevation  phi = pi/2 - pi (v + 0.5) / H      (top row looks up)
+centre     column u sees from rc (cos varphi, sin varphi, 0), rays radially outward
+ray        (cos phi cos varphi, cos phi sin varphi, sin phi, rc sin phi sin varphi, -rc sin phi cos varphi, 0)
+projection varphi = atan2(y, x), phi = atan2(z, sqrt(x^2 + y^2) - rc); NaN inside the circle
+wall       ceiling line (ux, uy, 0, -h_c uy, h_c ux, -d), floor line the same with h_f
+"""
+
+
+def _info(args: argparse.Namespace) -> int:
+    import jax
+
+    import ncjax
+
+    print(f"ncjax {ncjax.__version__}, jax {jax.__version__}, devices: {', '.join(str(d) for d in jax.devices())}")
+    print(CONVENTIONS, end="")
+    return 0
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    match = re.fullmatch(r"(\d+)x(\d+)", text)
+    if not match:
+        raise ValueError(f"--size must be HxW, e.g. 512x1024, got {text!r}")
+    height, width = int(match.group(1)), int(match.group(2))
+    if height < 4 or width < 8 or width % 2 or height % 2:
+        raise ValueError(f"--size must be even sizes of at least 4x8 (HxW), got {text!r}")
+    return height, width
+
+
+def _parse_rc(text: str) -> tuple[float, float]:
+    parts = text.split(":")
+    try:
+        low, high = (float(parts[0]), float(parts[-1])) if len(parts) in (1, 2) else (None, None)
+    except ValueError:
+        low = high = None
+    if low is None or not (math.isfinite(low) and math.isfinite(high) and 0 <= low <= high):
+        raise ValueError(f"--rc must be MIN:MAX (or one value) in metres with 0 <= MIN <= MAX, got {text!r}")
+    return low, high
+
+
+def _synth(args: argparse.Namespace) -> int:
+    height, width = _parse_size(args.size)
+    rc_range = _parse_rc(args.rc)
+    if args.n < 1:
+        raise ValueError(f"--n must be >= 1, got {args.n}")
+    if args.batch < 1:
+        raise ValueError(f"--batch must be >= 1, got {args.batch}")
+    from tqdm import tqdm
+
+    import ncjax
+
+    from ..synth.dataset import _check_output_directory, write_dataset
+
+    config = ncjax.SynthConfig(
+        room=ncjax.RoomConfig(world=args.world, rc_range=rc_range),
+        render=ncjax.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
+        width=width,
+        height=height,
+    )
+    _check_output_directory(args.out, args.overwrite)
+    with tqdm(total=args.n, unit="pano", desc=f"ncjax synth {height}x{width}") as bar:
+        names = write_dataset(args.out, args.n, args.seed, config, args.batch, args.overwrite, progress=bar.update)
+    print(
+        f"wrote {len(names)} samples to {args.out} (img, label_cor, 3D_gt, cam_pose, depth, semantic, json, split.json)"
+    )
+    return 0
+
+
+def _train(args: argparse.Namespace) -> int:
+    from .train import run_train
+
+    return run_train(args)
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    import json
+
+    from ..network.checkpoint import load_model
+    from ..network.predict import DEFAULT_MODEL_PATH, default_model
+    from ..training.data import evaluate_arrays, load_split
+
+    model = load_model(args.model) if args.model else default_model()
+    config = model.config
+    arrays = load_split(args.data, args.split, config.input_height, config.input_width, limit=args.limit)
+    row = evaluate_arrays(model, arrays, views=args.views)
+    print(
+        f"model {args.model or DEFAULT_MODEL_PATH}, {len(arrays['image'])} images of {args.data} ({args.split}), "
+        f"{args.views} view(s) averaged"
+    )
+    print(f"PE {row['pe_mean']:.3f} +- {row['pe_std']:.3f} px (1024-wide)")
+    print(
+        f"corners: precision {row['precision']:.3f}, recall {row['recall']:.3f}, "
+        f"accuracy {row['accuracy']:.3f}, IoU {row['iou']:.3f}"
+    )
+    if args.json:
+        with open(args.json, "w") as file:
+            json.dump(
+                {"images": len(arrays["image"]), "data": args.data, "split": args.split, "views": args.views, **row},
+                file,
+                indent=1,
+            )
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``ncjax`` console script."""
+    # OpenBLAS worker threads busy-wait for each other, which can stall small LAPACK
+    # calls for seconds on a busy machine; it must be set before jax loads OpenBLAS.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from ncjax import __version__
+
+    parser = argparse.ArgumentParser(prog="ncjax", description="Metric room layouts from non-central panoramas.")
+    parser.add_argument("--version", action="version", version=f"ncjax {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True)
+    info = commands.add_parser("info", help="versions, devices and the camera conventions")
+    info.set_defaults(run=_info)
+    synth = commands.add_parser(
+        "synth",
+        help="render a synthetic dataset of non-central panoramas (authors' layout plus depth, semantics, json)",
+    )
+    synth.add_argument("--n", type=int, required=True, help="number of panoramas")
+    synth.add_argument("--out", required=True, help="output folder (must be new or empty)")
+    synth.add_argument("--seed", type=int, default=0, help="random seed: same seed, same bytes")
+    synth.add_argument("--world", choices=("manhattan", "atlanta", "mix"), default="mix")
+    synth.add_argument("--size", default="512x1024", help="HxW in pixels (default 512x1024)")
+    synth.add_argument("--rc", default="0.3:1.0", help="range of the radius rc in metres, MIN:MAX (0:0 is central)")
+    synth.add_argument("--supersampling", type=int, default=1, help="odd s: s x s rays per pixel for the RGB image")
+    synth.add_argument("--shadows", action="store_true", help="cast shadows from the furniture")
+    synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")
+    synth.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
+    synth.set_defaults(run=_synth)
+    from .train import add_train_arguments
+
+    train = commands.add_parser("train", help="train Non-central HorizonNet (checkpoints, resume, validation)")
+    add_train_arguments(train)
+    train.set_defaults(run=_train)
+    evaluate = commands.add_parser("evaluate", help="Table netcorExp of a model on a dataset split")
+    evaluate.add_argument("--data", required=True, help="dataset folder (ncjax synth or the authors')")
+    evaluate.add_argument("--split", default="test", help="split of split.json (default test), or all")
+    evaluate.add_argument("--model", help=".safetensors weights (default: the shipped model)")
+    evaluate.add_argument("--limit", type=int, help="evaluate the first N images only")
+    evaluate.add_argument("--json", help="also write the row to this json file")
+    evaluate.add_argument(
+        "--views", type=int, default=1, help="average the network over rolled and mirrored views (1 or even)"
+    )
+    evaluate.set_defaults(run=_evaluate)
+    from .reconstruct import add_demo_arguments, add_reconstruct_arguments, run_demo, run_reconstruct
+
+    reconstruct = commands.add_parser(
+        "reconstruct", help="metric layouts of panoramas: json, mesh (obj/ply/glb), overlay and floor-plan png"
+    )
+    add_reconstruct_arguments(reconstruct)
+    reconstruct.set_defaults(run=run_reconstruct)
+    demo = commands.add_parser("demo", help="reconstruct the built-in sample and compare it with its ground truth")
+    add_demo_arguments(demo)
+    demo.set_defaults(run=run_demo)
+    args = parser.parse_args(argv)
+    try:
+        return args.run(args)
+    except (ValueError, FileNotFoundError) as error:
+        print(f"ncjax {args.command}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

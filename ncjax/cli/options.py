@@ -1,0 +1,93 @@
+"""Command-line options generated from the configuration dataclasses, so every setting is reachable.
+
+Each field of a frozen dataclass of ``int``, ``float``, ``bool`` or ``str`` becomes ``--field-name``
+(``--field-name`` / ``--no-field-name`` for a bool), its help text the field's line in the class
+docstring's ``Attributes:`` section, its default the value of the instance the command starts from.
+Only the options given on the command line replace that instance's values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import inspect
+import re
+from typing import Any
+
+_PARSERS = {"int": int, "float": float, "str": str}
+
+
+def attribute_help(cls: type) -> dict[str, str]:
+    """Each field's description in the Google-style ``Attributes:`` section of ``cls``'s docstring.
+
+    A line ``a, b: text`` describes both fields; the text runs until the next such line.
+    """
+    doc = inspect.getdoc(cls) or ""
+    section = doc.split("Attributes:", 1)[1] if "Attributes:" in doc else ""
+    help_texts: dict[str, str] = {}
+    names: list[str] = []
+    for line in section.splitlines():
+        match = re.match(r"^    ([a-z_][a-z0-9_, ]*):\s*(.*)$", line)
+        if match:
+            names = [name.strip() for name in match.group(1).split(",")]
+            for name in names:
+                help_texts[name] = match.group(2)
+        elif line.startswith("        ") and names:
+            for name in names:
+                help_texts[name] += " " + line.strip()
+        elif line.strip() and not line.startswith(" "):
+            break
+    return {name: re.sub(r":\w+:`~?([^`]+)`", r"\1", text).replace("``", "") for name, text in help_texts.items()}
+
+
+def _option(prefix: str, name: str) -> str:
+    return f"--{prefix}{name}".replace("_", "-")
+
+
+def add_config_options(
+    parser: argparse.ArgumentParser,
+    defaults: Any,
+    *,
+    title: str,
+    prefix: str = "",
+    skip: tuple[str, ...] = (),
+    aliases: dict[str, str] | None = None,
+) -> None:
+    """Add an option per scalar field of the dataclass instance ``defaults`` to a group ``title`` of ``parser``.
+
+    Args:
+        parser: the (sub)command's parser.
+        defaults: the configuration the command uses when no option is given.
+        title: the group's heading in ``--help``.
+        prefix: put before each option's name (and destination), to keep two configurations apart.
+        skip: fields the command sets by other means.
+        aliases: an extra option name per field (e.g. a shorter, established one).
+    """
+    aliases = aliases or {}
+    help_texts = attribute_help(type(defaults))
+    group = parser.add_argument_group(title)
+    for field in dataclasses.fields(defaults):
+        kind = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", "")
+        if field.name in skip or kind not in (*_PARSERS, "bool"):
+            continue
+        names = [_option(prefix, field.name), *([aliases[field.name]] if field.name in aliases else [])]
+        value = getattr(defaults, field.name)
+        text = f"{help_texts.get(field.name, field.name.replace('_', ' '))} (default: {value})"
+        text = text.replace(". (default", " (default").replace("%", "%%")
+        destination = f"{prefix.replace('-', '_')}{field.name}"
+        if kind == "bool":
+            group.add_argument(*names, dest=destination, action=argparse.BooleanOptionalAction, default=None, help=text)
+        else:
+            group.add_argument(
+                *names, dest=destination, type=_PARSERS[kind], default=None, metavar=kind.upper(), help=text
+            )
+
+
+def config_from_options(args: argparse.Namespace, defaults: Any, *, prefix: str = "") -> Any:
+    """``defaults`` with the fields given on the command line replaced (the dataclass validates them)."""
+    given = {}
+    for field in dataclasses.fields(defaults):
+        value = getattr(args, f"{prefix.replace('-', '_')}{field.name}", None)
+        if value is not None:
+            given[field.name] = value
+    return dataclasses.replace(defaults, **given) if given else defaults

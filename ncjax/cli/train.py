@@ -1,0 +1,119 @@
+"""``ncjax train``: the command line of :func:`ncjax.training.loop.train`."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import pathlib
+
+import numpy as np
+
+from ..network.checkpoint import check_warm_start
+from ..network.model import PRESETS, HorizonNetConfig
+from ..training.data import evaluate_arrays, folder_batches, painted_batches, training_data
+from ..training.loop import TrainConfig, train
+from .options import add_config_options, config_from_options
+
+# ----------------------------------------------------------------------------- command line
+
+
+def add_train_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options of ``ncjax train``."""
+    parser.add_argument(
+        "--data",
+        nargs="+",
+        default=["painted"],
+        help="dataset folders (ncjax synth or the authors') or synth:SEED:N (the N rooms `ncjax synth --seed SEED` "
+        "writes, rendered in memory); their splits are pooled, validation takes the first --validation-limit "
+        "images of the pool. Or 'painted'",
+    )
+    parser.add_argument("--preset", default="compact", choices=sorted(PRESETS), help="the architecture")
+    parser.add_argument(
+        "--corner-base",
+        type=float,
+        help="the corner output's encoding base**d (default: the preset's, HorizonNet's 0.96)",
+    )
+    parser.add_argument(
+        "--init-from", help="start from this model file's weights (fine-tuning) when no checkpoint is resumed"
+    )
+    parser.add_argument(
+        "--steps", type=int, default=1000, help="total optimisation steps (a resumed run does the rest)"
+    )
+    parser.add_argument("--batch-size", type=int, default=4)
+    parser.add_argument("--checkpoint-dir", default="checkpoints/horizonnet")
+    parser.add_argument("--checkpoint-every", type=int, default=250)
+    parser.add_argument(
+        "--validate-every", type=int, default=500, help="steps between validations (0: only at the end)"
+    )
+    parser.add_argument("--validation-limit", type=int, default=64, help="validation images (the 'valid' split)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-resume", action="store_true", help="start afresh even if checkpoints exist")
+    parser.add_argument("--history", help="write the loss and validation history to this json file")
+    parser.add_argument("--export", help="also save the final weights (model only) to this .safetensors file")
+    add_config_options(
+        parser,
+        TrainConfig(),
+        title="optimiser and augmentations (TrainConfig)",
+        skip=("total_steps",),
+        aliases={"peak_learning_rate": "--learning-rate"},
+    )
+
+
+def run_train(args: argparse.Namespace) -> int:
+    """``ncjax train``: train (or resume) a preset on a dataset folder or the painted stand-in data."""
+    if args.steps < 1 or args.batch_size < 1:
+        raise ValueError(f"--steps and --batch-size must be positive, got {args.steps} and {args.batch_size}")
+    config = HorizonNetConfig.preset(args.preset)
+    if args.corner_base is not None:
+        config = dataclasses.replace(config, corner_base=args.corner_base)
+    if args.init_from is not None:
+        check_warm_start(args.init_from, config)  # a wrong file fails here, before the data is read
+    height, width = config.input_height, config.input_width
+    train_config = config_from_options(args, TrainConfig(total_steps=args.steps))
+    validate = None
+    if args.data == ["painted"]:
+        data = painted_batches(args.seed, args.batch_size, height, width)
+    else:
+        train_arrays, valid = training_data(args.data, height, width, args.validation_limit)
+        data = folder_batches(train_arrays, args.batch_size, args.seed)
+
+        def validate(model, step):
+            return evaluate_arrays(model, valid)
+
+    result = train(
+        config,
+        data,
+        args.steps,
+        args.checkpoint_dir,
+        train_config=train_config,
+        checkpoint_every=args.checkpoint_every,
+        validate=validate,
+        validate_every=args.validate_every,
+        seed=args.seed,
+        resume=not args.no_resume,
+        initial_weights=args.init_from,
+    )
+    losses = [h["loss"] for h in result.history if "loss" in h]
+    if losses:
+        print(f"step {result.step}: mean loss of the last 20 steps {np.mean(losses[-20:]):.4f}")
+    for record in (h for h in result.history if "val_pe_mean" in h):
+        print(
+            f"step {record['step']}: valid PE {record['val_pe_mean']:.2f} px, corner precision "
+            f"{record['val_precision']:.3f}, recall {record['val_recall']:.3f}"
+        )
+    if args.history:
+        pathlib.Path(args.history).write_text(json.dumps(result.history) + "\n")
+    if args.export:
+        from ..network.checkpoint import save_model
+
+        save_model(result.model, args.export)
+        print(f"saved the model to {args.export}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone ``ncjax train`` (same as the console script's sub-command)."""
+    parser = argparse.ArgumentParser(prog="ncjax train", description="Train Non-central HorizonNet.")
+    add_train_arguments(parser)
+    return run_train(parser.parse_args(argv))

@@ -1,0 +1,8 @@
+"""Geometry of the non-central camera (paper Section 3).
+
+- ``camera``: :class:`NonCentralPanorama`, the pixel <-> angle <-> ray maps and projection (eqs. 1-3).
+- ``plucker``: Plücker lines, the side operator and the horizontal wall lines (Section 3.1).
+- ``linalg``: null spaces and safe divisions for the solvers.
+- ``reprojection``: a wall's boundary rows in the image, and plan lines through boundary points.
+- ``fastmath``: a float32 arctangent that vectorises.
+"""

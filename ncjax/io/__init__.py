@@ -1,0 +1,1 @@
+"""Files: panoramas in (``images``), layouts out as JSON (``export``) and meshes (``mesh``), atomically (``files``)."""

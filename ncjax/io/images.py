@@ -1,0 +1,157 @@
+"""Reading panoramas from files for ``ncjax reconstruct``: every way a file can be wrong gets a clear message.
+
+Accepted: anything OpenCV decodes (PNG, JPEG, TIFF, BMP, WebP, ...) as 8- or
+16-bit greyscale, RGB or RGBA. 16-bit images are scaled to 8 bits
+(``round(x / 257)``), greyscale is repeated into three channels and the alpha
+channel is dropped (panoramas have no transparency; the colour is kept as
+stored). The panorama must be full (360 x 180 degrees, width = 2 x height).
+Stitching tools often write a row or a column more or fewer: an image within
+:data:`ASPECT_TOLERANCE` of 2:1 is resized to exactly 2:1 with a
+:class:`PanoramaResizeWarning` (the rows then move by at most that fraction
+of their elevation, under a pixel for rows within 45 degrees of the horizon at
+512 rows); any other shape is refused. A panorama wider than :data:`MAX_WIDTH`
+is reconstructed at ``MAX_WIDTH x MAX_WIDTH / 2`` (the same warning): the
+network reads 1024 x 512 anyway, 4096 columns gave no measurably smaller
+room-height error than 2048 on our renders (``experiments/resolution.py``),
+and memory and time grow with the image (a batch of four 4096 x 2048
+panoramas peaks at 5.6 GB, four 2048 x 1024 at 2.4 GB; 4096 columns take
+2.2-2.5 times as long).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+import cv2
+import numpy as np
+
+ASPECT_TOLERANCE = 0.005  # relative departure of width / height from 2 that is resized instead of refused
+MAX_WIDTH = 2048  # the widest panorama ncjax reconstruct works at
+_JPEG_END = b"\xff\xd9"
+_PNG_END = b"IEND\xaeB`\x82"
+
+
+class PanoramaError(ValueError):
+    """A panorama file that cannot be used (the message says why)."""
+
+
+class PanoramaResizeWarning(UserWarning):
+    """A panorama file a little off 2:1, or wider than :data:`MAX_WIDTH`, was resized (the message gives both sizes)."""
+
+
+def _truncation(data: bytes) -> str | None:
+    """Why a JPEG or PNG file is cut short, or None (OpenCV may decode a truncated JPEG silently)."""
+    if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(_JPEG_END):
+        return "the JPEG data ends before its end marker (truncated file?)"
+    if data.startswith(b"\x89PNG") and not data.endswith(_PNG_END):
+        return "the PNG data ends before its IEND chunk (truncated file?)"
+    return None
+
+
+def to_rgb8(image: np.ndarray) -> np.ndarray:
+    """An OpenCV-decoded array (BGR order, 8/16 bit, 1/3/4 channels) as RGB uint8 (H, W, 3)."""
+    if image.dtype == np.uint16:
+        image = np.round(image.astype(np.float32) / 257.0).astype(np.uint8)
+    elif image.dtype != np.uint8:
+        raise PanoramaError(f"unsupported pixel type {image.dtype} (8- or 16-bit images only)")
+    if image.ndim == 2:
+        image = image[..., None]
+    channels = image.shape[-1]
+    if channels == 1:
+        return np.repeat(image, 3, axis=-1)
+    if channels == 3:
+        return image[..., ::-1].copy()
+    if channels == 4:
+        return image[..., 2::-1].copy()
+    raise PanoramaError(f"unsupported number of channels: {channels}")
+
+
+def panorama_size_error(width: int, height: int) -> str | None:
+    """Why a ``width x height`` image cannot be a full 360 x 180 degree panorama, or None.
+
+    The network and the camera model read the image as the whole sphere, so
+    the aspect ratio must be 2:1.
+    """
+    if width != 2 * height or height < 32:
+        return (
+            f"{width} x {height} pixels is not a full 360 x 180 degree panorama "
+            "(width must be 2 x height, at least 64 x 32)"
+        )
+    return None
+
+
+def nearly_full_panorama(width: int, height: int) -> bool:
+    """Whether a ``width x height`` image is within :data:`ASPECT_TOLERANCE` of 2:1 without being 2:1."""
+    return width != 2 * height and height >= 32 and abs(width / (2 * height) - 1) <= ASPECT_TOLERANCE
+
+
+def working_size(width: int, height: int) -> tuple[int, str] | None:
+    """The width a panorama read from a file is resized to (its height is half) and why, or None to keep it.
+
+    Near 2:1 images become exactly 2:1 (the width rounded to even), and
+    nothing becomes wider than :data:`MAX_WIDTH`; other shapes are left for
+    :func:`panorama_size_error` to refuse.
+    """
+    reasons = []
+    if nearly_full_panorama(width, height):
+        reasons.append("is not exactly 2:1")
+    if width > MAX_WIDTH and (reasons or width == 2 * height):
+        reasons.append(f"is wider than {MAX_WIDTH}")
+    if not reasons:
+        return None
+    return min(2 * round(width / 2), MAX_WIDTH), " and ".join(reasons)
+
+
+def read_panorama(path: str | os.PathLike) -> np.ndarray:
+    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H.
+
+    Warns:
+        PanoramaResizeWarning: the file is within :data:`ASPECT_TOLERANCE` of
+            2:1 and was resized to exactly 2:1, or it was wider than
+            :data:`MAX_WIDTH` and was resized to that width.
+
+    Raises:
+        PanoramaError: missing, unreadable, truncated, not an image, an
+            unsupported pixel format, or not 2:1.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise PanoramaError(f"{path}: no such file")
+    with open(path, "rb") as file:
+        data = file.read()
+    if not data:
+        raise PanoramaError(f"{path}: the file is empty")
+    truncated = _truncation(data)
+    if truncated:
+        raise PanoramaError(f"{path}: {truncated}")
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise PanoramaError(f"{path}: not an image OpenCV can decode (corrupt or unsupported format)")
+    try:
+        image = to_rgb8(image)
+    except PanoramaError as error:
+        raise PanoramaError(f"{path}: {error}") from None
+    resize = working_size(*image.shape[1::-1])
+    if resize is not None:
+        width, reason = resize
+        resized = cv2.resize(image, (width, width // 2), interpolation=cv2.INTER_AREA)
+        warnings.warn(
+            f"{path}: {image.shape[1]} x {image.shape[0]} pixels {reason}; "
+            f"resized to {resized.shape[1]} x {resized.shape[0]} as a full 360 x 180 degree panorama",
+            PanoramaResizeWarning,
+            stacklevel=2,
+        )
+        image = resized
+    size_error = panorama_size_error(*image.shape[1::-1])
+    if size_error:
+        raise PanoramaError(f"{path}: {size_error}")
+    return image
+
+
+def check_rgb(image) -> np.ndarray:
+    """``image`` as a numpy array, or a ValueError unless it is an RGB uint8 image (H, W, 3)."""
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+        raise ValueError(f"expected an RGB uint8 image (H, W, 3), got {image.dtype} {image.shape}")
+    return image

@@ -1,0 +1,154 @@
+"""Checkpoints of :class:`~ncjax.network.model.HorizonNet` in safetensors (no pickle).
+
+One ``.safetensors`` file holds named raw tensors plus string metadata, so a
+round trip is bit-exact and loading never executes code. Tensor names are the
+``/``-joined NNX state paths, prefixed ``model/`` (parameters and batch-norm
+statistics) and ``optimizer/`` (the optax state and step of an
+``nnx.Optimizer``, training checkpoints only). Metadata: ``format``
+(``"ncjax-horizonnet"``), ``format_version``, ``config`` (the
+:class:`HorizonNetConfig` as JSON), ``step`` and, for training checkpoints,
+``train_config`` (JSON).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pathlib
+
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from safetensors import safe_open
+from safetensors.numpy import load_file, save_file
+
+from .model import HorizonNet, HorizonNetConfig, abstract_model
+
+FORMAT = "ncjax-horizonnet"
+FORMAT_VERSION = "1"
+_MODEL_STATE = nnx.Any(nnx.Param, nnx.BatchStat)
+_OPTIMIZER_STATE = nnx.OptState
+
+
+def _flat_arrays(state, prefix: str) -> dict[str, np.ndarray]:
+    return {
+        prefix + "/".join(str(part) for part in path): np.asarray(variable.get_value())
+        for path, variable in nnx.to_flat_state(state)
+    }
+
+
+def _restore(node, state_filter, tensors: dict[str, np.ndarray], prefix: str, path: str) -> None:
+    """Copy ``tensors[prefix + ...]`` into ``node``'s state, checking names, shapes and dtypes."""
+    flat = nnx.to_flat_state(nnx.state(node, state_filter))
+    names = [prefix + "/".join(str(part) for part in p) for p, _ in flat]
+    stored = {name for name in tensors if name.startswith(prefix)}
+    if set(names) != stored:
+        missing, unexpected = sorted(set(names) - stored), sorted(stored - set(names))
+        raise ValueError(
+            f"{path}: checkpoint does not match the model; missing {missing[:5]}, unexpected {unexpected[:5]}"
+        )
+    for name, (_, variable) in zip(names, flat, strict=True):
+        value, current = tensors[name], variable.get_value()
+        if value.shape != current.shape or value.dtype != current.dtype:
+            raise ValueError(
+                f"{path}: {name} is {value.dtype}{value.shape}, the model expects {current.dtype}{current.shape}"
+            )
+        variable.set_value(jnp.asarray(value))
+    nnx.update(node, nnx.from_flat_state(flat))
+
+
+def save_checkpoint(
+    path: str | os.PathLike,
+    model: HorizonNet,
+    optimizer: nnx.Optimizer | None = None,
+    *,
+    step: int = 0,
+    train_config_json: str | None = None,
+) -> None:
+    """Write ``model`` (and ``optimizer``) to ``path`` atomically (temporary file, then rename)."""
+    path = pathlib.Path(path)
+    tensors = _flat_arrays(nnx.state(model, _MODEL_STATE), "model/")
+    metadata = {"format": FORMAT, "format_version": FORMAT_VERSION, "config": model.config.to_json(), "step": str(step)}
+    if optimizer is not None:
+        tensors |= _flat_arrays(nnx.state(optimizer, _OPTIMIZER_STATE), "optimizer/")
+    if train_config_json is not None:
+        metadata["train_config"] = train_config_json
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_suffix(path.suffix + ".tmp")
+    save_file(tensors, temporary, metadata=metadata)
+    os.replace(temporary, path)
+
+
+def read_metadata(path: str | os.PathLike) -> dict[str, str]:
+    """The string metadata of a checkpoint (config, step, ...), without reading the tensors."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint at {path}")
+    with safe_open(path, framework="numpy") as f:
+        metadata = f.metadata() or {}
+    if metadata.get("format") != FORMAT:
+        raise ValueError(f"{path} is not an ncjax HorizonNet checkpoint (format {metadata.get('format')!r})")
+    if metadata.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"{path}: unsupported checkpoint version {metadata.get('format_version')!r}")
+    return metadata
+
+
+def load_checkpoint(path: str | os.PathLike, optimizer_factory=None) -> tuple[HorizonNet, nnx.Optimizer | None, int]:
+    """Read a checkpoint written by :func:`save_checkpoint`.
+
+    Args:
+        path: the ``.safetensors`` file.
+        optimizer_factory: ``(model, train_config_json) -> nnx.Optimizer`` building an
+            optimizer of the same structure, whose state is then restored; None
+            to load the model only.
+
+    Returns:
+        ``(model, optimizer or None, step)``; the model is in eval mode.
+    """
+    metadata = read_metadata(path)
+    config = HorizonNetConfig.from_json(metadata["config"])
+    tensors = load_file(path)
+    model = abstract_model(config)
+    _restore(model, _MODEL_STATE, tensors, "model/", str(path))
+    optimizer = None
+    if optimizer_factory is not None:
+        if not any(name.startswith("optimizer/") for name in tensors):
+            raise ValueError(f"{path} holds no optimizer state (a model file, not a training checkpoint)")
+        optimizer = nnx.eval_shape(lambda m: optimizer_factory(m, metadata.get("train_config")), model)
+        _restore(optimizer, _OPTIMIZER_STATE, tensors, "optimizer/", str(path))
+    model.eval()
+    return model, optimizer, int(metadata["step"])
+
+
+def save_model(model: HorizonNet, path: str | os.PathLike) -> None:
+    """Save the weights and batch statistics of ``model`` (no optimizer) to a ``.safetensors`` file."""
+    save_checkpoint(path, model)
+
+
+def load_model(path: str | os.PathLike) -> HorizonNet:
+    """Load a model saved by :func:`save_model` (or a training checkpoint), in eval mode."""
+    return load_checkpoint(path)[0]
+
+
+def check_warm_start(path: str | os.PathLike, config: HorizonNetConfig) -> None:
+    """Raise ValueError unless the file's architecture is ``config``'s, the corner encoding aside (metadata only).
+
+    ``corner_base`` may differ: that is how a trained model is fine-tuned to a
+    sharper corner target.
+    """
+    stored = HorizonNetConfig.from_json(read_metadata(path)["config"])
+    if dataclasses.replace(stored, corner_base=config.corner_base) != config:
+        raise ValueError(f"{path} holds a {stored}, which cannot start a {config}")
+
+
+def load_weights(path: str | os.PathLike, config: HorizonNetConfig) -> HorizonNet:
+    """The weights of a model or checkpoint file in a model built from ``config`` (train mode): a warm start.
+
+    Raises:
+        ValueError: the file was written for another architecture (:func:`check_warm_start`).
+    """
+    check_warm_start(path, config)
+    model = abstract_model(config)
+    _restore(model, _MODEL_STATE, load_file(path), "model/", str(path))
+    model.train()
+    return model

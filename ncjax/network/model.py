@@ -1,0 +1,563 @@
+"""Non-central HorizonNet in Flax NNX (paper Section "Non-central HorizonNet").
+
+The architecture is HorizonNet's (Sun et al., CVPR 2019), as the paper adapts
+it, written from its description:
+
+1. a backbone giving four feature maps at strides 4, 8, 16 and 32: a ResNet
+   (18, 34 or 50 layers, NHWC, optional width multiplier, trained from
+   scratch) or EfficientNet-Lite0 (:mod:`.efficientnet`, started from its
+   ImageNet weights: the way to real photographs);
+2. per map a *height compression* (HorizonNet's "global height conv"): four
+   3x3 convolutions of stride (2, 1), each with batch norm and ReLU, taking
+   ``c`` channels to ``c/2, c/2, c/4, c/8``; the remaining height is folded
+   into the channels, so each map becomes one feature vector per column;
+3. wrap-aware linear upsampling of the four column sequences to a common
+   width ``W / step_cols`` and concatenation: the LSTM input size is
+   ``sum_i (c_i / 8) * h_i`` with ``h_i`` the compressed heights, fixed by the
+   input shape (:func:`column_feature_size`);
+4. a 2-layer bidirectional LSTM over the ``W / step_cols`` positions, each
+   position predicting ``step_cols`` consecutive columns (HorizonNet's
+   ``step_cols = 4``; the paper keeps HorizonNet unchanged);
+5. a linear head giving per column the ceiling-boundary and floor-boundary
+   *elevations* in radians and the corner logit.
+
+The panorama is 360 degrees wide, so every convolution (and the stem's max
+pool) pads the width circularly and the height with zeros, and the
+upsampling wraps around: the convolutional features of a panorama rolled by
+a multiple of 32 columns are the rolled features (tested). The LSTM runs from
+column 0 to column W - 1 and back, so the final output is only approximately
+roll-equivariant, as in HorizonNet.
+
+Boundary encoding: the network predicts elevations ``phi`` (radians, positive
+up; HorizonNet's ``bon`` is ``-phi``), so the L1 loss is "in radians" as in
+HorizonNet, independent of the image size. :func:`elevation_to_row` turns them
+into pixel rows with the camera's row convention (docs/design.md section 2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import nnx
+from jaxtyping import Array, ArrayLike, Float
+
+from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
+from .efficientnet import LITE0, LITE0_FEATURE_CHANNELS, EfficientNet, load_efficientnet_lite0
+
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+# Blocks per stage of the ResNets of He et al. (2016); 10 is the one-block-per-stage
+# basic-block variant (cheap to compile: tests and small models).
+_RESNET_STAGES = {10: (1, 1, 1, 1), 18: (2, 2, 2, 2), 34: (3, 4, 6, 3), 50: (3, 4, 6, 3)}
+
+BACKBONES = ("resnet", "efficientnet_lite0")
+# EfficientNet-Lite0 as a backbone: wrap-around width padding, no ImageNet classifier.
+LITE0_BACKBONE = dataclasses.replace(LITE0, circular_width=True, classifier=False)
+
+
+# ----------------------------------------------------------------------------- configuration
+
+
+@dataclasses.dataclass(frozen=True)
+class HorizonNetConfig:
+    """Static architecture of :class:`HorizonNet` (hashable, JSON round-trippable).
+
+    Attributes:
+        backbone: ``"resnet"`` (a ResNet of ``depth`` and ``width``, trained
+            from scratch) or ``"efficientnet_lite0"`` (EfficientNet-Lite0,
+            :data:`LITE0_BACKBONE`, which :func:`init_model` starts from its
+            ImageNet weights; ``depth`` and ``width`` are then ignored). Files
+            written before this field existed load with ``"resnet"``.
+        depth: ResNet depth, 10, 18, 34 (basic blocks) or 50 (bottlenecks).
+        width: channels of the ResNet stem; stage ``i`` has ``width * 2**i``
+            (times 4 for bottlenecks). 64 is the standard ResNet.
+        input_height, input_width: image size the network is built for (both
+            multiples of 32; the LSTM input size depends on the height, the
+            sequence length on the width).
+        lstm_hidden: hidden units per direction of each LSTM layer.
+        lstm_layers: stacked bidirectional LSTM layers (2 in HorizonNet).
+        step_cols: columns predicted per LSTM position (1, 2 or 4; 4 in HorizonNet).
+        dropout: dropout rate between and after the LSTM layers (0.5 in HorizonNet).
+        corner_base: the corner output's encoding ``corner_base**d``, ``d`` in
+            output columns to the nearest corner. HorizonNet's 0.96 (the
+            labels' encoding, docs/design.md section 5) makes lobes 30-70 columns
+            wide at our 512 output columns, wider than the gaps between close
+            corners; a sharper base separates them. Files written before this
+            field existed load with 0.96.
+    """
+
+    backbone: str = "resnet"
+    depth: int = 18
+    width: int = 32
+    input_height: int = 256
+    input_width: int = 512
+    lstm_hidden: int = 128
+    lstm_layers: int = 2
+    step_cols: int = 4
+    dropout: float = 0.5
+    corner_base: float = 0.96
+
+    def __post_init__(self):
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"backbone must be one of {BACKBONES}, got {self.backbone!r}")
+        if self.depth not in _RESNET_STAGES:
+            raise ValueError(f"depth must be one of {sorted(_RESNET_STAGES)}, got {self.depth}")
+        if self.width < 8 or self.width % 8:
+            raise ValueError(
+                f"width must be a positive multiple of 8 (channels / 8 after compression), got {self.width}"
+            )
+        if self.input_height % 32 or self.input_width % 32 or self.input_height <= 0 or self.input_width <= 0:
+            raise ValueError(
+                f"input size must be positive multiples of 32, got {self.input_height} x {self.input_width}"
+            )
+        if self.step_cols not in (1, 2, 4):
+            raise ValueError(f"step_cols must be 1, 2 or 4 (so every stage is upsampled), got {self.step_cols}")
+        if self.lstm_hidden <= 0 or self.lstm_layers <= 0:
+            raise ValueError("lstm_hidden and lstm_layers must be positive")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if not 0.0 < self.corner_base < 1.0:
+            raise ValueError(f"corner_base must be in (0, 1), got {self.corner_base}")
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> HorizonNetConfig:
+        return cls(**json.loads(text))
+
+    @classmethod
+    def preset(cls, name: str) -> HorizonNetConfig:
+        """A named configuration (:data:`PRESETS`): "paper", "resnet18", "compact", "compact1024" or "lite0-1024"."""
+        if name not in PRESETS:
+            raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
+        return PRESETS[name]
+
+
+PRESETS: dict[str, HorizonNetConfig] = {
+    # The paper's network: HorizonNet with ResNet-50 at 512 x 1024.
+    "paper": HorizonNetConfig(depth=50, width=64, input_height=512, input_width=1024, lstm_hidden=512),
+    # HorizonNet's lighter variant, same input.
+    "resnet18": HorizonNetConfig(depth=18, width=64, input_height=512, input_width=1024, lstm_hidden=512),
+    # Half-width ResNet-18 at 256 x 512, small LSTM (<= 4M parameters): the earlier shipped model.
+    "compact": HorizonNetConfig(depth=18, width=32, input_height=256, input_width=512, lstm_hidden=96),
+    # The shipped default: the compact network at the full 512 x 1024 input, rows and
+    # corners at the panorama's own resolution for four times the convolution work.
+    "compact1024": HorizonNetConfig(depth=18, width=32, input_height=512, input_width=1024, lstm_hidden=96),
+    # compact1024's LSTM and heads on EfficientNet-Lite0 started from ImageNet: towards real photographs.
+    "lite0-1024": HorizonNetConfig(backbone="efficientnet_lite0", input_height=512, input_width=1024, lstm_hidden=96),
+}
+
+
+def stage_channels(config: HorizonNetConfig) -> tuple[int, int, int, int]:
+    """Channels of the backbone's four feature maps (strides 4, 8, 16 and 32)."""
+    if config.backbone == "efficientnet_lite0":
+        return LITE0_FEATURE_CHANNELS
+    expansion = 4 if config.depth == 50 else 1
+    return tuple(config.width * 2**i * expansion for i in range(4))
+
+
+def _compressed_height(height: int) -> int:
+    """Height after the four stride-(2, 1) 3x3 convolutions with padding 1."""
+    for _ in range(4):
+        height = (height - 1) // 2 + 1
+    return height
+
+
+def column_feature_size(config: HorizonNetConfig) -> int:
+    """LSTM input size: the compressed channels times compressed heights, summed over stages."""
+    heights = [config.input_height // 2 ** (i + 2) for i in range(4)]
+    return sum(c // 8 * _compressed_height(h) for c, h in zip(stage_channels(config), heights, strict=True))
+
+
+# ----------------------------------------------------------------------------- wrap-aware ops
+
+
+def circular_pad_width(x: Float[Array, "*batch H W C"], pad: int) -> Float[Array, "*batch H _ C"]:
+    """Pad the width (axis -2) with the opposite edge of the 360-degree panorama."""
+    if pad == 0:
+        return x
+    return jnp.concatenate([x[..., -pad:, :], x, x[..., :pad, :]], axis=-2)
+
+
+def resample_columns(x: Float[Array, "*batch W C"], width: int) -> Float[Array, "*batch {width} C"]:
+    """Linear resampling of a 360-degree sequence of columns (axis -2) to ``width`` columns.
+
+    Column ``j`` of the output has its centre at ``(j + 0.5) * W / width - 0.5``
+    input columns (pixel centres aligned, like ``align_corners=False``) and
+    interpolates its two neighbours modulo ``W``, so the seam is treated like
+    any other column. For integer upsampling factors this is HorizonNet's
+    "pad one column each side, interpolate, crop".
+    """
+    source_width = x.shape[-2]
+    position = (jnp.arange(width) + 0.5) * (source_width / width) - 0.5
+    left = jnp.floor(position)
+    weight = (position - left)[:, None]
+    left = left.astype(jnp.int32) % source_width
+    right = (left + 1) % source_width
+    return jnp.take(x, left, axis=-2) * (1.0 - weight) + jnp.take(x, right, axis=-2) * weight
+
+
+# ----------------------------------------------------------------------------- layers
+
+# torchvision's ResNet initialisation (He et al. 2015, fan-out).
+_he_fan_out = nnx.initializers.variance_scaling(2.0, "fan_out", "normal")
+
+
+class WrapConv(nnx.Module):
+    """Square convolution, circular padding along the width, zero padding along the height.
+
+    Padding ``kernel // 2`` on each side (odd kernels), like PyTorch's
+    ``padding=k//2`` except that the width wraps around.
+    """
+
+    def __init__(
+        self, in_channels: int, out_channels: int, kernel: int, strides=(1, 1), *, use_bias: bool, rngs: nnx.Rngs
+    ):
+        self.pad = kernel // 2
+        self.conv = nnx.Conv(
+            in_channels,
+            out_channels,
+            (kernel, kernel),
+            strides=strides,
+            padding=((self.pad, self.pad), (0, 0)),
+            use_bias=use_bias,
+            kernel_init=_he_fan_out,
+            rngs=rngs,
+        )
+
+    def __call__(self, x: Float[Array, "B H W C"]) -> Float[Array, "B h w D"]:
+        return self.conv(circular_pad_width(x, self.pad))
+
+
+def _batch_norm(channels: int, rngs: nnx.Rngs, zero_scale: bool = False) -> nnx.BatchNorm:
+    # PyTorch's BatchNorm2d defaults (momentum 0.1 there is 1 - 0.9 here).
+    return nnx.BatchNorm(
+        channels,
+        momentum=0.9,
+        epsilon=1e-5,
+        scale_init=nnx.initializers.zeros if zero_scale else nnx.initializers.ones,
+        rngs=rngs,
+    )
+
+
+class ConvBatchNorm(nnx.Module):
+    """WrapConv (no bias) followed by batch norm."""
+
+    def __init__(self, in_channels, out_channels, kernel, strides=(1, 1), *, zero_scale=False, rngs: nnx.Rngs):
+        self.conv = WrapConv(in_channels, out_channels, kernel, strides, use_bias=False, rngs=rngs)
+        self.norm = _batch_norm(out_channels, rngs, zero_scale)
+
+    def __call__(self, x):
+        return self.norm(self.conv(x))
+
+
+class BasicBlock(nnx.Module):
+    """Two 3x3 convolutions with a residual connection (ResNet-18/34).
+
+    The last batch norm scale starts at zero so every block starts as the
+    identity (Goyal et al. 2017), which helps training from scratch.
+    """
+
+    expansion = 1
+
+    def __init__(self, in_channels: int, channels: int, stride: int, *, rngs: nnx.Rngs):
+        self.first = ConvBatchNorm(in_channels, channels, 3, (stride, stride), rngs=rngs)
+        self.second = ConvBatchNorm(channels, channels, 3, zero_scale=True, rngs=rngs)
+        needs_projection = stride != 1 or in_channels != channels
+        self.shortcut = (
+            ConvBatchNorm(in_channels, channels, 1, (stride, stride), rngs=rngs) if needs_projection else None
+        )
+
+    def __call__(self, x):
+        residual = x if self.shortcut is None else self.shortcut(x)
+        return nnx.relu(self.second(nnx.relu(self.first(x))) + residual)
+
+
+class Bottleneck(nnx.Module):
+    """1x1, 3x3 (strided, torchvision's "ResNet v1.5"), 1x1 x4 with a residual connection (ResNet-50)."""
+
+    expansion = 4
+
+    def __init__(self, in_channels: int, channels: int, stride: int, *, rngs: nnx.Rngs):
+        out_channels = channels * self.expansion
+        self.reduce = ConvBatchNorm(in_channels, channels, 1, rngs=rngs)
+        self.spatial = ConvBatchNorm(channels, channels, 3, (stride, stride), rngs=rngs)
+        self.expand = ConvBatchNorm(channels, out_channels, 1, zero_scale=True, rngs=rngs)
+        needs_projection = stride != 1 or in_channels != out_channels
+        self.shortcut = (
+            ConvBatchNorm(in_channels, out_channels, 1, (stride, stride), rngs=rngs) if needs_projection else None
+        )
+
+    def __call__(self, x):
+        residual = x if self.shortcut is None else self.shortcut(x)
+        y = nnx.relu(self.spatial(nnx.relu(self.reduce(x))))
+        return nnx.relu(self.expand(y) + residual)
+
+
+class ResNet(nnx.Module):
+    """ResNet trunk (no pooling head) returning the four stage outputs, strides 4 to 32."""
+
+    def __init__(self, depth: int, width: int, *, rngs: nnx.Rngs):
+        block = Bottleneck if depth == 50 else BasicBlock
+        self.stem = ConvBatchNorm(3, width, 7, (2, 2), rngs=rngs)
+        in_channels = width
+        self.stages = nnx.List()
+        for i, blocks in enumerate(_RESNET_STAGES[depth]):
+            channels = width * 2**i
+            stage = nnx.List()
+            for j in range(blocks):
+                stride = 2 if i > 0 and j == 0 else 1
+                stage.append(block(in_channels, channels, stride, rngs=rngs))
+                in_channels = channels * block.expansion
+            self.stages.append(stage)
+
+    def __call__(self, x: Float[Array, "B H W 3"]) -> list[Array]:
+        x = nnx.relu(self.stem(x))
+        # Max pool 3x3 / 2: circular in width, -inf padding in height.
+        x = nnx.max_pool(circular_pad_width(x, 1), (3, 3), strides=(2, 2), padding=((1, 1), (0, 0)))
+        features = []
+        for stage in self.stages:
+            for block in stage:
+                x = block(x)
+            features.append(x)
+        return features
+
+
+class HeightCompression(nnx.Module):
+    """HorizonNet's global height conv: four (3x3 / (2, 1) conv, BN, ReLU), c -> c/8 channels.
+
+    The output ``(B, h, W, c/8)`` is folded into one feature vector per
+    column, ordered channel-major (``c * h + row``, PyTorch's ``reshape`` of
+    an NCHW tensor, so that HorizonNet weights could be mapped one to one).
+    """
+
+    def __init__(self, channels: int, *, rngs: nnx.Rngs):
+        widths = [channels, channels // 2, channels // 2, channels // 4, channels // 8]
+        self.convs = nnx.List(
+            [WrapConv(a, b, 3, (2, 1), use_bias=True, rngs=rngs) for a, b in zip(widths[:-1], widths[1:], strict=True)]
+        )
+        self.norms = nnx.List([_batch_norm(b, rngs) for b in widths[1:]])
+
+    def __call__(self, x: Float[Array, "B H W C"]) -> Float[Array, "B W F"]:
+        for conv, norm in zip(self.convs, self.norms, strict=True):
+            x = nnx.relu(norm(conv(x)))
+        batch, height, width, channels = x.shape
+        return jnp.transpose(x, (0, 2, 3, 1)).reshape(batch, width, channels * height)
+
+
+class BidirectionalLSTM(nnx.Module):
+    """Stacked bidirectional LSTM over the column sequence, dropout between and after layers.
+
+    Each layer runs one LSTM left to right and one right to left from zero
+    states and concatenates their outputs (PyTorch's ``bidirectional=True``).
+    """
+
+    def __init__(self, in_features: int, hidden: int, layers: int, dropout: float, *, rngs: nnx.Rngs):
+        self.hidden = hidden
+        self.forward = nnx.List()
+        self.backward = nnx.List()
+        for i in range(layers):
+            size = in_features if i == 0 else 2 * hidden
+            self.forward.append(nnx.RNN(nnx.OptimizedLSTMCell(size, hidden, rngs=rngs), rngs=False))
+            self.backward.append(
+                nnx.RNN(nnx.OptimizedLSTMCell(size, hidden, rngs=rngs), reverse=True, keep_order=True, rngs=False)
+            )
+        self.dropout = nnx.Dropout(dropout)
+
+    def __call__(self, x: Float[Array, "B S F"], dropout_key: Array | None = None) -> Float[Array, "B S H2"]:
+        layers = len(self.forward)
+        keys = [None] * layers if dropout_key is None else list(jax.random.split(dropout_key, layers))
+        zero_state = (jnp.zeros((x.shape[0], self.hidden), x.dtype),) * 2
+        for forward, backward, key in zip(self.forward, self.backward, keys, strict=True):
+            both = [forward(x, initial_carry=zero_state), backward(x, initial_carry=zero_state)]
+            x = self.dropout(jnp.concatenate(both, axis=-1), rngs=key)
+        return x
+
+
+class BoundaryPrediction(NamedTuple):
+    """Raw network output per column (a pytree).
+
+    Attributes:
+        ceiling_elevation, floor_elevation: (B, W) boundary elevations, radians (up positive).
+        corner_logit: (B, W) logit of the corner probability (target ``config.corner_base**d``).
+    """
+
+    ceiling_elevation: Float[Array, "B W"]
+    floor_elevation: Float[Array, "B W"]
+    corner_logit: Float[Array, "B W"]
+
+
+class HorizonNet(nnx.Module):
+    """Non-central HorizonNet (see the module docstring).
+
+    The backbone is ``config.backbone``'s: a :class:`ResNet` or an
+    :class:`~.efficientnet.EfficientNet` built from :data:`LITE0_BACKBONE`
+    (its feature maps only). Both take RGB images in [0, 1]: the ResNet's
+    input is normalised with ImageNet's mean and standard deviation here,
+    EfficientNet normalises its input itself.
+
+    State: ``nnx.Param`` (weights, trained) and ``nnx.BatchStat`` (batch-norm
+    running statistics, updated in train mode). ``model.train()`` uses batch
+    statistics and dropout, ``model.eval()`` the running statistics and no
+    dropout. The network was built for ``config.input_height x input_width``
+    but accepts any height and width that keep :func:`column_feature_size`
+    (same height) and are multiples of 32.
+    """
+
+    def __init__(self, config: HorizonNetConfig, *, rngs: nnx.Rngs):
+        self.config = config
+        if config.backbone == "efficientnet_lite0":
+            self.backbone = EfficientNet(LITE0_BACKBONE, rngs=rngs)
+        else:
+            self.backbone = ResNet(config.depth, config.width, rngs=rngs)
+        self.compressions = nnx.List([HeightCompression(c, rngs=rngs) for c in stage_channels(config)])
+        self.lstm = BidirectionalLSTM(
+            column_feature_size(config), config.lstm_hidden, config.lstm_layers, config.dropout, rngs=rngs
+        )
+        # Start near typical boundaries (ceiling above, floor below the horizon, few corners).
+        initial = jnp.repeat(jnp.array([0.5, -0.6, -1.0]), config.step_cols)
+        self.head = nnx.Linear(2 * config.lstm_hidden, 3 * config.step_cols, bias_init=lambda *_: initial, rngs=rngs)
+
+    def backbone_features(self, images: Float[Array, "B H W 3"]) -> list[Array]:
+        """The backbone's feature maps at strides 4, 8, 16 and 32 of RGB images in [0, 1]."""
+        if self.config.backbone == "efficientnet_lite0":
+            return list(self.backbone.features(images))
+        return self.backbone((images - jnp.asarray(IMAGENET_MEAN)) / jnp.asarray(IMAGENET_STD))
+
+    def column_features(self, images: Float[Array, "B H W 3"]) -> Float[Array, "B S F"]:
+        """Convolutional features per LSTM position, ``S = W / step_cols`` (roll-equivariant part)."""
+        sequence_length = images.shape[-2] // self.config.step_cols
+        columns = [
+            resample_columns(compress(f), sequence_length)
+            for compress, f in zip(self.compressions, self.backbone_features(images), strict=True)
+        ]
+        return jnp.concatenate(columns, axis=-1)
+
+    def __call__(self, images: Float[Array, "B H W 3"], *, dropout_key: Array | None = None) -> BoundaryPrediction:
+        """Per-column boundaries and corner logits of RGB images in [0, 1].
+
+        Args:
+            images: (B, H, W, 3) float in [0, 1], H and W multiples of 32.
+            dropout_key: a ``jax.random`` key, required in train mode when
+                ``config.dropout > 0`` (explicit keys keep training reproducible
+                from (seed, step) alone).
+        """
+        batch, _, width, _ = images.shape
+        features = self.lstm(self.column_features(images), dropout_key)
+        out = self.head(features).reshape(batch, width // self.config.step_cols, 3, self.config.step_cols)
+        out = jnp.moveaxis(out, 2, 0).reshape(3, batch, width)
+        return BoundaryPrediction(out[0], out[1], out[2])
+
+
+@functools.cache
+def _initialiser(config: HorizonNetConfig):
+    return nnx.jit(lambda key: HorizonNet(config, rngs=nnx.Rngs(key)))
+
+
+def init_model(config: HorizonNetConfig, seed: int = 0) -> HorizonNet:
+    """A freshly initialised :class:`HorizonNet` (train mode), a pure function of ``seed``.
+
+    With the ``"efficientnet_lite0"`` backbone, the backbone starts from the
+    shipped ImageNet weights and batch-norm statistics
+    (:func:`~.efficientnet.load_efficientnet_lite0`; its classifier is left
+    out), the rest from ``seed``; the ResNet backbone starts from ``seed``.
+
+    The initialisation runs as one compiled program from an ``"rbg"`` key
+    (XLA's random bit generator): on a CPU this compiles several times faster
+    than eager or threefry initialisation of the ~100 weight tensors. The
+    random values depend on the backend (CPU and GPU give different, equally
+    valid, initialisations).
+    """
+    model = _initialiser(config)(jax.random.key(seed, impl="rbg"))
+    if config.backbone == "efficientnet_lite0":
+        pretrained = nnx.state(load_efficientnet_lite0(circular_width=True))
+        nnx.update(model.backbone, nnx.State({name: pretrained[name] for name in nnx.state(model.backbone)}))
+    return model
+
+
+def abstract_model(config: HorizonNetConfig) -> HorizonNet:
+    """A :class:`HorizonNet` whose arrays are ``jax.ShapeDtypeStruct`` (nothing allocated)."""
+    # Built through the same (jitted) path as init_model so that both give equal
+    # graph definitions (nnx.jit would otherwise recompile for a loaded model).
+    return nnx.eval_shape(lambda: _initialiser(config)(jax.random.key(0, impl="rbg")))
+
+
+def count_parameters(config: HorizonNetConfig) -> int:
+    """Number of trainable parameters (``nnx.Param``), computed without allocating them."""
+    return sum(math.prod(x.shape) for x in jax.tree.leaves(nnx.state(abstract_model(config), nnx.Param)))
+
+
+# ----------------------------------------------------------------------------- encoding
+
+
+def elevation_to_row(elevation: Float[ArrayLike, "*batch"], height: int) -> Float[Array, "*batch"]:
+    """Sub-pixel row of an elevation in a full-sphere panorama of ``height`` rows (docs/design.md 2)."""
+    return angles_to_pixel(NonCentralPanorama(2 * height, height), 0.0, elevation)[1]
+
+
+def row_to_elevation(row: Float[ArrayLike, "*batch"], height: int) -> Float[Array, "*batch"]:
+    """Elevation (radians) of a sub-pixel row, inverse of :func:`elevation_to_row`."""
+    return pixel_to_angles(NonCentralPanorama(2 * height, height), 0.0, row)[1]
+
+
+@functools.partial(jax.jit, static_argnames=("height", "width"))
+def prediction_to_rows(
+    prediction: BoundaryPrediction, height: int, width: int
+) -> tuple[Float[Array, "B {width}"], Float[Array, "B {width}"], Float[Array, "B {width}"]]:
+    """Network output -> (ceiling_v, floor_v, corner_prob) for an image of ``height x width``.
+
+    The per-column values are resampled wrap-aware to ``width`` columns and the
+    elevations converted to sub-pixel rows of a ``height``-row image.
+    """
+    stacked = jnp.stack(
+        [prediction.ceiling_elevation, prediction.floor_elevation, jax.nn.sigmoid(prediction.corner_logit)], -1
+    )
+    ceiling, floor, corner_prob = jnp.moveaxis(resample_columns(stacked, width), -1, 0)
+    return elevation_to_row(ceiling, height), elevation_to_row(floor, height), corner_prob
+
+
+def check_views(views: int) -> None:
+    """Raise ValueError unless ``views`` is 1 or an even number (see :func:`predict_views`)."""
+    if not (isinstance(views, int) and (views == 1 or (views >= 2 and views % 2 == 0))):
+        raise ValueError(f"views must be 1 or an even number >= 2, got {views!r}")
+
+
+def predict_views(model: HorizonNet, images: Float[Array, "B H W 3"], views: int) -> BoundaryPrediction:
+    """The network's output averaged over ``views`` symmetric views of each panorama (test-time augmentation).
+
+    Rotating the rig about its vertical axis rolls the columns of a circular
+    panorama, and mirroring the room mirrors them (the rig is symmetric), so
+    every rolled and mirrored copy is a valid panorama of the same room: the
+    network's outputs on them, mapped back to the original columns, are
+    averaged (elevations and corner logits). ``views`` is 1 (the image alone)
+    or even: ``views / 2`` rolls evenly spaced over the width, each also
+    mirrored. The network has circular padding but its LSTM reads the columns
+    from a starting edge, so the views do differ; averaging them cuts the
+    boundary error (experiments/RESULTS.md).
+
+    Args:
+        images: (B, H, W, 3) at the network's input size, values in [0, 1].
+        views: static, 1 or an even number.
+    """
+    check_views(views)
+    width = images.shape[2]
+    if views == 1:
+        return model(images)
+    shifts = [width * i // (views // 2) for i in range(views // 2)]
+    rolled = [jnp.roll(images, shift, axis=2) for shift in shifts]
+    batch = jnp.concatenate([view for image in rolled for view in (image, image[:, :, ::-1])])
+    outputs = jax.tree.map(lambda x: x.reshape(views, images.shape[0], *x.shape[1:]), model(batch))
+
+    def back(view, x):
+        x = x[:, ::-1] if view % 2 else x
+        return jnp.roll(x, -shifts[view // 2] * x.shape[1] // width, axis=1)
+
+    return jax.tree.map(lambda x: jnp.mean(jnp.stack([back(view, x[view]) for view in range(views)]), 0), outputs)

@@ -1,0 +1,79 @@
+"""Step 6: corners where consecutive walls meet, Plücker lines and the status."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ..geometry.camera import NonCentralPanorama
+from ..geometry.plucker import horizontal_wall_line
+from ..solvers.wall import canonical_orientation
+from .adjust import loop_corners
+from .config import PipelineConfig
+from .types import FinalWalls, Layout, LayoutStatus, WallEvidence
+from .uncertainty import LayoutUncertainty, room_height_sigma
+
+
+def assemble_layout(
+    cam: NonCentralPanorama,
+    evidence: WallEvidence,
+    final: FinalWalls,
+    directions: Float[Array, "K 2"],
+    distances: Float[Array, " K"],
+    ceiling_height: Float[Array, ""],
+    floor_height: Float[Array, ""],
+    explained_fraction: Float[Array, ""],
+    uncertainty: LayoutUncertainty,
+    solver_ok: Bool[Array, ""],
+    manhattan: bool,
+    config: PipelineConfig,
+) -> Layout:
+    """Step 6: corners where consecutive walls meet, Plücker lines and the status."""
+    mask = final.mask
+    points, meet = loop_corners(directions, distances, mask)
+    directions, distances = canonical_orientation(directions, distances)
+    finite = jnp.all(jnp.isfinite(points)) & jnp.isfinite(ceiling_height) & jnp.isfinite(floor_height)
+    farthest = jnp.max(jnp.where(mask, jnp.linalg.norm(jnp.where(mask[:, None], points, 0.0), axis=-1), 0.0))
+    plausible = (ceiling_height - floor_height <= config.max_room_height) & (farthest <= config.max_corner_distance)
+    height_sigma = room_height_sigma(uncertainty.height_covariance)
+    scale_unknown = height_sigma > config.max_height_uncertainty * (ceiling_height - floor_height)
+    failed = jnp.stack(
+        [
+            ~(cam.rc > 1e-6),
+            jnp.mean(evidence.finite) < config.min_finite_fraction,
+            ~jnp.any(evidence.corner_mask),
+            evidence.corner_overflow | final.overflow,
+            jnp.sum(mask) < (4 if manhattan else 3),
+            jnp.sum(final.observed) < 2,
+            ~solver_ok,
+            ~(jnp.all(meet) & finite & (ceiling_height > 0) & (floor_height < 0) & plausible),
+            scale_unknown,
+        ]
+    )
+    status = jnp.where(jnp.any(failed), jnp.argmax(failed) + 1, LayoutStatus.OK).astype(jnp.int32)
+    points = jnp.where(mask[:, None] & jnp.isfinite(points), points, 0.0)
+    ceiling_height = jnp.nan_to_num(ceiling_height)
+    floor_height = jnp.nan_to_num(floor_height)
+
+    def at(height):
+        return jnp.concatenate([points, jnp.broadcast_to(height, points.shape[:1])[:, None]], -1) * mask[:, None]
+
+    return Layout(
+        ceiling_corners=at(ceiling_height),
+        floor_corners=at(floor_height),
+        mask=mask,
+        ceiling_height=ceiling_height,
+        floor_height=floor_height,
+        wall_directions=jnp.where(mask[:, None], directions, 0.0),
+        wall_distances=jnp.where(mask, distances, 0.0),
+        ceiling_lines=horizontal_wall_line(directions, distances, ceiling_height) * mask[:, None],
+        floor_lines=horizontal_wall_line(directions, distances, floor_height) * mask[:, None],
+        inserted=final.inserted,
+        corner_columns=jnp.where(mask, final.corner_columns, 0.0),
+        manhattan=jnp.array(manhattan),
+        explained_fraction=explained_fraction,
+        corner_covariance=jnp.where(mask[:, None, None], uncertainty.corner_covariance, 0.0),
+        height_covariance=uncertainty.height_covariance,
+        status=status,
+        ok=status == LayoutStatus.OK,
+    )

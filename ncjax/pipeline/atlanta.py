@@ -1,0 +1,117 @@
+"""Atlanta branch (paper Section 4.3): merged walls, walls inserted at occlusions and merged corners."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ..geometry.camera import NonCentralPanorama
+from ..geometry.plucker import cross_2d
+from ..geometry.polygon import previous_in_loop
+from ..geometry.reprojection import column_directions
+from ..solvers.layout import solve_atlanta_layout
+from .adjust import corner_column_offset
+from .assemble import assemble_layout
+from .config import scaled
+from .evidence import previous_of, solver_columns
+from .refine import refine
+from .types import FinalWalls, Layout
+from .walls import final_walls, group_directions, plan_lines, point_on_wall, several_corners, signed_distance
+
+
+def _place_atlanta_walls(
+    cam: NonCentralPanorama, final: FinalWalls, directions: Float[Array, "K 2"], distances: Float[Array, " K"]
+) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
+    """Unobserved Atlanta walls: occlusion walls in the corner ray's vertical plane (the paper's
+    Fig. Atocc), unfitted walls through their two corners on the neighbouring walls."""
+    count = jnp.maximum(jnp.sum(final.mask), 1)
+    index = jnp.arange(final.mask.shape[0])
+    previous, following = (index - 1) % count, (index + 1) % count
+    start = point_on_wall(cam, directions[previous], distances[previous], final.corner_columns)
+    end = point_on_wall(cam, directions[following], distances[following], final.corner_columns[following])
+    chord = end - start
+    length = jnp.linalg.norm(chord, axis=-1, keepdims=True)
+    through_corners = jnp.where(length > 0, chord / jnp.where(length > 0, length, 1.0), directions)
+    radial = column_directions(cam, final.corner_columns)
+    new_direction = jnp.where(final.inserted[:, None], radial, through_corners)
+    new_distance = jnp.where(final.inserted, 0.0, signed_distance(through_corners, start))
+    keep = final.observed[:, None]
+    return jnp.where(keep, directions, new_direction), jnp.where(final.observed, distances, new_distance)
+
+
+def _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, config):
+    """The Atlanta wall loop after merging and insertion, and its walls from the joint solver.
+
+    Returns:
+        ``(final, ok, directions, distances, ceiling_height, floor_height)``.
+    """
+    final = final_walls(evidence, merge, insert, False, config.sample_size)
+    fit_index = solver_columns(evidence, final.column_wall)
+    heights = solve_atlanta_layout(
+        evidence.ceiling_rays,
+        evidence.floor_rays,
+        fit_index,
+        final.observed & evidence.fitted[final.start_wall],
+        group_directions(evidence, merge, final),
+        boundary_weights=evidence.row_weights,
+    )
+    # every observed wall's direction from its boundary points at those heights
+    directions = plan_lines(
+        cam, evidence, final.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height
+    )
+    solved = solve_atlanta_layout(
+        evidence.ceiling_rays,
+        evidence.floor_rays,
+        fit_index,
+        final.observed,
+        directions,
+        boundary_weights=evidence.row_weights,
+    )
+    directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
+    return final, heights.ok & solved.ok, directions, distances, solved.ceiling_height, solved.floor_height
+
+
+def corner_offsets(
+    cam: NonCentralPanorama,
+    directions: Float[Array, "K 2"],
+    distances: Float[Array, " K"],
+    wall_mask: Bool[Array, " K"],
+    corner_columns: Float[Array, " K"],
+) -> Float[Array, " K"]:
+    """Per corner ``k``, how far (columns) from ``corner_columns[k]`` walls ``k - 1`` and ``k`` meet (inf: never)."""
+    previous = previous_in_loop(wall_mask)
+    offset, meet = jax.vmap(corner_column_offset, in_axes=(0, 0, None, 0))(
+        jnp.stack([directions[previous], directions], 1),
+        jnp.stack([distances[previous], distances], 1),
+        cam,
+        corner_columns,
+    )
+    offset = jnp.abs(offset)
+    return jnp.where((meet | ~wall_mask) & jnp.isfinite(offset), offset, jnp.inf)
+
+
+def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
+    """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
+    ransac_directions = evidence.walls.direction
+    turn = cross_2d(ransac_directions[previous_of(evidence)], ransac_directions)
+    parallel = jnp.abs(turn) < jnp.sin(jnp.radians(config.merge_angle))
+    merge = evidence.same_plane & parallel & ~evidence.occluded & several_corners(evidence)
+    insert = evidence.occluded
+    final, _, directions, distances, _, _ = _solve_atlanta_walls(
+        evidence, merge, insert, ceiling_v, floor_v, cam, config
+    )
+    # two observed walls that meet far from their corner's column (or are parallel) hold a wall between them
+    # whose two corners gave one peak: it is inserted in the corner ray's plane, as at an occlusion
+    both_observed = final.observed & final.observed[previous_in_loop(final.mask)]
+    offsets = corner_offsets(cam, directions, distances, final.mask, final.corner_columns)
+    stray = both_observed & (offsets > scaled(config.max_corner_offset, cam.width, 1024))
+    capacity = insert.shape[0]
+    insert = insert.at[jnp.where(stray, final.start_wall, capacity)].set(True, mode="drop")
+    final, ok, directions, distances, h_c, h_f = _solve_atlanta_walls(
+        evidence, merge, insert, ceiling_v, floor_v, cam, config
+    )
+    adjusted, explained, uncertainty = refine(
+        cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, None, config
+    )
+    return assemble_layout(cam, evidence, final, *adjusted[:4], explained, uncertainty, ok, False, config)

@@ -1,0 +1,274 @@
+"""The pipeline's configuration: :class:`PipelineConfig` and its pixel scaling."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from ..geometry.camera import NonCentralPanorama
+from ..solvers.ransac import num_hypotheses
+
+WORLDS = ("manhattan", "atlanta", "auto")
+# the room model of the API and the CLI when none is given: per panorama, the branch that explains more of its rows
+DEFAULT_WORLD = "auto"
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineConfig:
+    """Parameters of the pipeline (frozen, hashable).
+
+    The thresholds and weights in :data:`TRACED_FIELDS` enter the compiled
+    pipeline as traced values: changing them reuses the compiled program. The
+    other fields set shapes, loop lengths or which code runs, and are static:
+    changing one compiles the pipeline anew.
+
+    Column and pixel quantities are given for the 1024 x 512 reference
+    panorama and scaled with the camera's width and height.
+
+    Attributes:
+        capacity: K, wall and corner slots of the layout.
+        compact_capacity: :func:`layout_from_boundaries` first runs concrete
+            panoramas with this many slots, pads their Layouts to ``capacity``
+            and reruns with ``capacity`` slots only the panoramas that did not
+            fit (``TOO_MANY_WALLS``): the same layouts, and the cost of most
+            stages is proportional to the slots (0: always ``capacity``).
+        corner_threshold: minimum corner probability of a peak.
+        min_corners: where fewer peaks than this reach ``corner_threshold``
+            (a network unsure of an image unlike its training data), the
+            strongest peaks down to ``fallback_corner_threshold`` make up the
+            count (:func:`~ncjax.pipeline.corners.find_corners`; 0: off; at most
+            ``capacity`` and ``compact_capacity``).
+        fallback_corner_threshold: the lowest peak probability ``min_corners``
+            accepts (at or above ``corner_threshold``: no fallback).
+        nms_radius: non-maximum-suppression half-width, columns.
+        corner_margin: columns this close to a corner are not used to fit walls.
+        success_probability: RANSAC's P (paper: 0.9999).
+        outlier_rate: RANSAC's epsilon (paper: 0.2).
+        sample_size: columns per RANSAC hypothesis (paper: 3).
+        ransac_columns: columns per wall on which RANSAC scores its hypotheses
+            and refits the best one, evenly spaced along the wall (all of them
+            for a narrower wall); the cost grows with it, not with the width.
+        inlier_threshold: row error of an inlier, pixels.
+        occlusion_threshold: boundary jump at a corner that means an occlusion, pixels.
+        occlusion_noise_factor: the jump must also exceed this many times the
+            boundary noise, estimated from the rows about their RANSAC walls
+            (0: the fixed threshold alone).
+        merge_fraction: consecutive walls each of which explains at least
+            this fraction of the other's inlier pixels may be one wall.
+        merge_angle: Atlanta: such walls are merged only if their directions
+            differ by less than this (degrees): a shallow corner between two
+            walls seen far away passes the pixel test (Manhattan merges
+            walls of one class, see :func:`manhattan_layout`).
+        max_corner_offset: Atlanta: where two observed walls meet farther than
+            this (columns) from their corner's column, or not at all, the
+            corner's peak holds two corners (the network's lobes merge close
+            ones) and a wall is inserted between them in the corner ray's
+            plane, as at an occlusion. Chosen on the tuning renders
+            (experiments/RESULTS.md): 24-128 did about alike.
+        manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
+            RANSAC wall from the Manhattan frame for the Manhattan branch to win
+            a tie (:func:`choose_manhattan`).
+        turn_weight: Manhattan labelling: cost of a corner whose walls do not
+            turn as its type says, relative to the best-supported wall's
+            direction vote (:func:`manhattan_labels`). Small: the walls'
+            directions decide and the corner types break ties. Corners
+            that the detector merged make the expected turns wrong, and on
+            the network's rows a weight of 0.5 mislabelled walls in many
+            rooms (experiments/RESULTS.md).
+        corner_weight: weight of the corner-plane penalty of the adjustment.
+        min_boundary_noise: the joint solvers and both adjustment passes weight
+            the ceiling and floor rows by the squared inverse of each boundary's
+            noise (about the RANSAC walls, about each pass's starting layout),
+            taken as at least this (pixels): exact rows keep equal weights, and
+            a value far above the rows' errors turns all the weighting off
+            (:func:`ncjax.pipeline.adjust.boundary_weights`).
+        adjustment_steps: most least-squares (dogleg) steps of each of the two adjustment passes.
+        adjustment_tolerance: the dogleg stops when a step changes every
+            parameter (radians, metres) and every residual (pixels) by less
+            than this plus this times its size (optimistix's Cauchy test).
+            Float32 rounds the rows' residuals at about 1e-5 px, so a tighter
+            test is never met and every panorama runs ``adjustment_steps``.
+        adjustment_stride: the adjustment fits every this-many-th column (1:
+            all); its cost is proportional to the number of columns it fits.
+            2 (the default) halves that cost: on the network's rows, whose errors
+            are correlated over tens of columns, the layouts are as accurate as
+            with 1; under white noise of 1 px the corner error grows by 15-35%
+            (experiments/RESULTS.md).
+        inlier_pass_stride: the first adjustment pass, whose layout only
+            picks the inlier rows of the second (and is its start), fits every
+            this-many-th of the second's columns (1: the same columns).
+        chunk_size: a batch runs this many panoramas at a time (one ``vmap``),
+            chunk after chunk inside the same jitted call: a larger ``vmap``
+            leaves the CPU's caches and runs slower per panorama (0: all at once).
+        covariance: compute ``Layout.corner_covariance`` and ``height_covariance``
+            (a Jacobian of the final adjustment: 10-20% of the batched throughput
+            in our benchmark); False leaves them NaN.
+        min_finite_fraction: fraction of columns with finite rows needed.
+        max_height_uncertainty: a layout whose room height ``h_c - h_f`` has a
+            standard deviation (:attr:`Layout.height_covariance`) above this
+            fraction of the height fails with ``UNCERTAIN_SCALE``: the rows do
+            not fix its scale (a baseline ``rc`` small for the room's size, or
+            walls whose positions the rows leave free, where the covariance
+            is infinite). Off (inf) by default; the network's configuration
+            sets it (``ncjax.reconstruction.NETWORK_PIPELINE_CONFIG``). Needs
+            ``covariance``.
+        max_room_height: a layout whose ceiling is more than this above its
+            floor (metres) is implausible (DEGENERATE_LAYOUT), e.g. a wall fit
+            whose scale ran away.
+        max_corner_distance: a layout with a corner farther than this from
+            the camera (metres) is implausible (DEGENERATE_LAYOUT).
+        floor_consistency_threshold: pixels; a floor row farther than this
+            from the one its column's ceiling row implies is replaced by it
+            (step 0, :func:`ceiling_consistent_floor`). Off (inf) by default;
+            the network's configuration sets it.
+    """
+
+    capacity: int = 32
+    compact_capacity: int = 16
+    corner_threshold: float = 0.3
+    min_corners: int = 4
+    fallback_corner_threshold: float = 0.1
+    nms_radius: float = 2.0
+    corner_margin: float = 2.0
+    success_probability: float = 0.9999
+    outlier_rate: float = 0.2
+    sample_size: int = 3
+    ransac_columns: int = 64
+    inlier_threshold: float = 3.0
+    occlusion_threshold: float = 4.0
+    occlusion_noise_factor: float = 5.0
+    merge_fraction: float = 0.8
+    merge_angle: float = 5.0
+    max_corner_offset: float = 32.0
+    manhattan_tolerance: float = 5.0
+    turn_weight: float = 0.02
+    corner_weight: float = 1.0
+    min_boundary_noise: float = 0.5
+    adjustment_steps: int = 8
+    adjustment_tolerance: float = 1e-4
+    adjustment_stride: int = 2
+    inlier_pass_stride: int = 4
+    chunk_size: int = 32
+    covariance: bool = True
+    min_finite_fraction: float = 0.5
+    max_height_uncertainty: float = math.inf
+    max_room_height: float = 10.0
+    max_corner_distance: float = 50.0
+    floor_consistency_threshold: float = math.inf
+
+    def __post_init__(self):
+        if self.capacity < 4:
+            raise ValueError(f"capacity must be >= 4 walls, got {self.capacity}")
+        if self.compact_capacity != 0 and self.compact_capacity < 4:
+            raise ValueError(f"compact_capacity must be 0 (off) or >= 4 walls, got {self.compact_capacity}")
+        if self.sample_size < 3:
+            raise ValueError(
+                f"sample_size must be >= 3 columns (the wall solver needs 3 rays per line), got {self.sample_size}"
+            )
+        num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
+        if self.ransac_columns < 2 * self.sample_size:
+            raise ValueError(f"ransac_columns must be >= 2 * sample_size, got {self.ransac_columns}")
+        positive = (
+            "nms_radius",
+            "inlier_threshold",
+            "occlusion_threshold",
+            "merge_fraction",
+            "merge_angle",
+            "max_corner_offset",
+            "manhattan_tolerance",
+            "turn_weight",
+            "adjustment_tolerance",
+            "min_boundary_noise",
+            "max_height_uncertainty",
+            "floor_consistency_threshold",
+        )
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if math.isfinite(self.max_height_uncertainty) and not self.covariance:
+            raise ValueError("max_height_uncertainty needs covariance=True (it tests the height's covariance)")
+        if self.occlusion_noise_factor < 0:
+            raise ValueError(f"occlusion_noise_factor must be >= 0, got {self.occlusion_noise_factor}")
+        for name in ("adjustment_stride", "inlier_pass_stride"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1 column, got {getattr(self, name)}")
+        slots = min(self.capacity, self.compact_capacity or self.capacity)
+        if not 0 <= self.min_corners <= slots:
+            raise ValueError(
+                f"min_corners must be in [0, {slots}] (capacity and compact_capacity), got {self.min_corners}"
+            )
+        if not self.fallback_corner_threshold >= 0:
+            raise ValueError(f"fallback_corner_threshold must be >= 0, got {self.fallback_corner_threshold}")
+        if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0 or self.chunk_size < 0:
+            raise ValueError("corner_margin, corner_weight, adjustment_steps and chunk_size must be >= 0")
+
+    @property
+    def hypotheses(self) -> int:
+        """RANSAC hypotheses per wall (paper's n_hyp)."""
+        return num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)
+
+
+def scaled(value: Float[ArrayLike, ""], size: int, reference: int) -> Float[ArrayLike, ""]:
+    """``value``, given for a ``reference``-pixel side, for a side of ``size`` pixels."""
+    return value * size / reference
+
+
+def min_noise(config: PipelineConfig, cam: NonCentralPanorama) -> Float[ArrayLike, ""]:
+    """``min_boundary_noise`` in this panorama's pixels."""
+    return config.min_boundary_noise * scaled(1.0, cam.height, 512)
+
+
+def nms_radius(config: PipelineConfig, width: int) -> int:
+    return max(1, round(scaled(config.nms_radius, width, 1024)))
+
+
+# The fields the pipeline only compares with or multiplies by: jitted as traced scalars (see PipelineConfig).
+TRACED_FIELDS = (
+    "corner_threshold",
+    "fallback_corner_threshold",
+    "corner_margin",
+    "inlier_threshold",
+    "occlusion_threshold",
+    "occlusion_noise_factor",
+    "merge_fraction",
+    "merge_angle",
+    "max_corner_offset",
+    "manhattan_tolerance",
+    "turn_weight",
+    "corner_weight",
+    "min_boundary_noise",
+    "min_finite_fraction",
+    "max_height_uncertainty",
+    "max_room_height",
+    "max_corner_distance",
+    "floor_consistency_threshold",
+)
+
+
+def static_part(config: PipelineConfig) -> PipelineConfig:
+    """``config`` with its :data:`TRACED_FIELDS` at the class defaults: the jit's static key, equal for
+    configurations that differ in those fields only."""
+    return dataclasses.replace(config, **{name: _DEFAULTS[name] for name in TRACED_FIELDS})
+
+
+def traced_part(config: PipelineConfig) -> dict[str, Float[Array, ""]]:
+    """The values of ``config``'s :data:`TRACED_FIELDS`, as (weakly typed) JAX scalars to pass to a jitted call."""
+    return {name: jnp.asarray(getattr(config, name)) for name in TRACED_FIELDS}
+
+
+def with_traced(static: PipelineConfig, values: dict[str, Float[Array, ""]]) -> PipelineConfig:
+    """Inside a jitted call: ``static`` with the traced ``values`` of :func:`traced_part` in place.
+
+    Not validated again (they were when the configuration was made, and tracers have no truth value).
+    """
+    config = copy.copy(static)
+    for name, value in values.items():
+        object.__setattr__(config, name, value)
+    return config
+
+
+_DEFAULTS = {field.name: field.default for field in dataclasses.fields(PipelineConfig)}

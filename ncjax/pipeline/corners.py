@@ -1,0 +1,153 @@
+"""Corner extraction from the network's corner probability (paper Section 4.4, first step).
+
+The corner target is HorizonNet's ``0.96**d`` (docs/design.md section 5), ``d`` the
+distance in columns to the nearest wall-wall corner. Its logarithm is a tent
+``d log 0.96`` around each corner, so three samples around a peak locate the
+corner to a fraction of a column exactly (:func:`refine_peak`).
+
+Columns wrap around: column ``W - 1`` neighbours column 0. Everything has
+fixed capacity ``C`` (corner slots) with a mask (docs/design.md section 4).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+
+def is_peak(corner_prob: Float[Array, " W"], radius: int, threshold: Float[ArrayLike, ""]) -> Bool[Array, " W"]:
+    """Local maxima over a wrap-around window of ``2 radius + 1`` columns (non-maximum suppression).
+
+    A plateau yields its leftmost column only: a peak is strictly greater than
+    the ``radius`` columns on its left and not smaller than those on its right.
+
+    Args:
+        corner_prob: per-column corner probability.
+        radius: static half-width of the suppression window, in columns.
+        threshold: minimum probability of a peak.
+    """
+    prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, -jnp.inf)
+    peak = prob >= threshold
+    for offset in range(1, radius + 1):
+        peak &= prob > jnp.roll(prob, offset)  # the column `offset` to the left
+        peak &= prob >= jnp.roll(prob, -offset)
+    return peak
+
+
+def refine_peak(corner_prob: Float[Array, " W"], column: Int[Array, ""]) -> Float[Array, ""]:
+    """Sub-column position of a peak from the tent shape of ``log(0.96**d)``.
+
+    With ``l(x) = a - s |x - x0|`` sampled at the peak column and its two
+    neighbours, ``x0 = (l(+1) - l(-1)) / (2 (l(0) - min(l(-1), l(+1))))``,
+    exact for the target encoding and clipped to half a column for real
+    predictions.
+    """
+    width = corner_prob.shape[0]
+    tiny = jnp.finfo(corner_prob.dtype).tiny
+    logs = jnp.log(jnp.maximum(corner_prob[(column + jnp.arange(-1, 2)) % width], tiny))
+    slope = logs[1] - jnp.minimum(logs[0], logs[2])
+    offset = 0.5 * (logs[2] - logs[0]) / jnp.where(slope > 0, slope, 1.0)
+    return column + jnp.clip(jnp.where(slope > 0, offset, 0.0), -0.5, 0.5)
+
+
+def find_corners(
+    corner_prob: Float[Array, " W"],
+    capacity: int,
+    radius: int,
+    threshold: Float[ArrayLike, ""],
+    min_corners: int = 0,
+    fallback_threshold: Float[ArrayLike, ""] = 0.0,
+) -> tuple[Float[Array, " C"], Bool[Array, " C"], Bool[Array, ""]]:
+    """Corner columns: the ``capacity`` strongest peaks, refined, sorted left to right.
+
+    A room has at least ``min_corners`` corners. When fewer peaks reach
+    ``threshold`` (a network unsure of a panorama unlike its training images
+    gives flat lobes), the threshold drops to the ``min_corners``-th strongest
+    peak, but not below ``fallback_threshold``; otherwise nothing changes.
+
+    Args:
+        corner_prob: per-column corner probability.
+        capacity: static number of corner slots ``C``.
+        radius: static non-maximum-suppression half-width (columns).
+        threshold: minimum peak probability.
+        min_corners: static; 0 keeps ``threshold`` whatever the count.
+        fallback_threshold: the lowest the threshold may drop to.
+
+    Returns:
+        ``(columns, mask, overflow)``: sub-column positions in ``[-0.5, W - 0.5)``
+        (masked slots hold ``W``, after every real column), which slots are
+        corners, and whether more peaks than ``capacity`` were found.
+    """
+    width = corner_prob.shape[0]
+    candidate = is_peak(corner_prob, radius, jnp.minimum(threshold, fallback_threshold) if min_corners else threshold)
+    strength = jnp.where(candidate, corner_prob, -jnp.inf)
+    values, strongest = jax.lax.top_k(strength, capacity)
+    if min_corners:
+        threshold = jnp.minimum(threshold, values[min(min_corners, capacity) - 1])
+    peak = candidate & (corner_prob >= threshold)
+    mask = peak[strongest]
+    refined = jax.vmap(refine_peak, in_axes=(None, 0))(corner_prob, strongest)
+    refined = jnp.where(refined < -0.5, refined + width, refined)
+    refined = jnp.where(refined >= width - 0.5, refined - width, refined)
+    columns = jnp.where(mask, refined, float(width))
+    order = jnp.argsort(columns)
+    return columns[order], mask[order], jnp.sum(peak) > capacity
+
+
+def column_walls(corner_columns: Float[Array, " C"], corner_mask: Bool[Array, " C"], width: int) -> Int[Array, " W"]:
+    """The wall each column belongs to: wall ``j`` runs from corner ``j`` to corner ``j + 1``.
+
+    Corners are sorted left to right; the columns left of the first corner
+    belong to the last wall (the image wraps around). -1 when there is no corner.
+    """
+    columns = jnp.arange(width, dtype=corner_columns.dtype)
+    count = jnp.sum(corner_mask)
+    passed = jnp.sum(corner_mask[None, :] & (corner_columns[None, :] <= columns[:, None]), axis=1)
+    wall = jnp.where(passed == 0, count, passed) - 1
+    return jnp.where(count > 0, wall, -1).astype(jnp.int32)
+
+
+def distance_to_corners(
+    corner_columns: Float[Array, " C"], corner_mask: Bool[Array, " C"], width: int
+) -> Float[Array, " W"]:
+    """Wrap-around distance in columns from each column to the nearest corner (inf if none)."""
+    columns = jnp.arange(width, dtype=corner_columns.dtype)
+    gap = jnp.abs(columns[:, None] - corner_columns[None, :]) % width
+    gap = jnp.minimum(gap, width - gap)
+    return jnp.min(jnp.where(corner_mask[None, :], gap, jnp.inf), axis=1)
+
+
+def side_extrapolation(
+    rows: Float[Array, " W"],
+    usable: Bool[Array, " W"],
+    corner: Float[Array, ""],
+    side: int,
+    window: int,
+    margin: Float[ArrayLike, ""],
+) -> tuple[Float[Array, ""], Bool[Array, ""]]:
+    """A boundary's row at a corner column, extrapolated by a line fitted on one side of it.
+
+    Args:
+        rows: per-column boundary rows.
+        usable: columns that may be used (finite, on the right wall).
+        corner: the corner's (sub-)column.
+        side: static, -1 for the columns left of the corner, +1 for the right.
+        window: static number of columns fitted.
+        margin: columns skipped next to the corner.
+
+    Returns:
+        ``(row, ok)``; ``ok`` is False with fewer than 3 usable columns.
+    """
+    width = rows.shape[0]
+    offsets = side * (jnp.ceil(margin) + 1 + jnp.arange(window, dtype=rows.dtype))
+    columns = jnp.round(corner) + offsets
+    index = (columns.astype(jnp.int32)) % width
+    weight = usable[index].astype(rows.dtype)
+    x = columns - corner
+    count = jnp.sum(weight)
+    mean_x = jnp.sum(weight * x) / jnp.maximum(count, 1)
+    mean_y = jnp.sum(weight * rows[index]) / jnp.maximum(count, 1)
+    spread = jnp.sum(weight * (x - mean_x) ** 2)
+    slope = jnp.sum(weight * (x - mean_x) * (rows[index] - mean_y)) / jnp.where(spread > 0, spread, 1.0)
+    return mean_y - slope * mean_x, count >= 3

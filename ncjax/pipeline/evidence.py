@@ -1,0 +1,167 @@
+"""Steps 1-3 of the pipeline, shared by both worlds: corners, one RANSAC wall per pair, occlusion tests."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+from ..geometry.camera import NonCentralPanorama, pixel_to_ray
+from ..geometry.polygon import previous_in_loop
+from ..geometry.reprojection import column_directions, wall_boundary_rows
+from ..solvers.ransac import boundary_errors, ransac_wall, wall_columns
+from .adjust import boundary_weights
+from .config import PipelineConfig, min_noise, nms_radius, scaled
+from .corners import column_walls, distance_to_corners, find_corners, side_extrapolation
+from .types import WallEvidence
+
+
+def gather_evidence(
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    corner_prob: Float[Array, " W"],
+    cam: NonCentralPanorama,
+    key: PRNGKeyArray,
+    config: PipelineConfig,
+) -> WallEvidence:
+    """Steps 1-3: corners, one RANSAC wall between each pair, and the boundary jump at each corner."""
+    width, capacity = cam.width, config.capacity
+    finite = jnp.isfinite(ceiling_v) & jnp.isfinite(floor_v)
+    ceiling_v = jnp.where(finite, ceiling_v, cam.height / 4)
+    floor_v = jnp.where(finite, floor_v, 3 * cam.height / 4)
+    columns = jnp.arange(width, dtype=ceiling_v.dtype)
+    azimuth = column_directions(cam, columns)
+    ceiling_rays = pixel_to_ray(cam, columns, ceiling_v)
+    floor_rays = pixel_to_ray(cam, columns, floor_v)
+
+    corner_prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, 0.0)
+    corner_columns, corner_mask, overflow = find_corners(
+        corner_prob,
+        capacity,
+        nms_radius(config, width),
+        config.corner_threshold,
+        config.min_corners,
+        config.fallback_corner_threshold,
+    )
+    column_wall = column_walls(corner_columns, corner_mask, width)
+    away = distance_to_corners(corner_columns, corner_mask, width) >= scaled(config.corner_margin, width, 1024)
+    wall_of = jnp.where(column_wall >= 0, column_wall, capacity)  # segment ids, capacity: none
+    seen_away = jax.ops.segment_sum((finite & away).astype(jnp.int32), wall_of, capacity + 1)
+    # narrow walls (seen almost edge-on) keep the columns next to their corners
+    few = seen_away < 2 * config.sample_size
+    usable = finite & (column_wall >= 0) & (away | few[wall_of])
+
+    pixels = scaled(1.0, cam.height, 512)
+    threshold = config.inlier_threshold * pixels
+    sampled, sampled_valid = wall_columns(column_wall, usable, corner_columns, config.ransac_columns)
+    walls = jax.vmap(ransac_wall, in_axes=(0, None, 0, 0, 0, 0, None, None, None))(
+        jax.random.split(key, capacity),
+        cam,
+        azimuth[sampled],
+        ceiling_rays[sampled],
+        floor_rays[sampled],
+        sampled_valid,
+        config.hypotheses,
+        config.sample_size,
+        threshold,
+    )
+
+    previous = previous_in_loop(corner_mask)
+    following = (jnp.arange(capacity) + 1) % jnp.maximum(jnp.sum(corner_mask), 1)
+    wall = jnp.maximum(column_wall, 0)
+
+    def errors_of(index):
+        """Row errors of wall ``index[column]`` at each column (one wall per column, not K x W)."""
+        return boundary_errors(cam, jax.tree.map(lambda x: x[index], walls), azimuth, ceiling_v, floor_v)
+
+    ceiling_error, floor_error = errors_of(wall)
+    ceiling_in, floor_in = usable & (ceiling_error < threshold), usable & (floor_error < threshold)
+    inliers = ceiling_in | floor_in
+    counts = jax.ops.segment_sum(ceiling_in.astype(jnp.int32) + floor_in, wall_of, capacity + 1)[:capacity]
+    weights = jnp.where(walls.ok & corner_mask, counts, 0)
+
+    def explained_fraction(neighbour):
+        """Per wall, the fraction of its inlier columns whose rows wall ``neighbour[wall]`` explains too."""
+        neighbour_ceiling, neighbour_floor = errors_of(neighbour[wall])
+        explained = inliers & (neighbour_ceiling < threshold) & (neighbour_floor < threshold)
+        total = jax.ops.segment_sum(jnp.stack([explained, inliers], -1).astype(jnp.int32), wall_of, capacity + 1)
+        return total[:capacity, 0] / jnp.maximum(total[:capacity, 1], 1)
+
+    # the boundary jump at each corner, from lines fitted to the rows on either side
+    margin = scaled(config.corner_margin, width, 1024)
+    window = max(3, round(scaled(8.0, width, 1024)))
+
+    def extrapolate(rows, wall, side):
+        own = finite[None, :] & (column_wall[None, :] == wall[:, None])
+        return jax.vmap(side_extrapolation, in_axes=(None, 0, 0, None, None, None))(
+            rows, own, corner_columns, side, window, margin
+        )
+
+    ceiling_here, seen_here = extrapolate(ceiling_v, jnp.arange(capacity), 1)
+    floor_here, _ = extrapolate(floor_v, jnp.arange(capacity), 1)
+    ceiling_before, seen_before = extrapolate(ceiling_v, previous, -1)
+    floor_before, _ = extrapolate(floor_v, previous, -1)
+    jump = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
+    fitted = walls.ok & corner_mask
+    both_fitted = fitted & fitted[previous]
+
+    def reprojected_rows(index):
+        wall_ = jax.tree.map(lambda x: x[index], walls)
+        return wall_boundary_rows(
+            cam, wall_.direction, wall_.distance, wall_.ceiling_height, wall_.floor_height, corner_columns
+        )
+
+    # two fitted walls that meet at the corner reproject to one point there; a
+    # line through the rows beside the corner misses it on a steep, curved boundary
+    ceiling_a, floor_a, seen_a = reprojected_rows(jnp.arange(capacity))
+    ceiling_b, floor_b, seen_b = reprojected_rows(previous)
+    wall_jump = jnp.maximum(jnp.abs(ceiling_a - ceiling_b), jnp.abs(floor_a - floor_b))
+    jump = jnp.where(both_fitted & seen_a & seen_b, jnp.minimum(jump, wall_jump), jump)
+    # each of walls j - 1 and j explains most inliers of the other
+    same_plane = (explained_fraction(previous) >= config.merge_fraction) & (
+        explained_fraction(following)[previous] >= config.merge_fraction
+    )
+    # noisy rows make the jump noisy too: it must also stand out of the noise, whose scale is
+    # robustly 1.4826 x the median row error of the usable columns about their RANSAC walls
+    residuals = jnp.concatenate([ceiling_error, floor_error])
+    residuals = jnp.where(jnp.tile(usable, 2) & jnp.isfinite(residuals), residuals, jnp.nan)
+    noise = 1.4826 * jnp.nanmedian(residuals)
+    noise = jnp.where(jnp.isfinite(noise), noise, 0.0)
+    jump_threshold = jnp.maximum(config.occlusion_threshold * pixels, config.occlusion_noise_factor * noise)
+    occluded = corner_mask & seen_here & seen_before & (jump > jump_threshold)
+    previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
+    on_fitted = fitted[wall]
+    row_weights = boundary_weights(
+        ceiling_error, floor_error, ceiling_in & on_fitted, floor_in & on_fitted, min_noise(config, cam)
+    )
+    return WallEvidence(
+        ceiling_rays=ceiling_rays,
+        floor_rays=floor_rays,
+        finite=finite,
+        corner_columns=corner_columns,
+        corner_mask=corner_mask,
+        corner_overflow=overflow,
+        column_wall=column_wall,
+        walls=walls,
+        usable=usable,
+        ceiling_trusted=ceiling_in | (usable & ~on_fitted),
+        floor_trusted=floor_in | (usable & ~on_fitted),
+        floor_measured=jnp.ones_like(usable),
+        weights=weights.astype(ceiling_v.dtype),
+        row_weights=row_weights,
+        fitted=fitted,
+        both_fitted=both_fitted,
+        same_plane=both_fitted & same_plane,
+        occluded=occluded,
+        previous_nearer=previous_nearer,
+    )
+
+
+def previous_of(evidence: WallEvidence) -> Int[Array, " K"]:
+    return previous_in_loop(evidence.corner_mask)
+
+
+def solver_columns(evidence: WallEvidence, column_wall: Int[Array, " W"]) -> Int[Array, " W"]:
+    """Columns fed to the joint solvers, by wall: those whose ceiling and floor rows are both trusted
+    (:class:`WallEvidence`)."""
+    return jnp.where(evidence.ceiling_trusted & evidence.floor_trusted, column_wall, -1)

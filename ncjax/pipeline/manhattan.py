@@ -1,0 +1,208 @@
+"""Manhattan branch (paper Section 4.2): wall labels ``u`` / ``u_perp``, merging, insertion, one yaw."""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from ..geometry.camera import NonCentralPanorama
+from ..solvers.layout import solve_atlanta_layout
+from .adjust import manhattan_directions, manhattan_yaw
+from .assemble import assemble_layout
+from .config import PipelineConfig
+from .evidence import previous_of, solver_columns
+from .refine import refine
+from .types import FinalWalls, Layout, WallEvidence
+from .walls import final_walls, plan_lines, point_on_wall, several_corners, signed_distance
+
+
+def manhattan_frame(
+    directions: Float[Array, "K 2"], weights: Float[Array, " K"]
+) -> tuple[Int[Array, " K"], Float[Array, " K"]]:
+    """Cluster wall directions into ``u`` (label 0) and ``u_perp`` (label 1), any yaw.
+
+    The yaw is the weighted circular mean of ``4 theta`` (walls 90 degrees
+    apart agree there).
+
+    Returns:
+        ``(labels, deviation)``: per wall its class and its angle to the
+        nearest Manhattan direction (radians, in [0, pi/4]).
+    """
+    theta = jnp.arctan2(directions[:, 1], directions[:, 0])
+    yaw = 0.25 * jnp.arctan2(jnp.sum(weights * jnp.sin(4 * theta)), jnp.sum(weights * jnp.cos(4 * theta)))
+    quarter_turns = jnp.round((theta - yaw) / (math.pi / 2))
+    deviation = jnp.abs(theta - yaw - quarter_turns * (math.pi / 2))
+    return (quarter_turns.astype(jnp.int32) % 2), deviation
+
+
+def cyclic_binary_labels(
+    unary: Float[Array, "K 2"], same_cost: Float[Array, " K"], turn_cost: Float[Array, " K"], valid: Bool[Array, " K"]
+) -> Int[Array, " K"]:
+    """Labels ``l_j`` in {0, 1} of the valid slots (a cycle, in index order) of least total cost.
+
+    The cost is ``sum_j unary[j, l_j]`` plus, at each corner ``j`` (between the
+    previous valid slot and ``j``), ``same_cost[j]`` when the two labels agree
+    and ``turn_cost[j]`` when they differ. Exact: dynamic programming over
+    the chain for each label of the first slot; invalid slots pass the label
+    through at no cost (slot 0 must be valid).
+    """
+    unary = jnp.where(valid[:, None], unary, 0.0)
+    agree = jnp.eye(2, dtype=bool)
+    transition = jnp.where(agree[None], same_cost[:, None, None], turn_cost[:, None, None])  # [corner, previous, label]
+    transition = jnp.where(valid[:, None, None], transition, jnp.where(agree, 0.0, jnp.inf)[None])
+
+    def chain(first):
+        start = unary[0] + jnp.where(jnp.arange(2) == first, 0.0, jnp.inf)
+
+        def forward(cost, step):
+            unary_j, transition_j = step
+            total = cost[:, None] + transition_j
+            return jnp.min(total, axis=0) + unary_j, jnp.argmin(total, axis=0)
+
+        cost, back = jax.lax.scan(forward, start, (unary[1:], transition[1:]))
+        cost = cost + transition[0][:, first]  # the corner that closes the loop at slot 0
+        last = jnp.argmin(cost)
+
+        def backward(label, back_j):
+            return back_j[label], label
+
+        _, labels = jax.lax.scan(backward, last, back, reverse=True)
+        return cost[last], jnp.concatenate([jnp.array([first]), labels])
+
+    costs, labels = jax.vmap(chain)(jnp.arange(2))
+    return labels[jnp.argmin(costs)].astype(jnp.int32)
+
+
+def manhattan_labels(
+    evidence: WallEvidence,
+    directions: Float[Array, "K 2"],
+    support: Float[Array, " K"],
+    turn_weight: Float[ArrayLike, ""],
+) -> Int[Array, " K"]:
+    """Manhattan class of each RANSAC wall, from its direction and the corner types together.
+
+    Walls turn by 90 degrees at every corner that is neither an occlusion nor
+    a split of one plane, and each wall's direction votes for its class
+    (:func:`manhattan_frame`) with its share of the ``support`` (its rows),
+    less as it deviates from the frame. The labelling that disagrees least with both
+    (:func:`cyclic_binary_labels`; a disagreeing corner costs ``turn_weight``,
+    the best-supported wall 1) survives noisy single-wall directions, walls
+    without a direction (zero support) and corners the detector missed (an odd
+    number of turns: the corner that does not turn goes where the walls' own
+    directions agree).
+    """
+    mask = evidence.corner_mask
+    by_direction, deviation = manhattan_frame(directions, support)
+    confidence = support / jnp.maximum(jnp.max(support), 1.0) * (1 - deviation / (math.pi / 4))
+    unary = confidence[:, None] * (by_direction[:, None] != jnp.arange(2)[None, :])
+    turn_expected = ~evidence.occluded & ~evidence.same_plane
+    same_cost = jnp.where(turn_expected, turn_weight, 0.0)
+    turn_cost = jnp.where(turn_expected, 0.0, turn_weight)
+    return cyclic_binary_labels(unary, same_cost, turn_cost, mask)
+
+
+def _segment_directions(
+    cam: NonCentralPanorama, evidence: WallEvidence, ceiling_v, floor_v, config: PipelineConfig
+) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
+    """Per RANSAC segment, a direction and its support (rows) for :func:`manhattan_labels`.
+
+    A fitted wall keeps its RANSAC direction and inlier count. A segment RANSAC
+    could not fit (a narrow wall: a few degrees of rows fix its own metric scale
+    poorly, so the single-wall solver fails) gets the direction of the plan line
+    through its boundary points at the ceiling and floor heights of the fitted
+    walls' joint solve, whose rows fix the heights well, with its trusted rows as support.
+    """
+    heights = solve_atlanta_layout(
+        evidence.ceiling_rays,
+        evidence.floor_rays,
+        solver_columns(evidence, evidence.column_wall),
+        evidence.fitted,
+        evidence.walls.direction,
+        boundary_weights=evidence.row_weights,
+    )
+    plan = plan_lines(
+        cam, evidence, evidence.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height
+    )
+    usable_plan = heights.ok & jnp.all(jnp.isfinite(plan), axis=-1)
+    capacity = evidence.corner_mask.shape[0]
+    rows = (evidence.ceiling_trusted & evidence.floor_trusted).astype(evidence.weights.dtype) * 2
+    counts = jax.ops.segment_sum(
+        rows, jnp.where(evidence.column_wall >= 0, evidence.column_wall, capacity), capacity + 1
+    )
+    by_plan = ~evidence.fitted & evidence.corner_mask & usable_plan
+    directions = jnp.where(by_plan[:, None], plan, evidence.walls.direction)
+    support = jnp.where(by_plan, counts[:capacity], evidence.weights)
+    return directions, support
+
+
+def _place_manhattan_walls(
+    cam: NonCentralPanorama, final: FinalWalls, directions: Float[Array, "K 2"], distances: Float[Array, " K"]
+) -> Float[Array, " K"]:
+    """Distances of the unobserved Manhattan walls: through the corner they share with their near neighbour.
+
+    For a wall inserted at an occlusion that is the occluding corner (on the
+    nearer of the two walls around it); for an unfitted wall, its start corner.
+    """
+    near = final.near_neighbour
+    corner = point_on_wall(cam, directions[near], distances[near], final.corner_columns)
+    return jnp.where(final.observed, distances, signed_distance(directions, corner))
+
+
+def manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
+    """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
+    labels = manhattan_labels(
+        evidence, *_segment_directions(cam, evidence, ceiling_v, floor_v, config), config.turn_weight
+    )
+    same_class = labels[previous_of(evidence)] == labels
+    # Manhattan walls never meet at 0 degrees: consecutive walls of one class are one plane split by a
+    # spurious corner if both were fitted and each explains the other's rows; otherwise a wall lies between
+    # them, one whose corners the detector merged into one peak, or an occluded one. A wall that RANSAC could
+    # not fit is no sign of a spurious corner (narrow walls between close corners are the usual reason)
+    one_plane = ~evidence.occluded & evidence.same_plane
+    merge = evidence.corner_mask & same_class & one_plane & several_corners(evidence)
+    insert = evidence.corner_mask & same_class & ~one_plane
+    final = final_walls(evidence, merge, insert, True, config.sample_size)
+    wall_labels = jnp.where(final.inserted, 1 - labels[final.start_wall], labels[final.start_wall])
+    fit_index = solver_columns(evidence, final.column_wall)
+    fitted = final.observed & evidence.fitted[final.start_wall]
+    yaw = manhattan_yaw(evidence.walls.direction[final.start_wall], wall_labels, fitted)
+    heights = solve_atlanta_layout(
+        evidence.ceiling_rays,
+        evidence.floor_rays,
+        fit_index,
+        fitted,
+        manhattan_directions(yaw, wall_labels),
+        boundary_weights=evidence.row_weights,
+    )
+    plan = plan_lines(
+        cam, evidence, final.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height
+    )
+    yaw = manhattan_yaw(plan, wall_labels, final.observed)
+    solved = solve_atlanta_layout(
+        evidence.ceiling_rays,
+        evidence.floor_rays,
+        fit_index,
+        final.observed,
+        manhattan_directions(yaw, wall_labels),
+        boundary_weights=evidence.row_weights,
+    )
+    distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
+    adjusted, explained, uncertainty = refine(
+        cam,
+        evidence,
+        final,
+        ceiling_v,
+        floor_v,
+        solved.directions,
+        distances,
+        solved.ceiling_height,
+        solved.floor_height,
+        wall_labels,
+        config,
+    )
+    return assemble_layout(
+        cam, evidence, final, *adjusted[:4], explained, uncertainty, heights.ok & solved.ok, True, config
+    )

@@ -1,0 +1,122 @@
+"""Step 5: the final adjustment in two passes on the trusted rows, and the layout's uncertainty."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .adjust import BoundaryObservations, adjust_layout, boundary_weights, layout_residuals
+from .config import min_noise, scaled
+from .types import FinalWalls, WallEvidence
+from .uncertainty import layout_uncertainty, not_computed
+
+# longest lag (columns of a 1024-wide panorama) over which the boundary rows' errors count as correlated
+CORRELATION_COLUMNS = 256.0
+
+
+def _observations(
+    evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int, stride: int
+) -> BoundaryObservations:
+    """The adjustment's data: every ``stride``-th column (the cost of a step grows with their number)."""
+    observations = BoundaryObservations(
+        columns=jnp.arange(ceiling_v.shape[0]),
+        ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
+        floor_v=jnp.where(evidence.finite, floor_v, 3 * height / 4),
+        ceiling_used=evidence.ceiling_trusted & (final.column_wall >= 0),
+        floor_used=evidence.floor_trusted & evidence.floor_measured & (final.column_wall >= 0),
+        column_wall=final.column_wall,
+        corner_columns=final.corner_columns,
+        corner_used=final.corner_used,
+        wall_mask=final.mask,
+    )
+    return _strided(observations, stride)
+
+
+_PER_COLUMN_FIELDS = ("columns", "ceiling_v", "floor_v", "ceiling_used", "floor_used", "column_wall")
+
+
+def _strided(observations: BoundaryObservations, stride: int) -> BoundaryObservations:
+    """Every ``stride``-th of the observed columns; the per-wall fields are kept."""
+    return dataclasses.replace(
+        observations, **{name: getattr(observations, name)[::stride] for name in _PER_COLUMN_FIELDS}
+    )
+
+
+def _row_errors(cam, observations: BoundaryObservations, walls) -> tuple[Float[Array, " N"], Float[Array, " N"]]:
+    """Ceiling and floor row errors (pixels) of the observed columns on the walls
+    ``(directions, distances, h_c, h_f)``."""
+    errors = layout_residuals(*walls, cam, observations, 0.0)
+    count = observations.columns.shape[0]
+    return errors[:count], errors[count : 2 * count]
+
+
+def _using(observations: BoundaryObservations, ceiling_used, floor_used) -> BoundaryObservations:
+    return eqx.tree_at(lambda o: (o.ceiling_used, o.floor_used), observations, (ceiling_used, floor_used))
+
+
+def _noise_weighted(cam, observations: BoundaryObservations, errors, config) -> BoundaryObservations:
+    """``observations`` with each boundary's rows weighted by the squared inverse of its noise, from its
+    rows' ``errors`` (ceiling, floor) about a layout (:func:`ncjax.pipeline.adjust.boundary_weights`)."""
+    weights = boundary_weights(*errors, observations.ceiling_used, observations.floor_used, min_noise(config, cam))
+    return eqx.tree_at(lambda o: o.row_weights, observations, weights)
+
+
+def refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
+    """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again.
+
+    Each pass weights the ceiling and floor rows by the squared inverse of each
+    boundary's noise about its starting layout (:func:`ncjax.pipeline.adjust.boundary_weights`).
+    The second pass estimates it on its inlier rows, whose errors are cut at
+    ``inlier_threshold``: a boundary noisier than about half the threshold reads
+    as less noisy than it is, which softens the weighting (it was tuned so, on
+    tuning renders). The first pass only has to bring the layout within
+    ``inlier_threshold`` of the inlier rows, so it fits a subset of the columns
+    (``inlier_pass_stride``); the second starts next to its optimum.
+
+    Returns:
+        The adjusted walls (:func:`ncjax.pipeline.adjust.adjust_layout`), the fraction of the usable
+        columns' ceiling and floor rows they reproject within ``inlier_threshold``, and their
+        :func:`ncjax.pipeline.uncertainty.layout_uncertainty` on the rows of the second adjustment.
+    """
+    observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
+    subset = _strided(observations, config.inlier_pass_stride)
+    subset = _noise_weighted(cam, subset, _row_errors(cam, subset, (directions, distances, h_c, h_f)), config)
+    adjusted = adjust_layout(
+        cam,
+        subset,
+        directions,
+        distances,
+        h_c,
+        h_f,
+        labels,
+        config.corner_weight,
+        config.adjustment_steps,
+        config.adjustment_tolerance,
+    )
+    threshold = config.inlier_threshold * scaled(1.0, cam.height, 512)
+    ceiling_error, floor_error = _row_errors(cam, observations, adjusted[:4])
+    inliers = _using(
+        observations,
+        observations.ceiling_used & (jnp.abs(ceiling_error) < threshold),
+        observations.floor_used & (jnp.abs(floor_error) < threshold),
+    )
+    inliers = _noise_weighted(cam, inliers, (ceiling_error, floor_error), config)
+    adjusted = adjust_layout(
+        cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps, config.adjustment_tolerance
+    )
+    if config.covariance:
+        max_lag = max(1, round(scaled(CORRELATION_COLUMNS, cam.width, 1024) / config.adjustment_stride))
+        uncertainty = layout_uncertainty(cam, inliers, *adjusted[:4], labels, config.corner_weight, max_lag)
+    else:
+        uncertainty = not_computed(distances.shape[0], distances.dtype)
+    # every usable column counts, on whichever wall this layout gives it, so that the two branches compare
+    usable = evidence.usable[:: config.adjustment_stride]
+    seen = usable & (observations.column_wall >= 0)
+    ceiling_error, floor_error = _row_errors(cam, _using(observations, seen, seen), adjusted[:4])
+    explained = jnp.sum(seen & (jnp.abs(ceiling_error) < threshold)) + jnp.sum(
+        seen & (jnp.abs(floor_error) < threshold)
+    )
+    return adjusted, explained / jnp.maximum(2 * jnp.sum(usable), 1), uncertainty

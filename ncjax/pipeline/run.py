@@ -1,0 +1,257 @@
+"""The geometric pipeline: per-column boundaries to a metric layout (paper Section 4.4, Fig. pipeline_geom).
+
+0. Floor rows the ceiling contradicts (not in the paper): every ray of a column
+   leaves one centre in one vertical plane, so ``tan(ceiling elevation) /
+   tan(floor elevation) = h_c / h_f`` in every column. A floor row more than
+   ``floor_consistency_threshold`` pixels from the row that the ceiling row and
+   the panorama's median ratio give is replaced by that row
+   (:func:`ceiling_consistent_floor`): furniture hides the floor-wall line far
+   more often than anything hides the ceiling's. The replaced rows serve the
+   walls' fits (steps 2-4); the final adjustment and its covariance (step 5)
+   use the measured rows only, so they add no information the image lacks.
+1. Corners from the corner probability (:mod:`ncjax.pipeline.corners`); the columns
+   between consecutive corners are one wall.
+2. Per-wall RANSAC with the single-wall solver (:mod:`ncjax.solvers.ransac`).
+3. At each corner, the boundaries of the two walls are compared at the
+   corner column (lines through the rows on either side, and the two RANSAC
+   walls' reprojections; the smaller difference counts): a jump of more than
+   ``occlusion_threshold`` pixels, and more than ``occlusion_noise_factor``
+   times the rows' noise about their walls, means an occlusion (the paper tests the
+   same in 3D for Atlanta rooms; in pixels the test does not depend on the
+   single walls' noisy scale). Consecutive walls each of which explains the
+   other's pixels may be one wall split by a spurious corner.
+4. Manhattan branch: each wall labelled ``u`` / ``u_perp`` (any yaw) from its
+   direction (RANSAC's; for a wall RANSAC could not fit, its plan line at the
+   heights of the fitted walls' joint solve) and the corner types together (a
+   least-cost labelling of the wall cycle); consecutive walls of one class are
+   merged when they are one plane, otherwise (an occlusion, or a narrow wall
+   whose two corners gave one peak) a perpendicular wall is inserted through
+   the nearer corner; the Manhattan layout solver.
+   Atlanta branch: RANSAC directions, walls of one plane merged when their
+   directions also agree within ``merge_angle``, a wall in the vertical
+   plane of the corner ray at each occlusion, the Atlanta layout solver;
+   then also such a wall at each corner whose two walls meet more than
+   ``max_corner_offset`` columns from it (not in the paper: a narrow wall
+   whose two corners gave one peak), and the solver again.
+   Both branches' solvers weight the ceiling and floor rows by each
+   boundary's noise about the RANSAC walls (not in the paper: a network's
+   floor rows are several times noisier than its ceiling rows).
+5. Final adjustment (:mod:`ncjax.pipeline.adjust`, optimistix least squares) of both branches, its
+   rows weighted likewise: the paper adjusts the Atlanta branch only; the Manhattan branch
+   keeps one yaw.
+6. Corners where consecutive walls meet.
+
+``world="auto"`` (not in the paper) runs both branches and keeps the one that
+succeeds, or, when both do, the Manhattan layout if it reprojects more of the
+boundary rows within the inlier threshold than the Atlanta one; on a tie
+(exact rows), if every RANSAC wall lies within ``manhattan_tolerance`` degrees
+of the two perpendicular directions that fit them best (:func:`choose_manhattan`).
+
+Everything has fixed capacity ``K`` (docs/design.md section 4); failures are
+status values (:class:`LayoutStatus`), never exceptions, inside traced code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
+
+from ..geometry.camera import NonCentralPanorama
+from .atlanta import atlanta_layout
+from .config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
+from .evidence import gather_evidence
+from .floor_check import ceiling_consistent_floor
+from .manhattan import manhattan_frame, manhattan_layout
+from .types import Layout, LayoutStatus, pad_layout
+
+
+def layout_from_evidence(
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    corner_prob: Float[Array, " W"],
+    cam: NonCentralPanorama,
+    key: PRNGKeyArray,
+    world: str,
+    config: PipelineConfig,
+) -> Layout:
+    """The traceable pipeline for one panorama (no input checks; see :func:`layout_from_boundaries`)."""
+    # step 0 always runs: at the default threshold (inf) it replaces no row
+    floor_v, replaced = ceiling_consistent_floor(cam, ceiling_v, floor_v, config.floor_consistency_threshold)
+    evidence = gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config)
+    evidence = eqx.tree_at(lambda e: e.floor_measured, evidence, ~replaced)
+    if world == "manhattan":
+        return manhattan_layout(evidence, ceiling_v, floor_v, cam, config)
+    if world == "atlanta":
+        return atlanta_layout(evidence, ceiling_v, floor_v, cam, config)
+    _, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
+    counted = evidence.corner_mask & evidence.walls.ok
+    in_frame = jnp.all(jnp.where(counted, deviation, 0.0) < jnp.radians(config.manhattan_tolerance))
+    manhattan = manhattan_layout(evidence, ceiling_v, floor_v, cam, config)
+    atlanta = atlanta_layout(evidence, ceiling_v, floor_v, cam, config)
+    use_manhattan = choose_manhattan(
+        manhattan.ok, atlanta.ok, manhattan.explained_fraction, atlanta.explained_fraction, in_frame
+    )
+    return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
+
+
+def choose_manhattan(
+    manhattan_ok: Bool[Array, ""],
+    atlanta_ok: Bool[Array, ""],
+    manhattan_explained: Float[Array, ""],
+    atlanta_explained: Float[Array, ""],
+    in_frame: Bool[Array, ""],
+) -> Bool[Array, ""]:
+    """``world="auto"``: whether to keep the Manhattan branch's layout rather than the Atlanta one.
+
+    A branch that failed loses to one that did not. Otherwise the Manhattan layout is kept when it
+    reprojects more of the usable boundary rows within the inlier threshold than the Atlanta one
+    (which has a free angle per wall, so it rarely loses unless the room is Manhattan), and on a
+    tie (exact rows: both explain everything) when every RANSAC wall lies within
+    ``manhattan_tolerance`` of a Manhattan frame.
+    """
+    better = (manhattan_explained > atlanta_explained) | ((manhattan_explained == atlanta_explained) & in_frame)
+    return manhattan_ok & (~atlanta_ok | better)
+
+
+def _padded_layout(ceiling_v, floor_v, corner_prob, cam, key, thresholds, world, config, slots):
+    config = with_traced(config, thresholds)
+    return pad_layout(layout_from_evidence(ceiling_v, floor_v, corner_prob, cam, key, world, config), slots)
+
+
+_layout_jit = jax.jit(_padded_layout, static_argnames=("world", "config", "slots"))
+
+
+def layout_from_boundaries(
+    ceiling_v: Float[ArrayLike, "*batch W"],
+    floor_v: Float[ArrayLike, "*batch W"],
+    corner_prob: Float[ArrayLike, "*batch W"],
+    cam: NonCentralPanorama,
+    world: str = DEFAULT_WORLD,
+    config: PipelineConfig = PipelineConfig(),
+    key: PRNGKeyArray | None = None,
+) -> Layout:
+    """Metric room layout from the per-column network outputs (paper Section 4.4).
+
+    Jitted; leading batch axes are mapped with ``jax.vmap``. Inside your own
+    ``jax.jit``/``jax.vmap`` it traces like any JAX function. Concrete arrays
+    run with ``config.compact_capacity`` slots first and only the panoramas
+    that need more are rerun with ``config.capacity`` (the same layouts,
+    faster); the Layout has ``config.capacity`` slots either way.
+
+    Args:
+        ceiling_v: ceiling-wall boundary row per column (pixels, sub-pixel; NaN = missing).
+        floor_v: floor-wall boundary row per column.
+        corner_prob: wall-wall corner probability per column, in [0, 1].
+        cam: the camera; ``cam.width`` must equal the number of columns. Its
+            traced fields (``rc``, the fields of view) are scalars, shared by the
+            batch, or have the batch's shape (one camera per panorama).
+        world: static: "manhattan", "atlanta" or "auto" (the default, :data:`DEFAULT_WORLD`).
+        config: :class:`PipelineConfig`; its thresholds (:data:`~ncjax.pipeline.config.TRACED_FIELDS`)
+            are traced, the rest static.
+        key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``).
+
+    Returns:
+        A :class:`Layout`; check ``ok`` / ``status``.
+
+    Raises:
+        ValueError: for an unknown ``world``, arrays whose shapes do not match
+            the camera, or camera fields of another shape than the batch's.
+    """
+    if world not in WORLDS:
+        raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
+    arrays = [jnp.asarray(x) for x in (ceiling_v, floor_v, corner_prob)]
+    arrays = [x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(jnp.float32) for x in arrays]
+    shape = arrays[0].shape
+    if any(x.shape != shape for x in arrays) or not shape or shape[-1] != cam.width:
+        raise ValueError(
+            f"ceiling_v, floor_v and corner_prob must share one shape (..., W) with W = cam.width = {cam.width}; "
+            f"got {[tuple(x.shape) for x in arrays]}"
+        )
+    batch = shape[:-1]
+    fields = jax.tree.leaves(cam)
+    if any(jnp.shape(x) not in ((), batch) for x in fields):
+        raise ValueError(
+            f"the camera's rc and fields of view must be scalars or of the batch's shape {batch}; "
+            f"got {[jnp.shape(x) for x in fields]}"
+        )
+    key = jax.random.key(0) if key is None else key
+    if not batch:
+        return _layout_with_fallback(*arrays, cam, key, world, config)
+    flat = [x.reshape(-1, cam.width) for x in arrays]
+    cams = jax.tree.map(lambda x: jnp.broadcast_to(x, batch).reshape(-1), cam)
+    keys = jax.random.split(key, flat[0].shape[0])
+    layout = _layout_with_fallback(*flat, cams, keys, world, config)
+    return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layout)
+
+
+def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, key, world, config) -> Layout:
+    """One panorama (1D rows) or a flat batch: with ``config.compact_capacity`` slots first where that can help.
+
+    A rerun with ``config.capacity`` slots replaces the compact run's
+    ``TOO_MANY_WALLS`` layouts; the checks before that status do not depend
+    on the slots, so it is raised exactly when the layout needs more of them.
+    Traced inputs run with ``config.capacity`` slots directly.
+    """
+    batched = ceiling_v.ndim == 2
+    thresholds = traced_part(config)
+    run = functools.partial(
+        _batched_layout_jit if batched else _layout_jit, thresholds=thresholds, world=world, slots=config.capacity
+    )
+    full = static_part(dataclasses.replace(config, compact_capacity=0))
+    compact = config.compact_capacity
+    if not 0 < compact < config.capacity or any(
+        isinstance(x, jax.core.Tracer) for x in (ceiling_v, floor_v, corner_prob)
+    ):
+        return run(ceiling_v, floor_v, corner_prob, cam, key, config=full)
+    layout = run(ceiling_v, floor_v, corner_prob, cam, key, config=dataclasses.replace(full, capacity=compact))
+    if not batched:
+        return (
+            run(ceiling_v, floor_v, corner_prob, cam, key, config=full)
+            if layout.status == LayoutStatus.TOO_MANY_WALLS
+            else layout
+        )
+    rerun = np.flatnonzero(np.asarray(layout.status) == LayoutStatus.TOO_MANY_WALLS)
+    if not rerun.size:
+        return layout
+    # padded to a power of two: few batch sizes, so few compilations
+    padding = (1 << (rerun.size - 1).bit_length()) - rerun.size
+    picked = jnp.asarray(np.concatenate([rerun, np.full(padding, rerun[0])]))
+    destination = jnp.asarray(np.concatenate([rerun, np.full(padding, ceiling_v.shape[0])]))
+    return _rerun_jit(
+        ceiling_v, floor_v, corner_prob, cam, key, layout, picked, destination, thresholds, world=world, config=full
+    )
+
+
+def _batched_layout(ceiling_v, floor_v, corner_prob, cams, keys, thresholds, world, config, slots):
+    def one(c, f, p, cam, k):
+        return _padded_layout(c, f, p, cam, k, thresholds, world, config, slots)
+
+    if not 0 < config.chunk_size < ceiling_v.shape[0]:
+        return jax.vmap(one)(ceiling_v, floor_v, corner_prob, cams, keys)
+    # the last, partial chunk (if any) is one more vmap after the loop over the full ones
+    return jax.lax.map(
+        lambda args: one(*args), (ceiling_v, floor_v, corner_prob, cams, keys), batch_size=config.chunk_size
+    )
+
+
+_batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config", "slots"))
+
+
+def _rerun(ceiling_v, floor_v, corner_prob, cams, keys, layout, picked, destination, thresholds, world, config):
+    """``layout`` with the panoramas ``picked`` solved again with ``config``: gather, solve and scatter in one call.
+
+    Result ``i`` goes to panorama ``destination[i]``; out-of-range
+    destinations (the padding of ``picked``) are dropped.
+    """
+    inputs = jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cams, keys))
+    redone = _batched_layout(*inputs, thresholds, world, config, config.capacity)
+    return jax.tree.map(lambda old, new: old.at[destination].set(new, mode="drop"), layout, redone)
+
+
+_rerun_jit = jax.jit(_rerun, static_argnames=("world", "config"))

@@ -1,0 +1,202 @@
+"""What the pipeline returns (:class:`Layout`, :class:`LayoutStatus`) and what its stages pass on."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ..solvers.wall import Wall
+
+
+class LayoutStatus(enum.IntEnum):
+    """Why a layout failed (``Layout.status``); the first failing check in this order wins (see :attr:`reason`)."""
+
+    OK = 0
+    NO_SCALE = 1
+    INVALID_INPUT = 2
+    NO_CORNERS = 3
+    TOO_MANY_WALLS = 4
+    TOO_FEW_WALLS = 5
+    WALL_FIT_FAILED = 6
+    SOLVER_FAILED = 7
+    DEGENERATE_LAYOUT = 8
+    UNCERTAIN_SCALE = 9
+
+    @property
+    def reason(self) -> str:
+        """What the status means, in words for the person who ran the reconstruction."""
+        return _STATUS_REASONS[self]
+
+
+_STATUS_REASONS = {
+    LayoutStatus.OK: "a layout was found",
+    LayoutStatus.NO_SCALE: "rc = 0: a central panorama has no metric scale",
+    LayoutStatus.INVALID_INPUT: "too few columns have finite boundary rows",
+    LayoutStatus.NO_CORNERS: "no corner probability peak reaches the threshold",
+    LayoutStatus.TOO_MANY_WALLS: "more corners or walls than the layout's capacity K",
+    LayoutStatus.TOO_FEW_WALLS: "fewer than 3 walls (4 in a Manhattan room)",
+    LayoutStatus.WALL_FIT_FAILED: "RANSAC fitted fewer than 2 walls",
+    LayoutStatus.SOLVER_FAILED: "the joint layout solver failed",
+    LayoutStatus.DEGENERATE_LAYOUT: (
+        "implausible layout: consecutive walls parallel, ceiling not above or floor not below the camera, "
+        "room taller than max_room_height or corners farther than max_corner_distance"
+    ),
+    LayoutStatus.UNCERTAIN_SCALE: (
+        "the boundaries do not fix the room's scale: the room height's standard deviation exceeds "
+        "max_height_uncertainty of the height (rc small for the room's size, or walls the boundaries leave free)"
+    ),
+}
+
+
+class Layout(eqx.Module):
+    """A room layout recovered from one panorama (docs/design.md section 5).
+
+    All fields are traced arrays (``jax.vmap`` adds leading batch axes). Walls
+    and corners share the ``K`` slots: corner ``k`` starts wall ``k``, walls
+    run left to right in the image (decreasing azimuth) and the valid ones are
+    the first slots.
+
+    Attributes:
+        ceiling_corners: (K, 3) metres, camera frame.
+        floor_corners: (K, 3).
+        mask: (K,) which slots are corners/walls.
+        ceiling_height: ``h_c`` (m above the plane of optical centres).
+        floor_height: ``h_f`` (negative).
+        wall_directions: (K, 2) unit, canonical sign (camera on the left).
+        wall_distances: (K,) signed distances (<= 0).
+        ceiling_lines: (K, 6) Plücker lines.
+        floor_lines: (K, 6).
+        inserted: (K,) walls inserted for an occlusion (not seen in the image).
+        corner_columns: (K,) image column of each corner as detected.
+        manhattan: whether the Manhattan branch produced the layout.
+        explained_fraction: the fraction of the usable columns' ceiling and floor
+            rows that the layout reprojects within ``PipelineConfig.inlier_threshold``
+            (a quality indicator: on our test renders the 3D IoU grows with it;
+            ``world="auto"`` compares the branches by it).
+        corner_covariance: (K, 2, 2) first-order covariance (m^2) of each corner's
+            plan position under the boundary rows' noise, estimated from the
+            final adjustment's residuals and their correlation along the columns
+            (:func:`ncjax.pipeline.uncertainty.layout_uncertainty`); infinite when the fit
+            does not determine it, NaN with ``PipelineConfig(covariance=False)``.
+            Calibrated for rows with independent or short-range correlated
+            noise; a network's errors are correlated over whole walls and partly
+            absorbed by the fit, so there the ellipses are too small (about 55%
+            of the true corners inside the 95% ellipse on our test renders). It
+            does not cover a wrong wall structure.
+        height_covariance: (2, 2) covariance (m^2) of ``(h_c, h_f)``, likewise.
+        status: :class:`LayoutStatus` code (int32).
+        ok: ``status == OK``; corners of a failed layout are finite but meaningless.
+
+    The per-slot fields hold zeros (False) in the slots outside ``mask``.
+    """
+
+    ceiling_corners: Float[Array, "*batch K 3"]
+    floor_corners: Float[Array, "*batch K 3"]
+    mask: Bool[Array, "*batch K"]
+    ceiling_height: Float[Array, "*batch"]
+    floor_height: Float[Array, "*batch"]
+    wall_directions: Float[Array, "*batch K 2"]
+    wall_distances: Float[Array, "*batch K"]
+    ceiling_lines: Float[Array, "*batch K 6"]
+    floor_lines: Float[Array, "*batch K 6"]
+    inserted: Bool[Array, "*batch K"]
+    corner_columns: Float[Array, "*batch K"]
+    manhattan: Bool[Array, "*batch"]
+    explained_fraction: Float[Array, "*batch"]
+    corner_covariance: Float[Array, "*batch K 2 2"]
+    height_covariance: Float[Array, "*batch 2 2"]
+    status: Int[Array, "*batch"]
+    ok: Bool[Array, "*batch"]
+
+
+# the Layout fields with the K slots on their first (unbatched) axis
+_SLOT_FIELDS = (
+    "ceiling_corners",
+    "floor_corners",
+    "mask",
+    "wall_directions",
+    "wall_distances",
+    "ceiling_lines",
+    "floor_lines",
+    "inserted",
+    "corner_columns",
+    "corner_covariance",
+)
+
+
+def pad_layout(layout: Layout, capacity: int) -> Layout:
+    """``layout`` with its slots padded to ``capacity`` (static) with empty slots (zeros, mask False).
+
+    Works on batched layouts: the slot axis follows the batch axes.
+    """
+    batch = layout.ok.ndim
+    if layout.mask.shape[batch] == capacity:
+        return layout
+
+    def padded(x):
+        widths = [(0, 0)] * x.ndim
+        widths[batch] = (0, capacity - x.shape[batch])
+        return jnp.pad(x, widths)
+
+    return dataclasses.replace(layout, **{name: padded(getattr(layout, name)) for name in _SLOT_FIELDS})
+
+
+class WallEvidence(eqx.Module):
+    """Steps 1-3, shared by both branches (internal; all fields traced, ``K`` slots).
+
+    Corner ``j`` starts RANSAC wall ``j``; ``previous`` is wall ``j - 1`` (cyclic).
+    ``fitted``: RANSAC found wall ``j``; ``both_fitted``: walls ``j - 1`` and ``j``;
+    ``occluded``: the boundaries jump at the corner; ``same_plane``: each of walls ``j - 1`` and ``j`` explains most
+    inlier pixels of the other. ``ceiling_trusted`` / ``floor_trusted``: the column's row may enter the joint
+    fit: usable, and an inlier of its RANSAC wall when RANSAC fitted one (a segment that holds two planes
+    because a corner was missed keeps only the rows of the plane RANSAC found). ``row_weights``: the joint
+    solvers' factors of the ceiling and floor rows, from each boundary's noise about the RANSAC walls
+    (:func:`ncjax.pipeline.adjust.boundary_weights` on the inlier rows of the fitted walls: cut at the inlier
+    threshold, so a boundary much noisier than half of it reads as less noisy than it is).
+    ``floor_measured``: the floor row is the input's, not one that step 0 put where the ceiling row says
+    (those help the walls' fits, but the final adjustment and its covariance use measured rows only).
+    """
+
+    ceiling_rays: Float[Array, "W 6"]
+    floor_rays: Float[Array, "W 6"]
+    finite: Bool[Array, " W"]
+    corner_columns: Float[Array, " K"]
+    corner_mask: Bool[Array, " K"]
+    corner_overflow: Bool[Array, ""]
+    column_wall: Int[Array, " W"]
+    walls: Wall
+    usable: Bool[Array, " W"]
+    ceiling_trusted: Bool[Array, " W"]
+    floor_trusted: Bool[Array, " W"]
+    floor_measured: Bool[Array, " W"]
+    weights: Float[Array, " K"]
+    row_weights: Float[Array, " 2"]
+    fitted: Bool[Array, " K"]
+    both_fitted: Bool[Array, " K"]
+    same_plane: Bool[Array, " K"]
+    occluded: Bool[Array, " K"]
+    previous_nearer: Bool[Array, " K"]
+
+
+class FinalWalls(eqx.Module):
+    """The wall loop after merging and occlusion insertion (internal; traced, ``K`` slots).
+
+    ``observed`` walls have enough usable columns for the joint solvers; the
+    others (inserted at occlusions, or too narrow) are placed from their
+    neighbours and corner rays and then held by the corner penalty.
+    """
+
+    mask: Bool[Array, " K"]
+    inserted: Bool[Array, " K"]
+    observed: Bool[Array, " K"]
+    group: Int[Array, " K"]
+    start_wall: Int[Array, " K"]
+    corner_columns: Float[Array, " K"]
+    corner_used: Bool[Array, " K"]
+    near_neighbour: Int[Array, " K"]
+    column_wall: Int[Array, " W"]
+    overflow: Bool[Array, ""]

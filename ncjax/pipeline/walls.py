@@ -1,0 +1,128 @@
+"""The wall loop after merging and insertion, and the plan geometry both branches share."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ..geometry.camera import NonCentralPanorama
+from ..geometry.plucker import cross_2d
+from ..geometry.reprojection import boundary_points, column_directions, fit_plan_lines, range_along
+from .types import FinalWalls, WallEvidence
+
+
+def wall_groups(corner_mask: Bool[Array, " K"], merge: Bool[Array, " K"]) -> tuple[Int[Array, " K"], Int[Array, ""]]:
+    """Group of each RANSAC wall after merging, and the number of groups.
+
+    A corner that is not merged starts a group; walls before the first start
+    belong to the last group (the loop wraps).
+    """
+    starts = corner_mask & ~merge
+    num_groups = jnp.sum(starts)
+    group = jnp.cumsum(starts) - 1
+    return jnp.where(group < 0, num_groups - 1, group), num_groups
+
+
+def final_walls(
+    evidence: WallEvidence, merge: Bool[Array, " K"], insert: Bool[Array, " K"], manhattan: bool, min_columns: int
+) -> FinalWalls:
+    """Merge the walls split by spurious corners and insert the occluded ones.
+
+    Wall groups: a corner that is not merged starts a group; walls before the
+    first start belong to the last group (the loop wraps). Slot ``2g`` holds the
+    wall inserted before group ``g`` (if any), slot ``2g + 1`` group ``g``; the
+    valid slots are then compacted to the front. A wall is observed with at
+    least ``min_columns`` trusted columns (:class:`WallEvidence`).
+    """
+    capacity = evidence.corner_mask.shape[0]
+    starts = evidence.corner_mask & ~merge
+    group_of_wall, num_groups = wall_groups(evidence.corner_mask, merge)
+    start_corner = (
+        jnp.zeros(capacity, jnp.int32)
+        .at[jnp.where(starts, group_of_wall, capacity)]
+        .set(jnp.arange(capacity, dtype=jnp.int32), mode="drop")
+    )
+    group_valid = jnp.arange(capacity) < num_groups
+    insert_before = group_valid & insert[start_corner]
+    slot_valid = jnp.stack([insert_before, group_valid], 1).reshape(-1)
+    order = jnp.argsort(~slot_valid, stable=True)
+    rank = jnp.zeros_like(order).at[order].set(jnp.arange(2 * capacity, dtype=order.dtype))
+    slot = order[:capacity]
+    group = slot // 2
+    inserted = slot % 2 == 0
+    mask = slot_valid[slot]
+    corner = start_corner[group]
+    nearer_is_previous = evidence.previous_nearer[corner]
+    if manhattan:
+        # Only the occluding corner (on the nearer wall) is seen.
+        corner_used = jnp.where(
+            insert_before[group], jnp.where(inserted, nearer_is_previous, ~nearer_is_previous), True
+        )
+    else:
+        corner_used = jnp.ones(capacity, bool)
+    index = jnp.arange(capacity)
+    count = jnp.maximum(jnp.sum(mask), 1)
+    # an unfitted wall hangs on its predecessor; an inserted one on the nearer wall
+    near_neighbour = jnp.where(nearer_is_previous | ~inserted, (index - 1) % count, (index + 1) % count)
+    wall = evidence.column_wall
+    column_wall = jnp.where(wall >= 0, rank[2 * group_of_wall[jnp.maximum(wall, 0)] + 1], -1)
+    column_wall = jnp.where(column_wall < capacity, column_wall, -1).astype(jnp.int32)
+    trusted = evidence.ceiling_trusted & evidence.floor_trusted
+    columns_seen = jax.ops.segment_sum(
+        trusted.astype(jnp.int32), jnp.where(column_wall >= 0, column_wall, capacity), capacity + 1
+    )
+    observed = mask & ~inserted & (columns_seen[:capacity] >= min_columns)
+    return FinalWalls(
+        mask=mask,
+        inserted=inserted & mask,
+        observed=observed,
+        group=group,
+        start_wall=corner,
+        corner_columns=evidence.corner_columns[corner],
+        corner_used=corner_used & mask,
+        near_neighbour=near_neighbour,
+        column_wall=column_wall,
+        overflow=jnp.sum(slot_valid) > capacity,
+    )
+
+
+def group_directions(evidence: WallEvidence, merge: Bool[Array, " K"], final: FinalWalls) -> Float[Array, "K 2"]:
+    """Per final wall, the inlier-weighted mean direction of its merged RANSAC walls."""
+    capacity = merge.shape[0]
+    group_of_wall, _ = wall_groups(evidence.corner_mask, merge)
+    group_of_wall = jnp.where(evidence.corner_mask, group_of_wall, capacity)
+    # canonical signs (camera on the left) agree for walls of one plane
+    summed = jax.ops.segment_sum(evidence.weights[:, None] * evidence.walls.direction, group_of_wall, capacity + 1)
+    return summed[final.group]
+
+
+def point_on_wall(
+    cam: NonCentralPanorama, direction: Float[Array, "K 2"], distance: Float[Array, " K"], column: Float[Array, " K"]
+) -> Float[Array, "K 2"]:
+    """Where the vertical half-plane of ``column`` meets a wall (plan view)."""
+    along = column_directions(cam, column)
+    t = range_along(cam, direction, distance, along)
+    t = jnp.where(jnp.isfinite(t), t, 0.0)
+    return (cam.rc + t)[:, None] * along
+
+
+def signed_distance(direction: Float[Array, "K 2"], point: Float[Array, "K 2"]) -> Float[Array, " K"]:
+    return cross_2d(direction, point)  # e2 . p with e2 = (-uy, ux)
+
+
+def several_corners(evidence: WallEvidence) -> Bool[Array, ""]:
+    return jnp.sum(evidence.corner_mask) > 1
+
+
+def plan_lines(cam, evidence, column_wall, ceiling_v, floor_v, h_c, h_f) -> Float[Array, "K 2"]:
+    """Per wall of ``column_wall`` (-1: none), the direction of the plan line through its boundary points at
+    heights ``h_c``, ``h_f``."""
+    columns = jnp.arange(cam.width, dtype=ceiling_v.dtype)
+    ceiling, ceiling_ok = boundary_points(cam, columns, jnp.where(evidence.finite, ceiling_v, 0.0), h_c)
+    floor, floor_ok = boundary_points(cam, columns, jnp.where(evidence.finite, floor_v, 0.0), h_f)
+    points = jnp.concatenate([ceiling, floor])
+    ok = jnp.concatenate([ceiling_ok, floor_ok]) & jnp.tile(evidence.usable, 2)
+    wall = jnp.tile(column_wall, 2)  # -1 (no wall): dropped
+    directions, _ = fit_plan_lines(points, ok.astype(points.dtype), wall, evidence.corner_mask.shape[0])
+    return directions

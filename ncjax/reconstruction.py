@@ -1,0 +1,207 @@
+"""``ncjax.reconstruction``: panorama -> Non-central HorizonNet -> geometric pipeline -> metric Layout.
+
+The two blocks of the paper's Fig. pipeline in ONE jitted function: the image
+is resized to the network's input size, the network's per-column outputs are
+brought back to the image's columns and rows (:func:`~ncjax.network.model.prediction_to_rows`)
+and snapped to the full image's edges (:func:`~ncjax.network.edges.snap_to_edges`), and the
+geometric pipeline (:func:`~ncjax.pipeline.run.layout_from_evidence`)
+runs on them with each image's own camera radius. Nothing leaves the device
+between the two blocks, and a batch of images is one call.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Array, ArrayLike, Float, Key, PRNGKeyArray, Shaped
+
+from .geometry.camera import NonCentralPanorama
+from .io.images import panorama_size_error
+from .network.edges import EdgeSnap
+from .network.model import HorizonNet, check_views
+from .network.predict import DEFAULT_VIEWS, default_model, image_boundaries
+from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
+from .pipeline.run import layout_from_evidence
+from .pipeline.types import Layout
+
+# The pipeline's defaults suit exact and white-noise rows. The network's corner probability has lobes several
+# columns wide, in which NMS over +-2 columns leaves spurious second peaks: +-4 columns and a 0.4 threshold keep one
+# peak per corner more often. Network rows snapped to the image's edges are exact to a fraction of a pixel in most
+# columns, so the noise-scaled part of the occlusion test falls to its floor, but not beside the corners, where two
+# walls' edges mix: a jump there must reach 8 px, not 4, to count as an occlusion. Chosen for the shipped model on
+# tuning renders, never the test renders (experiments/tune_network_pipeline.py; experiments/RESULTS.md).
+# A layout whose room height the rows fix no better than 8% (one sigma) fails with UNCERTAIN_SCALE: on the tuning
+# renders 91% (Manhattan) and 76% (Atlanta) of the ok layouts that this fails were more than 0.3 m off, and 0.08 is the
+# smallest threshold at which three quarters of them were (experiments/RESULTS.md).
+# Floor rows more than 2 px from the row their column's ceiling row implies are replaced by it for the walls' fits
+# (step 0, ncjax.pipeline.floor_check; 2 and 3 px compared on the tuning renders, experiments/RESULTS.md).
+NETWORK_PIPELINE_CONFIG = PipelineConfig(
+    corner_threshold=0.4,
+    nms_radius=4.0,
+    occlusion_threshold=8.0,
+    max_height_uncertainty=0.08,
+    floor_consistency_threshold=2.0,
+)
+
+
+class Reconstruction(NamedTuple):
+    """What :func:`reconstruct_batch` returns: the layouts and the network's boundaries they came from.
+
+    Attributes:
+        layout: :class:`~ncjax.Layout` with a leading batch axis B.
+        ceiling_v, floor_v: (B, W) the boundary rows the geometry used, in image
+            pixels (the network's, snapped to the image's edges by default).
+        corner_prob: (B, W) the network's corner probability.
+    """
+
+    layout: Layout
+    ceiling_v: Float[Array, "B W"]
+    floor_v: Float[Array, "B W"]
+    corner_prob: Float[Array, "B W"]
+
+
+@functools.partial(nnx.jit, static_argnames=("world", "config", "views", "edge_snap"))
+def _reconstruct(
+    model: HorizonNet,
+    images: Shaped[Array, "B H W 3"],
+    rc: Float[Array, " B"],
+    keys: Key[Array, " B"],
+    thresholds: dict[str, Float[Array, ""]],
+    world: str,
+    config: PipelineConfig,
+    views: int,
+    edge_snap: EdgeSnap | None,
+) -> Reconstruction:
+    height, width = images.shape[1:3]
+    config = with_traced(config, thresholds)
+    ceiling_v, floor_v, corner_prob = image_boundaries(model, images, views, edge_snap)
+
+    def one(ceiling, floor, probability, radius, key):
+        cam = NonCentralPanorama(width, height, rc=radius)
+        return layout_from_evidence(ceiling, floor, probability, cam, key, world, config)
+
+    layouts = jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, keys)
+    return Reconstruction(layouts, ceiling_v, floor_v, corner_prob)
+
+
+def check_panorama(images: np.ndarray) -> None:
+    """Raise ValueError unless ``images`` is RGB uint8 (H, W, 3) or (B, H, W, 3) of a full panorama."""
+    if images.dtype != np.uint8 or images.ndim not in (3, 4) or images.shape[-1] != 3:
+        raise ValueError(
+            f"expected an RGB uint8 image (H, W, 3) or batch (B, H, W, 3), got {images.dtype}{images.shape}"
+        )
+    size_error = panorama_size_error(images.shape[-2], images.shape[-3])
+    if size_error:
+        raise ValueError(size_error)
+
+
+def reconstruct_batch(
+    images: Shaped[np.ndarray, "B H W 3"],
+    rc: Float[ArrayLike, " B"],
+    world: str = DEFAULT_WORLD,
+    *,
+    model: HorizonNet | None = None,
+    config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
+    key: PRNGKeyArray | None = None,
+    views: int = DEFAULT_VIEWS,
+    edge_snap: EdgeSnap | None = EdgeSnap(),
+) -> Reconstruction:
+    """Metric layouts of a batch of panoramas of one size, each with its own radius.
+
+    Args:
+        images: RGB uint8 (B, H, W, 3), W = 2 H.
+        rc: (B,) radius of each panorama's circle of optical centres, metres.
+        world: static: "manhattan", "atlanta" or "auto".
+        model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
+        config: :class:`~ncjax.PipelineConfig`, thresholds traced, the rest static (default:
+            :data:`NETWORK_PIPELINE_CONFIG`, the pipeline's defaults with the corner and occlusion settings for
+            the network's output).
+        key: RANSAC key (default ``jax.random.key(0)``), split over the batch.
+        views: static, rolled and mirrored views the network's output is
+            averaged over (1 or even, :func:`ncjax.predict_boundaries`).
+        edge_snap: static; how the network's rows are moved onto the image's
+            edges before the geometry (:func:`~ncjax.network.edges.snap_to_edges`);
+            None keeps the network's rows.
+
+    Returns:
+        :class:`Reconstruction` (check ``layout.ok`` per image).
+
+    Raises:
+        ValueError: bad image array, world or rc (negative or not finite; rc = 0
+            is accepted and gives ``LayoutStatus.NO_SCALE``).
+        FileNotFoundError: no model given and the shipped weights are missing.
+    """
+    images = np.asarray(images)
+    check_panorama(images)
+    if images.ndim != 4:
+        raise ValueError(f"reconstruct_batch takes a batch (B, H, W, 3), got {images.shape}; use reconstruct")
+    if world not in WORLDS:
+        raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
+    check_views(views)
+    rc = np.broadcast_to(np.asarray(rc, np.float32), images.shape[:1])
+    if not np.all(np.isfinite(rc)) or np.any(rc < 0):
+        raise ValueError(f"rc must be finite radii >= 0 in metres, got {rc}")
+    model = default_model() if model is None else model
+    model.eval()
+    keys = jax.random.split(jax.random.key(0) if key is None else key, images.shape[0])
+    return _reconstruct(
+        model,
+        jnp.asarray(images),
+        jnp.asarray(rc),
+        keys,
+        traced_part(config),
+        world,
+        static_part(config),
+        views,
+        edge_snap,
+    )
+
+
+def reconstruct(
+    image: Shaped[np.ndarray, "H W 3"],
+    cam: NonCentralPanorama,
+    world: str = DEFAULT_WORLD,
+    *,
+    model: HorizonNet | None = None,
+    config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
+    key: PRNGKeyArray | None = None,
+    views: int = DEFAULT_VIEWS,
+    edge_snap: EdgeSnap | None = EdgeSnap(),
+) -> Layout:
+    """Metric room layout of one RGB panorama: network, then geometry (paper Fig. pipeline).
+
+    Args:
+        image: RGB uint8 (H, W, 3), a full panorama (W = 2 H).
+        cam: its camera; ``cam.width`` and ``cam.height`` must be the image's.
+        world: "manhattan", "atlanta" or "auto".
+        model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
+        config: :class:`~ncjax.PipelineConfig` (default: :data:`NETWORK_PIPELINE_CONFIG`).
+        key: RANSAC key (default ``jax.random.key(0)``).
+        views: rolled and mirrored views the network averages (1 or even).
+        edge_snap: rows snapped to the image's edges (None: the network's rows).
+
+    Returns:
+        An unbatched :class:`~ncjax.Layout`; check ``ok`` / ``status``.
+    """
+    image = np.asarray(image)
+    check_panorama(image)
+    if image.ndim != 3:
+        raise ValueError(f"reconstruct takes one image (H, W, 3), got {image.shape}; use reconstruct_batch")
+    if (cam.width, cam.height) != image.shape[1::-1]:
+        raise ValueError(f"the camera is {cam.width} x {cam.height} but the image {image.shape[1]} x {image.shape[0]}")
+    result = reconstruct_batch(
+        image[None],
+        jnp.reshape(cam.rc, (1,)),
+        world,
+        model=model,
+        config=config,
+        key=key,
+        views=views,
+        edge_snap=edge_snap,
+    )
+    return jax.tree.map(lambda x: x[0], result.layout)

@@ -1,0 +1,7 @@
+"""Wall and layout solvers (paper Sections 4.1-4.3): from boundary rays to metric walls.
+
+- ``wall``: the single-wall solver (SVD null space of the side constraints, eqs. manx, many, quad_v, quad_w).
+- ``wall_fit``: linear walls, the scale search and the Gauss-Newton refinement the solvers share.
+- ``layout``: the joint Manhattan and Atlanta layout solvers.
+- ``ransac``: RANSAC over one wall's columns with the single-wall solver.
+"""

@@ -1,0 +1,7 @@
+"""Synthetic rooms and their panoramas with exact labels (paper Section 5.1).
+
+- ``rooms``: random Manhattan and Atlanta rooms, a camera inside, and their labels.
+- ``furniture``, ``scene``, ``materials``: furnished, lit scenes with procedural materials.
+- ``render``: ray-cast non-central panoramas (RGB, depth, semantics).
+- ``augment``: photometric and sensor effects; ``dataset``: the dataset folders on disk.
+"""

@@ -1,0 +1,463 @@
+"""A JAX ray caster for non-central circular panoramas of synthetic scenes.
+
+The paper rendered its dataset with POV-Ray and a custom camera (Section 5.1,
+minutes per image). Here every pixel's ray is cast in JAX, jitted and vmapped
+over scenes, fast enough to make training data on the fly.
+
+The ray of pixel (u, v) leaves the optical centre ``rc (cos varphi, sin varphi, 0)``
+of its column at elevation ``phi`` (paper eq. pluckerray), so every ray of a
+column lies in one vertical half-plane and shares its horizontal path. The
+renderer exploits that: the walls (O(K)) and the footprints of the boxes (O(B),
+2D slab tests) are intersected once per column, and per pixel only the heights
+are compared (``z = t tan(phi)`` at horizontal distance ``t``), which makes a
+pixel cost O(B) comparisons. ``rc = 0`` is the central equirectangular panorama.
+
+Shading: procedural albedo (``ncjax.synth.materials``), an ambient term darkened
+near the room's edges, Lambertian point lights with ``1 / (1 + d^2)`` falloff,
+optional hard shadows from the furniture, emissive lamps and windows, then an
+exponential tone curve and gamma 2.2.
+
+Not modelled (yet): shadows cast by walls, inter-reflections and specular
+surfaces; geometry of doors, windows and skirting boards (they are textures on
+the wall, so the layout labels stay exact); views through doors and windows;
+furniture other than boxes (no curved shapes, no clutter on tables, nothing on
+carpets); lamps other than ceiling lamps; the capture rig itself; lens and
+sensor effects beyond the photometric augmentations of ``ncjax.synth.augment``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int, Key, PRNGKeyArray
+
+from ..geometry.camera import NonCentralPanorama, pixel_to_angles
+from ..geometry.polygon import perpendicular
+from .materials import Material, material_albedo
+from .rooms import RoomConfig, RoomLabels, random_room, ray_hits, room_labels, room_walls
+from .scene import Boxes, Scene, SceneConfig, random_scene
+
+
+class Semantic(enum.IntEnum):
+    """Semantic classes of :attr:`Rendering.semantic`."""
+
+    CEILING = 0
+    FLOOR = 1
+    WALL = 2
+    OBJECT = 3
+    OPENING = 4  # door or window
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderConfig:
+    """Static settings of :func:`render` (hashable: a jit static argument).
+
+    Attributes:
+        supersampling: s, odd: each pixel averages s x s rays for the RGB image;
+            depth and semantics come from the central ray (the pixel centre), so
+            they stay exactly consistent with the labels.
+        shadows: cast a shadow ray per pixel and light against the furniture.
+        rows_per_chunk: image rows rendered together (bounds memory: per chunk
+            the work is rows x W x boxes_per_column).
+        boxes_per_column: M, the boxes each column tests, the nearest whose
+            footprints its horizontal ray crosses (a farther one is dropped when
+            more than M are crossed: :func:`box_overflow` counts such columns).
+    """
+
+    supersampling: int = 1
+    shadows: bool = False
+    rows_per_chunk: int = 16
+    boxes_per_column: int = 8
+
+    def __post_init__(self):
+        if int(self.supersampling) != self.supersampling or self.supersampling < 1 or self.supersampling % 2 == 0:
+            raise ValueError(f"supersampling must be an odd positive integer (1, 3, ...), got {self.supersampling!r}")
+        for name in ("rows_per_chunk", "boxes_per_column"):
+            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
+
+
+class Rendering(eqx.Module):
+    """Images of a scene seen by a panorama (all fields traced).
+
+    Attributes:
+        rgb: (H, W, 3) colours in [0, 1].
+        depth: (H, W) distance from the pixel's optical centre to the first hit
+            along its ray, metres.
+        semantic: (H, W) :class:`Semantic` classes.
+    """
+
+    rgb: Float[Array, "H W 3"]
+    depth: Float[Array, "H W"]
+    semantic: Int[Array, "H W"]
+
+
+def box_interval_2d(
+    origin: Float[Array, 2],
+    direction: Float[Array, 2],
+    centre: Float[Array, 2],
+    half_size: Float[Array, 2],
+    rotation: Float[Array, 2],
+) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, 2]]:
+    """Slab test of a horizontal ray against a rotated rectangle.
+
+    Returns:
+        ``(t_in, t_out, normal)``: the ray parameters where it enters and leaves
+        the rectangle (empty when ``t_in >= t_out``), and the outward normal of
+        the entry side.
+    """
+    axes = jnp.stack([rotation, perpendicular(rotation)])
+    o, d = axes @ (origin - centre), axes @ direction
+    safe_d = jnp.where(jnp.abs(d) > 1e-12, d, 1e-12)
+    t_a, t_b = (-half_size - o) / safe_d, (half_size - o) / safe_d
+    near, far = jnp.minimum(t_a, t_b), jnp.maximum(t_a, t_b)
+    entry_axis = jnp.argmax(near)
+    normal = -jnp.sign(safe_d[entry_axis]) * axes[entry_axis]
+    return jnp.max(near), jnp.min(far), normal
+
+
+def box_segment_blocked(
+    start: Float[Array, 3], end: Float[Array, 3], boxes: Boxes, casts_shadow: Bool[Array, " B"]
+) -> Bool[Array, ""]:
+    """Whether the segment from ``start`` to ``end`` passes through a box (3D slab test)."""
+    axes = jnp.stack([boxes.rotation, perpendicular(boxes.rotation)], -2)  # (B, 2, 2)
+    offset = start[None] - boxes.centre
+    delta = end - start
+    o = jnp.concatenate([jnp.einsum("bij,bj->bi", axes, offset[:, :2]), offset[:, 2:]], -1)
+    d = jnp.concatenate([jnp.einsum("bij,j->bi", axes, delta[:2]), jnp.broadcast_to(delta[2:], (o.shape[0], 1))], -1)
+    safe_d = jnp.where(jnp.abs(d) > 1e-12, d, 1e-12)
+    t_a, t_b = (-boxes.half_size - o) / safe_d, (boxes.half_size - o) / safe_d
+    t_in = jnp.max(jnp.minimum(t_a, t_b), -1)
+    t_out = jnp.min(jnp.maximum(t_a, t_b), -1)
+    return jnp.any((t_in < t_out) & (t_out > 1e-4) & (t_in < 1.0 - 1e-4) & casts_shadow)
+
+
+def _select_material(condition: Array, a: Material, b: Material) -> Material:
+    """Per pixel: ``a`` where ``condition`` holds, else ``b`` (fields shaped ``condition.shape + ...``)."""
+    return jax.tree.map(
+        lambda x, y: jnp.where(condition.reshape(condition.shape + (1,) * (x.ndim - condition.ndim)), x, y), a, b
+    )
+
+
+def _opening_appearance(opening: dict, along, height):
+    """Albedo and emission of a door or window (fields of ``opening`` per column)
+    at coordinates inside it: a frame, inset door panels with a handle, or glass
+    panes split by mullions that glow with daylight."""
+    x, y = along - opening["start"], height - opening["bottom"]
+    width, tall, window = opening["width"], opening["tall"], opening["is_window"]
+    frame = 0.06
+    on_frame = (x < frame) | (x > width - frame) | (y > tall - frame) | (window & (y < frame))
+    mullion = window & ((jnp.abs(x - width / 2) < 0.025) | (jnp.abs(y - 0.6 * tall) < 0.025))
+    in_panel = (
+        (x > 0.14) & (x < width - 0.14) & (((y > 0.12) & (y < 0.45 * tall)) | ((y > 0.5 * tall) & (y < tall - 0.14)))
+    )
+    panel_edge = in_panel & (
+        (x < 0.16)
+        | (x > width - 0.16)
+        | (jnp.abs(y - 0.12) < 0.02)
+        | (jnp.abs(y - 0.45 * tall) < 0.02)
+        | (jnp.abs(y - 0.5 * tall) < 0.02)
+        | (jnp.abs(y - tall + 0.14) < 0.02)
+    )
+    handle = ~window & ((x - (width - 0.1)) ** 2 + (y - 1.0) ** 2 < 0.035**2)
+    leaf = opening["colour"] * (jnp.where(panel_edge, 0.55, 1.0) * jnp.where(handle, 0.2, 1.0))[..., None]
+    sky = opening["colour"] * (0.75 + 0.35 * y / tall)[..., None]
+    framed = (on_frame | mullion)[..., None]
+    albedo = jnp.where(framed, opening["frame_colour"], jnp.where(window[..., None], 0.0, leaf))
+    emission = jnp.where(framed | ~window[..., None], 0.0, 1.6 * sky)
+    return albedo, emission
+
+
+def _columns(scene: Scene, cam: NonCentralPanorama, boxes_per_column: int):
+    """Everything that depends on the column only: the horizontal ray, the wall
+    it meets and where, the door or window there, and the boxes whose footprints
+    it crosses with all their attributes (so that the per-pixel code gathers nothing)."""
+    room, boxes = scene.room, scene.boxes
+    azimuth, _ = pixel_to_angles(cam, jnp.arange(cam.width, dtype=room.corners.dtype), 0.0)
+    direction = jnp.stack([jnp.cos(azimuth), jnp.sin(azimuth)], -1)
+    origin = cam.rc * direction
+    hits = jax.vmap(ray_hits, in_axes=(0, 0, None, None))(origin, direction, room.corners, room.mask)
+    wall = jnp.argmin(hits, axis=1)
+    t_wall = jnp.min(hits, axis=1)
+    t_wall = jnp.where(jnp.isfinite(t_wall), t_wall, 1e3)  # only for invalid rooms
+    wall_direction, _, _, _ = room_walls(room)
+    wall_point = origin + t_wall[:, None] * direction
+    along = jnp.sum((wall_point - room.corners[wall]) * wall_direction[wall], -1)
+    openings = scene.openings
+    in_span = (
+        (openings.wall[None, :] == wall[:, None])
+        & (openings.span[None, :, 0] <= along[:, None])
+        & (along[:, None] <= openings.span[None, :, 1])
+        & openings.mask[None, :]
+    )
+    index = jnp.argmax(in_span, axis=1)
+    opening = dict(
+        present=jnp.any(in_span, axis=1),
+        start=openings.span[index, 0],
+        width=openings.span[index, 1] - openings.span[index, 0],
+        bottom=openings.z_range[index, 0],
+        tall=openings.z_range[index, 1] - openings.z_range[index, 0],
+        is_window=openings.is_window[index],
+        colour=openings.colour[index],
+        frame_colour=openings.frame_colour[index],
+    )
+    t_in, t_out, box_normal = jax.vmap(
+        jax.vmap(box_interval_2d, in_axes=(None, None, 0, 0, 0)), in_axes=(0, 0, None, None, None)
+    )(origin, direction, boxes.centre[:, :2], boxes.half_size[:, :2], boxes.rotation)
+    # Keep, per column, the nearest boxes whose footprint the column's ray crosses
+    # in front of the wall: pixels then test only those (box axis first, so that
+    # the per-pixel work vectorises along the row).
+    crossed = boxes.mask[None, :] & (t_in < t_out) & (t_out > 0) & (t_in < t_wall[:, None])
+    _, nearest = jax.lax.top_k(jnp.where(crossed, -t_in, -jnp.inf), boxes_per_column)
+    nearest = nearest.T  # (M, W)
+    column = jnp.arange(cam.width)[None, :]
+    candidates = dict(
+        box=nearest,
+        t_in=jnp.where(crossed.T[nearest, column], t_in.T[nearest, column], jnp.inf),
+        t_out=t_out.T[nearest, column],
+        normal_x=box_normal[..., 0].T[nearest, column],
+        normal_y=box_normal[..., 1].T[nearest, column],
+        bottom=boxes.centre[nearest, 2] - boxes.half_size[nearest, 2],
+        top=boxes.centre[nearest, 2] + boxes.half_size[nearest, 2],
+        centre_x=boxes.centre[nearest, 0],
+        centre_y=boxes.centre[nearest, 1],
+        cos=boxes.rotation[nearest, 0],
+        sin=boxes.rotation[nearest, 1],
+        emission=boxes.emission[nearest],
+        material=jax.tree.map(lambda x: x[nearest], boxes.material),
+    )
+    return dict(
+        origin=origin,
+        direction=direction,
+        t_wall=t_wall,
+        along=along,
+        wall_normal=perpendicular(wall_direction[wall]),
+        opening=opening,
+        candidates=candidates,
+        overflow=jnp.sum(crossed, 1) > boxes_per_column,
+    )
+
+
+def _nearest_box(candidates: dict, cotangent: Float[Array, ""]):
+    """Per pixel of a row: the distance to the nearest candidate box (inf if
+    none) and that box's attributes: a running minimum over the M candidates,
+    each a slab test of the column's footprint interval against the row's
+    height interval."""
+    best = jnp.full(candidates["t_in"].shape[1:], jnp.inf)
+    index = jnp.zeros(best.shape, jnp.int32)
+    for m in range(candidates["t_in"].shape[0]):
+        low, high = candidates["bottom"][m] * cotangent, candidates["top"][m] * cotangent
+        enter = jnp.maximum(candidates["t_in"][m], jnp.minimum(low, high))
+        leave = jnp.minimum(candidates["t_out"][m], jnp.maximum(low, high))
+        t = jnp.where((enter < leave) & (leave > 0), enter, jnp.inf)
+        closer = t < best
+        best = jnp.where(closer, t, best)
+        index = jnp.where(closer, m, index)
+    chosen = jax.tree.map(
+        lambda x: jnp.take_along_axis(x, index.reshape((1,) + index.shape + (1,) * (x.ndim - 2)), 0)[0], candidates
+    )
+    return best, chosen
+
+
+def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool):
+    """Colour, depth and class of the pixels of one row (elevation)."""
+    room, boxes = scene.room, scene.boxes
+    slope = jnp.tan(elevation)
+    cotangent = 1.0 / jnp.where(jnp.abs(slope) > 1e-12, slope, 1e-12)
+    # Room: the wall of the column, unless the ray leaves through the ceiling or floor first.
+    t_wall = columns["t_wall"]
+    z_wall = slope * t_wall
+    is_ceiling, is_floor = z_wall > room.ceiling_height, z_wall < room.floor_height
+    t_room = jnp.where(
+        is_ceiling, room.ceiling_height * cotangent, jnp.where(is_floor, room.floor_height * cotangent, t_wall)
+    )
+    t_box, box = _nearest_box(columns["candidates"], cotangent)
+    on_box = t_box < t_room
+    t = jnp.where(on_box, t_box, t_room)
+    # Points and normals as separate coordinate arrays (structure of arrays):
+    # the per-light arithmetic below then vectorises along the row.
+    x = columns["origin"][:, 0] + t * columns["direction"][:, 0]
+    y = columns["origin"][:, 1] + t * columns["direction"][:, 1]
+    z = slope * t
+    on_floor_or_ceiling = is_ceiling | is_floor
+
+    # Surface frame, texture coordinates and material of each pixel.
+    side_face = on_box & (t_box == box["t_in"])
+    wall_normal = columns["wall_normal"]
+    normal_x = jnp.where(
+        on_box, jnp.where(side_face, box["normal_x"], 0.0), jnp.where(on_floor_or_ceiling, 0.0, wall_normal[:, 0])
+    )
+    normal_y = jnp.where(
+        on_box, jnp.where(side_face, box["normal_y"], 0.0), jnp.where(on_floor_or_ceiling, 0.0, wall_normal[:, 1])
+    )
+    normal_z = jnp.where(
+        on_box, jnp.where(side_face, 0.0, -jnp.sign(slope)), jnp.where(is_ceiling, -1.0, jnp.where(is_floor, 1.0, 0.0))
+    )
+    offset_x, offset_y = x - box["centre_x"], y - box["centre_y"]
+    local_x = offset_x * box["cos"] + offset_y * box["sin"]
+    local_y = offset_y * box["cos"] - offset_x * box["sin"]
+    facing_x = jnp.abs(box["normal_x"] * box["cos"] + box["normal_y"] * box["sin"]) > 0.5
+    box_a = jnp.where(side_face & facing_x, local_y, local_x)
+    box_b = jnp.where(side_face, z, local_y)
+    height_above_floor = z - room.floor_height
+    world_x, world_y = x + room.camera_position[0], y + room.camera_position[1]
+    a = jnp.where(on_box, box_a, jnp.where(on_floor_or_ceiling, world_x, columns["along"]))
+    b = jnp.where(on_box, box_b, jnp.where(on_floor_or_ceiling, world_y, height_above_floor))
+
+    def per_pixel(material):
+        return jax.tree.map(lambda x: jnp.broadcast_to(x, t.shape + x.shape), material)
+
+    surface = _select_material(
+        is_ceiling, per_pixel(scene.ceiling), _select_material(is_floor, per_pixel(scene.floor), per_pixel(scene.walls))
+    )
+    material = _select_material(on_box, box["material"], surface)
+    seed = scene.seed + jnp.where(on_box, 100 + 13 * box["box"], jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3)))
+    albedo = material_albedo(material, seed, a, b)
+
+    # Details on walls: skirting boards, doors and windows.
+    on_wall = ~on_box & ~on_floor_or_ceiling
+    opening = columns["opening"]
+    in_opening = on_wall & opening["present"] & (z >= opening["bottom"]) & (z <= opening["bottom"] + opening["tall"])
+    opening_albedo, opening_emission = _opening_appearance(opening, columns["along"], z)
+    skirting = on_wall & ~in_opening & (height_above_floor < scene.skirting_height)
+    skirting_lip = skirting & (height_above_floor > scene.skirting_height - 0.012)
+    albedo = jnp.where(skirting[:, None], scene.skirting_colour * jnp.where(skirting_lip, 0.7, 1.0)[:, None], albedo)
+    albedo = jnp.where(in_opening[:, None], opening_albedo, albedo)
+    emission = jnp.where(on_box[:, None], box["emission"], jnp.where(in_opening[:, None], opening_emission, 0.0))
+
+    # Light: ambient darkened near the room's edges, plus point lights.
+    to_edge = jnp.where(on_floor_or_ceiling, t_wall - t, jnp.minimum(height_above_floor, room.ceiling_height - z))
+    occlusion = 1.0 - 0.35 * jnp.exp(-jnp.maximum(to_edge, 0.0) / 0.3)
+    # A hemispherical ambient (brighter from one side, as daylight from a window)
+    # shades walls of different orientations differently, as in real rooms.
+    direction = scene.ambient_direction
+    facing = 0.7 + 0.3 * (normal_x * direction[0] + normal_y * direction[1] + normal_z * direction[2])
+    irradiance = (facing * jnp.where(on_box, 0.85, occlusion))[:, None] * scene.ambient
+    lights = scene.lights
+    casts_shadow = jnp.all(boxes.emission == 0, -1) & boxes.mask
+    for index in range(lights.position.shape[0]):
+        light = lights.position[index]
+        dx, dy, dz = light[0] - x, light[1] - y, light[2] - z
+        distance2 = dx * dx + dy * dy + dz * dz
+        cosine = jnp.maximum(normal_x * dx + normal_y * dy + normal_z * dz, 0.0) * jax.lax.rsqrt(distance2)
+        received = cosine / (1.0 + distance2) * lights.mask[index]
+        if shadows:
+            start = jnp.stack([x + 1e-3 * normal_x, y + 1e-3 * normal_y, z + 1e-3 * normal_z], -1)
+            blocked = jax.vmap(box_segment_blocked, in_axes=(0, None, None, None))(start, light, boxes, casts_shadow)
+            received = jnp.where(blocked, 0.0, received)
+        irradiance = irradiance + received[:, None] * lights.colour[index]
+    radiance = albedo * irradiance + emission
+    rgb = (1.0 - jnp.exp(-1.5 * radiance)) ** (1.0 / 2.2)
+    semantic = jnp.where(
+        on_box,
+        Semantic.OBJECT,
+        jnp.where(
+            is_ceiling,
+            Semantic.CEILING,
+            jnp.where(is_floor, Semantic.FLOOR, jnp.where(in_opening, Semantic.OPENING, Semantic.WALL)),
+        ),
+    )
+    return rgb, t / jnp.cos(elevation), semantic.astype(jnp.int32)
+
+
+def render(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderConfig()) -> Rendering:
+    """Ray-cast the panorama of ``scene`` seen by ``cam`` (paper Section 3 camera, Section 5.1 data).
+
+    Args:
+        scene: one scene (camera frame); its room's ``rc`` is NOT used: ``cam.rc`` is,
+            as in :func:`~ncjax.room_labels` (use ``scene.room.camera(W, H)``).
+        cam: the panorama (static width W and height H; traced rc and fields of view).
+        config: static settings (supersampling, shadows).
+
+    Returns:
+        A :class:`Rendering` of shape (H, W). Jit with ``config`` static and vmap over scenes.
+    """
+    s = config.supersampling
+    fine = NonCentralPanorama(cam.width * s, cam.height * s, cam.rc, cam.fov_horizontal, cam.fov_vertical)
+    columns = _columns(scene, fine, min(config.boxes_per_column, scene.boxes.mask.shape[-1]))
+    _, elevation = pixel_to_angles(fine, 0.0, jnp.arange(fine.height, dtype=columns["t_wall"].dtype))
+    rgb, depth, semantic = jax.lax.map(
+        lambda e: _row(scene, columns, e, config.shadows), elevation, batch_size=config.rows_per_chunk * s
+    )
+    rgb = rgb.reshape(cam.height, s, cam.width, s, 3).mean(axis=(1, 3))
+    centre = s // 2
+    return Rendering(
+        rgb=rgb,
+        depth=depth.reshape(cam.height, s, cam.width, s)[:, centre, :, centre],
+        semantic=semantic.reshape(cam.height, s, cam.width, s)[:, centre, :, centre],
+    )
+
+
+def box_overflow(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderConfig()) -> Bool[Array, " W"]:
+    """Columns whose ray crosses more box footprints than ``config.boxes_per_column``
+    (where :func:`render` may miss a box behind the nearest ones)."""
+    return _columns(scene, cam, min(config.boxes_per_column, scene.boxes.mask.shape[-1]))["overflow"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SynthConfig:
+    """Static configuration of :func:`synthesize`: room, scene and render settings and the image size."""
+
+    room: RoomConfig = RoomConfig()
+    scene: SceneConfig = SceneConfig()
+    render: RenderConfig = RenderConfig()
+    width: int = 1024
+    height: int = 512
+
+    def __post_init__(self):
+        if int(self.width) != self.width or self.width < 8 or int(self.height) != self.height or self.height < 4:
+            raise ValueError(f"image size must be at least 4 x 8 pixels (H x W), got {self.height} x {self.width}")
+
+
+def synthesize_scene(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, RoomLabels]:
+    """A random furnished room and its exact labels (:func:`~ncjax.room_labels`:
+    furniture ignored, the layout a network must predict)."""
+    key_room, key_scene = jax.random.split(key)
+    room = random_room(key_room, config.room)
+    # rc to 0.1 mm, so that the file names of the dataset (``..._R06101``) hold it exactly.
+    room = eqx.tree_at(lambda r: r.rc, room, jnp.round(room.rc * 1e4) / 1e4)
+    scene = random_scene(key_scene, room, config.scene)
+    return scene, room_labels(room, room.camera(config.width, config.height))
+
+
+def synthesize(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, Rendering, RoomLabels]:
+    """One synthetic training sample: a random furnished room, its panorama and its exact labels.
+
+    Jit with ``config`` static, vmap over keys; or use :func:`synthesize_batch`,
+    which compiles much faster.
+    """
+    scene, labels = synthesize_scene(key, config)
+    return scene, render(scene, scene.room.camera(config.width, config.height), config.render), labels
+
+
+# Scene generation is branchy code whose run time is negligible next to
+# rendering; XLA's backend optimisations cost it minutes of compilation for
+# nothing, so it is compiled without them.
+_FAST_COMPILE = {"xla_backend_optimization_level": 0}
+
+
+@functools.cache
+def _batched_scenes(config: SynthConfig):
+    return jax.jit(jax.vmap(lambda key: synthesize_scene(key, config)), compiler_options=_FAST_COMPILE)
+
+
+@functools.cache
+def _batched_render(config: SynthConfig):
+    return jax.jit(jax.vmap(lambda scene: render(scene, scene.room.camera(config.width, config.height), config.render)))
+
+
+def synthesize_batch(
+    keys: Key[Array, " N"], config: SynthConfig = SynthConfig()
+) -> tuple[Scene, Rendering, RoomLabels]:
+    """:func:`synthesize` for a batch of keys (leading axis N), two cached jitted calls.
+
+    Compiled once per ``config`` and batch size; keep the batch size fixed
+    (pad the last batch) to avoid recompiling.
+    """
+    scenes, labels = _batched_scenes(config)(keys)
+    return scenes, _batched_render(config)(scenes), labels

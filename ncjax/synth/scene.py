@@ -1,0 +1,444 @@
+"""Furnished, lit scenes around a synthetic room (paper Section 5.1, dataset).
+
+A :class:`Scene` is a :class:`~ncjax.Room` plus what the paper's generator adds
+to it: furniture from a pool of types, placed either against a wall at a fixed
+orientation (beds, desks, wardrobes, TV units, shelves) or free-standing at
+any orientation (chairs, sofas, tables, carpets), never overlapping one
+another and never over the camera; doors and windows drawn on walls; ceiling
+lamps with point lights; skirting boards; procedural materials for the floor,
+walls, ceiling and furniture, and an ambient light.
+
+Everything lives in fixed-capacity arrays with masks and is a pure function of
+a ``jax.random`` key (:func:`random_scene`), so scenes are generated under
+``jax.jit(jax.vmap(...))``: same key, same scene. Placement is rejection
+sampling with a fixed number of candidates, accepted greedily in order
+(a ``lax.scan``): when the room is small, fewer pieces fit, and the masks
+say so.
+
+Coordinates are the room's camera frame (metres, z up, floor at
+``room.floor_height``); a piece of furniture is a composite of up to
+:data:`PARTS_PER_PIECE` boxes that can rotate about z.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+
+from ..geometry.polygon import perpendicular, polygon_edges
+from .furniture import _TEMPLATES, PARTS_PER_PIECE, _Footprints, _pack, rectangle_distance_to_point, rectangle_in_room
+from .materials import Material, Pattern, colour_in_hsv_box
+from .rooms import Room, distance_to_walls, point_in_polygon, room_walls
+
+
+@dataclasses.dataclass(frozen=True)
+class SceneConfig:
+    """Static configuration of :func:`random_scene` (hashable: a jit static argument).
+
+    Attributes:
+        furniture_slots: F, the most pieces of furniture (each up to
+            :data:`PARTS_PER_PIECE` boxes).
+        lamp_slots: L, the most ceiling lamps (each a box and a point light).
+        opening_slots: D, the most doors and windows.
+        candidates_per_slot: placement candidates drawn per slot (rejection sampling).
+        camera_clearance: horizontal distance kept between the circle of optical
+            centres and any furniture except carpets, metres.
+        furniture_probability: chance that each furniture slot is wanted at all
+            (some rooms are sparse, some crowded).
+        door_probability: chance that an opening is a door rather than a window.
+    """
+
+    furniture_slots: int = 8
+    lamp_slots: int = 3
+    opening_slots: int = 5
+    candidates_per_slot: int = 3
+    camera_clearance: float = 0.3
+    furniture_probability: float = 0.75
+    door_probability: float = 0.35
+
+    def __post_init__(self):
+        for name in ("furniture_slots", "lamp_slots", "opening_slots", "candidates_per_slot"):
+            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
+        if self.camera_clearance < 0:
+            raise ValueError(f"camera_clearance must be >= 0, got {self.camera_clearance}")
+        for name in ("furniture_probability", "door_probability"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+
+    @property
+    def box_slots(self) -> int:
+        """B, the box capacity: furniture parts then lamps."""
+        return self.furniture_slots * PARTS_PER_PIECE + self.lamp_slots
+
+
+class Boxes(eqx.Module):
+    """Boxes that rotate about z (all fields traced, leading axis B).
+
+    Attributes:
+        centre: (B, 3) camera frame, metres.
+        half_size: (B, 3) half extents along the box's own axes.
+        rotation: (B, 2) ``(cos, sin)`` of the yaw: the box's x axis in the camera frame.
+        material: a :class:`~ncjax.synth.materials.Material` with leading axis B.
+        emission: (B, 3) emitted radiance (lamps), 0 for furniture.
+        mask: (B,) which slots hold a box.
+    """
+
+    centre: Float[Array, "B 3"]
+    half_size: Float[Array, "B 3"]
+    rotation: Float[Array, "B 2"]
+    material: Material
+    emission: Float[Array, "B 3"]
+    mask: Bool[Array, " B"]
+
+
+class Openings(eqx.Module):
+    """Doors and windows, rectangles on walls (leading axis D).
+
+    Attributes:
+        wall: (D,) index of the wall they are on.
+        span: (D, 2) start and end along the wall from its first corner, metres.
+        z_range: (D, 2) bottom and top, camera frame.
+        is_window: (D,) window (glass, emits daylight) or door.
+        colour: (D, 3) leaf (door) or sky (window) colour; frame_colour (D, 3).
+        mask: (D,) which slots hold an opening.
+    """
+
+    wall: Int[Array, " D"]
+    span: Float[Array, "D 2"]
+    z_range: Float[Array, "D 2"]
+    is_window: Bool[Array, " D"]
+    colour: Float[Array, "D 3"]
+    frame_colour: Float[Array, "D 3"]
+    mask: Bool[Array, " D"]
+
+
+class Lights(eqx.Module):
+    """Point lights (leading axis L): position (L, 3), radiant colour (L, 3), mask (L,)."""
+
+    position: Float[Array, "L 3"]
+    colour: Float[Array, "L 3"]
+    mask: Bool[Array, " L"]
+
+
+class Scene(eqx.Module):
+    """A furnished, lit room (all fields traced; batch with ``jax.vmap``).
+
+    Attributes:
+        room: the :class:`~ncjax.Room` (camera frame).
+        boxes: furniture parts then lamps, :class:`Boxes`.
+        openings: doors and windows, :class:`Openings`.
+        lights: :class:`Lights`.
+        floor, ceiling, walls: their :class:`~ncjax.synth.materials.Material`.
+        skirting_height: height of the skirting boards above the floor (0: none), metres.
+        skirting_colour: (3,).
+        ambient: (3,) ambient radiance.
+        ambient_direction: (3,) unit vector the ambient light comes from most.
+        seed: integer that decorrelates the texture noise of different scenes.
+    """
+
+    room: Room
+    boxes: Boxes
+    openings: Openings
+    lights: Lights
+    floor: Material
+    ceiling: Material
+    walls: Material
+    skirting_height: Float[Array, ""]
+    skirting_colour: Float[Array, 3]
+    ambient: Float[Array, 3]
+    ambient_direction: Float[Array, 3]
+    seed: Int[Array, ""]
+
+
+# ---------------------------------------------------------------- generation
+# Each generator draws ONE array of uniforms and reads its numbers from it: every
+# jax.random call adds a threefry instance to the compiled program, and dozens of
+# them made the scene generator take a minute to compile.
+
+
+def _between(uniform: Array, low, high) -> Array:
+    return low + uniform * (jnp.asarray(high) - low)
+
+
+def _categorical(uniform: Float[Array, ""], weights: Float[Array, " n"]) -> Int[Array, ""]:
+    """Index drawn with probability proportional to ``weights`` (inverse CDF)."""
+    cumulative = jnp.cumsum(weights)
+    return jnp.minimum(jnp.sum(uniform * cumulative[-1] >= cumulative), weights.shape[0] - 1)
+
+
+def _room_frame(room: Room):
+    """Wall starts, unit directions, inward normals and lengths (K each), and the
+    room's bounding box."""
+    direction, _, _, _ = room_walls(room)
+    edges = polygon_edges(room.corners, room.mask)
+    length = jnp.where(room.mask, jnp.linalg.norm(edges[:, 1] - edges[:, 0], axis=-1), 0.0)
+    # Counter-clockwise polygon: the interior is to the left of each wall.
+    normal = perpendicular(direction)
+    valid = jnp.where(room.mask[:, None], room.corners, room.corners[:1])
+    return edges[:, 0], direction, normal, length, jnp.min(valid, 0), jnp.max(valid, 0)
+
+
+def _wall_position(uniform: Float[Array, 2], room: Room, width: Float[Array, ""], margin: float):
+    """A wall (chosen with probability proportional to its length) and a start
+    position along it that fits ``width`` with ``margin`` at both ends.
+
+    Returns ``(wall, along, fits, wall_start, wall_direction, inward_normal)``.
+    """
+    start, direction, normal, length, _, _ = _room_frame(room)
+    wall = _categorical(uniform[0], length)
+    room_left = length[wall] - width - 2 * margin
+    along = margin + uniform[1] * jnp.maximum(room_left, 0.0)
+    return wall, along, room_left >= 0, start[wall], direction[wall], normal[wall]
+
+
+def _furniture_candidate(key, room: Room, config: SceneConfig):
+    """One random piece: (type, size (3,), centre (2,), rotation (2,), valid)."""
+    u = jax.random.uniform(key, (11,))
+    kind = _categorical(u[0], jnp.asarray(_TEMPLATES["weight"]))
+    size = _between(u[1:4], jnp.asarray(_TEMPLATES["size_low"])[kind], jnp.asarray(_TEMPLATES["size_high"])[kind])
+    size = size.at[2].min(room.ceiling_height - room.floor_height - 0.25)
+    # Against a wall: the back 1 cm off the wall, the piece's x axis along it.
+    wall, along, fits, start, direction, normal = _wall_position(u[4:6], room, size[0], 0.05)
+    wall_centre = start + (along + size[0] / 2) * direction + (size[1] / 2 + 0.01) * normal
+    # Free-standing: anywhere, aligned with the room (wall 0) more often than not.
+    _, room_direction, _, _, low_xy, high_xy = _room_frame(room)
+    free_centre = _between(u[6:8], low_xy, high_xy)
+    aligned = jnp.arctan2(room_direction[0, 1], room_direction[0, 0]) + jnp.floor(4 * u[8]) * (math.pi / 2)
+    angle = jnp.where(u[9] < 0.6, aligned, 2 * math.pi * u[10])
+    free_rotation = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+    against_wall = jnp.asarray(_TEMPLATES["against_wall"])[kind]
+    centre = jnp.where(against_wall, wall_centre, free_centre)
+    rotation = jnp.where(against_wall, direction, free_rotation)
+    half = size[:2] / 2
+    clear_of_camera = (
+        rectangle_distance_to_point(jnp.zeros(2), centre, half, rotation) > room.rc + config.camera_clearance
+    )
+    valid = (
+        rectangle_in_room(centre, half, rotation, room)
+        & (clear_of_camera | jnp.asarray(_TEMPLATES["may_cover_camera"])[kind])
+        & jnp.where(against_wall, fits, True)
+    )
+    return kind, size, centre, rotation, valid
+
+
+def _piece_materials(key, fabric: Bool[Array, ""]):
+    """Primary and secondary materials of a piece of furniture."""
+    u = jax.random.uniform(key, (13,))
+    wood = colour_in_hsv_box(u[0:3], (0.04, 0.11), (0.3, 0.75), (0.2, 0.75))
+    painted = colour_in_hsv_box(u[3:6], (0.0, 1.0), (0.0, 0.6), (0.15, 0.95))
+    cloth = colour_in_hsv_box(u[6:9], (0.0, 1.0), (0.1, 0.8), (0.15, 0.85))
+    is_wood = u[9] < 0.6
+    primary_colour = jnp.where(fabric, cloth, jnp.where(is_wood, wood, painted))
+    primary_pattern = jnp.where(fabric, Pattern.FABRIC, jnp.where(is_wood, Pattern.WOOD, Pattern.PAINT))
+    secondary_colour = jnp.where(fabric, wood, jnp.where(u[10] < 0.5, 0.6 * primary_colour, painted))
+    secondary_pattern = jnp.where(fabric, Pattern.WOOD, Pattern.PAINT)
+    shade = _between(u[11:13], 0.6, 0.9)
+    return (
+        Material(primary_pattern.astype(jnp.int32), primary_colour, shade[0] * primary_colour, jnp.array(0.3)),
+        Material(secondary_pattern.astype(jnp.int32), secondary_colour, shade[1] * secondary_colour, jnp.array(0.3)),
+    )
+
+
+def _piece_boxes(kind, size, centre, rotation, floor_height, primary: Material, secondary: Material):
+    """The boxes of one piece of furniture (PARTS_PER_PIECE of them, with a mask)."""
+    parts = jnp.asarray(_TEMPLATES["parts"])[kind]
+    low, high = parts[:, 0::2] * size, parts[:, 1::2] * size
+    local = (low + high) / 2 - jnp.array([size[0] / 2, size[1] / 2, 0.0])
+    xy = centre + local[:, :1] * rotation + local[:, 1:2] * perpendicular(rotation)
+    secondary_part = jnp.asarray(_TEMPLATES["secondary"])[kind]
+    material = jax.tree.map(
+        lambda a, b: jnp.where(secondary_part.reshape((-1,) + (1,) * a.ndim), b, a), primary, secondary
+    )
+    return Boxes(
+        centre=jnp.concatenate([xy, floor_height + local[:, 2:]], -1),
+        half_size=(high - low) / 2,
+        rotation=jnp.broadcast_to(rotation, (PARTS_PER_PIECE, 2)),
+        material=material,
+        emission=jnp.zeros((PARTS_PER_PIECE, 3)),
+        mask=jnp.asarray(_TEMPLATES["part_mask"])[kind],
+    )
+
+
+def _nothing() -> _Footprints:
+    return _Footprints(jnp.zeros((1, 2)), jnp.ones((1, 2)), jnp.array([[1.0, 0.0]]), jnp.zeros(1, bool))
+
+
+def _opening_candidate(key, room: Room, config: SceneConfig):
+    """One door or window: its fields, its footprint on the wall and (doors) the
+    keep-out area in front of it."""
+    u = jax.random.uniform(key, (10,))
+    is_window = u[0] >= config.door_probability
+    door = jnp.stack([_between(u[1], 0.75, 1.0), 0.0, _between(u[2], 1.95, 2.15)])
+    window = jnp.stack([_between(u[1], 0.6, 2.2), _between(u[2], 0.5, 1.1), _between(u[3], 0.8, 1.6)])
+    width, bottom, height = jnp.where(is_window, window, door)
+    height = jnp.minimum(height, room.ceiling_height - room.floor_height - 0.15 - bottom)
+    wall, along, fits, start, direction, normal = _wall_position(u[4:6], room, width, 0.15)
+    centre = start + (along + width / 2) * direction + 0.05 * normal
+    colour = jnp.where(
+        is_window,
+        colour_in_hsv_box(u[6:9], (0.55, 0.62), (0.1, 0.45), (0.75, 1.0)),
+        colour_in_hsv_box(u[6:9], (0.0, 1.0), (0.0, 0.5), (0.25, 0.95)),
+    )
+    fields = dict(
+        wall=wall.astype(jnp.int32),
+        span=jnp.stack([along, along + width]),
+        z_range=room.floor_height + jnp.stack([bottom, bottom + height]),
+        is_window=is_window,
+        colour=colour,
+        frame_colour=jnp.where(u[9] < 0.5, jnp.full(3, 0.9), 0.7 * colour),
+    )
+    footprint = _Footprints(centre, jnp.stack([width / 2 + 0.1, 0.05]), direction, fits & (height > 0.5))
+    keep_out = _Footprints(centre + 0.45 * normal, jnp.stack([width / 2, 0.45]), direction, ~is_window)
+    return fields, footprint, keep_out
+
+
+def _openings(key, room: Room, config: SceneConfig):
+    """Doors and windows on the walls, apart; and the keep-out footprints in front of the doors."""
+    key_candidates, key_count = jax.random.split(key)
+    n = config.opening_slots * config.candidates_per_slot
+    fields, footprints, keep_out = jax.vmap(lambda k: _opening_candidate(k, room, config))(
+        jax.random.split(key_candidates, n)
+    )
+    chosen, filled = _pack(footprints, config.opening_slots, _nothing(), 0.3)
+    wanted = 1 + jnp.floor(jax.random.uniform(key_count) * config.opening_slots)
+    filled = filled & (jnp.arange(config.opening_slots) < wanted)
+    openings = Openings(**{name: value[chosen] for name, value in fields.items()}, mask=filled)
+    keep_out = jax.tree.map(lambda x: x[chosen], keep_out)
+    return openings, eqx.tree_at(lambda f: f.mask, keep_out, keep_out.mask & filled)
+
+
+def _lamps(key, room: Room, config: SceneConfig):
+    """Ceiling lamps (boxes) and their point lights, away from walls and apart."""
+    n = config.lamp_slots * config.candidates_per_slot * 2
+    slots = config.lamp_slots
+    u = jax.random.uniform(key, (n, 3))
+    v = jax.random.uniform(jax.random.fold_in(key, 1), (slots, 2 + 3 + 1))
+    _, room_direction, _, _, low_xy, high_xy = _room_frame(room)
+    centre = _between(u[:, :2], low_xy, high_xy)
+    half = _between(u[:, 2:3], 0.12, 0.3) * jnp.ones((1, 2))
+    rotation = jnp.broadcast_to(room_direction[0], (n, 2))
+    inside = jax.vmap(point_in_polygon, in_axes=(0, None, None))(centre, room.corners, room.mask)
+    away = (
+        jax.vmap(distance_to_walls, in_axes=(0, None, None))(centre, room.corners, room.mask) > 0.6 + 1.5 * half[:, 0]
+    )
+    chosen, filled = _pack(_Footprints(centre, half, rotation, inside & away), slots, _nothing(), 0.8)
+    filled = filled & (jnp.arange(slots) <= jnp.floor(v[0, 5] * slots))
+    thickness = _between(v[:, 0], 0.04, 0.12)
+    power = _between(v[:, 1:2], 1.5, 5.0)
+    tint = jax.vmap(lambda w: colour_in_hsv_box(w, (0.05, 0.15), (0.0, 0.35), (1.0, 1.0)))(v[:, 2:5])
+    boxes = Boxes(
+        centre=jnp.concatenate([centre[chosen], (room.ceiling_height - thickness / 2)[:, None]], -1),
+        half_size=jnp.concatenate([half[chosen], thickness[:, None] / 2], -1),
+        rotation=rotation[chosen],
+        material=Material(
+            jnp.full(slots, Pattern.PAINT, jnp.int32), jnp.ones((slots, 3)), jnp.ones((slots, 3)), jnp.ones(slots)
+        ),
+        emission=2.0 * tint,
+        mask=filled,
+    )
+    lights = Lights(
+        position=jnp.concatenate([centre[chosen], (room.ceiling_height - thickness - 0.1)[:, None]], -1),
+        colour=power * tint,
+        mask=filled,
+    )
+    return boxes, lights
+
+
+# Range of the pattern period (metres) per Pattern, indexed by its value.
+_SCALE_RANGE = np.array(
+    [[1.0, 1.0], [0.6, 2.0], [0.12, 0.22], [0.3, 0.7], [0.6, 1.0], [0.1, 0.4], [0.15, 0.35], [0.3, 0.3], [0.3, 0.3]],
+    np.float32,
+)
+
+
+def _surface_material(uniform: Float[Array, 9], pool: list[tuple[float, Pattern]], colour_a, colour_b) -> Material:
+    """A material from a weighted pool of patterns, with its period drawn in the pattern's range.
+
+    ``colour_a`` and ``colour_b`` map (pattern, uniforms (3,)) to a colour."""
+    pattern = jnp.array([int(p) for _, p in pool], jnp.int32)[_categorical(uniform[0], jnp.array([w for w, _ in pool]))]
+    low, high = jnp.asarray(_SCALE_RANGE)[pattern]
+    a = colour_a(pattern, uniform[2:5])
+    return Material(pattern, a, jnp.clip(colour_b(pattern, a, uniform[5:9]), 0.0, 1.0), _between(uniform[1], low, high))
+
+
+def _surface_materials(key):
+    """Floor, ceiling and wall materials drawn from pools (paper Section 5.1)."""
+    u = jax.random.uniform(key, (3, 9))
+    floor = _surface_material(
+        u[0],
+        [(0.45, Pattern.PLANKS), (0.25, Pattern.TILES), (0.15, Pattern.CARPET), (0.15, Pattern.PAINT)],
+        lambda pattern, w: jnp.where(
+            pattern == Pattern.PLANKS,
+            colour_in_hsv_box(w, (0.04, 0.11), (0.3, 0.8), (0.2, 0.8)),
+            colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.5), (0.15, 0.9)),
+        ),
+        lambda pattern, a, w: a * _between(w[0], 0.45, 1.4),
+    )
+    walls = _surface_material(
+        u[1],
+        [(0.35, Pattern.PAINT), (0.25, Pattern.PLASTER), (0.2, Pattern.STRIPES), (0.2, Pattern.DIAMONDS)],
+        lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.05, 0.55), (0.45, 0.9)),
+        lambda pattern, a, w: jnp.where(
+            w[0] < 0.5, a * _between(w[1], 0.6, 0.9), colour_in_hsv_box(w[1:4], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95))
+        ),
+    )
+    ceiling = _surface_material(
+        u[2],
+        [(0.5, Pattern.PAINT), (0.3, Pattern.PLASTER), (0.2, Pattern.TILES)],
+        lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.1), (0.8, 0.98)),
+        lambda pattern, a, w: 0.85 * a,
+    )
+    return floor, ceiling, walls
+
+
+def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfig()) -> Scene:
+    """Furnish and light ``room`` at random (paper Section 5.1), a pure function of ``key``.
+
+    Args:
+        key: a ``jax.random`` key.
+        room: the room, e.g. from :func:`~ncjax.random_room` (camera frame).
+        config: static settings (see :class:`SceneConfig`).
+
+    Returns:
+        A :class:`Scene`. Jit with ``config`` static, vmap over keys and rooms.
+    """
+    keys = jax.random.split(key, 6)
+    openings, keep_out = _openings(keys[0], room, config)
+    n = config.furniture_slots * config.candidates_per_slot
+    kind, size, centre, rotation, valid = jax.vmap(lambda k: _furniture_candidate(k, room, config))(
+        jax.random.split(keys[1], n)
+    )
+    chosen, filled = _pack(_Footprints(centre, size[:, :2] / 2, rotation, valid), config.furniture_slots, keep_out, 0.1)
+    u = jax.random.uniform(keys[2], (config.furniture_slots + 9,))
+    filled = filled & (u[: config.furniture_slots] < config.furniture_probability)
+    fabric = jnp.asarray(_TEMPLATES["fabric"])[kind[chosen]]
+    primary, secondary = jax.vmap(_piece_materials)(jax.random.split(keys[3], config.furniture_slots), fabric)
+    pieces = jax.vmap(_piece_boxes, in_axes=(0, 0, 0, 0, None, 0, 0))(
+        kind[chosen], size[chosen], centre[chosen], rotation[chosen], room.floor_height, primary, secondary
+    )
+    pieces = eqx.tree_at(lambda b: b.mask, pieces, pieces.mask & filled[:, None])
+    pieces = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), pieces)
+    lamps, lights = _lamps(keys[4], room, config)
+    floor, ceiling, walls = _surface_materials(keys[5])
+    extra = u[config.furniture_slots :]
+    return Scene(
+        room=room,
+        boxes=jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, lamps),
+        openings=openings,
+        lights=lights,
+        floor=floor,
+        ceiling=ceiling,
+        walls=walls,
+        skirting_height=jnp.where(extra[0] < 0.75, _between(extra[1], 0.05, 0.14), 0.0),
+        skirting_colour=jnp.where(extra[2] < 0.5, jnp.full(3, 0.92), 0.8 * floor.colour_a),
+        ambient=colour_in_hsv_box(extra[3:6], (0.05, 0.6), (0.0, 0.15), (0.2, 0.5)),
+        ambient_direction=jnp.array([jnp.cos(2 * math.pi * extra[7]), jnp.sin(2 * math.pi * extra[7]), 0.3]) / 1.044,
+        seed=jnp.floor(extra[6] * 2**24).astype(jnp.int32),
+    )

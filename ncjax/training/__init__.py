@@ -1,0 +1,1 @@
+"""Training the network: loss, augmentations, optimiser, resumable loop (``loop``) and its data (``data``)."""

@@ -1,0 +1,299 @@
+"""Training data: rendered dataset folders, their arrays and batches, and painted stand-in panoramas."""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Callable, Iterator
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from ..geometry.camera import NonCentralPanorama
+from ..network.model import HorizonNet, check_views, predict_views, prediction_to_rows
+from ..network.scores import network_table
+from ..synth.dataset import (
+    SPLITS,
+    DatasetSample,
+    labels_from_corners,
+    list_samples,
+    read_sample,
+    read_split,
+    rendered_samples,
+    rendering_rgb8,
+    split_of,
+)
+from ..synth.render import SynthConfig
+from ..synth.rooms import CORNER_LABEL_BASE, RoomConfig, reencode_corner_prob
+
+# ----------------------------------------------------------------------------- stand-in data
+
+
+def paint_panorama(
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    wall_index: Array,
+    height: int,
+    colours: Float[Array, "3 3"],
+) -> Float[Array, "H W 3"]:
+    """A flat-shaded panorama: ceiling colour above ``ceiling_v``, walls between, floor below.
+
+    Pixel row ``r`` covers ``[r - 0.5, r + 0.5]`` (docs/design.md pixel centres), and
+    the boundary pixels get the covered fractions (sub-pixel labels). Walls
+    alternate between two shades by index so that corners are visible.
+    """
+    rows = jnp.arange(height, dtype=ceiling_v.dtype)[:, None]
+    above_ceiling = jnp.clip(ceiling_v[None, :] - (rows - 0.5), 0.0, 1.0)
+    below_floor = jnp.clip((rows + 0.5) - floor_v[None, :], 0.0, 1.0)
+    shade = jnp.where(wall_index % 2 == 0, 1.0, 0.65)[None, :, None]
+    wall = 1.0 - above_ceiling - below_floor
+    return (
+        above_ceiling[..., None] * colours[0]
+        + wall[..., None] * colours[1] * shade
+        + below_floor[..., None] * colours[2]
+    )
+
+
+@functools.partial(jax.jit, static_argnames=("batch_size", "height", "width"))
+def painted_batch(key: PRNGKeyArray, batch_size: int, height: int, width: int) -> dict[str, Array]:
+    """A batch of flat-coloured panoramas of random rooms with exact labels (a stand-in data source).
+
+    Rooms come from :func:`ncjax.random_room` (mixed Manhattan / Atlanta) and
+    labels from :func:`ncjax.room_labels`; the images are painted with
+    :func:`paint_panorama` in random colours. Meant for tests and smoke runs
+    until rendered data is wired in.
+    """
+    from ..synth.rooms import random_room, room_labels
+
+    room_config = RoomConfig(world="mix", max_walls=8, camera_tries=32, room_tries=2)
+
+    def one(k):
+        k_room, k_colour = jax.random.split(k)
+        room = random_room(k_room, room_config)
+        labels = room_labels(room, room.camera(width, height))
+        colours = jax.random.uniform(k_colour, (3, 3), minval=0.1, maxval=0.9)
+        image = paint_panorama(labels.ceiling_v, labels.floor_v, labels.wall_index, height, colours)
+        return {
+            "image": image.astype(jnp.float32),
+            "ceiling_v": labels.ceiling_v.astype(jnp.float32),
+            "floor_v": labels.floor_v.astype(jnp.float32),
+            "corner_target": labels.corner_target.astype(jnp.float32),
+        }
+
+    return jax.vmap(one)(jax.random.split(key, batch_size))
+
+
+def painted_batches(seed: int, batch_size: int, height: int, width: int) -> Callable[[int], Iterator[dict]]:
+    """``start_step -> iterator`` of :func:`painted_batch` es, batch ``i`` keyed by ``(seed, i)``."""
+
+    def from_step(start: int) -> Iterator[dict]:
+        step = start
+        while True:
+            yield painted_batch(jax.random.fold_in(jax.random.PRNGKey(seed), step), batch_size, height, width)
+            step += 1
+
+    return from_step
+
+
+# ----------------------------------------------------------------------------- dataset folders
+
+
+def sample_arrays(sample: DatasetSample, height: int, width: int) -> dict[str, np.ndarray]:
+    """One dataset sample at the network's input size (:func:`network_arrays`)."""
+    return network_arrays(sample.image, sample.rc, sample.ceiling_corners, sample.floor_corners, height, width)
+
+
+def network_arrays(
+    image: np.ndarray, rc: float, ceiling_corners: np.ndarray, floor_corners: np.ndarray, height: int, width: int
+) -> dict[str, np.ndarray]:
+    """A uint8 panorama and its layout at the network's input size: image and exact labels in its pixels.
+
+    The image is shrunk with pixel-area averaging (``cv2.INTER_AREA``); the
+    labels (boundary rows and the ``0.96**d`` corner target) are recomputed
+    exactly for a camera of that size from the 3D corners (camera frame, image
+    order; :func:`~ncjax.synth.dataset.labels_from_corners`), so no interpolation
+    blurs the occlusion jumps.
+    """
+    if image.shape[:2] != (height, width):
+        image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+    camera = NonCentralPanorama(width, height, rc=rc)
+    labels = labels_from_corners(ceiling_corners, floor_corners, camera)
+    return {
+        "image": image,
+        "ceiling_v": np.asarray(labels.ceiling_v, np.float32),
+        "floor_v": np.asarray(labels.floor_v, np.float32),
+        "corner_target": np.asarray(labels.corner_target, np.float32),
+    }
+
+
+SYNTH_COMMAND_CONFIG = SynthConfig(room=RoomConfig(world="mix"))
+"""What ``ncjax synth`` renders by default: world ``mix``, rc 0.3-1.0 m, 512 x 1024."""
+
+
+def rendered_splits(
+    seed: int,
+    n: int,
+    height: int,
+    width: int,
+    batch_size: int = 16,
+    config: SynthConfig = SYNTH_COMMAND_CONFIG,
+    progress: bool = True,
+) -> dict[str, dict[str, np.ndarray]]:
+    """The samples ``ncjax synth --n N --seed SEED`` would write, as :func:`load_split` arrays per split.
+
+    Rendered in memory (the same rooms and pixels as the written files, in
+    index order rather than name order), so a machine with a fast accelerator
+    trains without writing and decoding thousands of files. Splits without
+    samples are left out.
+    """
+    from tqdm.auto import tqdm
+
+    per_split: dict[str, list[dict[str, np.ndarray]]] = {split: [] for split in SPLITS}
+    with tqdm(total=n, desc=f"render seed {seed}", disable=not progress) as bar:
+        for index, scene, rendering, labels in rendered_samples(n, seed, config, batch_size, bar.update):
+            mask = np.asarray(labels.corner_mask)
+            arrays = network_arrays(
+                rendering_rgb8(rendering),
+                float(scene.room.rc),
+                np.asarray(labels.ceiling_corners)[mask],
+                np.asarray(labels.floor_corners)[mask],
+                height,
+                width,
+            )
+            per_split[split_of(index, seed)].append(arrays)
+    return {
+        split: {key: np.stack([a[key] for a in samples]) for key in samples[0]}
+        for split, samples in per_split.items()
+        if samples
+    }
+
+
+def load_split(
+    directory: str, split: str, height: int, width: int, limit: int | None = None, progress: bool = True
+) -> dict[str, np.ndarray]:
+    """Stack the samples of one split of a dataset folder (``split.json``) with :func:`sample_arrays`.
+
+    ``split="all"`` takes every sample; folders without ``split.json`` (e.g.
+    the authors') are used whole for any split.
+
+    Raises:
+        ValueError: not a dataset folder, an unknown split, or an empty one.
+    """
+    from tqdm.auto import tqdm
+
+    names = list_samples(directory)
+    if split != "all" and os.path.exists(os.path.join(directory, "split.json")):
+        splits = read_split(directory)
+        if split not in splits:
+            raise ValueError(f"{directory}: split {split!r} not in split.json (has {', '.join(splits)})")
+        kept = set(splits[split])
+        names = [name for name in names if name in kept]
+    names = names[:limit] if limit else names
+    if not names:
+        raise ValueError(f"{directory}: no complete samples in split {split!r}")
+    arrays = [
+        sample_arrays(read_sample(directory, name), height, width)
+        for name in tqdm(names, desc=f"load {split}", disable=not progress)
+    ]
+    return {key: np.stack([a[key] for a in arrays]) for key in arrays[0]}
+
+
+def parse_synth_source(source: str) -> tuple[int, int] | None:
+    """``(seed, n)`` of a ``synth:SEED:N`` data source, None for a folder path.
+
+    Raises:
+        ValueError: ``synth:`` followed by anything but two integers, N >= 1.
+    """
+    if not source.startswith("synth:"):
+        return None
+    parts = source.split(":")
+    if len(parts) != 3 or not all(p.lstrip("-").isdigit() for p in parts[1:]) or int(parts[2]) < 1:
+        raise ValueError(f"data source {source!r}: expected synth:SEED:N with integers SEED and N >= 1")
+    return int(parts[1]), int(parts[2])
+
+
+def training_data(
+    sources: list[str], height: int, width: int, validation_limit: int | None
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Train and validation arrays pooled, in the given order, from dataset folders and ``synth:SEED:N`` renders.
+
+    A ``synth:SEED:N`` source is rendered in memory (:func:`rendered_splits`);
+    validation takes the first ``validation_limit`` images of the pooled valid
+    splits (None: all).
+    """
+    synth_sources = [parse_synth_source(source) for source in sources]  # malformed ones fail before any work
+    pooled: dict[str, list[dict[str, np.ndarray]]] = {"train": [], "valid": []}
+    for source, synth in zip(sources, synth_sources, strict=True):
+        if synth is None:
+            for split in pooled:
+                pooled[split].append(
+                    load_split(source, split, height, width, limit=validation_limit if split == "valid" else None)
+                )
+        else:
+            rendered = rendered_splits(*synth, height, width)
+            for split in pooled:
+                if split not in rendered:
+                    raise ValueError(f"data source {source!r} has no {split} samples; render more (N)")
+                pooled[split].append(rendered[split])
+    train_arrays, valid = (
+        {key: np.concatenate([a[key] for a in parts]) for key in parts[0]} for parts in pooled.values()
+    )
+    limit = len(valid["image"]) if validation_limit is None else validation_limit
+    return train_arrays, {key: value[:limit] for key, value in valid.items()}
+
+
+def folder_batches(arrays: dict[str, np.ndarray], batch_size: int, seed: int) -> Callable[[int], Iterator[dict]]:
+    """``start_step -> iterator`` of batches drawn from :func:`load_split` arrays.
+
+    Batch ``i`` holds distinct samples chosen by a generator seeded with
+    ``(seed, i)``, so a resumed run sees the same batches.
+    """
+    count = len(arrays["image"])
+    if batch_size > count:
+        raise ValueError(f"batch size {batch_size} exceeds the {count} samples")
+
+    def from_step(start: int) -> Iterator[dict]:
+        step = start
+        while True:
+            chosen = np.random.default_rng((seed, step)).choice(count, batch_size, replace=False)
+            batch = {key: value[chosen] for key, value in arrays.items()}
+            yield {**batch, "image": batch["image"].astype(np.float32) / 255.0}
+            step += 1
+
+    return from_step
+
+
+def evaluate_arrays(
+    model: HorizonNet, arrays: dict[str, np.ndarray], batch_size: int = 8, views: int = 1
+) -> dict[str, float]:
+    """Table netcorExp's row (:func:`~ncjax.network_table`) of a model on :func:`load_split` arrays.
+
+    The corner output is compared in the labels' ``0.96**d`` encoding whatever
+    the model's ``corner_base`` (:func:`~ncjax.synth.rooms.reencode_corner_prob`).
+
+    ``views``: the network's output averaged over rolled and mirrored views
+    (:func:`~ncjax.network.model.predict_views`); 1 is the network alone.
+    """
+    check_views(views)
+    model.eval()
+    count, height, width = arrays["image"].shape[:3]
+    outputs = []
+    for start in range(0, count, batch_size):
+        images = arrays["image"][start : start + batch_size]
+        padded = np.concatenate([images, np.repeat(images[-1:], batch_size - len(images), 0)])
+        prediction = _forward(model, jnp.asarray(padded, jnp.float32) / 255.0, views)
+        rows = prediction_to_rows(prediction, height, width)
+        outputs.append([np.asarray(r)[: len(images)] for r in rows])
+    ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*outputs, strict=True))
+    corner_prob = reencode_corner_prob(corner_prob, model.config.corner_base, CORNER_LABEL_BASE)
+    table = network_table(
+        ceiling_v, floor_v, corner_prob, arrays["ceiling_v"], arrays["floor_v"], arrays["corner_target"]
+    )
+    return {key: float(value) for key, value in table.items()}
+
+
+_forward = nnx.jit(predict_views, static_argnames=("views",))

@@ -1,0 +1,1 @@
+"""Pictures of a layout: reprojected onto the panorama (``overlay``) and the floor plan (``plan``)."""

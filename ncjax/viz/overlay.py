@@ -1,0 +1,130 @@
+"""The layout reprojected onto the panorama, with the network's boundaries and corner probability."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from jaxtyping import ArrayLike, Float, UInt8
+
+from ..geometry.camera import NonCentralPanorama, project
+from ..io.export import failure_label, has_geometry, valid_corners
+from ..io.images import check_rgb
+from ..pipeline.types import Layout
+
+# Overlay colours (RGB).
+NETWORK_COLOUR = (255, 190, 0)  # the network's per-column boundaries
+LAYOUT_COLOUR = (0, 230, 255)  # the reprojected layout
+INSERTED_COLOUR = (255, 40, 200)  # walls inserted for an occlusion (not seen in the image)
+CORNER_COLOUR = (255, 255, 255)  # the corner probability strip
+
+
+# --- overlay on the panorama --------------------------------------------------------------------------
+
+
+def _draw_curve(canvas: np.ndarray, u: np.ndarray, v: np.ndarray, colour: tuple[int, int, int], thickness: int) -> None:
+    """Draw sampled image points as antialiased polylines, broken at NaNs and where u wraps at the seam."""
+    u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
+    finite = np.isfinite(u) & np.isfinite(v)
+    breaks = ~finite[1:] | ~finite[:-1] | (np.abs(np.diff(u)) > canvas.shape[1] / 2)
+    shift = 4  # cv2 draws at 1/16-pixel precision from fixed-point coordinates
+    for run in np.split(np.arange(len(u)), np.flatnonzero(breaks) + 1):
+        if len(run) < 2 or not finite[run[0]]:
+            continue
+        points = np.round(np.stack([u[run], v[run]], axis=-1) * 2**shift).astype(np.int32)
+        cv2.polylines(canvas, [points], False, colour, thickness, cv2.LINE_AA, shift)
+
+
+def draw_overlay(
+    image: UInt8[np.ndarray, "H W 3"],
+    layout: Layout,
+    cam: NonCentralPanorama,
+    ceiling_v: Float[ArrayLike, " W"] | None = None,
+    floor_v: Float[ArrayLike, " W"] | None = None,
+    corner_prob: Float[ArrayLike, " W"] | None = None,
+) -> UInt8[np.ndarray, "H W 3"]:
+    """The panorama with the network's boundaries and the recovered layout drawn on it.
+
+    - the network's ceiling and floor rows per column, if given, in
+      ``NETWORK_COLOUR``;
+    - the layout's ceiling and floor edges, sampled densely in 3D and
+      projected with :func:`ncjax.project` (the curves of a non-central
+      camera), and the vertical edges at the corners, in ``LAYOUT_COLOUR``;
+      inserted walls (occluded, not seen) in ``INSERTED_COLOUR``. Curves break
+      at the image seam and where points are not visible;
+    - the corner probability, if given, as a plot strip along the bottom.
+
+    A failed layout draws only the network's outputs and a "no layout" label;
+    an ``UNCERTAIN_SCALE`` one is drawn with an "uncertain scale" label.
+
+    Args:
+        image: the panorama, RGB uint8 (H, W, 3).
+        layout: one unbatched layout.
+        cam: the camera; its size must be the image's.
+        ceiling_v, floor_v, corner_prob: optional network outputs, (W,) each.
+
+    Returns:
+        A new RGB uint8 image; ``image`` is not modified.
+
+    Raises:
+        ValueError: for an image that is not RGB uint8, a camera of another
+            size than the image, or network outputs not of shape (W,).
+    """
+    canvas = check_rgb(image).copy()
+    height, width = canvas.shape[:2]
+    if (cam.width, cam.height) != (width, height):
+        raise ValueError(f"camera size {cam.width} x {cam.height} differs from the image's {width} x {height}")
+    outputs = {"ceiling_v": ceiling_v, "floor_v": floor_v, "corner_prob": corner_prob}
+    for key, value in outputs.items():
+        if value is not None and np.shape(value) != (width,):
+            raise ValueError(f"{key} must have shape ({width},), got {np.shape(value)}")
+    thickness = max(1, round(width / 512))
+    columns = np.arange(width, dtype=np.float64)
+
+    for rows in (ceiling_v, floor_v):
+        if rows is not None:
+            _draw_curve(canvas, columns, np.asarray(rows, np.float64), NETWORK_COLOUR, thickness)
+
+    if has_geometry(layout):
+        ceiling, floor = valid_corners(layout)
+        inserted = np.asarray(layout.inserted, bool)[np.asarray(layout.mask, bool)]
+        n = len(ceiling)
+        # Edges are sampled densely because a non-central camera images them as curves. A vertical
+        # edge has one azimuth (a straight column) but is sampled too, so invisible parts break it.
+        along = np.linspace(0.0, 1.0, max(64, width // 2))[None, :, None]
+        up = np.linspace(0.0, 1.0, 16)[None, :, None]
+        following = np.roll(np.arange(n), -1)
+        ceiling_edges = ceiling[:, None] + along * (ceiling[following] - ceiling)[:, None]
+        floor_edges = floor[:, None] + along * (floor[following] - floor)[:, None]
+        vertical_edges = floor[:, None] + up * (ceiling - floor)[:, None]
+        samples = np.concatenate(
+            [ceiling_edges.reshape(-1, 3), floor_edges.reshape(-1, 3), vertical_edges.reshape(-1, 3)]
+        )
+        u, v = project(cam, samples.astype(np.float32))  # one call for everything: one dispatch
+        u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
+        horizontal = 2 * n * along.shape[1]
+        u_edges, v_edges = u[:horizontal].reshape(2, n, -1), v[:horizontal].reshape(2, n, -1)
+        u_vertical, v_vertical = u[horizontal:].reshape(n, -1), v[horizontal:].reshape(n, -1)
+        for k in range(n):
+            colour = INSERTED_COLOUR if inserted[k] else LAYOUT_COLOUR
+            for edge in range(2):  # ceiling, floor
+                _draw_curve(canvas, u_edges[edge, k], v_edges[edge, k], colour, thickness)
+            _draw_curve(canvas, u_vertical[k], v_vertical[k], LAYOUT_COLOUR, thickness)
+    if not bool(np.asarray(layout.ok)):
+        scale = height / 512
+        cv2.putText(
+            canvas,
+            failure_label(layout),
+            (round(8 * scale), round(32 * scale)),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            scale,
+            INSERTED_COLOUR,
+            thickness,
+            cv2.LINE_AA,
+        )
+
+    if corner_prob is not None:
+        strip = max(16, height // 8)
+        canvas[height - strip :] //= 2  # darken the strip so the plot reads on any image
+        probability = np.clip(np.asarray(corner_prob, np.float64), 0.0, 1.0)
+        _draw_curve(canvas, columns, height - 1 - probability * (strip - 1), CORNER_COLOUR, thickness)
+    return canvas

@@ -1,0 +1,161 @@
+"""benchmarks/real_panoramas.py: label rows from label_cor, corner matching, bad input, and a run on renders."""
+
+import csv
+import importlib.util
+import sys
+from pathlib import Path
+
+import cv2
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ncjax
+from ncjax.synth.dataset import label_cor_rows
+
+WIDTH, HEIGHT = 1024, 512
+
+
+def benchmark_module():
+    """The module of ``benchmarks/real_panoramas.py`` (registered, so that its dataclasses resolve)."""
+    name = "real_panoramas"
+    if name not in sys.modules:
+        path = Path(__file__).parents[1] / "benchmarks" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+def central_room(corners, ceiling_height=1.5, floor_height=-1.4) -> ncjax.Room:
+    """A room seen by a central camera (rc = 0) at the origin; ``corners`` counter-clockwise."""
+    corners = jnp.asarray(corners, jnp.float32)
+    return ncjax.Room(
+        corners=corners,
+        mask=jnp.ones(len(corners), bool),
+        ceiling_height=jnp.asarray(ceiling_height, jnp.float32),
+        floor_height=jnp.asarray(floor_height, jnp.float32),
+        rc=jnp.asarray(0.0, jnp.float32),
+        camera_position=jnp.asarray([0.0, 0.0, -floor_height], jnp.float32),
+        is_atlanta=jnp.array(True),
+        status=jnp.array(ncjax.RoomStatus.OK, jnp.int32),
+    )
+
+
+ROOMS = {
+    "off-centre rectangle": [(-1.5, -2.0), (3.0, -2.0), (3.0, 1.2), (-1.5, 1.2)],
+    "L with an occlusion": [(-5.0, -1.0), (1.0, -1.0), (1.0, 2.0), (-2.0, 2.0), (-2.0, 4.0), (-5.0, 4.0)],
+    "oblique pentagon": [(-2.0, -1.5), (2.5, -2.0), (3.0, 1.0), (0.5, 2.5), (-2.5, 1.5)],
+}
+
+
+def exact_label_cor(labels: ncjax.RoomLabels, cam: ncjax.NonCentralPanorama) -> np.ndarray:
+    """The (2N, 2) label_cor of :func:`label_cor_rows` before its rounding to integer pixels."""
+    mask = np.asarray(labels.corner_mask)
+    points = np.stack([np.asarray(labels.ceiling_corners)[mask], np.asarray(labels.floor_corners)[mask]], 1)
+    _, rows = ncjax.project(cam, points)
+    columns = np.repeat(np.asarray(labels.corner_u)[mask], 2)
+    return np.stack([columns, np.asarray(rows).reshape(-1)], axis=-1)
+
+
+def label_rows_from_file(label_cor: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The benchmark's label rows of a label_cor array written to ``path``, and its label corner columns."""
+    module = benchmark_module()
+    path.write_text("".join(f"{x:.4f} {y:.4f}\n" for x, y in label_cor))
+    corners = module.read_label_cor(path, WIDTH, HEIGHT)
+    _, _, ceiling_v, floor_v = module.label_boundaries(corners, WIDTH, HEIGHT)
+    return ceiling_v, floor_v, corners[:, 1, 0]
+
+
+@pytest.mark.parametrize("corners", ROOMS.values(), ids=ROOMS.keys())
+def test_label_rows_match_the_renderers_exact_rows(corners, tmp_path):
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.0)
+    labels = ncjax.room_labels(central_room(corners), cam, corner_capacity=2 * len(corners))
+    assert bool(labels.ok)
+    exact = (np.asarray(labels.ceiling_v), np.asarray(labels.floor_v))
+
+    # Unrounded corners: the walls cast in 3D give the renderer's rows in every column (interpolating
+    # rows linearly between the corners' pixels is 10-30 px off on these rooms).
+    *rows, _ = label_rows_from_file(exact_label_cor(labels, cam), tmp_path / "exact.txt")
+    for boundary, truth in zip(rows, exact, strict=True):
+        assert np.max(np.abs(boundary - truth)) < 0.01
+
+    # The integer pixels the dataset writes: off by the rounding, a fraction of a pixel.
+    *rows, columns = label_rows_from_file(label_cor_rows(labels, cam), tmp_path / "rounded.txt")
+    for boundary, truth in zip(rows, exact, strict=True):
+        assert np.mean(np.abs(boundary - truth)) < 0.5 and np.max(np.abs(boundary - truth)) < 1.0
+    # an occlusion's near and far points are one corner to find
+    mask = np.asarray(labels.corner_mask)
+    distinct = len(np.unique(np.asarray(labels.corner_u)[mask]))
+    assert benchmark_module().distinct_corners(columns, WIDTH).sum() == distinct
+
+
+def test_corners_match_one_to_one_across_the_seam():
+    module = benchmark_module()
+    peaks = np.array([1023.4, 3.0, 500.0, 700.0])
+    targets = np.array([0.2, 505.0, 900.0])
+    matched = module.match_one_to_one(peaks, targets, tolerance=10.0, width=1024)
+    assert matched.tolist() == [True, False, True, False]  # one peak per corner, the nearest across the seam
+
+
+def write_image(path: Path, width: int = 128) -> None:
+    cv2.imwrite(str(path), np.full((width // 2, width, 3), 128, np.uint8))
+
+
+def bad_folder(tmp_path: Path, problem: str) -> Path:
+    folder = tmp_path / problem
+    folder.mkdir()
+    if problem == "no labelled image":
+        write_image(folder / "a.png")
+    elif problem == "unreadable image":
+        (folder / "a.jpg").write_bytes(b"not a jpeg")
+        (folder / "a.txt").write_text("10 20\n10 40\n40 20\n40 40\n90 20\n90 40\n")
+    elif problem == "malformed label":
+        write_image(folder / "a.png")
+        (folder / "a.txt").write_text("10 20 5\n10 x\n")
+    elif problem == "floor above the horizon":
+        write_image(folder / "a.png")
+        (folder / "a.txt").write_text("10 20\n10 25\n40 20\n40 40\n90 20\n90 40\n")
+    return folder
+
+
+@pytest.mark.parametrize(
+    "problem", ["missing folder", "no labelled image", "unreadable image", "malformed label", "floor above the horizon"]
+)
+def test_bad_input_is_one_line_and_exit_code_2(problem, tmp_path, capsys):
+    folder = tmp_path / "absent" if problem == "missing folder" else bad_folder(tmp_path, problem)
+    out = tmp_path / "out"
+    assert benchmark_module().main(["--data", str(folder), "--out", str(out)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("real_panoramas: error:") and "\n" not in error
+    assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def rendered_folder(tmp_path_factory):
+    """Two rendered central rooms without furniture at the network's input size, in ``ncjax synth``'s folders."""
+    folder = tmp_path_factory.mktemp("renders") / "data"
+    room, scene = ncjax.RoomConfig(rc_range=(0.0, 0.0)), ncjax.SceneConfig(furniture_probability=0.0)
+    config = ncjax.SynthConfig(room=room, scene=scene, width=WIDTH, height=HEIGHT)
+    names = ncjax.write_dataset(str(folder), 2, seed=5, config=config, batch_size=2)
+    return folder, names
+
+
+@pytest.mark.slow
+def test_benchmark_on_renders(rendered_folder, tmp_path):
+    folder, names = rendered_folder
+    out = tmp_path / "out"
+    assert benchmark_module().main(["--data", str(folder), "--out", str(out), "--views", "1"]) == 0
+
+    with open(out / "real_panoramas.csv") as file:
+        rows = list(csv.DictReader(file))
+    assert [row["name"] for row in rows[:-1]] == sorted(names) and rows[-1]["name"].startswith("mean")
+    assert (out / "contact_sheet.png").stat().st_size > 0
+    for row in rows:
+        figures = {key: float(value) for key, value in row.items() if key not in ("name", "tags")}
+        assert all(np.isfinite(value) for value in figures.values())
+        assert figures["ceiling_error_px"] < 5.0 and figures["floor_error_px"] < 5.0
+        for key in ("precision_1pct", "recall_1pct", "precision_2.5pct", "recall_2.5pct", "iou_2d", "iou_3d"):
+            assert 0.0 <= figures[key] <= 1.0
+        assert figures["iou_2d"] > 0.8 and figures["iou_3d"] > 0.7
