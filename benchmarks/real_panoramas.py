@@ -60,7 +60,7 @@ from tqdm import tqdm  # noqa: E402
 import ncjax  # noqa: E402
 from ncjax import metrics  # noqa: E402
 from ncjax.io.files import write_atomic  # noqa: E402
-from ncjax.io.images import PanoramaError, panorama_size_error, to_rgb8  # noqa: E402
+from ncjax.io.images import PanoramaError, panorama_size_error, read_rgb  # noqa: E402
 from ncjax.network.model import check_views  # noqa: E402
 from ncjax.network.predict import default_model  # noqa: E402
 from ncjax.network.scores import REFERENCE_WIDTH  # noqa: E402
@@ -245,18 +245,12 @@ def labelled_image_paths(directory: pathlib.Path) -> list[tuple[pathlib.Path, pa
     return pairs
 
 
-def read_rgb(path: pathlib.Path) -> np.ndarray:
-    """A full panorama file as RGB uint8 (H, W, 3), W = 2 H."""
+def read_labelled_image(path: pathlib.Path) -> np.ndarray:
+    """A full panorama file as RGB uint8 (H, W, 3), W = 2 H, at its own size (its label's pixels)."""
     try:
-        image = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_UNCHANGED)
-    except OSError as error:
-        raise InputError(f"{path}: cannot read the image ({error})") from None
-    if image is None:
-        raise InputError(f"{path}: not an image OpenCV can decode")
-    try:
-        image = to_rgb8(image)
+        image = read_rgb(path)
     except PanoramaError as error:
-        raise InputError(f"{path}: {error}") from None
+        raise InputError(str(error)) from None
     size_error = panorama_size_error(image.shape[1], image.shape[0])
     if size_error:
         raise InputError(f"{path}: {size_error}")
@@ -323,7 +317,7 @@ def distinct_corners(columns: np.ndarray, width: int) -> np.ndarray:
 
 def load_panorama(image_path: pathlib.Path, label_path: pathlib.Path) -> LabelledPanorama:
     """Read and check one labelled panorama (the image is decoded to check it, not kept)."""
-    height, width = read_rgb(image_path).shape[:2]
+    height, width = read_labelled_image(image_path).shape[:2]
     corners = read_label_cor(label_path, width, height)
     metadata = read_side_metadata(image_path.with_suffix(".json"), len(corners))
     tags = tuple(metadata.get("tags", ()))
@@ -643,7 +637,7 @@ def run(args: argparse.Namespace) -> None:
     rows, tiles = [], []
     tqdm.write(table_header())
     for panorama in tqdm(panoramas, desc="panoramas", unit="image"):
-        image = read_rgb(panorama.image_path)
+        image = read_labelled_image(panorama.image_path)
         prediction = tuple(np.asarray(a, np.float64) for a in ncjax.predict_boundaries(image, model, views=args.views))
         peaks = predicted_corners(prediction[2])
         scores = score_image(panorama, prediction[0], prediction[1], peaks)

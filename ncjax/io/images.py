@@ -103,17 +103,11 @@ def working_size(width: int, height: int) -> tuple[int, str] | None:
     return min(2 * round(width / 2), MAX_WIDTH), " and ".join(reasons)
 
 
-def read_panorama(path: str | os.PathLike) -> np.ndarray:
-    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H.
-
-    Warns:
-        PanoramaResizeWarning: the file is within :data:`ASPECT_TOLERANCE` of
-            2:1 and was resized to exactly 2:1, or it was wider than
-            :data:`MAX_WIDTH` and was resized to that width.
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """Read an image file as RGB uint8 (H, W, 3), at its own size.
 
     Raises:
-        PanoramaError: missing, unreadable, truncated, not an image, an
-            unsupported pixel format, or not 2:1.
+        PanoramaError: missing, unreadable, truncated, not an image, or an unsupported pixel format.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -132,6 +126,22 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
         image = to_rgb8(image)
     except PanoramaError as error:
         raise PanoramaError(f"{path}: {error}") from None
+    return image
+
+
+def read_panorama(path: str | os.PathLike) -> np.ndarray:
+    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H.
+
+    Warns:
+        PanoramaResizeWarning: the file is within :data:`ASPECT_TOLERANCE` of
+            2:1 and was resized to exactly 2:1, or it was wider than
+            :data:`MAX_WIDTH` and was resized to that width.
+
+    Raises:
+        PanoramaError: missing, unreadable, truncated, not an image, an
+            unsupported pixel format, or not 2:1.
+    """
+    image = read_rgb(path)
     resize = working_size(*image.shape[1::-1])
     if resize is not None:
         width, reason = resize
