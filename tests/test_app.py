@@ -167,7 +167,6 @@ def batch_run(tmp_path_factory):
     return code, out, errors.getvalue(), list(files.values())
 
 
-@pytest.mark.slow
 def test_reconstruct_writes_every_output_of_good_images(batch_run):
     # Plumbing, not accuracy (experiments/network_table.py measures that): every decodable image gets its
     # json, overlay and plan; a mesh exactly when a layout was found (also one of uncertain scale); a layout that
@@ -192,7 +191,6 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
     assert records[0]["ceiling_corners"] == records[1]["ceiling_corners"]
 
 
-@pytest.mark.slow
 def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
     code, out, errors, _ = batch_run
     assert code == 1
@@ -205,7 +203,6 @@ def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
     assert not any(".tmp" in name or name.startswith(".") for name in written), written
 
 
-@pytest.mark.slow
 def test_reconstruct_summarises_every_image_in_one_csv(batch_run):
     import csv
 
@@ -268,7 +265,6 @@ def test_summary_rows_of_each_result():
     assert error["result"] == "error" and error["status"] == "" and error["message"] == "truncated"
 
 
-@pytest.mark.slow
 def test_demo_reconstructs_the_shipped_sample(tmp_path, capsys):
     assert cli.main(["demo", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out

@@ -571,7 +571,6 @@ def test_wall_planes_meet_like_plucker_lines():
 # --- the pipeline on exact boundaries --------------------------------------------------------------
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("world,occlusion", [("manhattan", "none"), ("atlanta", "none"), ("manhattan", "required")])
 def test_exact_boundaries_give_the_room(world, occlusion):
     batch, labels = rooms(world, occlusion)
