@@ -66,6 +66,7 @@ from .network.scores import boundary_pixel_error, corner_confusion, corner_score
 # The geometric pipeline (paper Section 4.4)
 from .pipeline.config import DEFAULT_WORLD, PipelineConfig
 from .pipeline.types import Layout, LayoutStatus
+from .pipeline.prior import HeightPrior
 from .pipeline.run import layout_from_boundaries
 
 # The whole method: panorama -> network -> geometry (paper Fig. pipeline)
@@ -168,6 +169,7 @@ __all__ = [
     "corner_scores",
     "count_parameters",
     "gaussian_blur",
+    "HeightPrior",
     "horizonnet_loss",
     "horizontal_wall_line",
     "init_model",

@@ -7,6 +7,12 @@ and snapped to the full image's edges (:func:`~ncjax.network.edges.snap_to_edges
 geometric pipeline (:func:`~ncjax.pipeline.run.layout_from_evidence`)
 runs on them with each image's own camera radius. Nothing leaves the device
 between the two blocks, and a batch of images is one call.
+
+With a height prior (:class:`~ncjax.pipeline.prior.HeightPrior`) the scale of a
+central panorama (``rc = 0``) comes from it; a non-central one keeps the scale
+its geometry measures and falls back to the prior only where the geometry
+cannot fix it (:data:`SCALE_FAILURES`); :class:`Reconstruction` says which
+(:data:`SCALE_SOURCES`) and keeps the geometry's own layout for comparison.
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Float, Key, PRNGKeyArray, Shaped
+from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped
 
 from .geometry.camera import NonCentralPanorama
 from .io.images import panorama_size_error
@@ -26,8 +32,9 @@ from .network.edges import EdgeSnap
 from .network.model import HorizonNet, check_views
 from .network.predict import DEFAULT_VIEWS, default_model, image_boundaries
 from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
-from .pipeline.run import layout_from_evidence
-from .pipeline.types import Layout
+from .pipeline.prior import HeightPrior
+from .pipeline.run import layout_for
+from .pipeline.types import Layout, LayoutStatus
 
 # The pipeline's defaults suit exact and white-noise rows. The network's corner probability has lobes several
 # columns wide, in which NMS over +-2 columns leaves spurious second peaks: +-4 columns and a 0.4 threshold keep one
@@ -49,6 +56,20 @@ NETWORK_PIPELINE_CONFIG = PipelineConfig(
 )
 
 
+# Where a layout's scale came from (Reconstruction.scale_source): the rows' non-central parallax, the height
+# prior (a central panorama, or no prior asked for... then NO_SCALE), or the prior because the geometry failed.
+SCALE_SOURCES = ("non-central geometry", "height prior", "height prior (the geometry could not fix the scale)")
+GEOMETRY, PRIOR, PRIOR_FALLBACK = range(3)
+# the statuses of a non-central layout after which a height prior, when given, replaces the geometry's scale
+SCALE_FAILURES = (
+    LayoutStatus.NO_SCALE,
+    LayoutStatus.WALL_FIT_FAILED,
+    LayoutStatus.SOLVER_FAILED,
+    LayoutStatus.DEGENERATE_LAYOUT,
+    LayoutStatus.UNCERTAIN_SCALE,
+)
+
+
 class Reconstruction(NamedTuple):
     """What :func:`reconstruct_batch` returns: the layouts and the network's boundaries they came from.
 
@@ -57,36 +78,59 @@ class Reconstruction(NamedTuple):
         ceiling_v, floor_v: (B, W) the boundary rows the geometry used, in image
             pixels (the network's, snapped to the image's edges by default).
         corner_prob: (B, W) the network's corner probability.
+        scale_source: (B,) index into :data:`SCALE_SOURCES`.
+        geometry: the layouts with the scale the non-central geometry measured (B leading), or None when
+            it did not run (no prior, then ``layout`` is it, or every ``rc`` 0).
     """
 
     layout: Layout
     ceiling_v: Float[Array, "B W"]
     floor_v: Float[Array, "B W"]
     corner_prob: Float[Array, "B W"]
+    scale_source: Int[Array, " B"]
+    geometry: Layout | None = None
 
 
-@functools.partial(nnx.jit, static_argnames=("world", "config", "views", "edge_snap"))
+@functools.partial(nnx.jit, static_argnames=("world", "config", "views", "edge_snap", "geometry"))
 def _reconstruct(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
     rc: Float[Array, " B"],
     keys: Key[Array, " B"],
     thresholds: dict[str, Float[Array, ""]],
+    prior: HeightPrior | None,
     world: str,
     config: PipelineConfig,
     views: int,
     edge_snap: EdgeSnap | None,
+    geometry: bool,
 ) -> Reconstruction:
     height, width = images.shape[1:3]
     config = with_traced(config, thresholds)
     ceiling_v, floor_v, corner_prob = image_boundaries(model, images, views, edge_snap)
 
-    def one(ceiling, floor, probability, radius, key):
-        cam = NonCentralPanorama(width, height, rc=radius)
-        return layout_from_evidence(ceiling, floor, probability, cam, key, world, config)
+    def layouts(prior_or_none):
+        def one(ceiling, floor, probability, radius, one_prior, key):
+            cam = NonCentralPanorama(width, height, rc=radius)
+            return layout_for(ceiling, floor, probability, cam, one_prior, key, world, config)
 
-    layouts = jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, keys)
-    return Reconstruction(layouts, ceiling_v, floor_v, corner_prob)
+        return jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, prior_or_none, keys)
+
+    if prior is None:
+        return Reconstruction(layouts(None), ceiling_v, floor_v, corner_prob, jnp.full(rc.shape, GEOMETRY))
+    from_prior = layouts(prior)
+    if not geometry:
+        return Reconstruction(from_prior, ceiling_v, floor_v, corner_prob, jnp.full(rc.shape, PRIOR))
+    measured = layouts(None)
+    failed = jnp.isin(measured.status, jnp.asarray(SCALE_FAILURES))
+    source = jnp.where(rc == 0, PRIOR, jnp.where(failed, PRIOR_FALLBACK, GEOMETRY))
+    use_prior = source != GEOMETRY
+    chosen = jax.tree.map(
+        lambda a, b: jnp.where(jnp.reshape(use_prior, use_prior.shape + (1,) * (a.ndim - 1)), a, b),
+        from_prior,
+        measured,
+    )
+    return Reconstruction(chosen, ceiling_v, floor_v, corner_prob, source, measured)
 
 
 def check_panorama(images: np.ndarray) -> None:
@@ -110,6 +154,7 @@ def reconstruct_batch(
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
+    prior: HeightPrior | None = None,
 ) -> Reconstruction:
     """Metric layouts of a batch of panoramas of one size, each with its own radius.
 
@@ -127,13 +172,16 @@ def reconstruct_batch(
         edge_snap: static; how the network's rows are moved onto the image's
             edges before the geometry (:func:`~ncjax.network.edges.snap_to_edges`);
             None keeps the network's rows.
+        prior: a :class:`~ncjax.HeightPrior` (value scalar or (B,)): the scale of the
+            central panoramas (``rc = 0``), and of the non-central ones whose geometry
+            fails with one of :data:`SCALE_FAILURES`. None: metric scale from the geometry only.
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).
 
     Raises:
-        ValueError: bad image array, world or rc (negative or not finite; rc = 0
-            is accepted and gives ``LayoutStatus.NO_SCALE``).
+        ValueError: bad image array, world, rc (negative or not finite; rc = 0
+            without a prior is accepted and gives ``LayoutStatus.NO_SCALE``) or prior.
         FileNotFoundError: no model given and the shipped weights are missing.
     """
     images = np.asarray(images)
@@ -146,6 +194,10 @@ def reconstruct_batch(
     rc = np.broadcast_to(np.asarray(rc, np.float32), images.shape[:1])
     if not np.all(np.isfinite(rc)) or np.any(rc < 0):
         raise ValueError(f"rc must be finite radii >= 0 in metres, got {rc}")
+    if prior is not None:
+        if np.ndim(prior.value) not in (0, 1) or np.size(prior.value) not in (1, images.shape[0]):
+            raise ValueError(f"the prior's value must be a scalar or one per image ({images.shape[0]})")
+        prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
     model = default_model() if model is None else model
     model.eval()
     keys = jax.random.split(jax.random.key(0) if key is None else key, images.shape[0])
@@ -155,10 +207,12 @@ def reconstruct_batch(
         jnp.asarray(rc),
         keys,
         traced_part(config),
+        prior,
         world,
         static_part(config),
         views,
         edge_snap,
+        bool(np.any(rc > 0)),
     )
 
 
@@ -172,6 +226,7 @@ def reconstruct(
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
+    prior: HeightPrior | None = None,
 ) -> Layout:
     """Metric room layout of one RGB panorama: network, then geometry (paper Fig. pipeline).
 
@@ -184,6 +239,8 @@ def reconstruct(
         key: RANSAC key (default ``jax.random.key(0)``).
         views: rolled and mirrored views the network averages (1 or even).
         edge_snap: rows snapped to the image's edges (None: the network's rows).
+        prior: a :class:`~ncjax.HeightPrior` for the scale (needed when ``cam.rc`` is 0; see
+            :func:`reconstruct_batch`).
 
     Returns:
         An unbatched :class:`~ncjax.Layout`; check ``ok`` / ``status``.
@@ -203,5 +260,6 @@ def reconstruct(
         key=key,
         views=views,
         edge_snap=edge_snap,
+        prior=prior,
     )
     return jax.tree.map(lambda x: x[0], result.layout)

@@ -102,12 +102,28 @@ def test_unusable_files_give_clear_errors(tmp_path, make, message):
 # ----------------------------------------------------------------------------- ncjax reconstruct
 
 
-@pytest.mark.parametrize("rc", ["0", "-0.5", "50", "abc", "nan"])
+@pytest.mark.parametrize("rc", ["-0.5", "50", "abc", "nan"])
 def test_bad_rc_is_refused_before_anything_is_written(tmp_path, capsys, rc):
     out = tmp_path / "out"
     image = write_png(tmp_path / "room.png", demo_image(SMALL))
     assert cli.main(["reconstruct", image, "--rc", rc, "--out", str(out)]) == 2
     assert "--rc" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--camera-height", "-1"], "--camera-height must be a height"),
+        (["--room-height", "nan"], "--room-height must be a height"),
+        (["--camera-height", "1.5", "--room-height", "2.5"], "give one of"),
+    ],
+)
+def test_bad_height_prior_is_refused_before_anything_is_written(tmp_path, capsys, options, message):
+    out = tmp_path / "out"
+    image = write_png(tmp_path / "room.png", demo_image(SMALL))
+    assert cli.main(["reconstruct", image, "--rc", "0", "--out", str(out), *options]) == 2
+    error = capsys.readouterr().err
+    assert message in error and len(error.strip().splitlines()) == 1 and not out.exists()
 
 
 def test_a_batch_that_raises_is_reported_and_the_run_goes_on(tmp_path, capsys, monkeypatch):
@@ -189,6 +205,26 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
     # Dropping the alpha channel gives exactly the layout of the RGB file.
     records = [json.loads((out / f"{n}.json").read_text()) for n in ("room_R06825", "rgba_R06825")]
     assert records[0]["ceiling_corners"] == records[1]["ceiling_corners"]
+
+
+def test_central_reconstruct_takes_its_scale_from_the_camera_height(tmp_path):
+    """``--rc 0``: levelled, scale from the default camera height, the layout also in the four formats."""
+    from ncjax.io.formats import FORMATS, format_path
+    from ncjax.io.formats_read import read_layout
+
+    image = write_png(tmp_path / "room.png", demo_image(SMALL))
+    out = tmp_path / "out"
+    code = cli.main(["reconstruct", image, "--rc", "0", "--out", str(out), "--export", ",".join(FORMATS)])
+    record = json.loads((out / "room.json").read_text())
+    assert code == (0 if record["ok"] else 1) and record["rc"] == 0
+    assert record["scale_source"] == "height prior" and record["geometry_measured"] is None
+    assert record["height_prior"] == {"kind": "camera_height", "value": pytest.approx(1.6)}
+    assert isinstance(record["gravity"]["reliable"], bool)
+    assert record["floor_corners"], record["status"]  # the geometry does not depend on a non-central rig
+    assert record["floor_height"] == pytest.approx(-1.6, abs=1e-4)
+    for format in FORMATS:
+        corners = read_layout(format_path(out / "room", format), *SMALL)
+        assert corners.count == len(record["floor_corners"]), format
 
 
 def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):

@@ -178,7 +178,7 @@ def test_record_rejects_bad_arguments():
 
 
 def check_room_mesh(vertices, faces, plan, ceiling_height=H_C, floor_height=H_F):
-    """Non-degenerate, inward-facing, watertight, and the floor and ceiling cover the plan exactly."""
+    """Non-degenerate, outward-facing, watertight, and the floor and ceiling cover the plan exactly."""
     polygon = shapely.Polygon(plan)
     a, b, c = (vertices[faces[:, i]] for i in range(3))
     normals = np.cross(b - a, c - a)
@@ -188,21 +188,22 @@ def check_room_mesh(vertices, faces, plan, ceiling_height=H_C, floor_height=H_F)
     z = vertices[faces][:, :, 2]
     floor, ceiling = np.all(z == floor_height, axis=1), np.all(z == ceiling_height, axis=1)
     walls = ~floor & ~ceiling
-    np.testing.assert_allclose(unit[floor], np.tile([0, 0, 1], (floor.sum(), 1)), atol=1e-9)
-    np.testing.assert_allclose(unit[ceiling], np.tile([0, 0, -1], (ceiling.sum(), 1)), atol=1e-9)
+    np.testing.assert_allclose(unit[floor], np.tile([0, 0, -1], (floor.sum(), 1)), atol=1e-9)
+    np.testing.assert_allclose(unit[ceiling], np.tile([0, 0, 1], (ceiling.sum(), 1)), atol=1e-9)
     assert areas[floor].sum() == pytest.approx(polygon.area) and areas[ceiling].sum() == pytest.approx(polygon.area)
     assert np.sum(walls) == 2 * len(plan)
     np.testing.assert_allclose(unit[walls, 2], 0.0, atol=1e-9)
     centroids = (a + b + c)[walls, :2] / 3
     for centroid, normal in zip(centroids, unit[walls, :2], strict=True):
-        assert polygon.contains(shapely.Point(centroid + 1e-3 * normal)), "wall normal points out of the room"
+        assert not polygon.contains(shapely.Point(centroid + 1e-3 * normal)), "wall normal points into the room"
+        assert polygon.contains(shapely.Point(centroid - 1e-3 * normal))
     # Watertight and consistently oriented: each directed edge once, its reverse once.
     directed = [(int(f[i]), int(f[(i + 1) % 3])) for f in faces for i in range(3)]
     assert len(set(directed)) == len(directed)
     assert all((j, i) in set(directed) for i, j in directed)
-    # Inward normals: the divergence theorem gives minus the enclosed volume.
+    # Outward normals: the divergence theorem gives the enclosed volume.
     signed_volume = np.sum(np.einsum("ij,ij->i", a, np.cross(b, c))) / 6
-    assert signed_volume == pytest.approx(-polygon.area * (ceiling_height - floor_height))
+    assert signed_volume == pytest.approx(polygon.area * (ceiling_height - floor_height))
 
 
 @pytest.mark.parametrize("plan,area", [(RECTANGLE, 12.0), (L_SHAPE, 21.0), (U_SHAPE, 25.0)])

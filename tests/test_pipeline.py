@@ -635,7 +635,7 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
     last = slice(2, 6)
     keys = jax.random.split(jax.random.key(0), 6)[last]
     expected = _batched_layout_jit(
-        *(x[last] for x in rows), pick(cams, last), keys, traced_part(full), "manhattan", static_part(full), 16
+        *(x[last] for x in rows), pick(cams, last), None, keys, traced_part(full), "manhattan", static_part(full), 16
     )
     np.testing.assert_array_equal(layout.mask[last], expected.mask)
     np.testing.assert_array_equal(layout.status[last], expected.status)

@@ -85,6 +85,14 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    from .evaluate import check_evaluate_mode, run_layout_evaluation
+
+    if check_evaluate_mode(args) == "layouts":
+        return run_layout_evaluation(args)
+    return _evaluate_network(args)
+
+
+def _evaluate_network(args: argparse.Namespace) -> int:
     import json
 
     from ..network.checkpoint import load_model
@@ -146,12 +154,24 @@ def main(argv: list[str] | None = None) -> int:
     train = commands.add_parser("train", help="train Non-central HorizonNet (checkpoints, resume, validation)")
     add_train_arguments(train)
     train.set_defaults(run=_train)
-    evaluate = commands.add_parser("evaluate", help="Table netcorExp of a model on a dataset split")
-    evaluate.add_argument("--data", required=True, help="dataset folder (ncjax synth or the authors')")
+    evaluate = commands.add_parser(
+        "evaluate",
+        help="layout metrics of predicted layout files against ground truth (PRED GT), "
+        "or Table netcorExp of a model on a dataset split (--data)",
+        description="ncjax evaluate PRED GT: 2D/3D IoU, corner and pixel error, depth RMSE and delta-1 of layout "
+        "files (label_cor, HorizonNet, PanoAnnotator/MatterportLayout/LGT-Net, ZInD or ncjax JSON) of one image, "
+        "or of two folders matched by image stem. ncjax evaluate --data DIR: the network on a dataset split.",
+    )
+    evaluate.add_argument("pred", nargs="?", help="predicted layout file, or a folder of them")
+    evaluate.add_argument("gt", nargs="?", help="ground-truth layout file, or a folder of them")
+    evaluate.add_argument(
+        "--size", help="HxW of the images, for layout files that do not record it (default: the file's, or 512x1024)"
+    )
+    evaluate.add_argument("--data", help="dataset folder (ncjax synth or the authors') to evaluate a network on")
     evaluate.add_argument("--split", default="test", help="split of split.json (default test), or all")
     evaluate.add_argument("--model", help=".safetensors weights (default: the shipped model)")
     evaluate.add_argument("--limit", type=int, help="evaluate the first N images only")
-    evaluate.add_argument("--json", help="also write the row to this json file")
+    evaluate.add_argument("--json", help="also write the results to this json file")
     evaluate.add_argument(
         "--views", type=int, default=1, help="average the network over rolled and mirrored views (1 or even)"
     )

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import collections
 import csv
+import dataclasses
 import io
 import json
 import math
@@ -59,19 +60,64 @@ def enable_compilation_cache() -> None:
 
 
 def parse_rc(text: str) -> float | None:
-    """``--rc``: a radius in metres (0, MAX_RC], or None for "auto" (read from each file name)."""
+    """``--rc``: a radius in metres [0, MAX_RC] (0: a central panorama), or None for "auto" (from each file name)."""
     if text == "auto":
         return None
     try:
         rc = float(text)
     except ValueError:
         rc = math.nan
-    if not (math.isfinite(rc) and 0.0 < rc <= MAX_RC):
+    if not (math.isfinite(rc) and 0.0 <= rc <= MAX_RC):
         raise ValueError(
             f"--rc must be 'auto' or the radius of the circle of optical centres in metres, "
-            f"0 < rc <= {MAX_RC}; got {text!r}"
+            f"0 <= rc <= {MAX_RC} (0 for a central panorama); got {text!r}"
         )
     return rc
+
+
+PRIOR_OPTIONS = {
+    "camera_height": "--camera-height",
+    "ceiling_height": "--ceiling-height",
+    "room_height": "--room-height",
+}
+
+
+def height_prior(args: argparse.Namespace, rc: float | None):
+    """The :class:`~ncjax.HeightPrior` the options give: the one height given, else the default
+    camera height when ``--rc 0``, else None (the scale comes from the non-central geometry)."""
+    from ..pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior
+
+    given = [(kind, getattr(args, kind)) for kind in PRIOR_OPTIONS if getattr(args, kind) is not None]
+    if len(given) > 1:
+        raise ValueError(f"give one of {', '.join(PRIOR_OPTIONS.values())}, not several")
+    if given:
+        kind, value = given[0]
+        if not (math.isfinite(value) and 0.0 < value <= 20.0):
+            raise ValueError(f"{PRIOR_OPTIONS[kind]} must be a height in metres in (0, 20], got {value}")
+        return HeightPrior(kind, value)
+    return HeightPrior("camera_height", DEFAULT_CAMERA_HEIGHT) if rc == 0 else None
+
+
+def scale_fields(result, prior) -> dict:
+    """The JSON record's keys on the scale: where it came from, the prior, and what the geometry measured."""
+    from ..io.export import status_has_geometry
+    from ..reconstruction import SCALE_SOURCES
+
+    _, _, _, _, source, geometry = result
+    fields = {
+        "scale_source": SCALE_SOURCES[int(source)],
+        "height_prior": None if prior is None else {"kind": prior.kind, "value": float(prior.value)},
+        "geometry_measured": None,
+    }
+    if geometry is not None and status_has_geometry(bool(geometry.ok), int(geometry.status)):
+        ceiling, floor = float(geometry.ceiling_height), float(geometry.floor_height)
+        fields["geometry_measured"] = {
+            "status": LayoutStatus(int(geometry.status)).name,
+            "camera_height": round(-floor, 4),
+            "ceiling_height": round(ceiling, 4),
+            "room_height": round(ceiling - floor, 4),
+        }
+    return fields
 
 
 def radius_of(path: str, rc: float | None) -> float:
@@ -100,6 +146,7 @@ def failure_message(record: dict) -> str:
     return f"layout of uncertain scale written ({message}; {height})"
 
 
+MESH_SUFFIXES = ("obj", "ply", "glb")
 SUMMARY_FILE = "summary.csv"
 SUMMARY_COLUMNS = (
     "file",
@@ -115,6 +162,7 @@ SUMMARY_COLUMNS = (
     "perimeter_m",
     "branch",
     "rc_m",
+    "scale_source",
     "message",
 )
 # summary.csv's columns taken from the JSON record's keys
@@ -159,6 +207,7 @@ def summary_row(path: str, record: dict | None, message: str = "") -> dict:
             "status": record["status"],
             "corners": len(record["floor_corners"]) if written else "",
             "branch": record["branch"] if written else "",
+            "scale_source": record.get("scale_source", "") if written else "",
         }
     )
 
@@ -174,28 +223,106 @@ def write_summary(path: str, rows: list[dict]) -> None:
     write_atomic(path, text.getvalue().encode("utf-8"))
 
 
-def write_outputs(out: str, name: str, image: np.ndarray, result, rc: float, world: str, extra: dict | None = None):
-    """All files of one image; returns the JSON record."""
+def output_names(name: str) -> tuple[str, ...]:
+    """The names of every file :func:`write_outputs` can write for the image ``name`` (JSON first)."""
+    from ..io.formats import FORMATS, SUFFIXES
+
+    return (
+        f"{name}.json",
+        *(f"{name}.{suffix}" for suffix in MESH_SUFFIXES),
+        f"{name}_overlay.png",
+        f"{name}_plan.png",
+        *(f"{name}{SUFFIXES[format]}" for format in FORMATS),
+    )
+
+
+def write_outputs(
+    out: str,
+    name: str,
+    image: np.ndarray,
+    result,
+    rc: float,
+    world: str,
+    extra: dict | None = None,
+    export: tuple[str, ...] = (),
+    prior=None,
+    gravity: dict | None = None,
+):
+    """All files of one image, which appear together or not at all; returns the JSON record.
+
+    The files are written into a hidden staging folder inside ``out`` and renamed into
+    ``out`` at the end, ``<name>.json`` last (:func:`ncjax.io.files.replace_together`):
+    an error or a Ctrl-C before the renames leaves nothing of this run in ``out``. Every
+    earlier output of ``name`` is replaced or removed: the meshes and the layout formats
+    exist only when the layout has geometry, and a format only when ``export`` names it.
+
+    ``export`` names layout formats (:data:`ncjax.io.formats.FORMATS`) written beside the
+    JSON when the layout has geometry. ``gravity`` (:func:`align_to_gravity`) says how the
+    image was levelled: the JSON, the mesh and the metric formats are in the levelled frame
+    (z up), the corner pixels of label_cor and HorizonNet's json in the input image's.
+    """
     from ..geometry.camera import NonCentralPanorama
     from ..io.export import has_geometry, layout_record, write_json, write_png
+    from ..io.files import replace_together
+    from ..io.formats import write_layout_formats
     from ..io.mesh import write_mesh
     from ..viz.overlay import draw_overlay
     from ..viz.plan import draw_plan
 
-    layout, ceiling_v, floor_v, corner_prob = result
+    layout, ceiling_v, floor_v, corner_prob, *_ = result
     cam = NonCentralPanorama(image.shape[1], image.shape[0], rc=rc)
+    extra = (extra or {}) | scale_fields(result, prior) | {"gravity": gravity}
     record = layout_record(layout, cam, name=name, world=world, extra=extra)
-    stem = os.path.join(out, name)
-    if has_geometry(layout):
-        write_mesh(stem, layout)
-    overlay = draw_overlay(image, layout, cam, ceiling_v=ceiling_v, floor_v=floor_v, corner_prob=corner_prob)
-    write_png(f"{stem}_overlay.png", overlay)
-    write_png(f"{stem}_plan.png", draw_plan(layout, title=name, rc=rc))
-    write_json(f"{stem}.json", record)
+    with replace_together(out, owned=output_names(name), last=f"{name}.json") as staging:
+        stem = os.path.join(staging, name)
+        write_json(f"{stem}.json", record)
+        if has_geometry(layout):
+            write_mesh(stem, layout)
+            try:
+                if export:
+                    rotation = None if gravity is None or gravity["rotation"] is None else np.array(gravity["rotation"])
+                    write_layout_formats(stem, record, cam, export, rotation=rotation)
+            except ValueError as error:  # a corner no ray sees: the other outputs still describe the layout
+                print(f"{name}: layout formats not written ({error})", file=sys.stderr)
+        overlay = draw_overlay(image, layout, cam, ceiling_v=ceiling_v, floor_v=floor_v, corner_prob=corner_prob)
+        write_png(f"{stem}_overlay.png", overlay)
+        write_png(f"{stem}_plan.png", draw_plan(layout, title=name, rc=rc))
     return record
 
 
-def _reconstruct_group(model, items, batch_size, world, config, views, edge_snap, out, on_done, on_error):
+@dataclasses.dataclass(frozen=True)
+class ReconstructSettings:
+    """What ``ncjax reconstruct`` does with every image (from its options)."""
+
+    model: object
+    batch_size: int
+    world: str
+    config: object
+    views: int
+    edge_snap: EdgeSnap | None
+    out: str
+    export: tuple[str, ...]
+    prior: object
+
+
+def align_to_gravity(image: np.ndarray) -> tuple[np.ndarray, dict]:
+    """A central panorama levelled (:mod:`ncjax.io.align`), and the JSON record of its tilt.
+
+    An image whose vertical the line segments do not fix reliably is kept as it is (``reliable`` false).
+    """
+    from ..io.align import estimate_tilt, level_panorama
+
+    estimate = estimate_tilt(image)
+    record = {"reliable": estimate.reliable, "segments": int(estimate.segments), "roll_deg": None, "pitch_deg": None}
+    if not estimate.reliable:
+        return image, record | {"rotation": None}
+    rotation = np.asarray(estimate.rotation)
+    levelled = level_panorama(image, rotation)
+    record |= {"roll_deg": round(float(estimate.roll), 3), "pitch_deg": round(float(estimate.pitch), 3)}
+    return levelled, record | {"rotation": np.round(rotation, 8).tolist()}
+
+
+def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error):
     """Reconstruct same-size images in fixed-size batches.
 
     Calls ``on_done(path, record)`` after each image, or ``on_error(path, message)``
@@ -206,14 +333,24 @@ def _reconstruct_group(model, items, batch_size, world, config, views, edge_snap
 
     from ..reconstruction import reconstruct_batch
 
+    batch_size = settings.batch_size
     for start in range(0, len(items), batch_size):
         chunk = items[start : start + batch_size]
         padding = [chunk[-1]] * (batch_size - len(chunk))
-        images = np.stack([image for _, _, image, _ in chunk + padding])
-        radii = np.array([rc for *_, rc in chunk + padding], np.float32)
+        images = np.stack([image for _, _, image, _, _ in chunk + padding])
+        radii = np.array([rc for _, _, _, rc, _ in chunk + padding], np.float32)
         try:
             result = jax.device_get(
-                reconstruct_batch(images, radii, world, model=model, config=config, views=views, edge_snap=edge_snap)
+                reconstruct_batch(
+                    images,
+                    radii,
+                    settings.world,
+                    model=settings.model,
+                    config=settings.config,
+                    views=settings.views,
+                    edge_snap=settings.edge_snap,
+                    prior=settings.prior,
+                )
             )
         except RuntimeError as error:  # XLA's errors (out of memory, ...): reported per image, the next batch goes on
             first_line = (str(error).strip().splitlines() or [""])[0]
@@ -221,9 +358,20 @@ def _reconstruct_group(model, items, batch_size, world, config, views, edge_snap
             for path, *_ in chunk:
                 on_error(path, f"{path}: the reconstruction failed ({type(error).__name__}: {first_line}){hint}")
             continue
-        for index, (path, name, image, rc) in enumerate(chunk):
+        for index, (path, name, image, rc, gravity) in enumerate(chunk):
             one = jax.tree.map(lambda x: x[index], tuple(result))
-            on_done(path, write_outputs(out, name, image, one, float(rc), world))
+            record = write_outputs(
+                settings.out,
+                name,
+                image,
+                one,
+                float(rc),
+                settings.world,
+                export=settings.export,
+                prior=settings.prior,
+                gravity=gravity,
+            )
+            on_done(path, record)
 
 
 def run_reconstruct(args: argparse.Namespace) -> int:
@@ -234,6 +382,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     from ..network.predict import default_model
 
     rc = parse_rc(args.rc)
+    prior = height_prior(args, rc)
     check_views(args.views)
     config = pipeline_config(args)
     if args.batch < 1:
@@ -245,6 +394,9 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         raise ValueError(f"--out {args.out!r} exists and is not a folder")
     model = load_model(args.model) if args.model else default_model()
+    settings = ReconstructSettings(
+        model, args.batch, args.world, config, args.views, args.edge_snap, args.out, args.export, prior
+    )
     os.makedirs(args.out, exist_ok=True)
     enable_compilation_cache()
 
@@ -275,18 +427,16 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         except PanoramaError as error:
             failed(path, str(error))
             continue
+        # a tilted non-central rig cannot be levelled by resampling its image: only central panoramas are
+        image, gravity = align_to_gravity(image) if radius == 0 and args.align else (image, None)
         group = groups[image.shape[:2]]
-        group.append((path, name, image, radius))
+        group.append((path, name, image, radius, gravity))
         if len(group) == args.batch:
-            _reconstruct_group(
-                model, group, args.batch, args.world, config, args.views, args.edge_snap, args.out, done, failed
-            )
+            _reconstruct_group(settings, group, done, failed)
             group.clear()
     for group in groups.values():
         if group:
-            _reconstruct_group(
-                model, group, args.batch, args.world, config, args.views, args.edge_snap, args.out, done, failed
-            )
+            _reconstruct_group(settings, group, done, failed)
     bar.close()
     write_summary(os.path.join(args.out, SUMMARY_FILE), [summary[path] for path in args.images])
     failures = [f"{path}: {row['message']}" for path, row in summary.items() if row["message"]]
@@ -332,7 +482,7 @@ def run_demo(args: argparse.Namespace) -> int:
         )
     )
     one = jax.tree.map(lambda x: x[0], tuple(result))
-    record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world)
+    record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world, export=args.export)
     elapsed = time.perf_counter() - start
     if not record["ok"]:
         print(failure_message(record), file=sys.stderr)
@@ -362,13 +512,67 @@ def run_demo(args: argparse.Namespace) -> int:
 
 def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("images", nargs="+", help="panorama files (full 360 x 180 degrees, width = 2 x height)")
-    parser.add_argument("--rc", required=True, help="radius in metres, or 'auto' to read it from the names (_R06101)")
+    parser.add_argument(
+        "--rc",
+        required=True,
+        help="radius in metres (0: a central panorama, scale from a height prior), or 'auto' to read it from "
+        "the names (_R06101)",
+    )
     parser.add_argument("--out", required=True, help="output folder (created if needed)")
     parser.add_argument("--world", choices=WORLDS, default=DEFAULT_WORLD, help=WORLD_HELP)
     parser.add_argument("--model", help="network weights (.safetensors); default: the shipped model")
     parser.add_argument("--batch", type=int, default=4, help="images per jitted call (default 4)")
+    add_prior_arguments(parser)
+    parser.add_argument(
+        "--no-align",
+        dest="align",
+        action="store_false",
+        help="keep a central panorama as it is; by default its roll and pitch are estimated from the image's "
+        "lines and undone before the network (the JSON records them)",
+    )
+    add_export_argument(parser)
     add_boundary_arguments(parser)
     add_pipeline_arguments(parser)
+
+
+def add_prior_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--camera-height``, ``--ceiling-height``, ``--room-height``: a height that fixes the scale."""
+    from ..pipeline.prior import DEFAULT_CAMERA_HEIGHT
+
+    group = parser.add_argument_group(
+        "height prior (the scale of a central panorama; with rc > 0 used only where the geometry cannot fix it)"
+    )
+    group.add_argument(
+        "--camera-height",
+        dest="camera_height",
+        type=float,
+        help=f"camera above the floor, metres (default with --rc 0: {DEFAULT_CAMERA_HEIGHT}, as HorizonNet)",
+    )
+    group.add_argument("--ceiling-height", dest="ceiling_height", type=float, help="ceiling above the camera, metres")
+    group.add_argument("--room-height", dest="room_height", type=float, help="floor to ceiling, metres")
+
+
+def parse_export(text: str) -> tuple[str, ...]:
+    """``--export``: a comma list of layout formats (an unknown name is an argparse error)."""
+    from ..io.formats import check_formats
+
+    try:
+        return check_formats(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def add_export_argument(parser: argparse.ArgumentParser) -> None:
+    """``--export FORMATS``: the layout also as label_cor, HorizonNet, PanoAnnotator (mp3d) or ZInD files."""
+    parser.add_argument(
+        "--export",
+        type=parse_export,
+        default=(),
+        metavar="FORMATS",
+        help="also write the layout for central-panorama tools, a comma list of label_cor (HorizonNet's corner "
+        "pixels), horizonnet (HorizonNet's inference json), mp3d (PanoAnnotator / MatterportLayout / LGT-Net "
+        "json) and zind (ZInD json): <name>.label_cor.txt, <name>.horizonnet.json, ...",
+    )
 
 
 def add_boundary_arguments(parser: argparse.ArgumentParser) -> None:
@@ -393,6 +597,7 @@ def add_boundary_arguments(parser: argparse.ArgumentParser) -> None:
 def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="ncjax_demo", help="output folder (default ./ncjax_demo)")
     parser.add_argument("--world", choices=WORLDS, default=DEFAULT_WORLD, help=WORLD_HELP)
+    add_export_argument(parser)
     add_boundary_arguments(parser)
     add_pipeline_arguments(parser)
 

@@ -5,4 +5,6 @@
 - ``linalg``: null spaces and safe divisions for the solvers.
 - ``reprojection``: a wall's boundary rows in the image, and plan lines through boundary points.
 - ``fastmath``: a float32 arctangent that vectorises.
+- ``gravity``: roll and pitch of a tilted central panorama, and maps of points and pixels between its
+  frame and the levelled frame (numpy).
 """

@@ -79,9 +79,10 @@ def room_mesh(layout: Layout) -> tuple[Float[np.ndarray, "V 3"], Int[np.ndarray,
     """The room as a closed triangle mesh: walls, floor and ceiling.
 
     Faces are oriented so that their normals (right-hand rule over the vertex
-    order) point INTO the room: the viewer stands inside, and a renderer that
-    culls back faces shows the room from within (from outside it shows a
-    doll's house: the near walls are culled). The floor and ceiling are
+    order) point OUT of the room, as mesh tools expect of a closed solid: the
+    signed volume is positive (floor area times room height). A renderer that
+    culls back faces shows the room as a closed box from outside; to look
+    around from within, turn culling off or flip the faces. The floor and ceiling are
     triangulated by ear clipping, so non-convex (L-, U-shaped) plans are exact.
     Inserted walls are walls like the others. The mesh is watertight: every
     edge is shared by exactly two faces, in opposite directions.
@@ -107,13 +108,14 @@ def room_mesh(layout: Layout) -> tuple[Float[np.ndarray, "V 3"], Int[np.ndarray,
     counter_clockwise = signed_area(floor[:, :2]) > 0
     faces = []
     for k in range(n):
-        # Going from corner i to corner j the room is on the left.
+        # Going from corner i to corner j the room is on the left: floor_i, floor_j, ceiling_j turns
+        # counter-clockwise seen from the right, outside the room.
         i, j = (k, (k + 1) % n) if counter_clockwise else ((k + 1) % n, k)
         ceiling_i, ceiling_j, floor_i, floor_j = i, j, n + i, n + j
-        faces += [[floor_i, ceiling_j, floor_j], [floor_i, ceiling_i, ceiling_j]]
+        faces += [[floor_i, floor_j, ceiling_j], [floor_i, ceiling_j, ceiling_i]]
     plan = triangulate_polygon(floor[:, :2])  # counter-clockwise seen from above: normal +z
-    faces += (n + plan).tolist()  # floor, normal up
-    faces += plan[:, ::-1].tolist()  # ceiling, normal down
+    faces += (n + plan[:, ::-1]).tolist()  # floor, normal down
+    faces += plan.tolist()  # ceiling, normal up
     return np.concatenate([ceiling, floor]), np.asarray(faces, np.int64)
 
 
@@ -132,7 +134,7 @@ def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
 def write_obj(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[ArrayLike, "F 3"]) -> None:
     """Write a triangle mesh as Wavefront OBJ (1-based indices; metres, z up, camera frame), atomically."""
     vertices, faces = _check_mesh(vertices, faces)
-    lines = ["# ncjax room layout: metres, camera frame, z up; normals point into the room"]
+    lines = ["# ncjax room layout: metres, camera frame, z up; normals point out of the room"]
     lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
     write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
@@ -144,7 +146,7 @@ def write_ply(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[Arra
     header = [
         "ply",
         "format ascii 1.0",
-        "comment ncjax room layout: metres, camera frame, z up; normals point into the room",
+        "comment ncjax room layout: metres, camera frame, z up; normals point out of the room",
         f"element vertex {len(vertices)}",
         "property float x",
         "property float y",
@@ -185,7 +187,7 @@ def write_glb(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[Arra
     One mesh of one triangle primitive: float32 POSITION (with the min/max the
     specification requires) and uint32 indices. glTF is y-up, so the vertices
     are rotated from our z-up frame by (x, y, z) -> (x, z, -y) (:func:`z_up_to_y_up`);
-    glTF's counter-clockwise front faces then face into the room.
+    glTF's counter-clockwise front faces then face out of the room.
     """
     vertices, faces = _check_mesh(vertices, faces)
     positions = z_up_to_y_up(vertices).astype("<f4")

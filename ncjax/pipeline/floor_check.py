@@ -9,17 +9,30 @@ from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angl
 from .config import scaled
 
 
+def ceiling_floor_ratio(
+    cam: NonCentralPanorama, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"]
+) -> Float[Array, ""]:
+    """The panorama's median of ``tan(phi_c) / tan(phi_f)`` over its columns: ``h_c / h_f`` (negative).
+
+    A column's rays all leave one centre on the circle, in one vertical plane
+    (paper eq. pluckerray), so they meet the wall at one horizontal range
+    ``t``: ``tan(phi_c) = h_c / t`` and ``tan(phi_f) = h_f / t``, whatever the
+    walls. Columns with a missing row are left out (NaN if all are).
+    """
+    columns = jnp.arange(ceiling_v.shape[0], dtype=ceiling_v.dtype)
+    _, ceiling_elevation = pixel_to_angles(cam, columns, ceiling_v)
+    _, floor_elevation = pixel_to_angles(cam, columns, floor_v)
+    return jnp.nanmedian(jnp.tan(ceiling_elevation) / jnp.tan(floor_elevation))
+
+
 def ceiling_consistent_floor(
     cam: NonCentralPanorama, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"], threshold: Float[ArrayLike, ""]
 ) -> tuple[Float[Array, " W"], Bool[Array, " W"]]:
     """Floor rows that contradict their column's ceiling row, replaced by the row it implies (step 0).
 
-    A column's rays all leave one centre on the circle, in one vertical plane
-    (paper eq. pluckerray), so they meet the wall at one horizontal range
-    ``t``: ``tan(phi_c) = h_c / t`` and ``tan(phi_f) = h_f / t``, and
-    ``tan(phi_c) / tan(phi_f) = h_c / h_f`` in every column, whatever the
-    walls. The panorama's median of that ratio gives each column's floor
-    elevation from its ceiling one. The ratio is the image's own, not a
+    ``tan(phi_c) / tan(phi_f) = h_c / h_f`` in every column
+    (:func:`ceiling_floor_ratio`): the panorama's median ratio gives each
+    column's floor elevation from its ceiling one. The ratio is the image's own, not a
     prior; the metric scale still comes from the rows' non-central parallax.
 
     Args:
@@ -32,8 +45,8 @@ def ceiling_consistent_floor(
     """
     columns = jnp.arange(ceiling_v.shape[0], dtype=ceiling_v.dtype)
     _, ceiling_elevation = pixel_to_angles(cam, columns, ceiling_v)
-    azimuth, floor_elevation = pixel_to_angles(cam, columns, floor_v)
-    ratio = jnp.nanmedian(jnp.tan(ceiling_elevation) / jnp.tan(floor_elevation))
+    azimuth, _ = pixel_to_angles(cam, columns, floor_v)
+    ratio = ceiling_floor_ratio(cam, ceiling_v, floor_v)
     _, implied = angles_to_pixel(cam, azimuth, jnp.arctan(jnp.tan(ceiling_elevation) / ratio))
     replaced = jnp.abs(floor_v - implied) > scaled(threshold, cam.height, 512)
     # a ceiling row below the horizon (an outlier) implies nothing about the floor's

@@ -68,6 +68,7 @@ from .config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_p
 from .evidence import gather_evidence
 from .floor_check import ceiling_consistent_floor
 from .manhattan import manhattan_frame, manhattan_layout
+from .prior import HeightPrior, prior_rows, rescale_to_prior
 from .types import Layout, LayoutStatus, pad_layout
 
 
@@ -100,6 +101,34 @@ def layout_from_evidence(
     return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
 
 
+def layout_from_prior(
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    corner_prob: Float[Array, " W"],
+    cam: NonCentralPanorama,
+    prior: HeightPrior,
+    key: PRNGKeyArray,
+    world: str,
+    config: PipelineConfig,
+) -> Layout:
+    """The traceable pipeline for one panorama whose scale a height prior fixes (:mod:`ncjax.pipeline.prior`).
+
+    Any ``rc``, 0 included. The height-uncertainty test (``max_height_uncertainty``) is off: the prior, not
+    the rows' parallax, fixes the scale.
+    """
+    virtual, ceiling_virtual, floor_virtual = prior_rows(cam, ceiling_v, floor_v, prior)
+    config = with_traced(config, {"max_height_uncertainty": jnp.asarray(jnp.inf)})
+    layout = layout_from_evidence(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config)
+    return rescale_to_prior(layout, prior)
+
+
+def layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> Layout:
+    """:func:`layout_from_evidence`, or :func:`layout_from_prior` when ``prior`` is not None."""
+    if prior is None:
+        return layout_from_evidence(ceiling_v, floor_v, corner_prob, cam, key, world, config)
+    return layout_from_prior(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config)
+
+
 def choose_manhattan(
     manhattan_ok: Bool[Array, ""],
     atlanta_ok: Bool[Array, ""],
@@ -119,9 +148,9 @@ def choose_manhattan(
     return manhattan_ok & (~atlanta_ok | better)
 
 
-def _padded_layout(ceiling_v, floor_v, corner_prob, cam, key, thresholds, world, config, slots):
+def _padded_layout(ceiling_v, floor_v, corner_prob, cam, prior, key, thresholds, world, config, slots):
     config = with_traced(config, thresholds)
-    return pad_layout(layout_from_evidence(ceiling_v, floor_v, corner_prob, cam, key, world, config), slots)
+    return pad_layout(layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config), slots)
 
 
 _layout_jit = jax.jit(_padded_layout, static_argnames=("world", "config", "slots"))
@@ -135,6 +164,7 @@ def layout_from_boundaries(
     world: str = DEFAULT_WORLD,
     config: PipelineConfig = PipelineConfig(),
     key: PRNGKeyArray | None = None,
+    prior: HeightPrior | None = None,
 ) -> Layout:
     """Metric room layout from the per-column network outputs (paper Section 4.4).
 
@@ -155,6 +185,8 @@ def layout_from_boundaries(
         config: :class:`PipelineConfig`; its thresholds (:data:`~ncjax.pipeline.config.TRACED_FIELDS`)
             are traced, the rest static.
         key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``).
+        prior: a :class:`~ncjax.pipeline.prior.HeightPrior` (a scalar value or one per panorama): the scale
+            comes from it instead of the rows' parallax (:func:`layout_from_prior`; needed for ``rc = 0``).
 
     Returns:
         A :class:`Layout`; check ``ok`` / ``status``.
@@ -180,17 +212,19 @@ def layout_from_boundaries(
             f"the camera's rc and fields of view must be scalars or of the batch's shape {batch}; "
             f"got {[jnp.shape(x) for x in fields]}"
         )
+    if prior is not None and jnp.shape(prior.value) not in ((), batch):
+        raise ValueError(f"the prior's value must be a scalar or of the batch's shape {batch}")
     key = jax.random.key(0) if key is None else key
     if not batch:
-        return _layout_with_fallback(*arrays, cam, key, world, config)
+        return _layout_with_fallback(*arrays, cam, prior, key, world, config)
     flat = [x.reshape(-1, cam.width) for x in arrays]
-    cams = jax.tree.map(lambda x: jnp.broadcast_to(x, batch).reshape(-1), cam)
+    cams, prior = jax.tree.map(lambda x: jnp.broadcast_to(x, batch).reshape(-1), (cam, prior))
     keys = jax.random.split(key, flat[0].shape[0])
-    layout = _layout_with_fallback(*flat, cams, keys, world, config)
+    layout = _layout_with_fallback(*flat, cams, prior, keys, world, config)
     return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layout)
 
 
-def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, key, world, config) -> Layout:
+def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> Layout:
     """One panorama (1D rows) or a flat batch: with ``config.compact_capacity`` slots first where that can help.
 
     A rerun with ``config.capacity`` slots replaces the compact run's
@@ -208,11 +242,11 @@ def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, key, world, conf
     if not 0 < compact < config.capacity or any(
         isinstance(x, jax.core.Tracer) for x in (ceiling_v, floor_v, corner_prob)
     ):
-        return run(ceiling_v, floor_v, corner_prob, cam, key, config=full)
-    layout = run(ceiling_v, floor_v, corner_prob, cam, key, config=dataclasses.replace(full, capacity=compact))
+        return run(ceiling_v, floor_v, corner_prob, cam, prior, key, config=full)
+    layout = run(ceiling_v, floor_v, corner_prob, cam, prior, key, config=dataclasses.replace(full, capacity=compact))
     if not batched:
         return (
-            run(ceiling_v, floor_v, corner_prob, cam, key, config=full)
+            run(ceiling_v, floor_v, corner_prob, cam, prior, key, config=full)
             if layout.status == LayoutStatus.TOO_MANY_WALLS
             else layout
         )
@@ -224,32 +258,42 @@ def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, key, world, conf
     picked = jnp.asarray(np.concatenate([rerun, np.full(padding, rerun[0])]))
     destination = jnp.asarray(np.concatenate([rerun, np.full(padding, ceiling_v.shape[0])]))
     return _rerun_jit(
-        ceiling_v, floor_v, corner_prob, cam, key, layout, picked, destination, thresholds, world=world, config=full
+        ceiling_v,
+        floor_v,
+        corner_prob,
+        cam,
+        prior,
+        key,
+        layout,
+        picked,
+        destination,
+        thresholds,
+        world=world,
+        config=full,
     )
 
 
-def _batched_layout(ceiling_v, floor_v, corner_prob, cams, keys, thresholds, world, config, slots):
-    def one(c, f, p, cam, k):
-        return _padded_layout(c, f, p, cam, k, thresholds, world, config, slots)
+def _batched_layout(ceiling_v, floor_v, corner_prob, cams, priors, keys, thresholds, world, config, slots):
+    def one(c, f, p, cam, prior, k):
+        return _padded_layout(c, f, p, cam, prior, k, thresholds, world, config, slots)
 
+    inputs = (ceiling_v, floor_v, corner_prob, cams, priors, keys)
     if not 0 < config.chunk_size < ceiling_v.shape[0]:
-        return jax.vmap(one)(ceiling_v, floor_v, corner_prob, cams, keys)
+        return jax.vmap(one)(*inputs)
     # the last, partial chunk (if any) is one more vmap after the loop over the full ones
-    return jax.lax.map(
-        lambda args: one(*args), (ceiling_v, floor_v, corner_prob, cams, keys), batch_size=config.chunk_size
-    )
+    return jax.lax.map(lambda args: one(*args), inputs, batch_size=config.chunk_size)
 
 
 _batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config", "slots"))
 
 
-def _rerun(ceiling_v, floor_v, corner_prob, cams, keys, layout, picked, destination, thresholds, world, config):
+def _rerun(ceiling_v, floor_v, corner_prob, cams, priors, keys, layout, picked, destination, thresholds, world, config):
     """``layout`` with the panoramas ``picked`` solved again with ``config``: gather, solve and scatter in one call.
 
     Result ``i`` goes to panorama ``destination[i]``; out-of-range
     destinations (the padding of ``picked``) are dropped.
     """
-    inputs = jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cams, keys))
+    inputs = jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cams, priors, keys))
     redone = _batched_layout(*inputs, thresholds, world, config, config.capacity)
     return jax.tree.map(lambda old, new: old.at[destination].set(new, mode="drop"), layout, redone)
 

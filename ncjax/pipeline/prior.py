@@ -1,0 +1,180 @@
+"""Scale from a height prior: central panoramas (``rc = 0``) and radii too small to fix the scale.
+
+A central panorama determines its room up to one scale about the camera; a
+non-central one with a radius of a few centimetres determines it too weakly.
+Central methods (HorizonNet, LGT-Net) fix it with a known camera height. Here
+the prior fixes the two heights, the rows then fix every boundary point, and
+the pipeline runs unchanged on the panorama a virtual non-central rig would
+take of those points:
+
+1. In every column both rays leave one centre in one vertical plane, so
+   ``tan(phi_c) / tan(phi_f) = h_c / h_f`` whatever the walls (the ratio of
+   step 0, :func:`ncjax.pipeline.floor_check.ceiling_floor_ratio`); the
+   panorama's median ratio and the prior give ``h_c`` and ``h_f``
+   (:func:`prior_heights`).
+2. Each row is then a 3D boundary point at horizontal range
+   ``t = h / tan(phi)`` from its column's centre, ``rc + t`` from the axis
+   (:func:`boundary_ranges`).
+3. A virtual rig of radius ``rc'`` (half the nearest points' range: strong
+   parallax) sees those points at the rows of :func:`virtual_rows`; the
+   geometric pipeline (both worlds, occlusions, the adjustment) runs on them,
+   and its layout is scaled so that the prior's height holds exactly
+   (:func:`ncjax.pipeline.run.layout_from_prior`). The image's own central rays cannot tell a room
+   from a scaled copy, so the scaling changes no reprojection.
+
+Exact on exact rows (the tests reproduce rendered rooms). The covariances are
+those of the fit on the virtual rows with the heights it found, given that the
+prior is right: the prior's own error scales every length and is not in them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
+
+from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
+from .floor_check import ceiling_floor_ratio
+from .types import Layout
+
+# What a prior can give: the camera's height above the floor (HorizonNet's 1.6 m), the ceiling's height
+# above the camera (``h_c``, :attr:`ncjax.Layout.ceiling_height`), or the room's floor-to-ceiling height.
+PRIOR_KINDS = ("camera_height", "ceiling_height", "room_height")
+DEFAULT_CAMERA_HEIGHT = 1.6
+
+# The virtual rig's radius as a fraction of the near boundary points' range (their 5% quantile): large for
+# parallax, and every point stays outside the circle; rows nearer than VIRTUAL_MARGIN times the radius are dropped.
+VIRTUAL_RADIUS_FRACTION = 0.5
+VIRTUAL_MARGIN = 1.2
+
+
+class HeightPrior(eqx.Module):
+    """A known height that fixes the scale (``kind`` static, ``value`` traced, metres, > 0).
+
+    Attributes:
+        kind: one of :data:`PRIOR_KINDS`.
+        value: the height; ``jax.vmap`` adds batch axes (one prior per panorama).
+    """
+
+    kind: str = eqx.field(static=True)
+    value: Float[Array, "*batch"]
+
+    def __init__(self, kind: str, value: Float[ArrayLike, "*batch"]):
+        if kind not in PRIOR_KINDS:
+            raise ValueError(f"the height prior must be one of {PRIOR_KINDS}, got {kind!r}")
+        self.kind = kind
+        self.value = jnp.asarray(value, jnp.float32)
+
+    def __check_init__(self):
+        try:
+            smallest = float(jnp.min(self.value))
+        except Exception:  # traced: the caller's job
+            return
+        if not smallest > 0 or not bool(jnp.all(jnp.isfinite(self.value))):
+            raise ValueError(f"the {self.kind.replace('_', ' ')} must be a finite height > 0 in metres")
+
+
+def prior_heights(ratio: Float[ArrayLike, ""], prior: HeightPrior) -> tuple[Float[Array, ""], Float[Array, ""]]:
+    """``(h_c, h_f)`` from the ratio ``h_c / h_f`` (negative) and the prior.
+
+    ``camera_height`` H: ``h_f = -H``; ``ceiling_height`` C: ``h_c = C``;
+    ``room_height`` R: ``h_c - h_f = R``; the other height from ``h_c = ratio h_f``.
+    """
+    value = prior.value
+    if prior.kind == "camera_height":
+        floor_height = -value
+    elif prior.kind == "ceiling_height":
+        floor_height = value / ratio
+    else:
+        floor_height = value / (ratio - 1.0)
+    return ratio * floor_height, floor_height
+
+
+def boundary_ranges(
+    cam: NonCentralPanorama, rows: Float[Array, " W"], height: Float[ArrayLike, ""]
+) -> tuple[Float[Array, " W"], Float[Array, " W"]]:
+    """Azimuth and range from the axis of each column's boundary point at ``height`` (NaN behind the camera).
+
+    The column's ray leaves ``rc (cos varphi, sin varphi, 0)`` at elevation ``phi`` and meets
+    ``z = height`` at horizontal range ``height / tan(phi)`` from that centre (paper eq. pluckerray).
+    """
+    columns = jnp.arange(rows.shape[0], dtype=rows.dtype)
+    azimuth, elevation = pixel_to_angles(cam, columns, rows)
+    along = height / jnp.tan(elevation)
+    return azimuth, jnp.where(along > 0, cam.rc + along, jnp.nan)
+
+
+def virtual_rows(
+    cam: NonCentralPanorama,
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    ceiling_height: Float[ArrayLike, ""],
+    floor_height: Float[ArrayLike, ""],
+) -> tuple[NonCentralPanorama, Float[Array, " W"], Float[Array, " W"]]:
+    """The camera and rows of a virtual non-central rig that sees the same boundary points (steps 2-3).
+
+    Returns:
+        ``(virtual_cam, ceiling_v, floor_v)``: same size and fields of view as ``cam``, radius
+        :data:`VIRTUAL_RADIUS_FRACTION` of the near points' range; rows NaN where missing or too near.
+    """
+    azimuth, ceiling_range = boundary_ranges(cam, ceiling_v, ceiling_height)
+    _, floor_range = boundary_ranges(cam, floor_v, floor_height)
+    near = jnp.nanquantile(jnp.concatenate([ceiling_range, floor_range]), 0.05)
+    virtual = dataclasses.replace(cam, rc=VIRTUAL_RADIUS_FRACTION * jnp.nan_to_num(near, nan=1.0))
+
+    def rows(ranges, height):
+        outside = ranges > VIRTUAL_MARGIN * virtual.rc
+        elevation = jnp.arctan2(height, jnp.where(outside, ranges - virtual.rc, jnp.nan))
+        return angles_to_pixel(virtual, azimuth, elevation)[1]
+
+    return virtual, rows(ceiling_range, ceiling_height), rows(floor_range, floor_height)
+
+
+def prior_rows(
+    cam: NonCentralPanorama, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"], prior: HeightPrior
+) -> tuple[NonCentralPanorama, Float[Array, " W"], Float[Array, " W"]]:
+    """Steps 1-3: the virtual rig and its rows for a panorama whose scale ``prior`` fixes."""
+    ratio = ceiling_floor_ratio(cam, ceiling_v, floor_v)
+    ceiling_height, floor_height = prior_heights(ratio, prior)
+    return virtual_rows(cam, ceiling_v, floor_v, ceiling_height, floor_height)
+
+
+def rescale_to_prior(layout: Layout, prior: HeightPrior) -> Layout:
+    """``layout`` scaled so that the height ``prior`` states holds exactly (unchanged if it has no such height)."""
+    measured = prior_quantity(prior.kind, layout.ceiling_height, layout.floor_height)
+    return scale_layout(layout, jnp.where(measured > 0, prior.value / jnp.where(measured > 0, measured, 1.0), 1.0))
+
+
+def prior_quantity(kind: str, ceiling_height: Float[ArrayLike, "*b"], floor_height: Float[ArrayLike, "*b"]):
+    """The height a prior of ``kind`` states, measured on a layout's heights."""
+    if kind == "camera_height":
+        return -floor_height
+    if kind == "ceiling_height":
+        return ceiling_height
+    return ceiling_height - floor_height
+
+
+def scale_layout(layout: Layout, factor: Float[ArrayLike, ""]) -> Layout:
+    """``layout`` scaled about the camera by ``factor``: lengths times it, covariances times its square.
+
+    Plücker lines ``(u, m)`` keep their direction and scale their moment.
+    """
+    factor = jnp.asarray(factor)
+
+    def lines(x):
+        return jnp.concatenate([x[..., :3], factor * x[..., 3:]], -1)
+
+    return dataclasses.replace(
+        layout,
+        ceiling_corners=factor * layout.ceiling_corners,
+        floor_corners=factor * layout.floor_corners,
+        ceiling_height=factor * layout.ceiling_height,
+        floor_height=factor * layout.floor_height,
+        wall_distances=factor * layout.wall_distances,
+        ceiling_lines=lines(layout.ceiling_lines),
+        floor_lines=lines(layout.floor_lines),
+        corner_covariance=factor**2 * layout.corner_covariance,
+        height_covariance=factor**2 * layout.height_covariance,
+    )

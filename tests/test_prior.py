@@ -1,0 +1,113 @@
+"""Scale from a height prior: central panoramas (rc = 0) and radii too small to fix the scale."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import ncjax
+from ncjax import metrics
+from ncjax.pipeline.floor_check import ceiling_floor_ratio
+from ncjax.pipeline.prior import (
+    PRIOR_KINDS,
+    HeightPrior,
+    prior_heights,
+    prior_quantity,
+    rescale_to_prior,
+    scale_layout,
+    virtual_rows,
+)
+
+WIDTH, HEIGHT = 512, 256
+
+
+@functools.cache
+def rooms(world: str, rc_range: tuple[float, float], count: int = 4):
+    config = ncjax.RoomConfig(
+        world=world, rc_range=rc_range, occlusion="none", max_walls=8, room_tries=2, camera_tries=64
+    )
+    batch = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(3), count))
+    labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(batch)
+    return batch, labels
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(0.3, 3.0), st.floats(-2.5, -0.3), st.sampled_from(PRIOR_KINDS))
+def test_prior_heights_keep_the_ratio_and_the_stated_height(ceiling, floor, kind):
+    truth = prior_quantity(kind, ceiling, floor)
+    h_c, h_f = prior_heights(jnp.asarray(ceiling / floor), HeightPrior(kind, truth))
+    np.testing.assert_allclose([h_c, h_f], [ceiling, floor], rtol=1e-5)
+
+
+@pytest.mark.parametrize("value", [0.0, -1.6, float("nan"), float("inf")])
+def test_a_height_prior_must_be_a_positive_height(value):
+    with pytest.raises(ValueError, match="camera height must be a finite height > 0"):
+        HeightPrior("camera_height", value)
+    with pytest.raises(ValueError, match="height prior must be one of"):
+        HeightPrior("eye_height", 1.6)
+
+
+@pytest.mark.parametrize("rc", [0.0, 0.05])
+def test_ratio_and_virtual_rows_are_exact_on_a_room(rc):
+    """The median ratio is the room's h_c / h_f, and the virtual rig sees the room's boundaries at its rows."""
+    room, labels = rooms("manhattan", (rc, rc), 1)
+    room, labels = jax.tree.map(lambda x: x[0], (room, labels))
+    cam = room.camera(WIDTH, HEIGHT)
+    ratio = ceiling_floor_ratio(cam, labels.ceiling_v, labels.floor_v)
+    np.testing.assert_allclose(ratio, room.ceiling_height / room.floor_height, rtol=1e-4)
+    virtual, ceiling_v, floor_v = virtual_rows(
+        cam, labels.ceiling_v, labels.floor_v, room.ceiling_height, room.floor_height
+    )
+    assert float(virtual.rc) > 0.1
+    truth = ncjax.room_labels(room, virtual)
+    seen = np.isfinite(ceiling_v) & np.isfinite(floor_v)
+    assert seen.mean() > 0.9
+    np.testing.assert_allclose(ceiling_v[seen], truth.ceiling_v[seen], atol=2e-2)
+    np.testing.assert_allclose(floor_v[seen], truth.floor_v[seen], atol=2e-2)
+
+
+def test_scale_layout_scales_lengths_and_covariances():
+    room, labels = rooms("manhattan", (0.3, 0.3), 1)
+    cam = room.camera(WIDTH, HEIGHT)
+    layout = ncjax.layout_from_boundaries(labels.ceiling_v, labels.floor_v, labels.corner_target, cam)
+    layout = jax.tree.map(lambda x: x[0], layout)
+    scaled = scale_layout(layout, 2.0)
+    np.testing.assert_allclose(scaled.floor_corners, 2 * layout.floor_corners, rtol=1e-6)
+    np.testing.assert_allclose(scaled.corner_covariance, 4 * layout.corner_covariance, rtol=1e-6)
+    np.testing.assert_allclose(scaled.floor_lines[..., :3], layout.floor_lines[..., :3])
+    # the scaled lines are the scaled room's: the moment of a horizontal line scales with it
+    corners = np.asarray(scaled.floor_corners)[np.asarray(layout.mask)]
+    lines = np.asarray(scaled.floor_lines)[np.asarray(layout.mask)]
+    np.testing.assert_allclose(np.cross(corners, lines[:, :3]), lines[:, 3:], atol=1e-4)
+    again = rescale_to_prior(scaled, HeightPrior("camera_height", float(-layout.floor_height)))
+    np.testing.assert_allclose(again.floor_corners, layout.floor_corners, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("world", ["manhattan", "atlanta"])
+def test_central_rooms_from_exact_rows_and_the_true_camera_height(world):
+    """rc = 0 and rc = 2-5 cm, one compiled program: the layout is the room, its floor at the prior's height.
+
+    Rooms without occlusions: the prior changes only the scale's source, the pipeline's occlusion
+    handling is the non-central one's (experiments/central_table.py measures occluded rooms).
+    """
+    for rc_range in ((0.0, 0.0), (0.02, 0.05)):
+        batch, labels = rooms(world, rc_range)
+        cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
+        camera = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=cams.rc)
+        prior = HeightPrior("camera_height", -batch.floor_height)
+        layouts = ncjax.layout_from_boundaries(
+            labels.ceiling_v, labels.floor_v, labels.corner_target, camera, world=world, prior=prior
+        )
+        truth = batch if world == "manhattan" else labels
+        for i in range(batch.rc.shape[0]):
+            layout = jax.tree.map(lambda x: np.asarray(x[i]), layouts)
+            assert layout.ok, ncjax.LayoutStatus(int(layout.status)).reason
+            np.testing.assert_allclose(layout.floor_height, batch.floor_height[i], rtol=1e-5)
+            scores = metrics.evaluate_layout(layout, jax.tree.map(lambda x: np.asarray(x[i]), truth))
+            assert scores["iou3d"] > 0.99, (rc_range, i, scores)
