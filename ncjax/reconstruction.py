@@ -33,7 +33,7 @@ from .network.model import HorizonNet, check_views
 from .network.predict import DEFAULT_VIEWS, default_model, image_boundaries
 from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
 from .pipeline.prior import HeightPrior
-from .pipeline.run import layout_for
+from .pipeline.run import layout_for, layout_from_boundaries
 from .pipeline.types import Layout, LayoutStatus
 
 # The pipeline's defaults suit exact and white-noise rows. The network's corner probability has lobes several
@@ -91,7 +91,7 @@ class Reconstruction(NamedTuple):
     geometry: Layout | None = None
 
 
-@functools.partial(nnx.jit, static_argnames=("world", "config", "views", "edge_snap", "geometry"))
+@functools.partial(nnx.jit, static_argnames=("world", "config", "views", "edge_snap"))
 def _reconstruct(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
@@ -103,34 +103,44 @@ def _reconstruct(
     config: PipelineConfig,
     views: int,
     edge_snap: EdgeSnap | None,
-    geometry: bool,
 ) -> Reconstruction:
     height, width = images.shape[1:3]
     config = with_traced(config, thresholds)
     ceiling_v, floor_v, corner_prob = image_boundaries(model, images, views, edge_snap)
 
-    def layouts(prior_or_none):
-        def one(ceiling, floor, probability, radius, one_prior, key):
-            cam = NonCentralPanorama(width, height, rc=radius)
-            return layout_for(ceiling, floor, probability, cam, one_prior, key, world, config)
+    def one(ceiling, floor, probability, radius, one_prior, key):
+        cam = NonCentralPanorama(width, height, rc=radius)
+        return layout_for(ceiling, floor, probability, cam, one_prior, key, world, config)
 
-        return jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, prior_or_none, keys)
+    layouts = jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, prior, keys)
+    source = jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR)
+    return Reconstruction(layouts, ceiling_v, floor_v, corner_prob, source)
 
-    if prior is None:
-        return Reconstruction(layouts(None), ceiling_v, floor_v, corner_prob, jnp.full(rc.shape, GEOMETRY))
-    from_prior = layouts(prior)
-    if not geometry:
-        return Reconstruction(from_prior, ceiling_v, floor_v, corner_prob, jnp.full(rc.shape, PRIOR))
-    measured = layouts(None)
-    failed = jnp.isin(measured.status, jnp.asarray(SCALE_FAILURES))
-    source = jnp.where(rc == 0, PRIOR, jnp.where(failed, PRIOR_FALLBACK, GEOMETRY))
-    use_prior = source != GEOMETRY
-    chosen = jax.tree.map(
-        lambda a, b: jnp.where(jnp.reshape(use_prior, use_prior.shape + (1,) * (a.ndim - 1)), a, b),
-        from_prior,
-        measured,
+
+def _with_prior_fallback(
+    result: Reconstruction, rc: np.ndarray, prior: HeightPrior, key: PRNGKeyArray, world: str, config: PipelineConfig
+) -> Reconstruction:
+    """``result`` (the geometry's) with the prior's layout where ``rc = 0`` or the status is a :data:`SCALE_FAILURES`.
+
+    The prior's pipeline runs on the same rows and RANSAC keys, for the whole batch (one program per batch
+    size), and only when some panorama needs it.
+    """
+    status = np.asarray(result.layout.status)
+    needs = (rc == 0) | np.isin(status, np.asarray(SCALE_FAILURES))
+    source = np.where(rc == 0, PRIOR, np.where(needs, PRIOR_FALLBACK, GEOMETRY))
+    if not needs.any():
+        return result._replace(scale_source=jnp.asarray(source), geometry=result.layout)
+    width = result.ceiling_v.shape[-1]
+    cam = NonCentralPanorama(width, width // 2, rc=jnp.asarray(rc))  # full panoramas: H = W / 2 (check_panorama)
+    from_prior = layout_from_boundaries(
+        result.ceiling_v, result.floor_v, result.corner_prob, cam, world, config, key=key, prior=prior
     )
-    return Reconstruction(chosen, ceiling_v, floor_v, corner_prob, source, measured)
+    chosen = jax.tree.map(
+        lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
+    )
+    return Reconstruction(
+        chosen, result.ceiling_v, result.floor_v, result.corner_prob, jnp.asarray(source), result.layout
+    )
 
 
 def check_panorama(images: np.ndarray) -> None:
@@ -200,20 +210,24 @@ def reconstruct_batch(
         prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
     model = default_model() if model is None else model
     model.eval()
-    keys = jax.random.split(jax.random.key(0) if key is None else key, images.shape[0])
-    return _reconstruct(
+    key = jax.random.key(0) if key is None else key
+    keys = jax.random.split(key, images.shape[0])
+    central = prior is not None and not np.any(rc > 0)
+    result = _reconstruct(
         model,
         jnp.asarray(images),
         jnp.asarray(rc),
         keys,
         traced_part(config),
-        prior,
+        prior if central else None,
         world,
         static_part(config),
         views,
         edge_snap,
-        bool(np.any(rc > 0)),
     )
+    if prior is None or central:
+        return result
+    return _with_prior_fallback(result, rc, prior, key, world, config)
 
 
 def reconstruct(

@@ -386,7 +386,7 @@ def test_unknown_export_format_stops_before_any_work(tmp_path, capsys):
 def test_reconstruct_outputs_write_and_remove_the_formats(tmp_path):
     from test_export import failed_layout, make_layout
 
-    from ncjax.cli.reconstruct import write_outputs
+    from ncjax.cli.outputs import write_outputs
 
     image = np.zeros((64, 128, 3), np.uint8)
     rows = np.full(128, 20.0), np.full(128, 44.0), np.zeros(128), 0, None  # boundaries, scale source, geometry

@@ -424,6 +424,7 @@ def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
     assert checked >= 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("manhattan", [True, False])
 def test_layout_uncertainty_of_a_wall_no_row_sees(manhattan):
     """One wall's rows unused: its corners' covariance is infinite, the heights' and the other corners' finite;
@@ -826,6 +827,7 @@ def test_noisy_rows_do_not_fake_occlusions():
     assert occluded_fraction(ncjax.PipelineConfig(occlusion_noise_factor=0.0)) > 0.4
 
 
+@pytest.mark.slow
 def test_joint_solver_weights_follow_the_row_noise():
     """Floor rows three times noisier than the ceiling's: the evidence weighs the floor down for the joint
     solvers (the ceiling keeps 1); a huge ``min_boundary_noise`` turns the weighting off."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -73,23 +74,24 @@ def test_ratio_and_virtual_rows_are_exact_on_a_room(rc):
 
 
 def test_scale_layout_scales_lengths_and_covariances():
-    room, labels = rooms("manhattan", (0.3, 0.3), 1)
-    cam = room.camera(WIDTH, HEIGHT)
-    layout = ncjax.layout_from_boundaries(labels.ceiling_v, labels.floor_v, labels.corner_target, cam)
-    layout = jax.tree.map(lambda x: x[0], layout)
+    from test_export import L_SHAPE, make_layout
+
+    layout = make_layout(L_SHAPE)
+    layout = dataclasses.replace(layout, corner_covariance=jnp.ones_like(layout.corner_covariance))
     scaled = scale_layout(layout, 2.0)
     np.testing.assert_allclose(scaled.floor_corners, 2 * layout.floor_corners, rtol=1e-6)
     np.testing.assert_allclose(scaled.corner_covariance, 4 * layout.corner_covariance, rtol=1e-6)
     np.testing.assert_allclose(scaled.floor_lines[..., :3], layout.floor_lines[..., :3])
-    # the scaled lines are the scaled room's: the moment of a horizontal line scales with it
-    corners = np.asarray(scaled.floor_corners)[np.asarray(layout.mask)]
-    lines = np.asarray(scaled.floor_lines)[np.asarray(layout.mask)]
+    # the scaled lines are the scaled room's: a line through the corner p along u has the moment p x u
+    mask = np.asarray(layout.mask)
+    corners = np.asarray(scaled.floor_corners)[mask]
+    lines = np.asarray(scaled.floor_lines)[mask]
     np.testing.assert_allclose(np.cross(corners, lines[:, :3]), lines[:, 3:], atol=1e-4)
     again = rescale_to_prior(scaled, HeightPrior("camera_height", float(-layout.floor_height)))
     np.testing.assert_allclose(again.floor_corners, layout.floor_corners, rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("world", ["manhattan", "atlanta"])
+@pytest.mark.parametrize("world", ["manhattan", pytest.param("atlanta", marks=pytest.mark.slow)])
 def test_central_rooms_from_exact_rows_and_the_true_camera_height(world):
     """rc = 0 and rc = 2-5 cm, one compiled program: the layout is the room, its floor at the prior's height.
 
@@ -111,3 +113,26 @@ def test_central_rooms_from_exact_rows_and_the_true_camera_height(world):
             np.testing.assert_allclose(layout.floor_height, batch.floor_height[i], rtol=1e-5)
             scores = metrics.evaluate_layout(layout, jax.tree.map(lambda x: np.asarray(x[i]), truth))
             assert scores["iou3d"] > 0.99, (rc_range, i, scores)
+
+
+def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it():
+    """rc 2-5 cm: with the scale test on at an impossible threshold every layout falls back to the prior."""
+    from ncjax.reconstruction import GEOMETRY, PRIOR_FALLBACK, Reconstruction, _with_prior_fallback
+
+    batch, labels = rooms("manhattan", (0.02, 0.05))
+    rc = np.asarray(batch.rc)
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=jnp.asarray(rc))
+    prior = HeightPrior("camera_height", -batch.floor_height)
+    key = jax.random.key(0)
+    rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
+    for threshold, expected in ((float("inf"), GEOMETRY), (1e-9, PRIOR_FALLBACK)):
+        config = ncjax.PipelineConfig(max_height_uncertainty=threshold)
+        measured = ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, key=key)
+        result = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, key, "manhattan", config)
+        assert np.all(np.asarray(result.scale_source) == expected)
+        assert result.geometry is measured and np.all(np.asarray(result.layout.ok))
+        if expected == PRIOR_FALLBACK:
+            assert np.all(np.asarray(measured.status) == ncjax.LayoutStatus.UNCERTAIN_SCALE)
+            np.testing.assert_allclose(result.layout.floor_height, batch.floor_height, rtol=1e-5)
+        else:
+            np.testing.assert_array_equal(result.layout.floor_corners, measured.floor_corners)

@@ -19,6 +19,26 @@ wall       ceiling line (ux, uy, 0, -h_c uy, h_c ux, -d), floor line the same wi
 """
 
 
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """``--help`` that ends each option's text with its default, ``(default: X)``.
+
+    Left as they are: texts that already name their default, options without a default
+    (None: their text says what their absence means), flags (no value) and positionals.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if (
+            "default" in text
+            or not action.option_strings
+            or action.nargs == 0
+            or action.required
+            or action.default in (None, argparse.SUPPRESS)
+        ):
+            return text
+        return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"
+
+
 def _info(args: argparse.Namespace) -> int:
     import jax
 
@@ -95,11 +115,11 @@ def _evaluate(args: argparse.Namespace) -> int:
 def _evaluate_network(args: argparse.Namespace) -> int:
     import json
 
-    from ..network.checkpoint import load_model
     from ..network.predict import DEFAULT_MODEL_PATH, default_model
     from ..training.data import evaluate_arrays, load_split
+    from .inputs import load_model_option
 
-    model = load_model(args.model) if args.model else default_model()
+    model = load_model_option(args.model) if args.model else default_model()
     config = model.config
     arrays = load_split(args.data, args.split, config.input_height, config.input_width, limit=args.limit)
     row = evaluate_arrays(model, arrays, views=args.views)
@@ -122,27 +142,38 @@ def _evaluate_network(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``ncjax`` console script."""
-    # OpenBLAS worker threads busy-wait for each other, which can stall small LAPACK
-    # calls for seconds on a busy machine; it must be set before jax loads OpenBLAS.
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of ``ncjax`` and its subcommands (each one's ``run`` is a default of its namespace)."""
     from ncjax import __version__
 
-    parser = argparse.ArgumentParser(prog="ncjax", description="Metric room layouts from non-central panoramas.")
+    from ..network.predict import DEFAULT_VIEWS
+
+    parser = argparse.ArgumentParser(
+        prog="ncjax",
+        description="Metric room layouts from non-central panoramas.",
+        formatter_class=DefaultsHelpFormatter,
+    )
     parser.add_argument("--version", action="version", version=f"ncjax {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
-    info = commands.add_parser("info", help="versions, devices and the camera conventions")
+    info = commands.add_parser(
+        "info", help="versions, devices and the camera conventions", formatter_class=DefaultsHelpFormatter
+    )
     info.set_defaults(run=_info)
     synth = commands.add_parser(
         "synth",
         help="render a synthetic dataset of non-central panoramas (authors' layout plus depth, semantics, json)",
+        formatter_class=DefaultsHelpFormatter,
     )
     synth.add_argument("--n", type=int, required=True, help="number of panoramas")
     synth.add_argument("--out", required=True, help="output folder (must be new or empty)")
     synth.add_argument("--seed", type=int, default=0, help="random seed: same seed, same bytes")
-    synth.add_argument("--world", choices=("manhattan", "atlanta", "mix"), default="mix")
-    synth.add_argument("--size", default="512x1024", help="HxW in pixels (default 512x1024)")
+    synth.add_argument(
+        "--world",
+        choices=("manhattan", "atlanta", "mix"),
+        default="mix",
+        help="room model (mix: each room manhattan or atlanta at random, half and half)",
+    )
+    synth.add_argument("--size", default="512x1024", help="HxW in pixels")
     synth.add_argument("--rc", default="0.3:1.0", help="range of the radius rc in metres, MIN:MAX (0:0 is central)")
     synth.add_argument("--supersampling", type=int, default=1, help="odd s: s x s rays per pixel for the RGB image")
     synth.add_argument("--shadows", action="store_true", help="cast shadows from the furniture")
@@ -151,7 +182,11 @@ def main(argv: list[str] | None = None) -> int:
     synth.set_defaults(run=_synth)
     from .train import add_train_arguments
 
-    train = commands.add_parser("train", help="train Non-central HorizonNet (checkpoints, resume, validation)")
+    train = commands.add_parser(
+        "train",
+        help="train Non-central HorizonNet (checkpoints, resume, validation)",
+        formatter_class=DefaultsHelpFormatter,
+    )
     add_train_arguments(train)
     train.set_defaults(run=_train)
     evaluate = commands.add_parser(
@@ -161,37 +196,78 @@ def main(argv: list[str] | None = None) -> int:
         description="ncjax evaluate PRED GT: 2D/3D IoU, corner and pixel error, depth RMSE and delta-1 of layout "
         "files (label_cor, HorizonNet, PanoAnnotator/MatterportLayout/LGT-Net, ZInD or ncjax JSON) of one image, "
         "or of two folders matched by image stem. ncjax evaluate --data DIR: the network on a dataset split.",
+        formatter_class=DefaultsHelpFormatter,
     )
     evaluate.add_argument("pred", nargs="?", help="predicted layout file, or a folder of them")
     evaluate.add_argument("gt", nargs="?", help="ground-truth layout file, or a folder of them")
     evaluate.add_argument(
         "--size", help="HxW of the images, for layout files that do not record it (default: the file's, or 512x1024)"
     )
-    evaluate.add_argument("--data", help="dataset folder (ncjax synth or the authors') to evaluate a network on")
-    evaluate.add_argument("--split", default="test", help="split of split.json (default test), or all")
-    evaluate.add_argument("--model", help=".safetensors weights (default: the shipped model)")
-    evaluate.add_argument("--limit", type=int, help="evaluate the first N images only")
-    evaluate.add_argument("--json", help="also write the results to this json file")
     evaluate.add_argument(
-        "--views", type=int, default=1, help="average the network over rolled and mirrored views (1 or even)"
+        "--data",
+        help="dataset folder (ncjax synth or the authors') to evaluate a network on (default: none, PRED GT "
+        "are evaluated)",
+    )
+    evaluate.add_argument("--split", default="test", help="split of split.json, or all")
+    evaluate.add_argument("--model", help=".safetensors weights (default: the shipped model)")
+    evaluate.add_argument("--limit", type=int, help="evaluate the first N images only (default: all)")
+    evaluate.add_argument("--json", help="also write the results to this json file (default: none)")
+    evaluate.add_argument(
+        "--views",
+        type=int,
+        default=DEFAULT_VIEWS,
+        help="rolled and mirrored views the network averages (1 or even; the default is ncjax reconstruct's)",
     )
     evaluate.set_defaults(run=_evaluate)
     from .reconstruct import add_demo_arguments, add_reconstruct_arguments, run_demo, run_reconstruct
 
     reconstruct = commands.add_parser(
-        "reconstruct", help="metric layouts of panoramas: json, mesh (obj/ply/glb), overlay and floor-plan png"
+        "reconstruct",
+        help="metric layouts of panoramas: json, mesh (obj/ply/glb), overlay and floor-plan png",
+        formatter_class=DefaultsHelpFormatter,
     )
     add_reconstruct_arguments(reconstruct)
     reconstruct.set_defaults(run=run_reconstruct)
-    demo = commands.add_parser("demo", help="reconstruct the built-in sample and compare it with its ground truth")
+    demo = commands.add_parser(
+        "demo",
+        help="reconstruct the built-in sample and compare it with its ground truth",
+        formatter_class=DefaultsHelpFormatter,
+    )
     add_demo_arguments(demo)
     demo.set_defaults(run=run_demo)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``ncjax`` console script.
+
+    Returns:
+        The exit code: 0 success, 1 a failure while working (an image without layout, a
+        file that could not be written), 2 bad arguments or input files, 130 Ctrl-C.
+        Every error is one line on stderr.
+    """
+    # OpenBLAS worker threads busy-wait for each other, which can stall small LAPACK
+    # calls for seconds on a busy machine; it must be set before jax loads OpenBLAS.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from .inputs import one_line
+
+    args = build_parser().parse_args(argv)
     try:
         return args.run(args)
+    except KeyboardInterrupt:
+        resume = (
+            f"; the same command resumes from the last checkpoint in {args.checkpoint_dir}"
+            if args.command == "train" and not args.no_resume
+            else ""
+        )
+        print(f"ncjax {args.command}: interrupted{resume}", file=sys.stderr)
+        return 130
     except (ValueError, FileNotFoundError) as error:
-        print(f"ncjax {args.command}: error: {error}", file=sys.stderr)
+        print(f"ncjax {args.command}: error: {one_line(error)}", file=sys.stderr)
         return 2
+    except OSError as error:  # a file that cannot be read or written: permissions, a full disk, ...
+        print(f"ncjax {args.command}: error: {one_line(error)}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

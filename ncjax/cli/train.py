@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 import json
 import pathlib
+import sys
 
 import numpy as np
 
@@ -23,10 +24,9 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--data",
         nargs="+",
-        default=["painted"],
-        help="dataset folders (ncjax synth or the authors') or synth:SEED:N (the N rooms `ncjax synth --seed SEED` "
-        "writes, rendered in memory); their splits are pooled, validation takes the first --validation-limit "
-        "images of the pool. Or 'painted'",
+        help="required: dataset folders (ncjax synth or the authors') or synth:SEED:N (the N rooms `ncjax synth "
+        "--seed SEED` writes, rendered in memory); their splits are pooled, validation takes the first "
+        "--validation-limit images of the pool. Or 'painted' (flat-coloured random rooms, a smoke test)",
     )
     parser.add_argument("--preset", default="compact", choices=sorted(PRESETS), help="the architecture")
     parser.add_argument(
@@ -35,22 +35,29 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         help="the corner output's encoding base**d (default: the preset's, HorizonNet's 0.96)",
     )
     parser.add_argument(
-        "--init-from", help="start from this model file's weights (fine-tuning) when no checkpoint is resumed"
+        "--init-from",
+        help="start from this model file's weights (fine-tuning) when no checkpoint is resumed "
+        "(default: a random initialisation)",
     )
     parser.add_argument(
         "--steps", type=int, default=1000, help="total optimisation steps (a resumed run does the rest)"
     )
-    parser.add_argument("--batch-size", type=int, default=4)
-    parser.add_argument("--checkpoint-dir", default="checkpoints/horizonnet")
-    parser.add_argument("--checkpoint-every", type=int, default=250)
+    parser.add_argument(
+        "--batch", "--batch-size", dest="batch_size", type=int, default=4, metavar="N", help="images per step"
+    )
+    parser.add_argument("--checkpoint-dir", default="checkpoints/horizonnet", help="where the checkpoints go")
+    parser.add_argument("--checkpoint-every", type=int, default=250, help="steps between checkpoints")
     parser.add_argument(
         "--validate-every", type=int, default=500, help="steps between validations (0: only at the end)"
     )
     parser.add_argument("--validation-limit", type=int, default=64, help="validation images (the 'valid' split)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="initialisation, data order and augmentations")
     parser.add_argument("--no-resume", action="store_true", help="start afresh even if checkpoints exist")
-    parser.add_argument("--history", help="write the loss and validation history to this json file")
-    parser.add_argument("--export", help="also save the final weights (model only) to this .safetensors file")
+    parser.add_argument("--history", help="write the loss and validation history to this json file (default: none)")
+    parser.add_argument(
+        "--export", help="also save the final weights (model only) to this .safetensors file (default: none)"
+    )
+    parser.set_defaults(format_train_help=parser.format_help)
     add_config_options(
         parser,
         TrainConfig(),
@@ -61,9 +68,16 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_train(args: argparse.Namespace) -> int:
-    """``ncjax train``: train (or resume) a preset on a dataset folder or the painted stand-in data."""
+    """``ncjax train``: train (or resume) a preset on a dataset folder or the painted stand-in data.
+
+    Without ``--data`` it prints its help and returns 2 (nothing is trained).
+    """
+    if args.data is None:
+        print(args.format_train_help(), end="")
+        print("ncjax train: error: give --data (dataset folders, synth:SEED:N or painted)", file=sys.stderr)
+        return 2
     if args.steps < 1 or args.batch_size < 1:
-        raise ValueError(f"--steps and --batch-size must be positive, got {args.steps} and {args.batch_size}")
+        raise ValueError(f"--steps and --batch must be positive, got {args.steps} and {args.batch_size}")
     config = HorizonNetConfig.preset(args.preset)
     if args.corner_base is not None:
         config = dataclasses.replace(config, corner_base=args.corner_base)
@@ -114,6 +128,10 @@ def run_train(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone ``ncjax train`` (same as the console script's sub-command)."""
-    parser = argparse.ArgumentParser(prog="ncjax train", description="Train Non-central HorizonNet.")
+    from .main import DefaultsHelpFormatter
+
+    parser = argparse.ArgumentParser(
+        prog="ncjax train", description="Train Non-central HorizonNet.", formatter_class=DefaultsHelpFormatter
+    )
     add_train_arguments(parser)
     return run_train(parser.parse_args(argv))

@@ -19,7 +19,7 @@ import pathlib
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from safetensors import safe_open
+from safetensors import SafetensorError, safe_open
 from safetensors.numpy import load_file, save_file
 
 from .model import HorizonNet, HorizonNetConfig, abstract_model
@@ -80,12 +80,20 @@ def save_checkpoint(
 
 
 def read_metadata(path: str | os.PathLike) -> dict[str, str]:
-    """The string metadata of a checkpoint (config, step, ...), without reading the tensors."""
+    """The string metadata of a checkpoint (config, step, ...), without reading the tensors.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        ValueError: the file is not an ncjax checkpoint (one line that says why).
+    """
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint at {path}")
-    with safe_open(path, framework="numpy") as f:
-        metadata = f.metadata() or {}
+    try:
+        with safe_open(path, framework="numpy") as f:
+            metadata = f.metadata() or {}
+    except SafetensorError as error:  # a pickle, random bytes, a truncated file, ...
+        raise ValueError(f"{path} is not an ncjax .safetensors model: {error}") from None
     if metadata.get("format") != FORMAT:
         raise ValueError(f"{path} is not an ncjax HorizonNet checkpoint (format {metadata.get('format')!r})")
     if metadata.get("format_version") != FORMAT_VERSION:
@@ -104,10 +112,14 @@ def load_checkpoint(path: str | os.PathLike, optimizer_factory=None) -> tuple[Ho
 
     Returns:
         ``(model, optimizer or None, step)``; the model is in eval mode.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        ValueError: the file is not an ncjax checkpoint of a model that can be built (one line).
     """
     metadata = read_metadata(path)
-    config = HorizonNetConfig.from_json(metadata["config"])
-    tensors = load_file(path)
+    config = stored_config(path, metadata)
+    tensors = read_tensors(path)
     model = abstract_model(config)
     _restore(model, _MODEL_STATE, tensors, "model/", str(path))
     optimizer = None
@@ -117,7 +129,23 @@ def load_checkpoint(path: str | os.PathLike, optimizer_factory=None) -> tuple[Ho
         optimizer = nnx.eval_shape(lambda m: optimizer_factory(m, metadata.get("train_config")), model)
         _restore(optimizer, _OPTIMIZER_STATE, tensors, "optimizer/", str(path))
     model.eval()
-    return model, optimizer, int(metadata["step"])
+    return model, optimizer, int(metadata.get("step", "0"))
+
+
+def stored_config(path: str | os.PathLike, metadata: dict[str, str]) -> HorizonNetConfig:
+    """The architecture a checkpoint's metadata records (a one-line ValueError when it is unreadable)."""
+    try:
+        return HorizonNetConfig.from_json(metadata["config"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise ValueError(f"{path}: its model configuration is unreadable ({type(error).__name__}: {error})") from None
+
+
+def read_tensors(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every tensor of a ``.safetensors`` file (a one-line ValueError for a damaged file)."""
+    try:
+        return load_file(path)
+    except SafetensorError as error:
+        raise ValueError(f"{path} is not an ncjax .safetensors model: {error}") from None
 
 
 def save_model(model: HorizonNet, path: str | os.PathLike) -> None:
@@ -136,7 +164,7 @@ def check_warm_start(path: str | os.PathLike, config: HorizonNetConfig) -> None:
     ``corner_base`` may differ: that is how a trained model is fine-tuned to a
     sharper corner target.
     """
-    stored = HorizonNetConfig.from_json(read_metadata(path)["config"])
+    stored = stored_config(path, read_metadata(path))
     if dataclasses.replace(stored, corner_base=config.corner_base) != config:
         raise ValueError(f"{path} holds a {stored}, which cannot start a {config}")
 
@@ -149,6 +177,6 @@ def load_weights(path: str | os.PathLike, config: HorizonNetConfig) -> HorizonNe
     """
     check_warm_start(path, config)
     model = abstract_model(config)
-    _restore(model, _MODEL_STATE, load_file(path), "model/", str(path))
+    _restore(model, _MODEL_STATE, read_tensors(path), "model/", str(path))
     model.train()
     return model

@@ -16,9 +16,65 @@ NETWORK_COLOUR = (255, 190, 0)  # the network's per-column boundaries
 LAYOUT_COLOUR = (0, 230, 255)  # the reprojected layout
 INSERTED_COLOUR = (255, 40, 200)  # walls inserted for an occlusion (not seen in the image)
 CORNER_COLOUR = (255, 255, 255)  # the corner probability strip
+LEGEND_TEXT_COLOUR = (235, 235, 235)
+LEGEND_LABELS = {
+    "network": "network boundaries",
+    "layout": "layout",
+    "inserted": "inserted wall (unseen)",
+    "corner": "corner probability (bottom)",
+}
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
 # --- overlay on the panorama --------------------------------------------------------------------------
+
+
+def _legend_metrics(height: int) -> tuple[float, int, int, int, int]:
+    """Font scale, text height, line pitch, margin and colour swatch length of a legend, in proportion to the image."""
+    scale = max(0.3, 0.4 * height / 512)
+    (_, text_height), baseline = cv2.getTextSize("Mg", _FONT, scale, 1)
+    pitch = text_height + baseline + max(2, round(0.006 * height))
+    return scale, text_height, pitch, max(2, round(0.01 * height)), 2 * text_height
+
+
+def legend_box(labels: list[str], height: int, width: int) -> tuple[int, int, int, int]:
+    """Where :func:`draw_overlay` puts the legend of ``labels``: ``(top, bottom, left, right)`` pixels.
+
+    The box sits in the top right corner (the ceiling, away from most boundaries; the
+    label of a failed layout is in the top left), its size in proportion to the image.
+    """
+    scale, _, pitch, margin, swatch = _legend_metrics(height)
+    text_width = max(cv2.getTextSize(label, _FONT, scale, 1)[0][0] for label in labels)
+    box_width = min(width, 3 * margin + swatch + text_width)
+    return 0, min(height, 2 * margin + pitch * len(labels)), width - box_width, width
+
+
+def _draw_legend(canvas: np.ndarray, entries: list[tuple[str, tuple[int, int, int]]]) -> None:
+    """Name each colour drawn, in a darkened box in the top right corner (:func:`legend_box`)."""
+    if not entries:
+        return
+    height, width = canvas.shape[:2]
+    top, bottom, left, right = legend_box([label for label, _ in entries], height, width)
+    canvas[top:bottom, left:right] //= 3  # darkened, so the text reads on any image
+    scale, text_height, pitch, margin, swatch = _legend_metrics(height)
+    thickness = max(1, round(height / 256))
+    for index, (label, colour) in enumerate(entries):
+        base = top + margin + index * pitch + text_height
+        middle = base - text_height // 2
+        cv2.line(canvas, (left + margin, middle), (left + margin + swatch, middle), colour, thickness, cv2.LINE_AA)
+        cv2.putText(canvas, label, (left + 2 * margin + swatch, base), _FONT, scale, LEGEND_TEXT_COLOUR, 1, cv2.LINE_AA)
+
+
+def legend_entries(layout: Layout, boundaries: bool, corner_prob: bool) -> list[tuple[str, tuple[int, int, int]]]:
+    """The legend of an overlay: (label, colour) of each kind of line drawn."""
+    entries = [(LEGEND_LABELS["network"], NETWORK_COLOUR)] if boundaries else []
+    if has_geometry(layout):
+        entries.append((LEGEND_LABELS["layout"], LAYOUT_COLOUR))
+        if np.any(np.asarray(layout.inserted, bool)[np.asarray(layout.mask, bool)]):
+            entries.append((LEGEND_LABELS["inserted"], INSERTED_COLOUR))
+    if corner_prob:
+        entries.append((LEGEND_LABELS["corner"], CORNER_COLOUR))
+    return entries
 
 
 def _draw_curve(canvas: np.ndarray, u: np.ndarray, v: np.ndarray, colour: tuple[int, int, int], thickness: int) -> None:
@@ -51,7 +107,8 @@ def draw_overlay(
       camera), and the vertical edges at the corners, in ``LAYOUT_COLOUR``;
       inserted walls (occluded, not seen) in ``INSERTED_COLOUR``. Curves break
       at the image seam and where points are not visible;
-    - the corner probability, if given, as a plot strip along the bottom.
+    - the corner probability, if given, as a plot strip along the bottom;
+    - a legend in the top right corner (:func:`legend_box`) naming the colours drawn.
 
     A failed layout draws only the network's outputs and a "no layout" label;
     an ``UNCERTAIN_SCALE`` one is drawn with an "uncertain scale" label.
@@ -127,4 +184,6 @@ def draw_overlay(
         canvas[height - strip :] //= 2  # darken the strip so the plot reads on any image
         probability = np.clip(np.asarray(corner_prob, np.float64), 0.0, 1.0)
         _draw_curve(canvas, columns, height - 1 - probability * (strip - 1), CORNER_COLOUR, thickness)
+
+    _draw_legend(canvas, legend_entries(layout, ceiling_v is not None or floor_v is not None, corner_prob is not None))
     return canvas

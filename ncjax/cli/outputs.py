@@ -1,0 +1,119 @@
+"""The files of one reconstructed image (JSON, meshes, overlay, plan, layout formats), written together."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+
+from ..pipeline.types import LayoutStatus
+
+
+def scale_fields(result, prior) -> dict:
+    """The JSON record's keys on the scale: where it came from, the prior, and what the geometry measured."""
+    from ..io.export import status_has_geometry
+    from ..reconstruction import SCALE_SOURCES
+
+    _, _, _, _, source, geometry = result
+    fields = {
+        "scale_source": SCALE_SOURCES[int(source)],
+        "height_prior": None if prior is None else {"kind": prior.kind, "value": float(prior.value)},
+        "geometry_measured": None,
+    }
+    if geometry is not None and status_has_geometry(bool(geometry.ok), int(geometry.status)):
+        ceiling, floor = float(geometry.ceiling_height), float(geometry.floor_height)
+        fields["geometry_measured"] = {
+            "status": LayoutStatus(int(geometry.status)).name,
+            "camera_height": round(-floor, 4),
+            "ceiling_height": round(ceiling, 4),
+            "room_height": round(ceiling - floor, 4),
+        }
+    return fields
+
+
+MESH_SUFFIXES = ("obj", "ply", "glb")
+
+
+def output_names(name: str) -> tuple[str, ...]:
+    """The names of every file :func:`write_outputs` can write for the image ``name`` (JSON first)."""
+    from ..io.formats import FORMATS, SUFFIXES
+
+    return (
+        f"{name}.json",
+        *(f"{name}.{suffix}" for suffix in MESH_SUFFIXES),
+        f"{name}_overlay.png",
+        f"{name}_plan.png",
+        *(f"{name}{SUFFIXES[format]}" for format in FORMATS),
+    )
+
+
+def write_outputs(
+    out: str,
+    name: str,
+    image: np.ndarray,
+    result,
+    rc: float,
+    world: str,
+    extra: dict | None = None,
+    export: tuple[str, ...] = (),
+    prior=None,
+    gravity: dict | None = None,
+):
+    """All files of one image, which appear together or not at all; returns the JSON record.
+
+    The files are written into a hidden staging folder inside ``out`` and renamed into
+    ``out`` at the end, ``<name>.json`` last (:func:`ncjax.io.files.replace_together`):
+    an error or a Ctrl-C before the renames leaves nothing of this run in ``out``. Every
+    earlier output of ``name`` is replaced or removed: the meshes and the layout formats
+    exist only when the layout has geometry, and a format only when ``export`` names it.
+
+    ``export`` names layout formats (:data:`ncjax.io.formats.FORMATS`) written beside the
+    JSON when the layout has geometry. ``gravity`` (:func:`align_to_gravity`) says how the
+    image was levelled: the JSON, the mesh and the metric formats are in the levelled frame
+    (z up), the corner pixels of label_cor and HorizonNet's json in the input image's.
+    """
+    from ..geometry.camera import NonCentralPanorama
+    from ..io.export import has_geometry, layout_record, write_json, write_png
+    from ..io.files import replace_together
+    from ..io.formats import write_layout_formats
+    from ..io.mesh import write_mesh
+    from ..viz.overlay import draw_overlay
+    from ..viz.plan import draw_plan
+
+    layout, ceiling_v, floor_v, corner_prob, *_ = result
+    cam = NonCentralPanorama(image.shape[1], image.shape[0], rc=rc)
+    extra = (extra or {}) | scale_fields(result, prior) | {"gravity": gravity}
+    record = layout_record(layout, cam, name=name, world=world, extra=extra)
+    with replace_together(out, owned=output_names(name), last=f"{name}.json") as staging:
+        stem = os.path.join(staging, name)
+        write_json(f"{stem}.json", record)
+        if has_geometry(layout):
+            write_mesh(stem, layout)
+            try:
+                if export:
+                    rotation = None if gravity is None or gravity["rotation"] is None else np.array(gravity["rotation"])
+                    write_layout_formats(stem, record, cam, export, rotation=rotation)
+            except ValueError as error:  # a corner no ray sees: the other outputs still describe the layout
+                print(f"{name}: layout formats not written ({error})", file=sys.stderr)
+        overlay = draw_overlay(image, layout, cam, ceiling_v=ceiling_v, floor_v=floor_v, corner_prob=corner_prob)
+        write_png(f"{stem}_overlay.png", overlay)
+        write_png(f"{stem}_plan.png", draw_plan(layout, title=name, rc=rc))
+    return record
+
+
+def align_to_gravity(image: np.ndarray) -> tuple[np.ndarray, dict]:
+    """A central panorama levelled (:mod:`ncjax.io.align`), and the JSON record of its tilt.
+
+    An image whose vertical the line segments do not fix reliably is kept as it is (``reliable`` false).
+    """
+    from ..io.align import estimate_tilt, level_panorama
+
+    estimate = estimate_tilt(image)
+    record = {"reliable": estimate.reliable, "segments": int(estimate.segments), "roll_deg": None, "pitch_deg": None}
+    if not estimate.reliable:
+        return image, record | {"rotation": None}
+    rotation = np.asarray(estimate.rotation)
+    levelled = level_panorama(image, rotation)
+    record |= {"roll_deg": round(float(estimate.roll), 3), "pitch_deg": round(float(estimate.pitch), 3)}
+    return levelled, record | {"rotation": np.round(rotation, 8).tolist()}

@@ -1,0 +1,441 @@
+"""The files of the command line: outputs that appear together, reruns, resuming, folders as input,
+Ctrl-C, unwritable or wrong paths, bad model files, summary.csv of several runs, help texts and the
+mesh's orientation. The reconstruction itself is replaced by a fast stand-in where only the files count."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import pickle
+import signal
+
+import jax
+import numpy as np
+import pytest
+from test_app import write_png
+from test_export import L_SHAPE, RECTANGLE, failed_layout, make_layout
+
+import ncjax.io.export
+import ncjax.network.predict
+import ncjax.reconstruction
+from ncjax import cli
+from ncjax.cli import outputs, reconstruct, summary
+from ncjax.cli.main import DefaultsHelpFormatter, build_parser
+from ncjax.io.files import replace_together
+from ncjax.network.checkpoint import load_model
+from ncjax.reconstruction import Reconstruction
+from ncjax.viz import overlay
+
+SIZE = (128, 64)  # (W, H) of the stand-in panoramas
+IMAGE = np.full((SIZE[1], SIZE[0], 3), 90, np.uint8)
+MESH_SUFFIXES = (".obj", ".ply", ".glb")
+
+
+class FakeReconstruction:
+    """A stand-in for :func:`ncjax.reconstruction.reconstruct_batch`: the same layout for every image, at once.
+
+    Attributes:
+        layout: the unbatched layout every image gets.
+        calls: the number of images of each call, padding included.
+        interrupt_on_call: raise KeyboardInterrupt on this call (1-based), None never.
+        signal_on_call: send this process SIGINT (a Ctrl-C) during this call, None never.
+    """
+
+    def __init__(self, layout=None, interrupt_on_call=None, signal_on_call=None):
+        self.layout = make_layout(RECTANGLE) if layout is None else layout
+        self.calls: list[int] = []
+        self.interrupt_on_call = interrupt_on_call
+        self.signal_on_call = signal_on_call
+
+    def __call__(self, images, rc, world, **options):
+        self.calls.append(len(images))
+        if len(self.calls) == self.interrupt_on_call:
+            raise KeyboardInterrupt
+        if len(self.calls) == self.signal_on_call:
+            signal.raise_signal(signal.SIGINT)
+        batch, height, width = images.shape[:3]
+        layouts = jax.tree.map(lambda *fields: np.stack([np.asarray(x) for x in fields]), *[self.layout] * batch)
+        rows = np.full((batch, width), 0.3 * height, np.float32)
+        return Reconstruction(
+            layouts, rows, height - rows, np.zeros((batch, width), np.float32), np.zeros(batch, np.int32), None
+        )
+
+
+@pytest.fixture
+def fake(monkeypatch):
+    """Every ``ncjax reconstruct`` of the test uses a :class:`FakeReconstruction` (set its attributes to vary)."""
+    stand_in = FakeReconstruction()
+    monkeypatch.setattr(ncjax.reconstruction, "reconstruct_batch", stand_in)
+    return stand_in
+
+
+def panoramas(folder, *names):
+    folder.mkdir(parents=True, exist_ok=True)
+    return [write_png(folder / f"{name}.png", IMAGE) for name in names]
+
+
+def reconstruct_cli(images, out, *options):
+    return cli.main(["reconstruct", *map(str, images), "--rc", "0.5", "--out", str(out), *options])
+
+
+def summary_rows(out):
+    with open(out / "summary.csv", newline="") as file:
+        return list(csv.DictReader(file))
+
+
+def files_of(out, name):
+    """The files of the image ``name`` in ``out``."""
+    return sorted(
+        path.name for path in out.iterdir() if path.name.split(".")[0] in (name, f"{name}_overlay", f"{name}_plan")
+    )
+
+
+def error_lines(stderr):
+    """The lines of stderr that are not the progress bar's."""
+    return [line for line in stderr.splitlines() if line.strip() and "%|" not in line]
+
+
+# ----------------------------------------------------------------------------- outputs of one image
+
+
+def test_the_outputs_of_an_image_appear_together_or_not_at_all(tmp_path, fake, monkeypatch, capsys):
+    real_write_png = ncjax.io.export.write_png
+
+    def full_disk_for_b(path, image):
+        if os.path.basename(path).startswith("b_"):  # after b's json, meshes and layout formats
+            raise OSError(28, "No space left on device", str(path))
+        real_write_png(path, image)
+
+    monkeypatch.setattr(ncjax.io.export, "write_png", full_disk_for_b)
+    out = tmp_path / "out"
+    assert reconstruct_cli(panoramas(tmp_path / "in", "a", "b", "c"), out, "--export", "label_cor") == 1
+    assert files_of(out, "a") == sorted([*outputs.output_names("a")[:6], "a.label_cor.txt"])
+    assert files_of(out, "b") == [] and not [name for name in os.listdir(out) if name.startswith(".")]
+    assert files_of(out, "c") == sorted([*outputs.output_names("c")[:6], "c.label_cor.txt"])
+    rows = {row["name"]: row for row in summary_rows(out)}
+    assert [rows[name]["result"] for name in "abc"] == ["ok", "error", "ok"]
+    assert rows["b"]["message"].startswith("its outputs could not be written (")
+    assert "b_overlay.png: No space left on device" in capsys.readouterr().err
+
+
+def test_a_failed_write_keeps_the_earlier_outputs_of_the_image(tmp_path, fake, monkeypatch):
+    images = panoramas(tmp_path / "in", "room")
+    out = tmp_path / "out"
+    assert reconstruct_cli(images, out) == 0
+    earlier = {name: (out / name).read_bytes() for name in os.listdir(out) if name != "summary.csv"}
+
+    def interrupted(path, image):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ncjax.io.export, "write_png", interrupted)
+    fake.layout = failed_layout()
+    assert reconstruct_cli(images, out) == 130
+    assert {name: (out / name).read_bytes() for name in os.listdir(out) if name != "summary.csv"} == earlier
+
+
+def test_files_staged_together_are_renamed_together_or_removed(tmp_path):
+    (tmp_path / "old.txt").write_text("old")
+    (tmp_path / "stale.txt").write_text("stale")
+    (tmp_path / "other.txt").write_text("other")
+    with pytest.raises(KeyboardInterrupt), replace_together(tmp_path, owned=["old.txt", "stale.txt"]) as staging:
+        (staging / "old.txt").write_text("new")
+        raise KeyboardInterrupt
+    assert sorted(os.listdir(tmp_path)) == ["old.txt", "other.txt", "stale.txt"]
+    assert (tmp_path / "old.txt").read_text() == "old"
+    with replace_together(tmp_path, owned=["old.txt", "stale.txt", "record.json"], last="record.json") as staging:
+        (staging / "old.txt").write_text("new")
+        (staging / "record.json").write_text("{}")
+    assert sorted(os.listdir(tmp_path)) == ["old.txt", "other.txt", "record.json"]
+    assert (tmp_path / "old.txt").read_text() == "new"
+
+
+def test_a_rerun_removes_the_outputs_the_new_layout_does_not_have(tmp_path, fake):
+    images = panoramas(tmp_path / "in", "room")
+    out = tmp_path / "out"
+    assert reconstruct_cli(images, out, "--export", "label_cor,zind") == 0
+    assert files_of(out, "room") == sorted(
+        ["room.json", "room.obj", "room.ply", "room.glb", "room.label_cor.txt", "room.zind.json", "room_overlay.png"]
+        + ["room_plan.png"]
+    )
+    fake.layout = failed_layout()
+    assert reconstruct_cli(images, out, "--export", "label_cor,zind") == 1
+    assert json.loads((out / "room.json").read_text())["ok"] is False
+    assert files_of(out, "room") == ["room.json", "room_overlay.png", "room_plan.png"]
+    fake.layout = make_layout(RECTANGLE)
+    assert reconstruct_cli(images, out, "--export", "zind") == 0
+    assert "room.zind.json" in files_of(out, "room") and "room.label_cor.txt" not in files_of(out, "room")
+    assert reconstruct_cli(images, out) == 0
+    assert not any(name.endswith((".zind.json", ".label_cor.txt")) for name in os.listdir(out))
+
+
+def test_the_mesh_normals_point_out_of_the_room(tmp_path, fake):
+    fake.layout = make_layout(L_SHAPE)
+    out = tmp_path / "out"
+    assert reconstruct_cli(panoramas(tmp_path / "in", "room"), out) == 0
+    record = json.loads((out / "room.json").read_text())
+    lines = (out / "room.obj").read_text().splitlines()
+    assert "normals point out of the room" in lines[0]
+    vertices = np.array([[float(x) for x in line.split()[1:]] for line in lines if line.startswith("v ")])
+    faces = np.array([[int(i) - 1 for i in line.split()[1:]] for line in lines if line.startswith("f ")])
+    a, b, c = (vertices[faces[:, k]] for k in range(3))
+    signed_volume = np.sum(np.einsum("ij,ij->i", a, np.cross(b, c))) / 6
+    assert record["floor_area"] == pytest.approx(21.0)
+    assert signed_volume == pytest.approx(record["floor_area"] * record["room_height"], rel=1e-5)
+
+
+# ----------------------------------------------------------------------------- which images
+
+
+def test_skip_existing_resumes_a_batch(tmp_path, fake, capsys):
+    images = panoramas(tmp_path / "in", "a", "b", "c")
+    out = tmp_path / "out"
+    assert reconstruct_cli(images[:1], out) == 0
+    (out / "c.json").write_text("not json")  # an unreadable record is skipped too
+    fake.calls.clear()
+    capsys.readouterr()
+    assert reconstruct_cli(images, out, "--skip-existing", "--batch", "1") == 0
+    assert fake.calls == [1]  # b only
+    rows = {row["name"]: row for row in summary_rows(out)}
+    assert [rows[name]["result"] for name in "abc"] == ["skipped", "ok", "skipped"]
+    assert rows["a"]["room_height_m"] == "2.5000" and rows["a"]["floor_area_m2"] == "12.0000"
+    assert "earlier result: ok" in rows["a"]["message"] and "unreadable" in rows["c"]["message"]
+    printed = capsys.readouterr().out
+    assert "1 of 3 images reconstructed" in printed and "2 skipped" in printed
+
+
+def test_folders_give_their_panoramas(tmp_path, fake, capsys):
+    folder = tmp_path / "captures"
+    panoramas(folder, "b", "a")
+    write_png(folder / "c.JPG", IMAGE)
+    panoramas(folder / "floor2", "d")
+    panoramas(folder / ".thumbnails", "e")
+    (folder / "notes.txt").write_text("not a panorama")
+    (folder / ".hidden.png").write_bytes(b"")
+    flat = reconstruct.expand_inputs([str(folder)])
+    assert flat == [str(folder / name) for name in ("a.png", "b.png", "c.JPG")]
+    deep = reconstruct.expand_inputs([str(folder)], recursive=True)
+    assert deep == [*flat, str(folder / "floor2" / "d.png")]
+    out = folder / "out"  # an output folder inside the input folder is never read
+    assert reconstruct_cli([folder], out, "--recursive") == 0
+    assert [row["name"] for row in summary_rows(out)] == ["a", "b", "c", "d"]
+    assert reconstruct_cli([folder], out, "--recursive") == 0
+    assert [row["name"] for row in summary_rows(out)] == ["a", "b", "c", "d"]
+    same = tmp_path / "same"  # outputs beside the panoramas: a rerun does not read the overlays
+    panoramas(same, "room")
+    for _ in range(2):
+        assert reconstruct_cli([same], same) == 0
+        assert [row["name"] for row in summary_rows(same)] == ["room"]
+
+
+def test_a_folder_without_panoramas_is_one_line_before_any_work(tmp_path, fake, capsys):
+    empty = tmp_path / "empty"
+    (empty / "sub").mkdir(parents=True)
+    panoramas(empty / "sub", "room")
+    out = tmp_path / "out"
+    assert reconstruct_cli([empty], out) == 2
+    error = capsys.readouterr().err
+    assert len(error.strip().splitlines()) == 1 and "without panorama files" in error and "--recursive" in error
+    assert not out.exists() and fake.calls == []
+
+
+# ----------------------------------------------------------------------------- Ctrl-C
+
+
+def test_ctrl_c_writes_the_summary_of_the_images_done(tmp_path, fake, capsys):
+    images = panoramas(tmp_path / "in", "a", "b", "c", "d")
+    out = tmp_path / "out"
+    fake.interrupt_on_call = 2
+    assert reconstruct_cli(images, out, "--batch", "2") == 130
+    stderr = capsys.readouterr().err
+    assert error_lines(stderr) == [f"interrupted: 2 of 4 images done; {out / 'summary.csv'} lists them"]
+    assert "Traceback" not in stderr
+    assert [row["name"] for row in summary_rows(out)] == ["a", "b"]
+    assert (out / "a.json").exists() and (out / "b.json").exists()
+    assert not any(name.startswith(("c", "d", ".")) for name in os.listdir(out))
+
+
+def test_ctrl_c_lets_the_batch_in_progress_finish(tmp_path, fake, capsys):
+    images = panoramas(tmp_path / "in", "a", "b", "c", "d")
+    out = tmp_path / "out"
+    fake.signal_on_call = 1  # Ctrl-C while the first batch is computed
+    handler = signal.getsignal(signal.SIGINT)
+    assert reconstruct_cli(images, out, "--batch", "2") == 130
+    assert signal.getsignal(signal.SIGINT) is handler
+    assert fake.calls == [2]
+    assert error_lines(capsys.readouterr().err) == [
+        f"interrupted: 2 of 4 images done; {out / 'summary.csv'} lists them"
+    ]
+    assert [row["result"] for row in summary_rows(out)] == ["ok", "ok"]
+    assert (out / "b.json").exists() and not (out / "c.json").exists()
+
+
+def test_ctrl_c_elsewhere_is_one_line(monkeypatch, capsys):
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(reconstruct, "run_demo", interrupted)
+    assert cli.main(["demo"]) == 130
+    assert capsys.readouterr().err == "ncjax demo: interrupted\n"
+
+
+# ----------------------------------------------------------------------------- paths and files that do not work
+
+
+def test_an_unwritable_output_folder_is_one_line_before_the_model_loads(tmp_path, fake, monkeypatch, capsys):
+    def no_model(*args):
+        raise AssertionError("the model was loaded")
+
+    monkeypatch.setattr(ncjax.network.predict, "default_model", no_model)
+    images = panoramas(tmp_path / "in", "room")
+    (tmp_path / "file").write_text("a file")
+    unwritable = [tmp_path / "file" / "sub"]  # under a regular file: no one can create it, root included
+    if os.geteuid() != 0:  # chmod does not restrict root
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        unwritable.append(locked)
+    for out in unwritable:
+        assert reconstruct_cli(images, out) == 2
+        error = capsys.readouterr().err
+        assert len(error.strip().splitlines()) == 1 and f"--out {out} is not a folder ncjax can write in" in error
+    assert fake.calls == []
+
+
+@pytest.mark.parametrize(
+    "content", [pickle.dumps({"weights": np.zeros(3)}), bytes(range(256)) * 8, b""], ids=["pickle", "bytes", "empty"]
+)
+def test_a_file_that_is_not_a_model_is_one_line(tmp_path, fake, capsys, content):
+    model = tmp_path / "model.safetensors"
+    model.write_bytes(content)
+    with pytest.raises(ValueError, match="is not an ncjax .safetensors model") as error:
+        load_model(model)
+    assert "\n" not in str(error.value)
+    assert reconstruct_cli(panoramas(tmp_path / "in", "room"), tmp_path / "out", "--model", str(model)) == 2
+    stderr = capsys.readouterr().err
+    assert stderr.startswith(f"ncjax reconstruct: error: --model {model} is not an ncjax .safetensors model: ")
+    assert len(stderr.strip().splitlines()) == 1 and fake.calls == []
+
+
+def test_demo_into_a_file_is_one_line(tmp_path, capsys):
+    target = tmp_path / "results.txt"
+    target.write_text("mine")
+    assert cli.main(["demo", "--out", str(target)]) == 2
+    error = capsys.readouterr().err
+    assert error == f"ncjax demo: error: --out {target} exists and is not a folder\n"
+    assert target.read_text() == "mine"
+
+
+def test_an_os_error_at_the_end_is_one_line(tmp_path, fake, monkeypatch, capsys):
+    def refused(path, rows):
+        raise PermissionError(13, "Permission denied", path)
+
+    monkeypatch.setattr(reconstruct, "update_summary", refused)
+    out = tmp_path / "out"
+    assert reconstruct_cli(panoramas(tmp_path / "in", "room"), out) == 1
+    assert error_lines(capsys.readouterr().err) == [
+        f"ncjax reconstruct: error: {out / 'summary.csv'}: Permission denied"
+    ]
+
+
+# ----------------------------------------------------------------------------- summary.csv of several runs
+
+
+def test_two_runs_into_one_folder_merge_their_summaries(tmp_path, fake):
+    images = panoramas(tmp_path / "in", "a", "b", "c")
+    out = tmp_path / "out"
+    assert reconstruct_cli(images[:2], out) == 0
+    fake.layout = failed_layout()
+    assert reconstruct_cli(images[1:], out) == 1
+    rows = summary_rows(out)
+    assert [(row["name"], row["result"]) for row in rows] == [("a", "ok"), ("b", "no layout"), ("c", "no layout")]
+    assert rows[0]["room_height_m"] == "2.5000"
+
+
+def test_a_summary_csv_of_something_else_stops_the_run(tmp_path, fake, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.csv").write_text("date,amount\n2024-01-01,3\n")
+    assert reconstruct_cli(panoramas(tmp_path / "in", "room"), out) == 2
+    error = capsys.readouterr().err
+    assert "is not a summary of ncjax reconstruct" in error and len(error.strip().splitlines()) == 1
+    assert (out / "summary.csv").read_text() == "date,amount\n2024-01-01,3\n" and fake.calls == []
+
+
+def test_merged_summaries_keep_untouched_rows_in_place():
+    def row(name, result):
+        return {"file": f"{name}.png", "name": name, "result": result}
+
+    earlier = [row("a", "ok"), row("b", "error"), row("c", "ok")]
+    merged = summary.merge_summary(earlier, [row("d", "ok"), row("b", "ok")])
+    assert [(r["name"], r["result"]) for r in merged] == [("a", "ok"), ("b", "ok"), ("c", "ok"), ("d", "ok")]
+
+
+# ----------------------------------------------------------------------------- the command line
+
+
+def test_train_without_data_prints_its_help(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["train"]) == 2
+    printed = capsys.readouterr()
+    assert printed.out.startswith("usage: ncjax train") and "--data" in printed.out
+    assert printed.err == "ncjax train: error: give --data (dataset folders, synth:SEED:N or painted)\n"
+    assert os.listdir(tmp_path) == []
+
+
+def test_one_flag_name_per_idea():
+    from ncjax.network.predict import DEFAULT_VIEWS
+
+    commands = subcommands()
+    train = commands["train"]
+    assert train.parse_args(["--data", "painted", "--batch", "8"]).batch_size == 8
+    assert train.parse_args(["--data", "painted", "--batch-size", "8"]).batch_size == 8
+    assert commands["evaluate"].parse_args([]).views == DEFAULT_VIEWS
+    assert commands["reconstruct"].parse_args(["room.png", "--rc", "0", "--out", "o"]).views == DEFAULT_VIEWS
+
+
+def subcommands() -> dict[str, argparse.ArgumentParser]:
+    parser = build_parser()
+    return next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction)).choices
+
+
+def test_help_shows_every_default():
+    for name, parser in subcommands().items():
+        formatter = DefaultsHelpFormatter(name)
+        for action in parser._actions:
+            if not action.option_strings or action.nargs == 0 or action.required:
+                continue  # flags, positionals and required options have no default
+            text = formatter._get_help_string(action)
+            assert "default" in text or text.startswith("required"), (name, action.option_strings)
+    reconstruct_help = " ".join(subcommands()["reconstruct"].format_help().split())
+    assert "--batch BATCH images per jitted call (default: 4)" in reconstruct_help
+    train_help = " ".join(subcommands()["train"].format_help().split())
+    assert "--batch N, --batch-size N images per step (default: 4)" in train_help
+    assert "--checkpoint-every CHECKPOINT_EVERY steps between checkpoints (default: 250)" in train_help
+
+
+# ----------------------------------------------------------------------------- overlay legend
+
+
+def test_the_overlay_names_its_colours():
+    cam = ncjax.NonCentralPanorama(1024, 512, rc=0.6)
+    image = np.full((512, 1024, 3), 90, np.uint8)
+    layout = make_layout(RECTANGLE, inserted=(1,))
+    rows = np.full(1024, 150.0), np.full(1024, 380.0), np.zeros(1024)
+    drawn = overlay.draw_overlay(image, layout, cam, *rows)
+    entries = overlay.legend_entries(layout, True, True)
+    assert [label for label, _ in entries] == [
+        "network boundaries",
+        "layout",
+        "inserted wall (unseen)",
+        "corner probability (bottom)",
+    ]
+    top, bottom, left, right = overlay.legend_box([label for label, _ in entries], 512, 1024)
+    assert top == 0 and right == 1024 and 40 < bottom < 100 and 700 < left < 900
+    box = drawn[top:bottom, left:right].reshape(-1, 3).astype(int)
+    for _, colour in entries:
+        assert np.min(np.abs(box - colour).max(axis=1)) < 10, colour  # its swatch
+    assert np.all(drawn[bottom + 2 : bottom + 8, left:] == 90)  # the box ends there
+    assert overlay.legend_entries(failed_layout(), False, False) == []
+    bare = overlay.draw_overlay(image, failed_layout(), cam)
+    assert np.all(bare[:100, 700:] == 90)  # nothing drawn, no legend
