@@ -83,14 +83,20 @@ def test_every_setting_is_an_option_with_its_default_and_help():
         (ncjax.TrainConfig(), add_train_arguments, {"total_steps"}),  # set by --steps
     ):
         help_text = " ".join(_parser(add_arguments).format_help().split())
-        documented = attribute_help(type(defaults))
-        for field in dataclasses.fields(defaults):
-            if field.name in skipped:
-                continue
-            assert documented.get(field.name), f"{type(defaults).__name__}.{field.name} has no docstring line"
-            option = "--" + field.name.replace("_", "-")
-            assert option in help_text, option
-            assert f"(default: {getattr(defaults, field.name)})" in help_text
+        configurations = [(defaults, "--")]
+        for config, prefix in configurations:
+            documented = attribute_help(type(config))
+            for field in dataclasses.fields(config):
+                if field.name in skipped:
+                    continue
+                assert documented.get(field.name), f"{type(config).__name__}.{field.name} has no docstring line"
+                option = prefix + field.name.replace("_", "-")
+                value = getattr(config, field.name)
+                if dataclasses.is_dataclass(value):  # its fields are options --field-inner-field
+                    configurations.append((value, option + "-"))
+                    continue
+                assert option in help_text, option
+                assert f"(default: {value})" in help_text
 
 
 def test_options_replace_only_the_settings_given():
@@ -122,6 +128,12 @@ def test_options_replace_only_the_settings_given():
     train_config = config_from_options(train_args, ncjax.TrainConfig())
     assert train_config == ncjax.TrainConfig(backbone_learning_rate_scale=0.0)
     assert ncjax.HorizonNetConfig.preset(train_args.preset).backbone == "efficientnet_lite0"
+    train_args = _parser(add_train_arguments).parse_args(
+        ["--no-photometric", "--augment-jpeg-quality", "5", "30", "--augment-seam-count", "2"]
+    )
+    train_config = config_from_options(train_args, ncjax.TrainConfig())
+    augment = ncjax.AugmentConfig(jpeg_quality=(5.0, 30.0), seam_count=2)
+    assert train_config == ncjax.TrainConfig(photometric=False, augment=augment)
 
 
 def test_a_bad_setting_is_one_line_before_any_work(tmp_path, capsys):

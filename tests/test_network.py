@@ -243,7 +243,7 @@ def test_sharper_corner_encoding():
 def test_augmented_images_match_augmented_labels():
     samples = painted_samples()
     colours = jnp.array([[0.9, 0.8, 0.7], [0.5, 0.6, 0.2], [0.2, 0.3, 0.4]])
-    geometric_only = ncjax.TrainConfig(max_gamma=1.0, max_brightness=0.0, greyscale_probability=0.0)
+    geometric_only = ncjax.TrainConfig(photometric=False)
     augment = jax.jit(ncjax.training.loop.augment_sample, static_argnums=2)
     flips = []
     for i in range(6):
@@ -294,13 +294,31 @@ def test_flip_is_the_mirrored_room():
     np.testing.assert_array_equal(rolled["floor_v"], np.roll(labels.floor_v, 5))
 
 
-def test_photometric_changes():
-    image = jax.random.uniform(jax.random.PRNGKey(0), (4, 8, 3))
-    np.testing.assert_allclose(ncjax.training.loop.adjust_photometric(image, 1.0, 1.0, False), image, atol=1e-7)
-    np.testing.assert_allclose(ncjax.training.loop.adjust_photometric(image, 2.0, 1.0, False), image**2, atol=1e-7)
-    grey = np.asarray(ncjax.training.loop.adjust_photometric(image, 1.0, 0.5, True))
-    np.testing.assert_allclose(grey[..., 0], grey[..., 2])
-    np.testing.assert_allclose(grey[..., 1], 0.5 * image @ jnp.array([0.299, 0.587, 0.114]), atol=1e-6)
+def test_photometric_augmentation_is_random_augment_and_keeps_the_labels():
+    sample = {k: v[0] for k, v in painted_samples().items()}
+    no_geometry = ncjax.TrainConfig(roll=False, flip=False)
+
+    @jax.jit
+    def both(key):
+        expected = ncjax.random_augment(jax.random.split(key, 3)[2], sample["image"], no_geometry.augment)
+        return ncjax.training.loop.augment_sample(key, sample, no_geometry), expected
+
+    out, expected = both(jax.random.PRNGKey(0))
+    np.testing.assert_array_equal(out["image"], expected)
+    for label in ncjax.training.loop.LABEL_KEYS:
+        np.testing.assert_array_equal(out[label], sample[label])
+
+
+def test_train_config_json_round_trip_and_older_configurations():
+    augment = ncjax.AugmentConfig(jpeg_quality=(5.0, 30.0), seam_count=2, jpeg_chroma_subsampling=False)
+    config = ncjax.TrainConfig(peak_learning_rate=3e-4, photometric=False, augment=augment)
+    restored = ncjax.TrainConfig.from_json(config.to_json())
+    assert restored == config and hash(restored) == hash(config)
+    # An older checkpoint's settings: no augment, the photometric settings it replaced.
+    old = {**json.loads(ncjax.TrainConfig(warmup_steps=7).to_json()), "max_gamma": 1.5, "max_brightness": 0.2}
+    del old["augment"], old["photometric"]
+    old["greyscale_probability"] = 0.1
+    assert ncjax.TrainConfig.from_json(json.dumps(old)) == ncjax.TrainConfig(warmup_steps=7)
 
 
 # ----------------------------------------------------------------------------- training, checkpoints, resume

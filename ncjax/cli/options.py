@@ -1,9 +1,11 @@
 """Command-line options generated from the configuration dataclasses, so every setting is reachable.
 
 Each field of a frozen dataclass of ``int``, ``float``, ``bool`` or ``str`` becomes ``--field-name``
-(``--field-name`` / ``--no-field-name`` for a bool), its help text the field's line in the class
-docstring's ``Attributes:`` section, its default the value of the instance the command starts from.
-Only the options given on the command line replace that instance's values.
+(``--field-name`` / ``--no-field-name`` for a bool), a range ``tuple[float, float]`` or ``tuple[int, int]``
+``--field-name LOW HIGH``, its help text the field's line in the class docstring's ``Attributes:``
+section, its default the value of the instance the command starts from. A field holding another such
+dataclass gives that one's options, named ``--field-name-inner-name``. Only the options given on the
+command line replace that instance's values.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import re
 from typing import Any
 
 _PARSERS = {"int": int, "float": float, "str": str}
+_RANGES = {"tuple[float, float]": float, "tuple[int, int]": int}
 
 
 def attribute_help(cls: type) -> dict[str, str]:
@@ -66,28 +69,45 @@ def add_config_options(
     aliases = aliases or {}
     help_texts = attribute_help(type(defaults))
     group = parser.add_argument_group(title)
+    nested = []
     for field in dataclasses.fields(defaults):
         kind = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", "")
-        if field.name in skip or kind not in (*_PARSERS, "bool"):
+        value = getattr(defaults, field.name)
+        if field.name not in skip and dataclasses.is_dataclass(value):
+            nested.append(field)
+        if field.name in skip or kind not in (*_PARSERS, *_RANGES, "bool"):
             continue
         names = [_option(prefix, field.name), *([aliases[field.name]] if field.name in aliases else [])]
-        value = getattr(defaults, field.name)
         text = f"{help_texts.get(field.name, field.name.replace('_', ' '))} (default: {value})"
         text = text.replace(". (default", " (default").replace("%", "%%")
         destination = f"{prefix.replace('-', '_')}{field.name}"
         if kind == "bool":
             group.add_argument(*names, dest=destination, action=argparse.BooleanOptionalAction, default=None, help=text)
+        elif kind in _RANGES:
+            group.add_argument(
+                *names, dest=destination, type=_RANGES[kind], nargs=2, default=None, metavar=("LOW", "HIGH"), help=text
+            )
         else:
             group.add_argument(
                 *names, dest=destination, type=_PARSERS[kind], default=None, metavar=kind.upper(), help=text
             )
+    # the inner configuration's options come after the outer one's, in a group of their own
+    for field in nested:
+        inner = getattr(defaults, field.name)
+        inner_title = f"{help_texts.get(field.name, field.name.replace('_', ' ')).rstrip('.')} ({type(inner).__name__})"
+        add_config_options(parser, inner, title=inner_title, prefix=f"{prefix}{field.name}-")
 
 
 def config_from_options(args: argparse.Namespace, defaults: Any, *, prefix: str = "") -> Any:
     """``defaults`` with the fields given on the command line replaced (the dataclass validates them)."""
     given = {}
     for field in dataclasses.fields(defaults):
-        value = getattr(args, f"{prefix.replace('-', '_')}{field.name}", None)
+        inner = getattr(defaults, field.name)
+        if dataclasses.is_dataclass(inner):
+            value = config_from_options(args, inner, prefix=f"{prefix}{field.name}-")
+            value = None if value is inner else value
+        else:
+            value = getattr(args, f"{prefix.replace('-', '_')}{field.name}", None)
         if value is not None:
-            given[field.name] = value
+            given[field.name] = tuple(value) if isinstance(value, list) else value  # a range comes as a list
     return dataclasses.replace(defaults, **given) if given else defaults

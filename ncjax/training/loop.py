@@ -14,7 +14,10 @@ Augmentations keep the labels exact (:func:`augment_sample`):
   about the x axis, so the flipped image is exactly the panorama of the room
   mirrored in y (same ``rc``, same rows per column): a valid non-central
   panorama, labels flipped with it (tested with :func:`ncjax.room_labels`).
-- photometric (gamma, brightness, greyscale): labels unchanged.
+- photometric: a random camera's rendition of the image
+  (:func:`ncjax.synth.augment.random_augment`: exposure, colour, blur, vignetting,
+  noise, stitching seams, black bands at the poles, JPEG); labels unchanged (near a
+  seam the image may move by a pixel or two, as in real stitching: the labels stay the scene's).
 
 Randomness is a pure function of ``(seed, step)`` (augmentation and dropout
 keys are ``fold_in(step_key_root(seed), step)``), so a run resumed from a checkpoint
@@ -35,14 +38,19 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from ..network.checkpoint import load_checkpoint, load_weights, save_checkpoint
 from ..network.model import BoundaryPrediction, HorizonNet, HorizonNetConfig, init_model, row_to_elevation
-from ..synth.augment import adjust_gamma, to_greyscale
+from ..synth.augment import AugmentConfig, random_augment
 from ..synth.rooms import CORNER_LABEL_BASE, reencode_corner_prob
 
 # ----------------------------------------------------------------------------- configuration
+
+
+# Older photometric settings (gamma, brightness factor, greyscale), replaced by ``augment``: dropped when an
+# older configuration is read, since the augmentation they drove is gone (training uses its caller's settings).
+_REPLACED_FIELDS = ("max_gamma", "max_brightness", "greyscale_probability")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,9 +69,8 @@ class TrainConfig:
             scaled by it); 0 freezes the backbone's weights (its batch-norm
             statistics still follow the data in train mode).
         roll, flip: random horizontal roll / left-right flip (labels follow).
-        max_gamma: gamma drawn log-uniformly in ``[1 / max_gamma, max_gamma]``.
-        max_brightness: intensity factor drawn uniformly in ``[1 - b, 1 + b]``.
-        greyscale_probability: probability of replacing the colours by their luminance.
+        photometric: a random camera's rendition of each image (``augment``).
+        augment: ranges and probabilities of the photometric and camera effects.
     """
 
     peak_learning_rate: float = 1e-3
@@ -75,9 +82,8 @@ class TrainConfig:
     backbone_learning_rate_scale: float = 1.0
     roll: bool = True
     flip: bool = True
-    max_gamma: float = 1.5
-    max_brightness: float = 0.2
-    greyscale_probability: float = 0.1
+    photometric: bool = True
+    augment: AugmentConfig = AugmentConfig()
 
     def __post_init__(self):
         if not self.backbone_learning_rate_scale >= 0.0:
@@ -88,7 +94,13 @@ class TrainConfig:
 
     @classmethod
     def from_json(cls, text: str) -> TrainConfig:
-        return cls(**json.loads(text))
+        """The configuration :meth:`to_json` wrote, also an older one: missing fields take their defaults."""
+        values = json.loads(text)
+        for name in _REPLACED_FIELDS:
+            values.pop(name, None)
+        if "augment" in values:
+            values["augment"] = AugmentConfig.from_dict(values["augment"])
+        return cls(**values)
 
 
 def make_optimizer(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
@@ -179,21 +191,10 @@ def flip_panorama(sample: dict[str, Array]) -> dict[str, Array]:
     return {**sample, **flipped, "image": sample["image"][:, ::-1]}
 
 
-def adjust_photometric(
-    image: Float[Array, "H W 3"],
-    gamma: Float[ArrayLike, ""],
-    brightness: Float[ArrayLike, ""],
-    greyscale: Bool[ArrayLike, ""],
-) -> Float[Array, "H W 3"]:
-    """Gamma, then a brightness factor, then optionally greyscale (:mod:`ncjax.synth.augment`); clipped to [0, 1]."""
-    image = adjust_gamma(image, gamma) * brightness
-    image = jnp.where(greyscale, to_greyscale(image), image)
-    return jnp.clip(image, 0.0, 1.0)
-
-
 def augment_sample(key: PRNGKeyArray, sample: dict[str, Array], train_config: TrainConfig) -> dict[str, Array]:
-    """Random roll, flip and photometric changes of one sample, labels kept exact."""
-    k_roll, k_flip, k_gamma, k_bright, k_grey = jax.random.split(key, 5)
+    """Random roll, flip and camera effects (:func:`~ncjax.synth.augment.random_augment`) of one sample,
+    labels kept exact."""
+    k_roll, k_flip, k_photometric = jax.random.split(key, 3)
     width = sample["image"].shape[1]
     if train_config.roll:
         sample = roll_panorama(sample, jax.random.randint(k_roll, (), 0, width))
@@ -201,11 +202,9 @@ def augment_sample(key: PRNGKeyArray, sample: dict[str, Array], train_config: Tr
         flipped = flip_panorama(sample)
         do_flip = jax.random.bernoulli(k_flip)
         sample = jax.tree.map(lambda a, b: jnp.where(do_flip, a, b), flipped, sample)
-    log_gamma = jnp.log(train_config.max_gamma)
-    gamma = jnp.exp(jax.random.uniform(k_gamma, (), minval=-log_gamma, maxval=log_gamma))
-    brightness = 1.0 + train_config.max_brightness * jax.random.uniform(k_bright, (), minval=-1.0, maxval=1.0)
-    greyscale = jax.random.bernoulli(k_grey, train_config.greyscale_probability)
-    return {**sample, "image": adjust_photometric(sample["image"], gamma, brightness, greyscale)}
+    if train_config.photometric:
+        sample = {**sample, "image": random_augment(k_photometric, sample["image"], train_config.augment)}
+    return sample
 
 
 def augment_batch(key: PRNGKeyArray, batch: dict[str, Array], train_config: TrainConfig) -> dict[str, Array]:
