@@ -1,7 +1,8 @@
 """Contact sheet of synthetic panoramas with their exact labels drawn over them.
 
-Eight random furnished rooms (Manhattan and Atlanta) rendered by ``ncjax``'s JAX
-ray caster (3x3 supersampling, shadows), each with its ceiling-wall (red) and
+Eight random realistic rooms (Manhattan and Atlanta; ``SceneConfig(decor=True)``:
+open doors, decals, ceiling lights and panels, sunlight) rendered by ``ncjax``'s
+JAX ray caster (3x3 supersampling, shadows), each with its ceiling-wall (red) and
 floor-wall (blue) boundaries and its layout corners (yellow; occlusion corners
 magenta) from ``ncjax.room_labels``, i.e. the labels a network is trained on.
 
@@ -54,6 +55,7 @@ def main():
     height, width = (int(x) for x in args.size.split("x"))
     config = ncjax.SynthConfig(
         room=ncjax.RoomConfig(world="mix"),
+        scene=ncjax.SceneConfig(decor=True),
         render=ncjax.RenderConfig(supersampling=3, shadows=True),
         width=width,
         height=height,

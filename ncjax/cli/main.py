@@ -85,6 +85,7 @@ def _synth(args: argparse.Namespace) -> int:
 
     config = ncjax.SynthConfig(
         room=ncjax.RoomConfig(world=args.world, rc_range=rc_range),
+        scene=ncjax.SceneConfig(decor=args.decor),
         render=ncjax.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
         width=width,
         height=height,
@@ -177,6 +178,12 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--rc", default="0.3:1.0", help="range of the radius rc in metres, MIN:MAX (0:0 is central)")
     synth.add_argument("--supersampling", type=int, default=1, help="odd s: s x s rays per pixel for the RGB image")
     synth.add_argument("--shadows", action="store_true", help="cast shadows from the furniture")
+    synth.add_argument(
+        "--decor",
+        action="store_true",
+        help="realistic rooms: open doors, posters and pictures, ceiling lights of several kinds and light panels, "
+        "suspended and popcorn ceilings, sunlight, counters and desks with monitors (ncjax.SceneConfig(decor=True))",
+    )
     synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")
     synth.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
     synth.set_defaults(run=_synth)

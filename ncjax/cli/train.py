@@ -25,8 +25,9 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         "--data",
         nargs="+",
         help="required: dataset folders (ncjax synth or the authors') or synth:SEED:N (the N rooms `ncjax synth "
-        "--seed SEED` writes, rendered in memory); their splits are pooled, validation takes the first "
-        "--validation-limit images of the pool. Or 'painted' (flat-coloured random rooms, a smoke test)",
+        "--seed SEED` writes, rendered in memory) or synth-decor:SEED:N (the same with --decor); their splits are "
+        "pooled, validation takes the first --validation-limit images of the pool. Or 'painted' (flat-coloured "
+        "random rooms, a smoke test)",
     )
     parser.add_argument("--preset", default="compact", choices=sorted(PRESETS), help="the architecture")
     parser.add_argument(

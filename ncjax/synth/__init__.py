@@ -2,6 +2,8 @@
 
 - ``rooms``: random Manhattan and Atlanta rooms, a camera inside, and their labels.
 - ``furniture``, ``scene``, ``materials``: furnished, lit scenes with procedural materials.
-- ``render``: ray-cast non-central panoramas (RGB, depth, semantics).
+- ``decor``: the realistic scenes' decor (``SceneConfig(decor=True)``): ceiling lights and panels, decals,
+  sunlight, open doors; ``elements``: the scenes' containers.
+- ``render``, ``render_details``: ray-cast non-central panoramas (RGB, depth, semantics).
 - ``augment``: photometric and sensor effects; ``dataset``: the dataset folders on disk.
 """

@@ -8,10 +8,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry.polygon import perpendicular, polygon_edges, segments_cross
-from .rooms import Room, point_in_polygon
+from .rooms import Room, point_in_polygon, room_walls
 
 
 @dataclasses.dataclass(frozen=True)
@@ -29,6 +29,7 @@ class _FurnitureType:
     fabric: bool = False
     weight: float = 1.0
     may_cover_camera: bool = False
+    decor: bool = False  # only in realistic scenes (``SceneConfig.decor``)
 
 
 _LEGS = tuple((x0, x0 + 0.08, y0, y0 + 0.08, 0.0, 0.94, True) for x0 in (0.02, 0.9) for y0 in (0.02, 0.9))
@@ -149,8 +150,42 @@ FURNITURE_TYPES: tuple[_FurnitureType, ...] = (
         ((0.0, 1.0, 0.0, 0.97, 0.0, 1.0, False), (0.03, 0.97, 0.97, 1.0, 0.05, 0.95, True)),
         weight=0.8,
     ),
+    _FurnitureType(
+        "counter",
+        True,
+        (1.2, 0.58, 0.88),
+        (3.0, 0.65, 0.95),
+        (
+            (0.0, 1.0, 0.0, 0.95, 0.1, 0.95, False),
+            (0.0, 1.0, 0.0, 0.9, 0.0, 0.1, True),
+            (0.0, 1.0, 0.0, 1.0, 0.95, 1.0, True),
+            (0.01, 0.49, 0.95, 0.97, 0.15, 0.9, True),
+            (0.51, 0.99, 0.95, 0.97, 0.15, 0.9, True),
+        ),
+        weight=0.6,
+        decor=True,
+    ),
+    _FurnitureType(
+        "desk with monitor",
+        True,
+        (1.1, 0.6, 0.72),
+        (1.6, 0.8, 0.78),
+        (
+            (0.0, 1.0, 0.0, 1.0, 0.95, 1.0, False),
+            (0.0, 0.04, 0.0, 1.0, 0.0, 0.95, False),
+            (0.96, 1.0, 0.0, 1.0, 0.0, 0.95, False),
+            (0.3, 0.7, 0.15, 0.19, 1.2, 1.65, True),
+            (0.47, 0.53, 0.1, 0.16, 1.0, 1.2, True),
+            (0.42, 0.58, 0.05, 0.3, 1.0, 1.02, True),
+        ),
+        weight=0.7,
+        decor=True,
+    ),
 )
 PARTS_PER_PIECE = max(len(t.parts) for t in FURNITURE_TYPES)
+# The basic scenes' types: the head of the pool (the decor's types come after them).
+BASIC_TYPES = sum(not t.decor for t in FURNITURE_TYPES)
+assert all(t.decor for t in FURNITURE_TYPES[BASIC_TYPES:])
 
 
 def _template_arrays():
@@ -281,3 +316,47 @@ def _pack(candidates: _Footprints, capacity: int, obstacles: _Footprints, gap: f
     inputs = (jnp.arange(n), candidates.centre, candidates.half_size, candidates.rotation, candidates.mask, blocked)
     (accepted, chosen, _), _ = jax.lax.scan(step, (empty, jnp.zeros(capacity, jnp.int32), jnp.array(0)), inputs)
     return chosen, accepted.mask
+
+
+# ------------------------------------------------------------- random placement
+# Generators draw ONE array of uniforms and read their numbers from it (see
+# :mod:`ncjax.synth.scene`); these helpers turn such numbers into placements.
+
+
+def _between(uniform: Array, low, high) -> Array:
+    return low + uniform * (jnp.asarray(high) - low)
+
+
+def _categorical(uniform: Float[Array, ""], weights: Float[Array, " n"]) -> Int[Array, ""]:
+    """Index drawn with probability proportional to ``weights`` (inverse CDF)."""
+    cumulative = jnp.cumsum(weights)
+    return jnp.minimum(jnp.sum(uniform * cumulative[-1] >= cumulative), weights.shape[0] - 1)
+
+
+def _room_frame(room: Room):
+    """Wall starts, unit directions, inward normals and lengths (K each), and the
+    room's bounding box."""
+    direction, _, _, _ = room_walls(room)
+    edges = polygon_edges(room.corners, room.mask)
+    length = jnp.where(room.mask, jnp.linalg.norm(edges[:, 1] - edges[:, 0], axis=-1), 0.0)
+    # Counter-clockwise polygon: the interior is to the left of each wall.
+    normal = perpendicular(direction)
+    valid = jnp.where(room.mask[:, None], room.corners, room.corners[:1])
+    return edges[:, 0], direction, normal, length, jnp.min(valid, 0), jnp.max(valid, 0)
+
+
+def _wall_position(uniform: Float[Array, 2], room: Room, width: Float[Array, ""], margin: float):
+    """A wall (chosen with probability proportional to its length) and a start
+    position along it that fits ``width`` with ``margin`` at both ends.
+
+    Returns ``(wall, along, fits, wall_start, wall_direction, inward_normal)``.
+    """
+    start, direction, normal, length, _, _ = _room_frame(room)
+    wall = _categorical(uniform[0], length)
+    room_left = length[wall] - width - 2 * margin
+    along = margin + uniform[1] * jnp.maximum(room_left, 0.0)
+    return wall, along, room_left >= 0, start[wall], direction[wall], normal[wall]
+
+
+def _nothing() -> _Footprints:
+    return _Footprints(jnp.zeros((1, 2)), jnp.ones((1, 2)), jnp.array([[1.0, 0.0]]), jnp.zeros(1, bool))

@@ -30,6 +30,8 @@ class Pattern(enum.IntEnum):
     DIAMONDS = 6  # wallpaper lattice
     WOOD = 7  # furniture wood grain
     FABRIC = 8  # woven fabric
+    GRID = 9  # suspended ceiling: square fissured tiles in a grid of thin T-bars
+    STIPPLE = 10  # popcorn ceiling: dense bright bumps with dark specks
 
 
 class Material(eqx.Module):
@@ -87,13 +89,17 @@ def _wave(x: Float[Array, "*batch"]) -> Float[Array, "*batch"]:
     return triangle * triangle * (3 - 2 * triangle)
 
 
-def _seam(fraction: Float[Array, "*batch"], width: float) -> Float[Array, "*batch"]:
+def _seam(fraction: Float[Array, "*batch"], width: float | Float[Array, "*#batch"]) -> Float[Array, "*batch"]:
     """1 on a thin line at the integer boundaries of a coordinate's fractional part."""
     return ((fraction < width) | (fraction > 1 - width)).astype(fraction.dtype)
 
 
 def material_albedo(
-    material: Material, seed: Int[Array, "*#batch"], a: Float[Array, "*#batch"], b: Float[Array, "*#batch"]
+    material: Material,
+    seed: Int[Array, "*#batch"],
+    a: Float[Array, "*#batch"],
+    b: Float[Array, "*#batch"],
+    decor: bool = False,
 ) -> Float[Array, "*batch 3"]:
     """Albedo of ``material`` at surface coordinates ``(a, b)`` metres.
 
@@ -105,6 +111,8 @@ def material_albedo(
         material: the material, one or one per point (fields of shape batch or batch + (3,)).
         seed: integers that decorrelate the patterns of different surfaces.
         a, b: surface coordinates.
+        decor: also the patterns only realistic scenes use (``GRID``, ``STIPPLE``);
+            static: without them a pixel costs less.
 
     Returns:
         Linear RGB albedo of the broadcast shape + (3,).
@@ -145,6 +153,11 @@ def material_albedo(
         wood,
         0.5 * weave + 0.5 * fine,
     ]
+    if decor:
+        # Ceilings: a 2 cm T-bar (colour b) around each tile, and a popcorn stipple.
+        bar = 0.01 / material.scale
+        grid = jnp.maximum(_seam(u - cell_u, bar), _seam(v - cell_v, bar)) + 0.12 * fine + 0.08 * coarse
+        patterns += [grid, 0.7 * fine * fine + 0.3 * coarse]
     # A chain of selects, not a gather: XLA's CPU gathers are far slower here.
     mix = patterns[0]
     for kind in range(1, len(patterns)):

@@ -15,14 +15,22 @@ pixel cost O(B) comparisons. ``rc = 0`` is the central equirectangular panorama.
 Shading: procedural albedo (``ncjax.synth.materials``), an ambient term darkened
 near the room's edges, Lambertian point lights with ``1 / (1 + d^2)`` falloff,
 optional hard shadows from the furniture, emissive lamps and windows, then an
-exponential tone curve and gamma 2.2.
+exponential tone curve and gamma 2.2. Doors and windows are drawn on the wall
+planes, so the layout labels stay exact.
+
+Realistic scenes (``SceneConfig(decor=True)``) add sunlight through the
+windows, light panels, decals on the walls and open doors
+(``ncjax.synth.render_details``): decals and panels are drawn on the room's
+planes, and a ray through an open door goes on into a box-shaped room behind
+only once it has met the wall plane inside the doorway, so the labels stay
+exact too; what is seen through a doorway is of the class OPENING. The renderer
+compiles these steps only for scenes that have decor.
 
 Not modelled (yet): shadows cast by walls, inter-reflections and specular
-surfaces; geometry of doors, windows and skirting boards (they are textures on
-the wall, so the layout labels stay exact); views through doors and windows;
+surfaces; geometry of windows and skirting boards; views through windows;
 furniture other than boxes (no curved shapes, no clutter on tables, nothing on
-carpets); lamps other than ceiling lamps; the capture rig itself; lens and
-sensor effects beyond the photometric augmentations of ``ncjax.synth.augment``.
+carpets); floor and table lamps; the capture rig itself; lens and sensor
+effects beyond the photometric augmentations of ``ncjax.synth.augment``.
 """
 
 from __future__ import annotations
@@ -39,6 +47,15 @@ from jaxtyping import Array, Bool, Float, Int, Key, PRNGKeyArray
 from ..geometry.camera import NonCentralPanorama, pixel_to_angles
 from ..geometry.polygon import perpendicular
 from .materials import Material, material_albedo
+from .render_details import (
+    ceiling_panels,
+    decal_appearance,
+    doorway_columns,
+    in_span,
+    opening_appearance,
+    sunlight,
+    through_doorway,
+)
 from .rooms import RoomConfig, RoomLabels, random_room, ray_hits, room_labels, room_walls
 from .scene import Boxes, Scene, SceneConfig, random_scene
 
@@ -50,7 +67,7 @@ class Semantic(enum.IntEnum):
     FLOOR = 1
     WALL = 2
     OBJECT = 3
-    OPENING = 4  # door or window
+    OPENING = 4  # door or window, and what is seen through an open door
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,39 +161,11 @@ def _select_material(condition: Array, a: Material, b: Material) -> Material:
     )
 
 
-def _opening_appearance(opening: dict, along, height):
-    """Albedo and emission of a door or window (fields of ``opening`` per column)
-    at coordinates inside it: a frame, inset door panels with a handle, or glass
-    panes split by mullions that glow with daylight."""
-    x, y = along - opening["start"], height - opening["bottom"]
-    width, tall, window = opening["width"], opening["tall"], opening["is_window"]
-    frame = 0.06
-    on_frame = (x < frame) | (x > width - frame) | (y > tall - frame) | (window & (y < frame))
-    mullion = window & ((jnp.abs(x - width / 2) < 0.025) | (jnp.abs(y - 0.6 * tall) < 0.025))
-    in_panel = (
-        (x > 0.14) & (x < width - 0.14) & (((y > 0.12) & (y < 0.45 * tall)) | ((y > 0.5 * tall) & (y < tall - 0.14)))
-    )
-    panel_edge = in_panel & (
-        (x < 0.16)
-        | (x > width - 0.16)
-        | (jnp.abs(y - 0.12) < 0.02)
-        | (jnp.abs(y - 0.45 * tall) < 0.02)
-        | (jnp.abs(y - 0.5 * tall) < 0.02)
-        | (jnp.abs(y - tall + 0.14) < 0.02)
-    )
-    handle = ~window & ((x - (width - 0.1)) ** 2 + (y - 1.0) ** 2 < 0.035**2)
-    leaf = opening["colour"] * (jnp.where(panel_edge, 0.55, 1.0) * jnp.where(handle, 0.2, 1.0))[..., None]
-    sky = opening["colour"] * (0.75 + 0.35 * y / tall)[..., None]
-    framed = (on_frame | mullion)[..., None]
-    albedo = jnp.where(framed, opening["frame_colour"], jnp.where(window[..., None], 0.0, leaf))
-    emission = jnp.where(framed | ~window[..., None], 0.0, 1.6 * sky)
-    return albedo, emission
-
-
 def _columns(scene: Scene, cam: NonCentralPanorama, boxes_per_column: int):
     """Everything that depends on the column only: the horizontal ray, the wall
-    it meets and where, the door or window there, and the boxes whose footprints
-    it crosses with all their attributes (so that the per-pixel code gathers nothing)."""
+    it meets and where, the door or window there (with decor, the decal there
+    and the path through an open door), and the boxes whose footprints it
+    crosses with all their attributes (so that the per-pixel code gathers nothing)."""
     room, boxes = scene.room, scene.boxes
     azimuth, _ = pixel_to_angles(cam, jnp.arange(cam.width, dtype=room.corners.dtype), 0.0)
     direction = jnp.stack([jnp.cos(azimuth), jnp.sin(azimuth)], -1)
@@ -188,24 +177,31 @@ def _columns(scene: Scene, cam: NonCentralPanorama, boxes_per_column: int):
     wall_direction, _, _, _ = room_walls(room)
     wall_point = origin + t_wall[:, None] * direction
     along = jnp.sum((wall_point - room.corners[wall]) * wall_direction[wall], -1)
-    openings = scene.openings
-    in_span = (
-        (openings.wall[None, :] == wall[:, None])
-        & (openings.span[None, :, 0] <= along[:, None])
-        & (along[:, None] <= openings.span[None, :, 1])
-        & openings.mask[None, :]
-    )
-    index = jnp.argmax(in_span, axis=1)
-    opening = dict(
-        present=jnp.any(in_span, axis=1),
-        start=openings.span[index, 0],
-        width=openings.span[index, 1] - openings.span[index, 0],
-        bottom=openings.z_range[index, 0],
-        tall=openings.z_range[index, 1] - openings.z_range[index, 0],
-        is_window=openings.is_window[index],
-        colour=openings.colour[index],
-        frame_colour=openings.frame_colour[index],
-    )
+    wall_normal = perpendicular(wall_direction[wall])
+
+    def rectangles_on_walls(fields, names):
+        present, index = in_span(fields.wall, fields.span, fields.mask, wall, along)
+        gathered = dict(
+            present=present,
+            index=index,
+            start=fields.span[index, 0],
+            width=fields.span[index, 1] - fields.span[index, 0],
+            bottom=fields.z_range[index, 0],
+            tall=fields.z_range[index, 1] - fields.z_range[index, 0],
+        )
+        return gathered | {name: getattr(fields, name)[index] for name in names}
+
+    opening = rectangles_on_walls(scene.openings, ("is_window", "colour", "frame_colour"))
+    details = {}
+    if scene.decor is not None:
+        doorways = scene.decor.doorways
+        opening |= {f.name: getattr(doorways, f.name)[opening["index"]] for f in dataclasses.fields(doorways)}
+        details = dict(
+            decal=rectangles_on_walls(
+                scene.decor.decals, ("kind", "colour_a", "colour_b", "frame_colour", "frame_width")
+            ),
+            doorway=doorway_columns(opening, direction, t_wall, along, wall_direction[wall], wall_normal),
+        )
     t_in, t_out, box_normal = jax.vmap(
         jax.vmap(box_interval_2d, in_axes=(None, None, 0, 0, 0)), in_axes=(0, 0, None, None, None)
     )(origin, direction, boxes.centre[:, :2], boxes.half_size[:, :2], boxes.rotation)
@@ -236,10 +232,11 @@ def _columns(scene: Scene, cam: NonCentralPanorama, boxes_per_column: int):
         direction=direction,
         t_wall=t_wall,
         along=along,
-        wall_normal=perpendicular(wall_direction[wall]),
+        wall_normal=wall_normal,
         opening=opening,
         candidates=candidates,
         overflow=jnp.sum(crossed, 1) > boxes_per_column,
+        **details,
     )
 
 
@@ -265,8 +262,12 @@ def _nearest_box(candidates: dict, cotangent: Float[Array, ""]):
 
 
 def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool):
-    """Colour, depth and class of the pixels of one row (elevation)."""
-    room, boxes = scene.room, scene.boxes
+    """Colour, depth and class of the pixels of one row (elevation).
+
+    The decor's steps run only for scenes that have it (a static choice): a basic
+    scene's program is the furnished room's alone.
+    """
+    room, boxes, decor = scene.room, scene.boxes, scene.decor
     slope = jnp.tan(elevation)
     cotangent = 1.0 / jnp.where(jnp.abs(slope) > 1e-12, slope, 1e-12)
     # Room: the wall of the column, unless the ray leaves through the ceiling or floor first.
@@ -276,6 +277,16 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     t_room = jnp.where(
         is_ceiling, room.ceiling_height * cotangent, jnp.where(is_floor, room.floor_height * cotangent, t_wall)
     )
+    opening = columns["opening"]
+    if decor is not None:
+        # Open doors are decided on the wall plane (so the layout's edges stay
+        # exact); a ray through one goes on into the room behind.
+        doorway = columns["doorway"]
+        in_doorway = (
+            ~is_ceiling & ~is_floor & doorway["aperture"] & (z_wall >= opening["bottom"]) & (z_wall < doorway["lintel"])
+        )
+        t_behind, behind_upright, in_lining = through_doorway(doorway, slope, cotangent, room.floor_height)
+        t_room = jnp.where(in_doorway, t_behind, t_room)
     t_box, box = _nearest_box(columns["candidates"], cotangent)
     on_box = t_box < t_room
     t = jnp.where(on_box, t_box, t_room)
@@ -306,8 +317,21 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     box_b = jnp.where(side_face, z, local_y)
     height_above_floor = z - room.floor_height
     world_x, world_y = x + room.camera_position[0], y + room.camera_position[1]
-    a = jnp.where(on_box, box_a, jnp.where(on_floor_or_ceiling, world_x, columns["along"]))
-    b = jnp.where(on_box, box_b, jnp.where(on_floor_or_ceiling, world_y, height_above_floor))
+    plan_a, plan_b, wall_a, flat = world_x, world_y, columns["along"], on_floor_or_ceiling
+    if decor is not None:
+        through = in_doorway & ~on_box
+        behind_flat = through & ~behind_upright
+        behind_up = behind_flat & (slope > 0)
+        normal_x = jnp.where(through, jnp.where(behind_flat, 0.0, doorway["normal_x"]), normal_x)
+        normal_y = jnp.where(through, jnp.where(behind_flat, 0.0, doorway["normal_y"]), normal_y)
+        normal_z = jnp.where(through, jnp.where(behind_up, -1.0, jnp.where(behind_flat, 1.0, 0.0)), normal_z)
+        # Floors and ceilings are textured along the room's main axis, as boards and tiles are laid.
+        axis = decor.plan_axis
+        plan_a, plan_b = world_x * axis[0] + world_y * axis[1], world_y * axis[0] - world_x * axis[1]
+        wall_a = jnp.where(through, doorway["texture_a"], wall_a)
+        flat = flat | behind_flat
+    a = jnp.where(on_box, box_a, jnp.where(flat, plan_a, wall_a))
+    b = jnp.where(on_box, box_b, jnp.where(flat, plan_b, height_above_floor))
 
     def per_pixel(material):
         return jax.tree.map(lambda x: jnp.broadcast_to(x, t.shape + x.shape), material)
@@ -315,37 +339,77 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     surface = _select_material(
         is_ceiling, per_pixel(scene.ceiling), _select_material(is_floor, per_pixel(scene.floor), per_pixel(scene.walls))
     )
+    surface_seed = jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3))
+    if decor is not None:
+        behind = _select_material(
+            behind_up,
+            per_pixel(scene.ceiling),
+            _select_material(behind_flat, per_pixel(decor.next_floor), per_pixel(decor.next_walls)),
+        )
+        surface = _select_material(through, behind, surface)
+        surface_seed = jnp.where(through, jnp.where(behind_up, 4, jnp.where(behind_flat, 5, 6)), surface_seed)
     material = _select_material(on_box, box["material"], surface)
-    seed = scene.seed + jnp.where(on_box, 100 + 13 * box["box"], jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3)))
-    albedo = material_albedo(material, seed, a, b)
+    seed = scene.seed + jnp.where(on_box, 100 + 13 * box["box"], surface_seed)
+    albedo = material_albedo(material, seed, a, b, decor=decor is not None)
 
-    # Details on walls: skirting boards, doors and windows.
+    # Details on walls: skirting boards, doors and windows (with decor: decals,
+    # the lining of an open door's wall thickness, light panels in the ceiling).
     on_wall = ~on_box & ~on_floor_or_ceiling
-    opening = columns["opening"]
     in_opening = on_wall & opening["present"] & (z >= opening["bottom"]) & (z <= opening["bottom"] + opening["tall"])
-    opening_albedo, opening_emission = _opening_appearance(opening, columns["along"], z)
+    on_door = in_opening  # the door or window itself, not what is seen through it
+    if decor is not None:
+        in_opening, on_door = in_opening | through, in_opening & ~through
+    opening_albedo, opening_emission = opening_appearance(opening, columns["along"], z)
     skirting = on_wall & ~in_opening & (height_above_floor < scene.skirting_height)
     skirting_lip = skirting & (height_above_floor > scene.skirting_height - 0.012)
     albedo = jnp.where(skirting[:, None], scene.skirting_colour * jnp.where(skirting_lip, 0.7, 1.0)[:, None], albedo)
-    albedo = jnp.where(in_opening[:, None], opening_albedo, albedo)
-    emission = jnp.where(on_box[:, None], box["emission"], jnp.where(in_opening[:, None], opening_emission, 0.0))
+    other_emission = 0.0
+    if decor is not None:
+        decal = columns["decal"]
+        in_decal = (
+            on_wall & ~in_opening & decal["present"] & (z > decal["bottom"]) & (z < decal["bottom"] + decal["tall"])
+        )
+        decal_albedo = decal_appearance(decal, columns["along"], z, scene.seed + 200 + 7 * decal["index"])
+        albedo = jnp.where(in_decal[:, None], decal_albedo, albedo)
+    albedo = jnp.where(on_door[:, None], opening_albedo, albedo)
+    if decor is not None:
+        albedo = jnp.where((through & in_lining)[:, None], opening["frame_colour"], albedo)
+        in_panel, panel_rim, panel_emission = ceiling_panels(decor.panels, x, y)
+        on_ceiling = ~on_box & is_ceiling
+        albedo = jnp.where((on_ceiling & in_panel)[:, None], jnp.where(panel_rim, 0.7, 0.95)[:, None], albedo)
+        other_emission = jnp.where(on_ceiling[:, None], panel_emission, 0.0)
+    emission = jnp.where(
+        on_box[:, None], box["emission"], jnp.where(on_door[:, None], opening_emission, other_emission)
+    )
 
-    # Light: ambient darkened near the room's edges, plus point lights.
+    # Light: ambient darkened near the room's edges, plus point lights (with
+    # decor, and the sun; the room behind an open door gets its own share of
+    # ambient light only).
     to_edge = jnp.where(on_floor_or_ceiling, t_wall - t, jnp.minimum(height_above_floor, room.ceiling_height - z))
     occlusion = 1.0 - 0.35 * jnp.exp(-jnp.maximum(to_edge, 0.0) / 0.3)
+    if decor is not None:
+        occlusion = jnp.where(through, doorway["light"], occlusion)
     # A hemispherical ambient (brighter from one side, as daylight from a window)
     # shades walls of different orientations differently, as in real rooms.
     direction = scene.ambient_direction
     facing = 0.7 + 0.3 * (normal_x * direction[0] + normal_y * direction[1] + normal_z * direction[2])
     irradiance = (facing * jnp.where(on_box, 0.85, occlusion))[:, None] * scene.ambient
-    lights = scene.lights
     casts_shadow = jnp.all(boxes.emission == 0, -1) & boxes.mask
+    if decor is not None:
+        sun = sunlight(decor.sun, x, y, z, normal_x, normal_y, normal_z)
+        irradiance = irradiance + jnp.where(through[:, None], 0.0, sun)
+        # Thin plates (fan blades, carpets) cast no shadow: from a point light, a fan's
+        # blades would throw huge black shadows over the ceiling that real, softer light does not.
+        casts_shadow = casts_shadow & (boxes.half_size[:, 2] > 0.01)
+    lights = scene.lights
     for index in range(lights.position.shape[0]):
         light = lights.position[index]
         dx, dy, dz = light[0] - x, light[1] - y, light[2] - z
         distance2 = dx * dx + dy * dy + dz * dz
         cosine = jnp.maximum(normal_x * dx + normal_y * dy + normal_z * dz, 0.0) * jax.lax.rsqrt(distance2)
         received = cosine / (1.0 + distance2) * lights.mask[index]
+        if decor is not None:
+            received = jnp.where(through, 0.0, received)
         if shadows:
             start = jnp.stack([x + 1e-3 * normal_x, y + 1e-3 * normal_y, z + 1e-3 * normal_z], -1)
             blocked = jax.vmap(box_segment_blocked, in_axes=(0, None, None, None))(start, light, boxes, casts_shadow)

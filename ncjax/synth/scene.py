@@ -8,6 +8,17 @@ another and never over the camera; doors and windows drawn on walls; ceiling
 lamps with point lights; skirting boards; procedural materials for the floor,
 walls, ceiling and furniture, and an ambient light.
 
+Realistic scenes (``SceneConfig(decor=True)``) add decor
+(:mod:`ncjax.synth.decor`): open doors showing a room behind them and their
+leaves swung into the room; posters, pictures and whiteboards on walls;
+ceiling lights of several kinds (flush lamps, pendants, fans or light panels
+flush in the ceiling); suspended-ceiling grids and popcorn ceilings among the
+ceiling materials; sunlight through the windows; counters and desks with
+monitors among the furniture. The decor draws its random numbers from a key
+of its own, so a key's room, furniture and materials are drawn the same way
+with or without it, and the basic scenes (the default) stay exactly as they
+are.
+
 Everything lives in fixed-capacity arrays with masks and is a pure function of
 a ``jax.random`` key (:func:`random_scene`), so scenes are generated under
 ``jax.jit(jax.vmap(...))``: same key, same scene. Placement is rejection
@@ -31,10 +42,28 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from ..geometry.polygon import perpendicular, polygon_edges
-from .furniture import _TEMPLATES, PARTS_PER_PIECE, _Footprints, _pack, rectangle_distance_to_point, rectangle_in_room
+from ..geometry.polygon import perpendicular
+from .decor import LAMP_PARTS, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
+from .elements import Boxes, Decor, Doorways, Lights, Openings
+from .furniture import (
+    _TEMPLATES,
+    BASIC_TYPES,
+    PARTS_PER_PIECE,
+    _between,
+    _categorical,
+    _Footprints,
+    _nothing,
+    _pack,
+    _room_frame,
+    _wall_position,
+    rectangle_distance_to_point,
+    rectangle_in_room,
+)
 from .materials import Material, Pattern, colour_in_hsv_box
-from .rooms import Room, distance_to_walls, point_in_polygon, room_walls
+from .rooms import Room, distance_to_walls, point_in_polygon
+
+# fold_in data of the decor's random key (far above any split count of the basic draws).
+_DECOR_STREAM = 0xDEC0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,89 +71,96 @@ class SceneConfig:
     """Static configuration of :func:`random_scene` (hashable: a jit static argument).
 
     Attributes:
+        decor: realistic scenes: decor over the basic furnished room (see
+            :mod:`ncjax.synth.scene`); the settings from ``decal_slots`` to
+            ``sun_probability`` apply to them only.
         furniture_slots: F, the most pieces of furniture (each up to
             :data:`PARTS_PER_PIECE` boxes).
-        lamp_slots: L, the most ceiling lamps (each a box and a point light).
+        lamp_slots: L, the most ceiling lights (each a box and a point light; with
+            decor, up to :data:`~ncjax.synth.decor.LAMP_PARTS` boxes or a flush panel).
         opening_slots: D, the most doors and windows.
+        decal_slots: E, the most posters, pictures and whiteboards.
+        sun_slots: S, the most windows the sun shines through.
         candidates_per_slot: placement candidates drawn per slot (rejection sampling).
         camera_clearance: horizontal distance kept between the circle of optical
             centres and any furniture except carpets, metres.
         furniture_probability: chance that each furniture slot is wanted at all
             (some rooms are sparse, some crowded).
         door_probability: chance that an opening is a door rather than a window.
+        open_door_probability: chance that a door is open, showing the room behind it.
+        door_leaf_probability: chance that an open door's leaf stands swung into the room.
+        decal_probability: chance that each decal slot is wanted.
+        panel_probability: chance that a room is lit by flush light panels
+            rather than lamps.
+        pendant_probability, fan_probability: chance that a lamp is a pendant, a
+            ceiling fan (otherwise it is flush with the ceiling).
+        suspended_ceiling_probability, stipple_ceiling_probability: chance of a
+            suspended-ceiling grid, a popcorn ceiling (otherwise paint, plaster or tiles).
+        sun_probability: chance that the sun shines in through the windows.
     """
 
+    decor: bool = False
     furniture_slots: int = 8
     lamp_slots: int = 3
     opening_slots: int = 5
+    decal_slots: int = 4
+    sun_slots: int = 2
     candidates_per_slot: int = 3
     camera_clearance: float = 0.3
     furniture_probability: float = 0.75
     door_probability: float = 0.35
+    open_door_probability: float = 0.6
+    door_leaf_probability: float = 0.7
+    decal_probability: float = 0.6
+    panel_probability: float = 0.25
+    pendant_probability: float = 0.25
+    fan_probability: float = 0.15
+    suspended_ceiling_probability: float = 0.2
+    stipple_ceiling_probability: float = 0.15
+    sun_probability: float = 0.4
 
     def __post_init__(self):
-        for name in ("furniture_slots", "lamp_slots", "opening_slots", "candidates_per_slot"):
+        for name in (
+            "furniture_slots",
+            "lamp_slots",
+            "opening_slots",
+            "decal_slots",
+            "sun_slots",
+            "candidates_per_slot",
+        ):
             if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
         if self.camera_clearance < 0:
             raise ValueError(f"camera_clearance must be >= 0, got {self.camera_clearance}")
-        for name in ("furniture_probability", "door_probability"):
+        probabilities = (
+            "furniture_probability",
+            "door_probability",
+            "open_door_probability",
+            "door_leaf_probability",
+            "decal_probability",
+            "panel_probability",
+            "pendant_probability",
+            "fan_probability",
+            "suspended_ceiling_probability",
+            "stipple_ceiling_probability",
+            "sun_probability",
+        )
+        for name in probabilities:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        for first, second in (
+            ("pendant_probability", "fan_probability"),
+            ("suspended_ceiling_probability", "stipple_ceiling_probability"),
+        ):
+            if getattr(self, first) + getattr(self, second) > 1.0:
+                raise ValueError(f"{first} + {second} must be at most 1")
 
     @property
     def box_slots(self) -> int:
-        """B, the box capacity: furniture parts then lamps."""
+        """B, the box capacity: furniture parts, then ceiling lights (then, with decor, door leaves)."""
+        if self.decor:
+            return self.furniture_slots * PARTS_PER_PIECE + self.lamp_slots * LAMP_PARTS + self.opening_slots
         return self.furniture_slots * PARTS_PER_PIECE + self.lamp_slots
-
-
-class Boxes(eqx.Module):
-    """Boxes that rotate about z (all fields traced, leading axis B).
-
-    Attributes:
-        centre: (B, 3) camera frame, metres.
-        half_size: (B, 3) half extents along the box's own axes.
-        rotation: (B, 2) ``(cos, sin)`` of the yaw: the box's x axis in the camera frame.
-        material: a :class:`~ncjax.synth.materials.Material` with leading axis B.
-        emission: (B, 3) emitted radiance (lamps), 0 for furniture.
-        mask: (B,) which slots hold a box.
-    """
-
-    centre: Float[Array, "B 3"]
-    half_size: Float[Array, "B 3"]
-    rotation: Float[Array, "B 2"]
-    material: Material
-    emission: Float[Array, "B 3"]
-    mask: Bool[Array, " B"]
-
-
-class Openings(eqx.Module):
-    """Doors and windows, rectangles on walls (leading axis D).
-
-    Attributes:
-        wall: (D,) index of the wall they are on.
-        span: (D, 2) start and end along the wall from its first corner, metres.
-        z_range: (D, 2) bottom and top, camera frame.
-        is_window: (D,) window (glass, emits daylight) or door.
-        colour: (D, 3) leaf (door) or sky (window) colour; frame_colour (D, 3).
-        mask: (D,) which slots hold an opening.
-    """
-
-    wall: Int[Array, " D"]
-    span: Float[Array, "D 2"]
-    z_range: Float[Array, "D 2"]
-    is_window: Bool[Array, " D"]
-    colour: Float[Array, "D 3"]
-    frame_colour: Float[Array, "D 3"]
-    mask: Bool[Array, " D"]
-
-
-class Lights(eqx.Module):
-    """Point lights (leading axis L): position (L, 3), radiant colour (L, 3), mask (L,)."""
-
-    position: Float[Array, "L 3"]
-    colour: Float[Array, "L 3"]
-    mask: Bool[Array, " L"]
 
 
 class Scene(eqx.Module):
@@ -132,7 +168,7 @@ class Scene(eqx.Module):
 
     Attributes:
         room: the :class:`~ncjax.Room` (camera frame).
-        boxes: furniture parts then lamps, :class:`Boxes`.
+        boxes: furniture parts, then ceiling lights (then, with decor, door leaves), :class:`Boxes`.
         openings: doors and windows, :class:`Openings`.
         lights: :class:`Lights`.
         floor, ceiling, walls: their :class:`~ncjax.synth.materials.Material`.
@@ -141,6 +177,9 @@ class Scene(eqx.Module):
         ambient: (3,) ambient radiance.
         ambient_direction: (3,) unit vector the ambient light comes from most.
         seed: integer that decorrelates the texture noise of different scenes.
+        decor: a realistic scene's :class:`~ncjax.synth.elements.Decor`; None in a
+            basic scene (a static difference: the renderer compiles the decor only
+            for scenes that have it).
     """
 
     room: Room
@@ -155,6 +194,7 @@ class Scene(eqx.Module):
     ambient: Float[Array, 3]
     ambient_direction: Float[Array, 3]
     seed: Int[Array, ""]
+    decor: Decor | None = None
 
 
 # ---------------------------------------------------------------- generation
@@ -163,45 +203,12 @@ class Scene(eqx.Module):
 # them made the scene generator take a minute to compile.
 
 
-def _between(uniform: Array, low, high) -> Array:
-    return low + uniform * (jnp.asarray(high) - low)
-
-
-def _categorical(uniform: Float[Array, ""], weights: Float[Array, " n"]) -> Int[Array, ""]:
-    """Index drawn with probability proportional to ``weights`` (inverse CDF)."""
-    cumulative = jnp.cumsum(weights)
-    return jnp.minimum(jnp.sum(uniform * cumulative[-1] >= cumulative), weights.shape[0] - 1)
-
-
-def _room_frame(room: Room):
-    """Wall starts, unit directions, inward normals and lengths (K each), and the
-    room's bounding box."""
-    direction, _, _, _ = room_walls(room)
-    edges = polygon_edges(room.corners, room.mask)
-    length = jnp.where(room.mask, jnp.linalg.norm(edges[:, 1] - edges[:, 0], axis=-1), 0.0)
-    # Counter-clockwise polygon: the interior is to the left of each wall.
-    normal = perpendicular(direction)
-    valid = jnp.where(room.mask[:, None], room.corners, room.corners[:1])
-    return edges[:, 0], direction, normal, length, jnp.min(valid, 0), jnp.max(valid, 0)
-
-
-def _wall_position(uniform: Float[Array, 2], room: Room, width: Float[Array, ""], margin: float):
-    """A wall (chosen with probability proportional to its length) and a start
-    position along it that fits ``width`` with ``margin`` at both ends.
-
-    Returns ``(wall, along, fits, wall_start, wall_direction, inward_normal)``.
-    """
-    start, direction, normal, length, _, _ = _room_frame(room)
-    wall = _categorical(uniform[0], length)
-    room_left = length[wall] - width - 2 * margin
-    along = margin + uniform[1] * jnp.maximum(room_left, 0.0)
-    return wall, along, room_left >= 0, start[wall], direction[wall], normal[wall]
-
-
 def _furniture_candidate(key, room: Room, config: SceneConfig):
     """One random piece: (type, size (3,), centre (2,), rotation (2,), valid)."""
     u = jax.random.uniform(key, (11,))
-    kind = _categorical(u[0], jnp.asarray(_TEMPLATES["weight"]))
+    # The types of the realistic scenes come last in the pool: the basic pool is its head.
+    weight = _TEMPLATES["weight"] if config.decor else _TEMPLATES["weight"][:BASIC_TYPES]
+    kind = _categorical(u[0], jnp.asarray(weight))
     size = _between(u[1:4], jnp.asarray(_TEMPLATES["size_low"])[kind], jnp.asarray(_TEMPLATES["size_high"])[kind])
     size = size.at[2].min(room.ceiling_height - room.floor_height - 0.25)
     # Against a wall: the back 1 cm off the wall, the piece's x axis along it.
@@ -266,13 +273,10 @@ def _piece_boxes(kind, size, centre, rotation, floor_height, primary: Material, 
     )
 
 
-def _nothing() -> _Footprints:
-    return _Footprints(jnp.zeros((1, 2)), jnp.ones((1, 2)), jnp.array([[1.0, 0.0]]), jnp.zeros(1, bool))
-
-
 def _opening_candidate(key, room: Room, config: SceneConfig):
-    """One door or window: its fields, its footprint on the wall and (doors) the
-    keep-out area in front of it."""
+    """One door or window: its fields, (with decor) its doorway's, its footprint on
+    the wall and (doors) the keep-out area in front of it (with decor, as deep as
+    an open door's leaf is wide)."""
     u = jax.random.uniform(key, (10,))
     is_window = u[0] >= config.door_probability
     door = jnp.stack([_between(u[1], 0.75, 1.0), 0.0, _between(u[2], 1.95, 2.15)])
@@ -295,23 +299,42 @@ def _opening_candidate(key, room: Room, config: SceneConfig):
         frame_colour=jnp.where(u[9] < 0.5, jnp.full(3, 0.9), 0.7 * colour),
     )
     footprint = _Footprints(centre, jnp.stack([width / 2 + 0.1, 0.05]), direction, fits & (height > 0.5))
-    keep_out = _Footprints(centre + 0.45 * normal, jnp.stack([width / 2, 0.45]), direction, ~is_window)
-    return fields, footprint, keep_out
+    if not config.decor:
+        keep_out = _Footprints(centre + 0.45 * normal, jnp.stack([width / 2, 0.45]), direction, ~is_window)
+        return fields, None, footprint, keep_out
+    w = jax.random.uniform(jax.random.fold_in(key, _DECOR_STREAM), (7,))
+    is_open = ~is_window & (w[0] < config.open_door_probability)
+    doorway = dict(
+        is_open=is_open,
+        wall_thickness=_between(w[1], 0.1, 0.25),
+        room_depth=_between(w[2], 1.2, 4.0),
+        room_sides=_between(w[3:5], 0.3, 2.5),
+        room_ceiling=jnp.maximum(room.ceiling_height + _between(w[5], -0.3, 0.3), fields["z_range"][1] + 0.1),
+        room_light=_between(w[6], 0.35, 1.8),
+    )
+    depth = jnp.where(is_open, jnp.maximum(0.45, width / 2 + 0.05), 0.45)
+    keep_out = _Footprints(centre + depth * normal, jnp.stack([width / 2 + 0.05, depth]), direction, ~is_window)
+    return fields, doorway, footprint, keep_out
 
 
 def _openings(key, room: Room, config: SceneConfig):
-    """Doors and windows on the walls, apart; and the keep-out footprints in front of the doors."""
+    """Doors and windows on the walls, apart; (with decor) their doorways, else
+    None; their footprints on the walls; and the keep-out footprints in front of
+    the doors."""
     key_candidates, key_count = jax.random.split(key)
     n = config.opening_slots * config.candidates_per_slot
-    fields, footprints, keep_out = jax.vmap(lambda k: _opening_candidate(k, room, config))(
+    fields, doorways, footprints, keep_out = jax.vmap(lambda k: _opening_candidate(k, room, config))(
         jax.random.split(key_candidates, n)
     )
     chosen, filled = _pack(footprints, config.opening_slots, _nothing(), 0.3)
     wanted = 1 + jnp.floor(jax.random.uniform(key_count) * config.opening_slots)
     filled = filled & (jnp.arange(config.opening_slots) < wanted)
     openings = Openings(**{name: value[chosen] for name, value in fields.items()}, mask=filled)
-    keep_out = jax.tree.map(lambda x: x[chosen], keep_out)
-    return openings, eqx.tree_at(lambda f: f.mask, keep_out, keep_out.mask & filled)
+    if doorways is not None:
+        doorways = Doorways(**{name: value[chosen] for name, value in doorways.items()})
+    footprints, keep_out = jax.tree.map(lambda x: x[chosen], (footprints, keep_out))
+    footprints = eqx.tree_at(lambda f: f.mask, footprints, filled)
+    return openings, doorways, footprints, eqx.tree_at(lambda f: f.mask, keep_out, keep_out.mask & filled)
 
 
 def _lamps(key, room: Room, config: SceneConfig):
@@ -353,7 +376,19 @@ def _lamps(key, room: Room, config: SceneConfig):
 
 # Range of the pattern period (metres) per Pattern, indexed by its value.
 _SCALE_RANGE = np.array(
-    [[1.0, 1.0], [0.6, 2.0], [0.12, 0.22], [0.3, 0.7], [0.6, 1.0], [0.1, 0.4], [0.15, 0.35], [0.3, 0.3], [0.3, 0.3]],
+    [
+        [1.0, 1.0],
+        [0.6, 2.0],
+        [0.12, 0.22],
+        [0.3, 0.7],
+        [0.6, 1.0],
+        [0.1, 0.4],
+        [0.15, 0.35],
+        [0.3, 0.3],
+        [0.3, 0.3],
+        [0.59, 0.62],  # suspended-ceiling tiles: 60 cm (2 ft)
+        [0.12, 0.25],
+    ],
     np.float32,
 )
 
@@ -368,7 +403,7 @@ def _surface_material(uniform: Float[Array, 9], pool: list[tuple[float, Pattern]
     return Material(pattern, a, jnp.clip(colour_b(pattern, a, uniform[5:9]), 0.0, 1.0), _between(uniform[1], low, high))
 
 
-def _surface_materials(key):
+def _surface_materials(key, config: SceneConfig):
     """Floor, ceiling and wall materials drawn from pools (paper Section 5.1)."""
     u = jax.random.uniform(key, (3, 9))
     floor = _surface_material(
@@ -389,17 +424,78 @@ def _surface_materials(key):
             w[0] < 0.5, a * _between(w[1], 0.6, 0.9), colour_in_hsv_box(w[1:4], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95))
         ),
     )
+    if config.decor:
+        plain = 1.0 - config.suspended_ceiling_probability - config.stipple_ceiling_probability
+        ceiling_pool = [
+            (0.5 * plain, Pattern.PAINT),
+            (0.3 * plain, Pattern.PLASTER),
+            (0.2 * plain, Pattern.TILES),
+            (config.suspended_ceiling_probability, Pattern.GRID),
+            (config.stipple_ceiling_probability, Pattern.STIPPLE),
+        ]
+    else:
+        ceiling_pool = [(0.5, Pattern.PAINT), (0.3, Pattern.PLASTER), (0.2, Pattern.TILES)]
     ceiling = _surface_material(
         u[2],
-        [(0.5, Pattern.PAINT), (0.3, Pattern.PLASTER), (0.2, Pattern.TILES)],
+        ceiling_pool,
         lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.1), (0.8, 0.98)),
-        lambda pattern, a, w: 0.85 * a,
+        # A suspended ceiling's grid is a grey or white metal T-bar.
+        lambda pattern, a, w: (
+            jnp.where(pattern == Pattern.GRID, a * _between(w[0], 0.55, 1.0), 0.85 * a) if config.decor else 0.85 * a
+        ),
     )
     return floor, ceiling, walls
 
 
+def _decorate(
+    key,
+    lamps_key,
+    room: Room,
+    config: SceneConfig,
+    pieces: Boxes,
+    openings: Openings,
+    doorways: Doorways,
+    opening_footprints: _Footprints,
+    floor: Material,
+    ceiling: Material,
+) -> tuple[Boxes, Lights, Decor]:
+    """The decor of a realistic scene around its furniture ``pieces``, doors and
+    windows: all its boxes (furniture, ceiling lights, door leaves), its point
+    lights and its :class:`~ncjax.synth.elements.Decor`. The ceiling lights are
+    drawn from ``lamps_key`` (the basic lamps' key), the rest from ``key``."""
+    keys = jax.random.split(key, 5)
+    leaves = door_leaves(keys[0], room, openings, doorways, config)
+    axis = plan_axis(room)
+    # Hanging lights keep clear of the furniture and door leaves under them.
+    standing = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, leaves)
+    lamps, lights, panels = ceiling_lights(
+        lamps_key,
+        room,
+        config,
+        axis,
+        ceiling,
+        _Footprints(standing.centre[:, :2], standing.half_size[:, :2], standing.rotation, standing.mask),
+        standing.centre[:, 2] + standing.half_size[:, 2],
+    )
+    next_floor, _, next_walls = _surface_materials(keys[1], config)
+    # Half the rooms behind open doors continue this room's floor (open plans, corridors).
+    same_floor = jax.random.uniform(keys[2]) < 0.5
+    next_floor = jax.tree.map(lambda a, b: jnp.where(same_floor, a, b), floor, next_floor)
+    decor = Decor(
+        doorways=doorways,
+        decals=random_decals(keys[3], room, config, opening_footprints),
+        panels=panels,
+        sun=sun_patches(keys[4], room, openings, config),
+        next_floor=next_floor,
+        next_walls=next_walls,
+        plan_axis=axis,
+    )
+    return jax.tree.map(lambda a, b, c: jnp.concatenate([a, b, c]), pieces, lamps, leaves), lights, decor
+
+
 def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfig()) -> Scene:
-    """Furnish and light ``room`` at random (paper Section 5.1), a pure function of ``key``.
+    """Furnish and light ``room`` at random (paper Section 5.1), with decor when
+    ``config.decor``; a pure function of ``key``.
 
     Args:
         key: a ``jax.random`` key.
@@ -410,7 +506,7 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
         A :class:`Scene`. Jit with ``config`` static, vmap over keys and rooms.
     """
     keys = jax.random.split(key, 6)
-    openings, keep_out = _openings(keys[0], room, config)
+    openings, doorways, opening_footprints, keep_out = _openings(keys[0], room, config)
     n = config.furniture_slots * config.candidates_per_slot
     kind, size, centre, rotation, valid = jax.vmap(lambda k: _furniture_candidate(k, room, config))(
         jax.random.split(keys[1], n)
@@ -425,12 +521,27 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
     )
     pieces = eqx.tree_at(lambda b: b.mask, pieces, pieces.mask & filled[:, None])
     pieces = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), pieces)
-    lamps, lights = _lamps(keys[4], room, config)
-    floor, ceiling, walls = _surface_materials(keys[5])
+    floor, ceiling, walls = _surface_materials(keys[5], config)
+    if config.decor:
+        boxes, lights, decor = _decorate(
+            jax.random.fold_in(key, _DECOR_STREAM),
+            keys[4],
+            room,
+            config,
+            pieces,
+            openings,
+            doorways,
+            opening_footprints,
+            floor,
+            ceiling,
+        )
+    else:
+        lamps, lights = _lamps(keys[4], room, config)
+        boxes, decor = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, lamps), None
     extra = u[config.furniture_slots :]
     return Scene(
         room=room,
-        boxes=jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, lamps),
+        boxes=boxes,
         openings=openings,
         lights=lights,
         floor=floor,
@@ -441,4 +552,5 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
         ambient=colour_in_hsv_box(extra[3:6], (0.05, 0.6), (0.0, 0.15), (0.2, 0.5)),
         ambient_direction=jnp.array([jnp.cos(2 * math.pi * extra[7]), jnp.sin(2 * math.pi * extra[7]), 0.3]) / 1.044,
         seed=jnp.floor(extra[6] * 2**24).astype(jnp.int32),
+        decor=decor,
     )

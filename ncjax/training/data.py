@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 from collections.abc import Callable, Iterator
@@ -29,6 +30,7 @@ from ..synth.dataset import (
 )
 from ..synth.render import SynthConfig
 from ..synth.rooms import CORNER_LABEL_BASE, RoomConfig, reencode_corner_prob
+from ..synth.scene import SceneConfig
 
 # ----------------------------------------------------------------------------- stand-in data
 
@@ -133,6 +135,13 @@ def network_arrays(
 SYNTH_COMMAND_CONFIG = SynthConfig(room=RoomConfig(world="mix"))
 """What ``ncjax synth`` renders by default: world ``mix``, rc 0.3-1.0 m, 512 x 1024."""
 
+SYNTH_SOURCES = {
+    "synth": SYNTH_COMMAND_CONFIG,
+    "synth-decor": dataclasses.replace(SYNTH_COMMAND_CONFIG, scene=SceneConfig(decor=True)),
+}
+"""The configuration of each kind of rendered data source, ``KIND:SEED:N``
+(``synth-decor``: what ``ncjax synth --decor`` renders)."""
+
 
 def rendered_splits(
     seed: int,
@@ -203,25 +212,28 @@ def load_split(
 
 
 def parse_synth_source(source: str) -> tuple[int, int] | None:
-    """``(seed, n)`` of a ``synth:SEED:N`` data source, None for a folder path.
+    """``(seed, n)`` of a ``synth:SEED:N`` or ``synth-decor:SEED:N`` data source
+    (its configuration: ``SYNTH_SOURCES[source.split(":")[0]]``), None for a folder path.
 
     Raises:
-        ValueError: ``synth:`` followed by anything but two integers, N >= 1.
+        ValueError: ``synth:`` or ``synth-decor:`` followed by anything but two integers, N >= 1.
     """
-    if not source.startswith("synth:"):
+    kind = source.split(":")[0]
+    if kind not in SYNTH_SOURCES or ":" not in source:
         return None
     parts = source.split(":")
     if len(parts) != 3 or not all(p.lstrip("-").isdigit() for p in parts[1:]) or int(parts[2]) < 1:
-        raise ValueError(f"data source {source!r}: expected synth:SEED:N with integers SEED and N >= 1")
+        raise ValueError(f"data source {source!r}: expected {kind}:SEED:N with integers SEED and N >= 1")
     return int(parts[1]), int(parts[2])
 
 
 def training_data(
     sources: list[str], height: int, width: int, validation_limit: int | None
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """Train and validation arrays pooled, in the given order, from dataset folders and ``synth:SEED:N`` renders.
+    """Train and validation arrays pooled, in the given order, from dataset folders and
+    ``synth:SEED:N`` or ``synth-decor:SEED:N`` renders.
 
-    A ``synth:SEED:N`` source is rendered in memory (:func:`rendered_splits`);
+    Such a source is rendered in memory (:func:`rendered_splits`);
     validation takes the first ``validation_limit`` images of the pooled valid
     splits (None: all).
     """
@@ -234,7 +246,7 @@ def training_data(
                     load_split(source, split, height, width, limit=validation_limit if split == "valid" else None)
                 )
         else:
-            rendered = rendered_splits(*synth, height, width)
+            rendered = rendered_splits(*synth, height, width, config=SYNTH_SOURCES[source.split(":")[0]])
             for split in pooled:
                 if split not in rendered:
                     raise ValueError(f"data source {source!r} has no {split} samples; render more (N)")
