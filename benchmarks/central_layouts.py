@@ -11,7 +11,9 @@ camera height prior of 1.6 m, gravity alignment, the shipped model, 4 views), re
 back-projected at camera height 1 (HorizonNet's and LGT-Net's convention: the metrics are up to scale).
 It prints per image and on average the 2D and 3D IoU, the corner error (% of the image diagonal), the
 pixel error, depth RMSE (camera heights) and delta-1, and the number of images with a layout. The mean
-3D IoU is given twice: over the images with a layout, and over all images with 0 for those without.
+3D IoU is given twice: over the images with a layout, and over all images with 0 for those without,
+then per status of the written layouts (``OK``, or flagged ``LOW_CONFIDENCE``: does the flag pick the
+worse layouts?). Each image's status and explained fraction come from its JSON record.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import math
 import os
 import pathlib
@@ -70,19 +73,22 @@ def main(argv: list[str] | None = None) -> int:
     with contextlib.redirect_stderr(messages):
         ncjax_main(command)
     seconds = time.perf_counter() - start
-    print(f"| image | {' | '.join(COLUMNS)} |")
-    print("|---" * (len(COLUMNS) + 1) + "|")
+    print(f"| image | status | explained | {' | '.join(COLUMNS)} |")
+    print("|---" * (len(COLUMNS) + 3) + "|")
     rows = []
     for image, label in pairs:
+        record = json.loads((args.out / f"{image.stem}.json").read_text())
+        explained = record.get("explained_fraction")
+        flags = f"| {record['status']} | {'-' if explained is None else f'{explained:.2f}'} |"
         written = format_path(args.out / image.stem, "label_cor")
         if not written.exists():
-            print(f"| {image.stem} | no layout |")
+            print(f"| {image.stem} {flags} no layout |")
             rows.append(None)
             continue
         truth = read_layout(label)
         scores = evaluate_corners(read_layout(written, truth.width, truth.height), truth)
-        rows.append(scores)
-        print(f"| {image.stem} | " + " | ".join(f"{scores[c]:.3f}" for c in COLUMNS) + " |")
+        rows.append(scores | {"status": record["status"]})
+        print(f"| {image.stem} {flags} " + " | ".join(f"{scores[c]:.3f}" for c in COLUMNS) + " |")
     found = [row for row in rows if row is not None]
     means = {c: float(np.nanmean([row[c] for row in found])) if found else math.nan for c in COLUMNS}
     print(f"| mean of {len(found)} layouts | " + " | ".join(f"{means[c]:.3f}" for c in COLUMNS) + " |")
@@ -91,6 +97,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{len(found)} of {len(rows)} images gave a layout; mean 3D IoU {means['iou3d']:.3f} over them, "
         f"{all_iou:.3f} over all {len(rows)} (no layout as 0); {seconds:.0f} s for ncjax reconstruct"
     )
+    for status in sorted({row["status"] for row in found}):
+        ious = [row["iou3d"] for row in found if row["status"] == status]
+        print(f"  {status}: {len(ious)} layouts, mean 3D IoU {np.mean(ious):.3f}")
     return 0
 
 

@@ -146,11 +146,13 @@ def test_failed_layout_record_is_strict_json(tmp_path):
     assert json.loads((tmp_path / "bad.json").read_text()) == record
 
 
-def test_uncertain_scale_layout_keeps_its_geometry_marked_not_ok(tmp_path):
-    """UNCERTAIN_SCALE fails only the scale test: record, mesh, overlay and plan keep the layout, marked."""
-    uncertain = make_layout(RECTANGLE, status=int(ncjax.LayoutStatus.UNCERTAIN_SCALE))
+@pytest.mark.parametrize("status", [ncjax.LayoutStatus.UNCERTAIN_SCALE, ncjax.LayoutStatus.LOW_CONFIDENCE])
+def test_flagged_layout_keeps_its_geometry_marked_not_ok(tmp_path, status):
+    """A flagged layout (scale or network unsure): record, mesh, overlay and plan keep it, marked."""
+    uncertain = make_layout(RECTANGLE, status=int(status))
+    assert ncjax.io.export.failure_label(uncertain) == ncjax.pipeline.types.FLAGGED_STATUSES[status].upper()
     record = ncjax.io.export.layout_record(uncertain, CAM, name="room", world="auto")
-    assert record["ok"] is False and record["status"] == "UNCERTAIN_SCALE"
+    assert record["ok"] is False and record["status"] == status.name
     assert record["floor_corners"] == [[x, y, -1.5] for x, y in RECTANGLE] and record["room_height"] == 2.5
     assert ncjax.io.export.has_geometry(uncertain) and not ncjax.io.export.has_geometry(failed_layout())
     obj, _, _ = ncjax.io.mesh.write_mesh(tmp_path / "room", uncertain)

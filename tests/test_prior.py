@@ -91,7 +91,8 @@ def test_scale_layout_scales_lengths_and_covariances():
     np.testing.assert_allclose(again.floor_corners, layout.floor_corners, rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("world", ["manhattan", pytest.param("atlanta", marks=pytest.mark.slow)])
+@pytest.mark.slow  # the central mode's end to end run in the default tier is test_app.py's
+@pytest.mark.parametrize("world", ["manhattan", "atlanta"])
 def test_central_rooms_from_exact_rows_and_the_true_camera_height(world):
     """rc = 0 and rc = 2-5 cm, one compiled program: the layout is the room, its floor at the prior's height.
 

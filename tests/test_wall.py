@@ -213,6 +213,40 @@ def test_failure_is_a_value():
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(wall) if x.dtype != bool)
 
 
+@pytest.mark.parametrize("case", ["one ray repeated", "one column", "two columns", "NaN rays"])
+def test_degenerate_rays_fix_no_wall(case):
+    """Inputs that do not determine a wall give ok=False and finite fields, never a confident wall."""
+    room = sample_room(4, "manhattan")
+    ceiling_rays, floor_rays = rays(room)
+    mask = room["wall_index"] == 0
+    first, second = np.flatnonzero(mask)[:2]
+    if case == "one ray repeated":  # every used row the wall's first ray
+        ceiling_rays, floor_rays = (jnp.broadcast_to(r[first], r.shape) for r in (ceiling_rays, floor_rays))
+    elif case == "one column":  # one column's rays, many times: the same rows as above, by another road
+        mask = jnp.zeros_like(mask).at[first].set(True)
+        ceiling_rays, floor_rays = (jnp.where(mask[:, None], r, r[first]) for r in (ceiling_rays, floor_rays))
+        mask = jnp.ones_like(mask)
+    elif case == "two columns":
+        keep = (jnp.arange(mask.shape[0]) % 2 == 0) & mask
+        ceiling_rays, floor_rays = (jnp.where(keep[:, None], r[first], r[second]) for r in (ceiling_rays, floor_rays))
+    else:
+        ceiling_rays = jnp.where(mask[:, None], jnp.nan, ceiling_rays)
+    wall = _solve_jit(ceiling_rays, floor_rays, mask, mask)
+    assert not bool(wall.ok), case
+    assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(wall) if x.dtype != bool)
+
+
+def test_distinct_azimuths_counts_columns_not_rows():
+    room = sample_room(4, "manhattan")
+    ceiling_rays, floor_rays = rays(room)
+    mask = room["wall_index"] == 0
+    columns = int(np.sum(mask))
+    assert int(ncjax.solvers.wall.distinct_azimuths(ceiling_rays, mask)) == columns
+    doubled = jnp.concatenate([ceiling_rays, ceiling_rays])
+    assert int(ncjax.solvers.wall.distinct_azimuths(doubled, jnp.concatenate([mask, mask]))) == columns
+    assert int(ncjax.solvers.wall.distinct_azimuths(ceiling_rays, jnp.zeros_like(mask))) == 0
+
+
 @given(seed=st.integers(0, 2**31 - 1))
 def test_order_and_masked_rows(seed):
     """Permuting rays changes nothing; masked-out rows (even NaN) have no effect."""

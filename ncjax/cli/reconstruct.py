@@ -38,6 +38,7 @@ from ..network.edges import EdgeSnap
 from ..network.model import check_views
 from ..network.predict import DEFAULT_VIEWS
 from ..pipeline.config import DEFAULT_WORLD, WORLDS
+from .compilation import CompileLedger, enable_compilation_cache, settings_key
 from .inputs import (
     PANORAMA_SUFFIXES,
     check_output_folder,
@@ -61,20 +62,6 @@ WORLD_HELP = (
 DEMO_DIR = pathlib.Path(__file__).parent.parent / "data" / "demo"
 
 
-def enable_compilation_cache() -> None:
-    """Keep XLA's compiled programs in ``$NCJAX_CACHE`` (default ``~/.cache/ncjax/xla``) across runs.
-
-    Compilation is most of a first run's time (tens of seconds for network +
-    pipeline); the persistent cache makes later runs with the same image size,
-    batch and world start at once.
-    """
-    import jax
-
-    directory = os.environ.get("NCJAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "ncjax", "xla"))
-    jax.config.update("jax_compilation_cache_dir", directory)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-
-
 @dataclasses.dataclass(frozen=True)
 class ReconstructSettings:
     """What ``ncjax reconstruct`` does with every image (from its options)."""
@@ -90,13 +77,22 @@ class ReconstructSettings:
     prior: object
 
 
-def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error):
+def program_key(shape: tuple[int, ...], settings: ReconstructSettings, central: bool) -> str:
+    """:func:`~.compilation.settings_key` of the program that reconstructs a batch of ``shape`` with ``settings``."""
+    from ..pipeline.config import static_part
+
+    parts = (settings.model.config, settings.world, settings.views, settings.edge_snap, static_part(settings.config))
+    return settings_key(shape, *parts, central)
+
+
+def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, ledger: CompileLedger, say):
     """Reconstruct same-size images in fixed-size batches.
 
     Calls ``on_done(path, record)`` after each image, or ``on_error(path, message)``
     for each image of a batch whose reconstruction raised (XLA out of memory,
     say) and for an image whose files could not be written (a full disk, say):
-    the other images and batches go on.
+    the other images and batches go on. Before a batch whose program this machine has not
+    compiled yet (``ledger``), ``say`` prints that it compiles and for about how long.
     """
     import jax
 
@@ -108,6 +104,12 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error):
         padding = [chunk[-1]] * (batch_size - len(chunk))
         images = np.stack([image for _, _, image, _, _ in chunk + padding])
         radii = np.array([rc for _, _, _, rc, _ in chunk + padding], np.float32)
+        central = settings.prior is not None and not np.any(radii > 0)
+        key = program_key(images.shape, settings, central)
+        notice = ledger.notice(key, f"the network and the geometry for {images.shape[2]} x {images.shape[1]}")
+        if notice:
+            say(notice)
+        started = time.perf_counter()
         try:
             result = jax.device_get(
                 reconstruct_batch(
@@ -127,6 +129,7 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error):
             for path, *_ in chunk:
                 on_error(path, f"{path}: the reconstruction failed ({type(error).__name__}: {first_line}){hint}")
             continue
+        ledger.record(key, time.perf_counter() - started)
         for index, (path, name, image, rc, gravity) in enumerate(chunk):
             one = jax.tree.map(lambda x: x[index], tuple(result))
             try:
@@ -217,7 +220,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     settings = ReconstructSettings(
         model, args.batch, args.world, config, args.views, args.edge_snap, args.out, args.export, prior
     )
-    enable_compilation_cache()
+    ledger = CompileLedger(enable_compilation_cache())
 
     summary: dict[str, dict] = {}  # path -> its summary.csv row
     failures: list[str] = []
@@ -268,12 +271,12 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                 group = groups[image.shape[:2]]
                 group.append((path, name, image, radius, gravity))
                 if len(group) == args.batch:
-                    _reconstruct_group(settings, group, done, failed)
+                    _reconstruct_group(settings, group, done, failed, ledger, bar.write)
                     group.clear()
                 stop.check()
             for group in groups.values():
                 if group:
-                    _reconstruct_group(settings, group, done, failed)
+                    _reconstruct_group(settings, group, done, failed, ledger, bar.write)
                     stop.check()
     except KeyboardInterrupt:
         bar.close()
@@ -302,12 +305,13 @@ def run_demo(args: argparse.Namespace) -> int:
     import jax
 
     from .. import metrics
+    from ..network.predict import default_model
     from ..reconstruction import reconstruct_batch
 
     start = time.perf_counter()
     config = pipeline_config(args)
     check_output_folder(args.out)
-    enable_compilation_cache()
+    ledger = CompileLedger(enable_compilation_cache())
     with open(DEMO_DIR / "ground_truth.json") as file:
         truth = json.load(file)
     path = DEMO_DIR / truth["image"]
@@ -317,6 +321,14 @@ def run_demo(args: argparse.Namespace) -> int:
         f"ncjax demo: {truth['image']} ({image.shape[1]} x {image.shape[0]}, rc = {rc} m from its name, "
         f"a {truth['world']} room rendered by ncjax synth and never seen in training)"
     )
+    settings = ReconstructSettings(
+        default_model(), 1, args.world, config, args.views, args.edge_snap, args.out, (), None
+    )
+    key = program_key((1, *image.shape), settings, central=False)
+    notice = ledger.notice(key, f"the network and the geometry for {image.shape[1]} x {image.shape[0]}")
+    if notice:
+        print(notice, flush=True)
+    called = time.perf_counter()
     result = jax.device_get(
         reconstruct_batch(
             image[None],
@@ -327,6 +339,7 @@ def run_demo(args: argparse.Namespace) -> int:
             edge_snap=args.edge_snap,
         )
     )
+    ledger.record(key, time.perf_counter() - called)
     one = jax.tree.map(lambda x: x[0], tuple(result))
     record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world, export=args.export)
     elapsed = time.perf_counter() - start

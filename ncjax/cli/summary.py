@@ -8,7 +8,7 @@ import json
 import math
 import pathlib
 
-from ..pipeline.types import LayoutStatus
+from ..pipeline.types import FLAGGED_STATUSES, LayoutStatus
 
 
 def failure_message(record: dict) -> str:
@@ -19,7 +19,7 @@ def failure_message(record: dict) -> str:
         return f"no layout found ({message})"
     sigma = record["room_height_sigma"]
     height = f"room height {record['room_height']:.2f} ± {sigma or math.inf:.2f} m"
-    return f"layout of uncertain scale written ({message}; {height})"
+    return f"layout of {FLAGGED_STATUSES[LayoutStatus[status]]} written ({message}; {height})"
 
 
 SUMMARY_FILE = "summary.csv"
@@ -66,8 +66,9 @@ def summary_row(path: str, record: dict | None, message: str = "") -> dict:
         message: why the image has no ok layout ("" when it has one).
 
     Returns:
-        The row, keyed by ``SUMMARY_COLUMNS``. ``result`` is "ok", "uncertain scale" (geometry
-        written, scale unsure), "no layout" (the pipeline found none) or "error" (no record);
+        The row, keyed by ``SUMMARY_COLUMNS``. ``result`` is "ok", "uncertain scale" or "low confidence"
+        (geometry written, flagged: :data:`~ncjax.pipeline.types.FLAGGED_STATUSES`), "no layout" (the
+        pipeline found none) or "error" (no record);
         :func:`skipped_row` makes the rows of "skipped" images.
         Figures have 4 decimals; a layout's room-height sigma that the fit leaves open (JSON null)
         is "inf", as the CLI prints it; empty cells are figures the image does not have.
@@ -83,7 +84,11 @@ def summary_row(path: str, record: dict | None, message: str = "") -> dict:
         row
         | figures
         | {
-            "result": "ok" if record["ok"] else "uncertain scale" if written else "no layout",
+            "result": "ok"
+            if record["ok"]
+            else FLAGGED_STATUSES[LayoutStatus[record["status"]]]
+            if written
+            else "no layout",
             "status": record["status"],
             "corners": len(record["floor_corners"]) if written else "",
             "branch": record["branch"] if written else "",

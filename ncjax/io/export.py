@@ -12,8 +12,8 @@ a complete one and nothing is left half-written.
 
 JSON schema, version 1 (lengths in metres, camera frame of docs/design.md section 1,
 floats rounded to 6 decimals, covariances to 6 significant digits; quantities of a
-failed layout are ``null`` and its lists empty, except for an ``UNCERTAIN_SCALE`` layout,
-which keeps them with ``ok`` false: see :func:`has_geometry`)::
+failed layout are ``null`` and its lists empty, except for an ``UNCERTAIN_SCALE`` or
+``LOW_CONFIDENCE`` layout, which keeps them with ``ok`` false: see :func:`has_geometry`)::
 
     name, schema_version, ok, status (LayoutStatus name), status_code, world
     (requested: manhattan/atlanta/auto), branch (manhattan/atlanta),
@@ -54,7 +54,7 @@ from jaxtyping import Float, UInt8
 
 from ..geometry.camera import NonCentralPanorama
 from ..pipeline.config import WORLDS
-from ..pipeline.types import Layout, LayoutStatus
+from ..pipeline.types import FLAGGED_STATUSES, Layout, LayoutStatus
 from ..pipeline.uncertainty import room_height_sigma
 from .files import write_atomic
 from .images import check_rgb
@@ -77,21 +77,24 @@ def status_name(layout: Layout) -> str:
 
 
 def failure_label(layout: Layout) -> str:
-    return "UNCERTAIN SCALE" if has_geometry(layout) else f"no layout: {status_name(layout)}"
+    if has_geometry(layout):
+        return FLAGGED_STATUSES[LayoutStatus(int(np.asarray(layout.status)))].upper()
+    return f"no layout: {status_name(layout)}"
 
 
 def has_geometry(layout: Layout) -> bool:
-    """Whether the layout's walls and corners are complete: it is ok, or failed only the scale test.
+    """Whether the layout's walls and corners are complete: it is ok, or only flagged.
 
-    An ``UNCERTAIN_SCALE`` layout keeps its geometry in every output (record,
-    mesh, overlay, plan), marked as such: its shape may serve up to scale.
+    A layout with one of the :data:`~ncjax.pipeline.types.FLAGGED_STATUSES`
+    (``UNCERTAIN_SCALE``, ``LOW_CONFIDENCE``) keeps its geometry in every output
+    (record, mesh, overlay, plan), marked as such: it may serve with care.
     """
     return status_has_geometry(np.asarray(layout.ok), np.asarray(layout.status))
 
 
 def status_has_geometry(ok: bool, status: int) -> bool:
     """:func:`has_geometry` from a layout's ``ok`` and ``status`` alone (e.g. stored results)."""
-    return bool(ok) or int(status) == LayoutStatus.UNCERTAIN_SCALE
+    return bool(ok) or int(status) in FLAGGED_STATUSES
 
 
 def valid_corners(layout: Layout) -> tuple[np.ndarray, np.ndarray]:
@@ -154,7 +157,7 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
 
     A failed layout (``ok`` False) still gets a record: ``ok`` false, its
     status, empty corner and wall lists and ``null`` heights, area and perimeter
-    (an ``UNCERTAIN_SCALE`` layout keeps them all, see :func:`has_geometry`).
+    (a flagged layout keeps them all, see :func:`has_geometry`).
 
     Args:
         layout: one unbatched layout.

@@ -48,6 +48,7 @@ def assemble_layout(
             ~solver_ok,
             ~(jnp.all(meet) & finite & (ceiling_height > 0) & (floor_height < 0) & plausible),
             scale_unknown,
+            explained_fraction < config.min_explained_fraction,
         ]
     )
     status = jnp.where(jnp.any(failed), jnp.argmax(failed) + 1, LayoutStatus.OK).astype(jnp.int32)

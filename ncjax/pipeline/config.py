@@ -121,6 +121,12 @@ class PipelineConfig:
             whose scale ran away.
         max_corner_distance: a layout with a corner farther than this from
             the camera (metres) is implausible (DEGENERATE_LAYOUT).
+        min_explained_fraction: an otherwise ok layout that reprojects fewer
+            than this fraction of the usable boundary rows within
+            ``inlier_threshold`` (:attr:`Layout.explained_fraction`) is flagged
+            ``LOW_CONFIDENCE``: the network's rows do not describe one room
+            (a panorama unlike its training images). Off (0) by default; the
+            network's configuration sets it.
         floor_consistency_threshold: pixels; a floor row farther than this
             from the one its column's ceiling row implies is replaced by it
             (step 0, :func:`ceiling_consistent_floor`). Off (inf) by default;
@@ -159,6 +165,7 @@ class PipelineConfig:
     max_room_height: float = 10.0
     max_corner_distance: float = 50.0
     floor_consistency_threshold: float = math.inf
+    min_explained_fraction: float = 0.0
 
     def __post_init__(self):
         if self.capacity < 4:
@@ -201,6 +208,8 @@ class PipelineConfig:
             raise ValueError(
                 f"min_corners must be in [0, {slots}] (capacity and compact_capacity), got {self.min_corners}"
             )
+        if not 0 <= self.min_explained_fraction <= 1:
+            raise ValueError(f"min_explained_fraction must be in [0, 1], got {self.min_explained_fraction}")
         if not self.fallback_corner_threshold >= 0:
             raise ValueError(f"fallback_corner_threshold must be >= 0, got {self.fallback_corner_threshold}")
         if self.corner_margin < 0 or self.corner_weight < 0 or self.adjustment_steps < 0 or self.chunk_size < 0:
@@ -246,6 +255,7 @@ TRACED_FIELDS = (
     "max_room_height",
     "max_corner_distance",
     "floor_consistency_threshold",
+    "min_explained_fraction",
 )
 
 

@@ -25,6 +25,7 @@ class LayoutStatus(enum.IntEnum):
     SOLVER_FAILED = 7
     DEGENERATE_LAYOUT = 8
     UNCERTAIN_SCALE = 9
+    LOW_CONFIDENCE = 10
 
     @property
     def reason(self) -> str:
@@ -49,7 +50,14 @@ _STATUS_REASONS = {
         "the boundaries do not fix the room's scale: the room height's standard deviation exceeds "
         "max_height_uncertainty of the height (rc small for the room's size, or walls the boundaries leave free)"
     ),
+    LayoutStatus.LOW_CONFIDENCE: (
+        "the network is unsure of this panorama: the layout explains fewer of its boundary rows than "
+        "min_explained_fraction (clutter, doorways or textures unlike its training images); check the overlay"
+    ),
 }
+
+# Statuses whose layout is complete but flagged: every output keeps its geometry, marked with this label.
+FLAGGED_STATUSES = {LayoutStatus.UNCERTAIN_SCALE: "uncertain scale", LayoutStatus.LOW_CONFIDENCE: "low confidence"}
 
 
 class Layout(eqx.Module):

@@ -123,9 +123,26 @@ def wall_rows(
     return ceiling, floor
 
 
+# the finite fields of a wall whose solution is not finite: direction (1, 0), distance 0, heights 0
+_NOT_A_WALL = (1.0, 0.0, 0.0, 0.0, 0.0)
+
+
 def masked_rays(rays: Float[Array, "n 6"], mask: Bool[Array, " n"]) -> Float[Array, "n 6"]:
     """Zero the rows that are masked out (they then add zero rows; NaNs there are harmless)."""
     return jnp.where(mask[:, None], rays, 0.0)
+
+
+def distinct_azimuths(rays: Float[Array, "n 6"], mask: Bool[Array, " n"], tolerance: float = 1e-6) -> Int[Array, ""]:
+    """How many different horizontal directions the used, finite rays have (azimuths ``tolerance`` rad apart).
+
+    A panorama's rays of one column share their azimuth: this counts the columns a line is seen in.
+    Copies of one ray, or rays of one column, make a rank-deficient system whose null vector is
+    arbitrary, so a solver needs three distinct azimuths per line, not three rows.
+    """
+    finite = mask & jnp.all(jnp.isfinite(rays), axis=-1)
+    ordered = jnp.sort(jnp.where(finite, jnp.arctan2(rays[:, 1], rays[:, 0]), jnp.inf))
+    later = jnp.isfinite(ordered[1:]) & (jnp.diff(ordered) > tolerance)
+    return jnp.any(finite).astype(jnp.int32) + jnp.sum(later)
 
 
 # --------------------------------------------------------------------------
@@ -303,8 +320,11 @@ def solve_wall(
         method: static, see above.
 
     Returns:
-        The :class:`Wall` (canonical orientation); ``ok`` is False when fewer
-        than 3 rays per line or no solution with ``h_c > h_f``.
+        The :class:`Wall` (canonical orientation); ``ok`` is False when a line has
+        rays in fewer than 3 distinct azimuths (:func:`distinct_azimuths`: copies of
+        one ray, or one column, fix no wall), when the solution is not finite, or
+        when it does not put the camera between ceiling and floor (``h_c > 0 > h_f``).
+        A wall that is not ok has finite fields of no meaning.
     """
     check_method(method)
     ceiling, floor = wall_rows(masked_rays(ceiling_rays, ceiling_mask), masked_rays(floor_rays, floor_mask))
@@ -330,8 +350,12 @@ def solve_wall(
         ok = ok & (norm > 0)
         distance = vector[6] / jnp.where(norm > 0, norm, 1.0)
         direction = _unit_direction(vector[0:2], norm)
-    enough = (jnp.sum(ceiling_mask) >= 3) & (jnp.sum(floor_mask) >= 3)  # the paper's over-determined case
-    return make_wall(direction, distance, h_c, h_f, ok & enough & (h_c > h_f))
+    # the paper's over-determined case: 3 rays per line, from 3 different columns
+    enough = (distinct_azimuths(ceiling_rays, ceiling_mask) >= 3) & (distinct_azimuths(floor_rays, floor_mask) >= 3)
+    finite = jnp.all(jnp.isfinite(direction)) & jnp.isfinite(distance) & jnp.isfinite(h_c) & jnp.isfinite(h_f)
+    ok = ok & enough & finite & (h_c > 0) & (h_f < 0)
+    fields = jnp.where(finite, jnp.concatenate([direction, jnp.stack([distance, h_c, h_f])]), jnp.asarray(_NOT_A_WALL))
+    return make_wall(fields[:2], fields[2], fields[3], fields[4], ok)
 
 
 def solve_horizontal_line(

@@ -111,7 +111,7 @@ def draw_overlay(
     - a legend in the top right corner (:func:`legend_box`) naming the colours drawn.
 
     A failed layout draws only the network's outputs and a "no layout" label;
-    an ``UNCERTAIN_SCALE`` one is drawn with an "uncertain scale" label.
+    a flagged one (``UNCERTAIN_SCALE``, ``LOW_CONFIDENCE``) is drawn with its flag as a label.
 
     Args:
         image: the panorama, RGB uint8 (H, W, 3).
