@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from ncjax.cli.compilation import FIRST_RUN_GUESS, LEDGER_FILE, CompileLedger, settings_key
 
 
@@ -30,3 +32,17 @@ def test_an_unreadable_or_unwritable_ledger_only_repeats_the_notice(tmp_path):
 def test_settings_keys_differ_with_the_settings():
     assert settings_key((1, 512, 1024, 3), "auto") == settings_key((1, 512, 1024, 3), "auto")
     assert settings_key((1, 512, 1024, 3), "auto") != settings_key((2, 512, 1024, 3), "auto")
+
+
+def test_compiling_says_the_notice_once_and_records_only_calls_that_return(tmp_path):
+    said = []
+    ledger = CompileLedger(str(tmp_path))
+    with pytest.raises(RuntimeError), ledger.compiling("k", "a program", said.append):
+        raise RuntimeError("out of memory")
+    assert len(said) == 1 and "k" not in ledger.seconds  # a failed call compiled nothing to remember
+    with ledger.compiling("k", "a program", said.append):
+        pass
+    assert len(said) == 2 and "k" in CompileLedger(str(tmp_path)).seconds
+    with ledger.compiling("k", "a program", said.append):
+        pass
+    assert len(said) == 2

@@ -250,7 +250,13 @@ def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
 
 @pytest.mark.parametrize(
     "source, expected",
-    [("synth:11:3200", (11, 3200)), ("synth:-3:1", (-3, 1)), ("data/synth1024", None), ("painted", None)],
+    [
+        ("synth:11:3200", (11, 3200)),
+        ("synth:-3:1", (-3, 1)),
+        ("synth-decor-central:5:7", (5, 7)),
+        ("data/synth1024", None),
+        ("painted", None),
+    ],
 )
 def test_parse_synth_source(source, expected):
     from ncjax.training.data import parse_synth_source

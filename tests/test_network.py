@@ -340,6 +340,17 @@ def test_training_reduces_loss_and_resume_continues(tmp_path):
     assert not np.allclose(a["backbone/stem/norm/mean"], 0.0)
 
 
+def test_time_budget_stops_after_a_step_with_a_checkpoint_to_resume(tmp_path):
+    stopped = ncjax.train(
+        TINY, batches, 3, tmp_path, train_config=TRAIN, checkpoint_every=0, progress=False, time_budget=0.0
+    )
+    assert stopped.step == 1 and [h["step"] for h in stopped.history] == [1]
+    assert ncjax.training.loop.latest_checkpoint(tmp_path).name == "step_00000001.safetensors"
+    resumed = ncjax.train(TINY, batches, 3, tmp_path, train_config=TRAIN, checkpoint_every=0, progress=False)
+    assert resumed.step == 3 and [h["step"] for h in resumed.history] == [2, 3]
+    assert ncjax.training.loop.latest_checkpoint(tmp_path).name == "step_00000003.safetensors"
+
+
 def test_checkpoint_round_trip_is_bit_exact(tmp_path):
     model = ncjax.init_model(TINY, seed=0)
     optimizer = ncjax.training.loop.make_optimizer(model, TRAIN)
@@ -366,6 +377,16 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path):
         load_checkpoint(tmp_path / "model.safetensors", lambda m, j: None)
     with pytest.raises(FileNotFoundError):
         ncjax.load_model(tmp_path / "missing.safetensors")
+
+
+def test_shipped_models_load_by_name_and_an_unknown_name_says_what_ships():
+    from ncjax.network.checkpoint import model_file, shipped_models
+
+    assert "compact1024" in shipped_models()
+    assert "efficientnet_lite0_imagenet" not in shipped_models()  # a backbone's weights, not a layout network
+    assert model_file("compact1024").name == "compact1024.safetensors"
+    with pytest.raises(FileNotFoundError, match="shipped: .*compact1024"):
+        model_file("no-such-model")
 
 
 @pytest.mark.slow

@@ -668,6 +668,13 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
         layout = ncjax.layout_from_boundaries(*args, world="manhattan")
         assert int(layout.status) == status and not bool(layout.ok)
         assert bool(jnp.all(jnp.isfinite(layout.ceiling_corners)))
+        # failed layouts' covariances: finite or all-infinite (not determined), never NaN
+        assert not np.any(np.isnan(layout.corner_covariance)) and not np.any(np.isnan(layout.height_covariance))
+    # swapped rows, a flat NaN corner probability and a 0.1 mm circle: a failure, without NaN anywhere
+    tiny = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=1e-4)
+    layout = ncjax.layout_from_boundaries(label.floor_v, label.ceiling_v, nan, tiny, world="manhattan")
+    assert not bool(layout.ok)
+    assert not any(np.any(np.isnan(np.asarray(leaf))) for leaf in jax.tree.leaves(layout))
     # The same exact room, valid with the defaults, is implausible for a 1 m room-height limit.
     assert bool(
         ncjax.layout_from_boundaries(label.ceiling_v, label.floor_v, label.corner_target, cam, world="manhattan").ok

@@ -266,14 +266,14 @@ _angle = st.floats(0.0, 2 * np.pi)
 def _rectangle(centre, half, angle):
     rotation = np.array([np.cos(angle), np.sin(angle)])
     corners = np.asarray(
-        ncjax.synth.furniture.rectangle_corners(jnp.asarray(centre), jnp.asarray(half), jnp.asarray(rotation))
+        ncjax.synth.placement.rectangle_corners(jnp.asarray(centre), jnp.asarray(half), jnp.asarray(rotation))
     )
     return rotation, shapely.Polygon(corners)
 
 
 @functools.cache
 def _overlap():
-    return jax.jit(ncjax.synth.furniture.rectangles_overlap)
+    return jax.jit(ncjax.synth.placement.rectangles_overlap)
 
 
 @given(_coordinate, _coordinate, _half, _half, _angle, _coordinate, _coordinate, _half, _half, _angle)

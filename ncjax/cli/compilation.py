@@ -9,9 +9,12 @@ which is about to compile says so and for about how long, instead of a progress 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
+import time
+from collections.abc import Callable, Iterator
 
 from ..io.files import write_atomic
 
@@ -69,6 +72,17 @@ class CompileLedger:
             return None
         estimate = f"about {max(self.seconds.values()):.0f} s here" if self.seconds else FIRST_RUN_GUESS
         return f"compiling {what} (first run with these settings only; {estimate})"
+
+    @contextlib.contextmanager
+    def compiling(self, key: str, what: str, say: Callable[[str], object]) -> Iterator[None]:
+        """Around the first call of a program: ``say`` the :meth:`notice` if any, then :meth:`record` the
+        call's seconds once it returns (a call that raises is not recorded)."""
+        notice = self.notice(key, what)
+        if notice:
+            say(notice)
+        started = time.perf_counter()
+        yield
+        self.record(key, time.perf_counter() - started)
 
     def record(self, key: str, seconds: float) -> None:
         """Remember that the program of ``key`` is compiled; its first call took ``seconds``."""

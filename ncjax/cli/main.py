@@ -216,7 +216,10 @@ def build_parser() -> argparse.ArgumentParser:
         "are evaluated)",
     )
     evaluate.add_argument("--split", default="test", help="split of split.json, or all")
-    evaluate.add_argument("--model", help=".safetensors weights (default: the shipped model)")
+    evaluate.add_argument(
+        "--model",
+        help=".safetensors weights or a shipped model's name, e.g. compact1024 (default: the default model)",
+    )
     evaluate.add_argument("--limit", type=int, help="evaluate the first N images only (default: all)")
     evaluate.add_argument("--json", help="also write the results to this json file (default: none)")
     evaluate.add_argument(

@@ -106,30 +106,26 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
         radii = np.array([rc for _, _, _, rc, _ in chunk + padding], np.float32)
         central = settings.prior is not None and not np.any(radii > 0)
         key = program_key(images.shape, settings, central)
-        notice = ledger.notice(key, f"the network and the geometry for {images.shape[2]} x {images.shape[1]}")
-        if notice:
-            say(notice)
-        started = time.perf_counter()
         try:
-            result = jax.device_get(
-                reconstruct_batch(
-                    images,
-                    radii,
-                    settings.world,
-                    model=settings.model,
-                    config=settings.config,
-                    views=settings.views,
-                    edge_snap=settings.edge_snap,
-                    prior=settings.prior,
+            with ledger.compiling(key, f"the network and the geometry for {images.shape[2]} x {images.shape[1]}", say):
+                result = jax.device_get(
+                    reconstruct_batch(
+                        images,
+                        radii,
+                        settings.world,
+                        model=settings.model,
+                        config=settings.config,
+                        views=settings.views,
+                        edge_snap=settings.edge_snap,
+                        prior=settings.prior,
+                    )
                 )
-            )
         except RuntimeError as error:  # XLA's errors (out of memory, ...): reported per image, the next batch goes on
             first_line = (str(error).strip().splitlines() or [""])[0]
             hint = "; try a smaller --batch" if "RESOURCE_EXHAUSTED" in first_line and batch_size > 1 else ""
             for path, *_ in chunk:
                 on_error(path, f"{path}: the reconstruction failed ({type(error).__name__}: {first_line}){hint}")
             continue
-        ledger.record(key, time.perf_counter() - started)
         for index, (path, name, image, rc, gravity) in enumerate(chunk):
             one = jax.tree.map(lambda x: x[index], tuple(result))
             try:
@@ -325,21 +321,21 @@ def run_demo(args: argparse.Namespace) -> int:
         default_model(), 1, args.world, config, args.views, args.edge_snap, args.out, (), None
     )
     key = program_key((1, *image.shape), settings, central=False)
-    notice = ledger.notice(key, f"the network and the geometry for {image.shape[1]} x {image.shape[0]}")
-    if notice:
-        print(notice, flush=True)
-    called = time.perf_counter()
-    result = jax.device_get(
-        reconstruct_batch(
-            image[None],
-            np.array([rc], np.float32),
-            args.world,
-            config=config,
-            views=args.views,
-            edge_snap=args.edge_snap,
+    with ledger.compiling(
+        key,
+        f"the network and the geometry for {image.shape[1]} x {image.shape[0]}",
+        lambda line: print(line, flush=True),
+    ):
+        result = jax.device_get(
+            reconstruct_batch(
+                image[None],
+                np.array([rc], np.float32),
+                args.world,
+                config=config,
+                views=args.views,
+                edge_snap=args.edge_snap,
+            )
         )
-    )
-    ledger.record(key, time.perf_counter() - called)
     one = jax.tree.map(lambda x: x[0], tuple(result))
     record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world, export=args.export)
     elapsed = time.perf_counter() - start
@@ -394,7 +390,10 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         "as skipped, with the figures of that record",
     )
     parser.add_argument("--world", choices=WORLDS, default=DEFAULT_WORLD, help=WORLD_HELP)
-    parser.add_argument("--model", help="network weights (.safetensors) (default: the shipped model)")
+    parser.add_argument(
+        "--model",
+        help="network weights (.safetensors) or a shipped model's name, e.g. compact1024 (default: the default model)",
+    )
     parser.add_argument("--batch", type=int, default=4, help="images per jitted call")
     add_prior_arguments(parser)
     parser.add_argument(

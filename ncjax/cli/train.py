@@ -7,6 +7,7 @@ import dataclasses
 import json
 import pathlib
 import sys
+import time
 
 import numpy as np
 
@@ -25,7 +26,8 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         "--data",
         nargs="+",
         help="required: dataset folders (ncjax synth or the authors') or synth:SEED:N (the N rooms `ncjax synth "
-        "--seed SEED` writes, rendered in memory) or synth-decor:SEED:N (the same with --decor); their splits are "
+        "--seed SEED` writes, rendered in memory), synth-decor:SEED:N (the same with --decor) or "
+        "synth-decor-central:SEED:N (such rooms with a central camera, rc 0); their splits are "
         "pooled, validation takes the first --validation-limit images of the pool. Or 'painted' (flat-coloured "
         "random rooms, a smoke test)",
     )
@@ -45,6 +47,13 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--batch", "--batch-size", dest="batch_size", type=int, default=4, metavar="N", help="images per step"
+    )
+    parser.add_argument(
+        "--time-budget",
+        type=float,
+        metavar="SECONDS",
+        help="stop (checkpoint, validate, export) once this much wall-clock time has passed since the command "
+        "started, data preparation included; rerun the same command to continue (default: no limit)",
     )
     parser.add_argument("--checkpoint-dir", default="checkpoints/horizonnet", help="where the checkpoints go")
     parser.add_argument("--checkpoint-every", type=int, default=250, help="steps between checkpoints")
@@ -77,8 +86,11 @@ def run_train(args: argparse.Namespace) -> int:
         print(args.format_train_help(), end="")
         print("ncjax train: error: give --data (dataset folders, synth:SEED:N or painted)", file=sys.stderr)
         return 2
+    started = time.monotonic()
     if args.steps < 1 or args.batch_size < 1:
         raise ValueError(f"--steps and --batch must be positive, got {args.steps} and {args.batch_size}")
+    if args.time_budget is not None and not args.time_budget > 0:
+        raise ValueError(f"--time-budget must be positive, got {args.time_budget}")
     config = HorizonNetConfig.preset(args.preset)
     if args.corner_base is not None:
         config = dataclasses.replace(config, corner_base=args.corner_base)
@@ -108,6 +120,7 @@ def run_train(args: argparse.Namespace) -> int:
         seed=args.seed,
         resume=not args.no_resume,
         initial_weights=args.init_from,
+        time_budget=None if args.time_budget is None else max(0.0, args.time_budget - (time.monotonic() - started)),
     )
     losses = [h["loss"] for h in result.history if "loss" in h]
     if losses:

@@ -153,9 +153,44 @@ def save_model(model: HorizonNet, path: str | os.PathLike) -> None:
     save_checkpoint(path, model)
 
 
-def load_model(path: str | os.PathLike) -> HorizonNet:
-    """Load a model saved by :func:`save_model` (or a training checkpoint), in eval mode."""
-    return load_checkpoint(path)[0]
+SHIPPED_MODELS_DIR = pathlib.Path(__file__).parent.parent / "models"
+"""Where the shipped models lie (``ncjax/models/<name>.safetensors``, described in its README)."""
+
+
+def shipped_models() -> tuple[str, ...]:
+    """Names of the layout networks that ship with ncjax (:func:`load_model` takes them)."""
+    return tuple(sorted(path.stem for path in SHIPPED_MODELS_DIR.glob("*.safetensors") if _is_layout_network(path)))
+
+
+def _is_layout_network(path: pathlib.Path) -> bool:
+    try:
+        read_metadata(path)
+    except ValueError:  # another kind of file, e.g. the ImageNet backbone's weights
+        return False
+    return True
+
+
+def model_file(name_or_path: str | os.PathLike) -> pathlib.Path:
+    """The file of a model: ``name_or_path`` itself when it exists, else the shipped model of that name.
+
+    Raises:
+        FileNotFoundError: neither a file nor a shipped model's name.
+    """
+    path = pathlib.Path(name_or_path)
+    if path.exists():
+        return path
+    shipped = SHIPPED_MODELS_DIR / f"{name_or_path}.safetensors"
+    if str(name_or_path) in shipped_models():
+        return shipped
+    raise FileNotFoundError(
+        f"{name_or_path}: no such model file, nor a shipped model (shipped: {', '.join(shipped_models())})"
+    )
+
+
+def load_model(name_or_path: str | os.PathLike) -> HorizonNet:
+    """Load a model saved by :func:`save_model` (or a training checkpoint), or a shipped one by name
+    (:func:`shipped_models`, e.g. ``"compact1024"``), in eval mode."""
+    return load_checkpoint(model_file(name_or_path))[0]
 
 
 def check_warm_start(path: str | os.PathLike, config: HorizonNetConfig) -> None:

@@ -73,8 +73,21 @@ def assemble_layout(
         corner_columns=jnp.where(mask, final.corner_columns, 0.0),
         manhattan=jnp.array(manhattan),
         explained_fraction=explained_fraction,
-        corner_covariance=jnp.where(mask[:, None, None], uncertainty.corner_covariance, 0.0),
-        height_covariance=uncertainty.height_covariance,
+        corner_covariance=jnp.where(
+            mask[:, None, None], _undetermined_as_infinite(uncertainty.corner_covariance, config), 0.0
+        ),
+        height_covariance=_undetermined_as_infinite(uncertainty.height_covariance, config),
         status=status,
         ok=status == LayoutStatus.OK,
     )
+
+
+def _undetermined_as_infinite(covariance: Float[Array, "*n 2 2"], config: PipelineConfig) -> Float[Array, "*n 2 2"]:
+    """A covariance with a NaN (a degenerate fit, e.g. on a failed layout) as all-infinite: not determined.
+
+    With ``config.covariance`` off the NaN stays, the documented "not computed".
+    """
+    if not config.covariance:
+        return covariance
+    undetermined = jnp.any(jnp.isnan(covariance), axis=(-2, -1), keepdims=True)
+    return jnp.where(undetermined, jnp.inf, covariance)

@@ -88,8 +88,9 @@ class Layout(eqx.Module):
         corner_covariance: (K, 2, 2) first-order covariance (m^2) of each corner's
             plan position under the boundary rows' noise, estimated from the
             final adjustment's residuals and their correlation along the columns
-            (:func:`ncjax.pipeline.uncertainty.layout_uncertainty`); infinite when the fit
-            does not determine it, NaN with ``PipelineConfig(covariance=False)``.
+            (:func:`ncjax.pipeline.uncertainty.layout_uncertainty`); all-infinite when the fit
+            does not determine it (failed layouts included), NaN only with
+            ``PipelineConfig(covariance=False)``.
             Calibrated for rows with independent or short-range correlated
             noise; a network's errors are correlated over whole walls and partly
             absorbed by the fit, so there the ellipses are too small (about 55%

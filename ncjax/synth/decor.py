@@ -20,19 +20,19 @@ from jaxtyping import Array, Float
 
 from ..geometry.polygon import perpendicular
 from .elements import FRAME_WIDTH, Boxes, DecalKind, Decals, Doorways, Lights, Openings, Panels, SunPatches
-from .furniture import (
-    _between,
-    _categorical,
-    _Footprints,
-    _nothing,
-    _pack,
-    _room_frame,
-    _wall_position,
+from .materials import Material, Pattern, colour_in_hsv_box
+from .placement import (
+    Footprints,
+    between,
+    categorical,
+    no_footprints,
+    pack_footprints,
     rectangle_distance_to_point,
     rectangle_in_room,
     rectangles_overlap,
+    room_frame,
+    wall_position,
 )
-from .materials import Material, Pattern, colour_in_hsv_box
 from .rooms import Room, distance_to_walls, point_in_polygon
 
 LAMP_PARTS = 4  # boxes per ceiling light slot (a fan needs four)
@@ -50,7 +50,7 @@ class LampKind(enum.IntEnum):
 def plan_axis(room: Room) -> Float[Array, 2]:
     """Unit direction of the room's longest wall: the axis floor boards, tiles and
     suspended-ceiling grids follow (a rotated room's walls are not along x)."""
-    _, direction, _, length, _, _ = _room_frame(room)
+    _, direction, _, length, _, _ = room_frame(room)
     return direction[jnp.argmax(length)]
 
 
@@ -65,7 +65,7 @@ def _from_plan_coordinates(ab: Float[Array, "*n 2"], room: Room, axis: Float[Arr
     return ab[..., :1] * axis + ab[..., 1:] * perpendicular(axis) - room.camera_position[:2]
 
 
-def _blocked_below(footprints: _Footprints, bottom, obstacles: _Footprints, tops) -> Array:
+def _blocked_below(footprints: Footprints, bottom, obstacles: Footprints, tops) -> Array:
     """Per candidate: whether an obstacle under its footprint reaches within 10 cm of its bottom."""
 
     def one(centre, half, rotation, low):
@@ -97,9 +97,9 @@ def _lamp_parts(kind, centre, reach, axis, ceiling, uniform):
     rotations, which are emissive, mask) and its point light's height.
 
     ``reach`` is the lamp's half width (a fan's blade length)."""
-    thickness = _between(uniform[0], 0.04, 0.12)
-    drop = _between(uniform[1], 0.3, 0.9)
-    shade_height = _between(uniform[2], 0.12, 0.25)
+    thickness = between(uniform[0], 0.04, 0.12)
+    drop = between(uniform[1], 0.3, 0.9)
+    shade_height = between(uniform[2], 0.12, 0.25)
     yaw = 2 * math.pi * uniform[3]
     blade_a, blade_b = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)]), jnp.stack([-jnp.sin(yaw), jnp.cos(yaw)])
     flat = jnp.array([1.0, 0.0])
@@ -146,7 +146,7 @@ def _lamp_parts(kind, centre, reach, axis, ceiling, uniform):
     return centre3, half, rotation, emissive, mask & (kind != LampKind.PANEL), light_z - 0.1
 
 
-def ceiling_lights(key, room: Room, config, axis, ceiling: Material, obstacles: _Footprints, tops):
+def ceiling_lights(key, room: Room, config, axis, ceiling: Material, obstacles: Footprints, tops):
     """Ceiling lights, away from walls and apart, clear of the furniture under the
     hanging ones: boxes (LAMP_PARTS per slot), their point lights and the flush panels.
 
@@ -159,8 +159,8 @@ def ceiling_lights(key, room: Room, config, axis, ceiling: Material, obstacles: 
     u = jax.random.uniform(key, (n, 6))
     v = jax.random.uniform(jax.random.fold_in(key, 1), (slots, 11))
     panel_room = v[0, 9] < config.panel_probability
-    _, _, _, _, low_xy, high_xy = _room_frame(room)
-    centre = _between(u[:, :2], low_xy, high_xy)
+    _, _, _, _, low_xy, high_xy = room_frame(room)
+    centre = between(u[:, :2], low_xy, high_xy)
     kind = jnp.where(
         panel_room,
         LampKind.PANEL,
@@ -174,7 +174,7 @@ def ceiling_lights(key, room: Room, config, axis, ceiling: Material, obstacles: 
     panel_half, panel_ab = jax.vmap(_panel_shape, in_axes=(0, 0, None, None))(
         u[:, 3], _plan_coordinates(centre, room, axis), ceiling.scale, is_grid
     )
-    reach = jnp.where(kind == LampKind.FAN, _between(u[:, 3], 0.5, 0.65), _between(u[:, 3], 0.12, 0.3))
+    reach = jnp.where(kind == LampKind.FAN, between(u[:, 3], 0.5, 0.65), between(u[:, 3], 0.12, 0.3))
     is_panel = (kind == LampKind.PANEL)[:, None]
     centre = jnp.where(is_panel, _from_plan_coordinates(panel_ab, room, axis), centre)
     half = jnp.where(is_panel, panel_half, reach[:, None] * jnp.ones((1, 2)))
@@ -188,16 +188,16 @@ def ceiling_lights(key, room: Room, config, axis, ceiling: Material, obstacles: 
         room.ceiling_height - 0.9,
         jnp.where(kind == LampKind.FAN, room.ceiling_height - 0.65, room.ceiling_height),
     )
-    candidates = _Footprints(centre, half, rotation, inside & away & (bottom > 0.4))
+    candidates = Footprints(centre, half, rotation, inside & away & (bottom > 0.4))
     clear = ~_blocked_below(candidates, bottom, obstacles, tops)
-    candidates = _Footprints(centre, half, rotation, candidates.mask & clear)
-    chosen, filled = _pack(candidates, slots, _nothing(), 0.8)
+    candidates = Footprints(centre, half, rotation, candidates.mask & clear)
+    chosen, filled = pack_footprints(candidates, slots, no_footprints(), 0.8)
     filled = filled & (jnp.arange(slots) <= jnp.floor(v[0, 10] * slots) + panel_room)
     kind, centre, half, reach = kind[chosen], centre[chosen], half[chosen], reach[chosen]
     centre3, half3, rotation3, emissive, mask, light_z = jax.vmap(_lamp_parts, in_axes=(0, 0, 0, None, None, 0))(
         kind, centre, reach, axis, room.ceiling_height, v[:, :4]
     )
-    power = _between(v[:, 7:8], 1.5, 5.0)
+    power = between(v[:, 7:8], 1.5, 5.0)
     tint = jax.vmap(lambda w: colour_in_hsv_box(w, (0.05, 0.15), (0.0, 0.35), (1.0, 1.0)))(v[:, 4:7])
     fittings = jnp.where(v[:, 8:9] < 0.5, 0.9, 0.25) * jnp.ones((1, 3))
     colour = jnp.where(emissive[..., None], 1.0, fittings[:, None, :])
@@ -228,20 +228,20 @@ def ceiling_lights(key, room: Room, config, axis, ceiling: Material, obstacles: 
 def _decal_candidate(uniform: Float[Array, 17], room: Room):
     """One poster, picture or whiteboard: its fields and its footprint along the wall."""
     u = uniform
-    kind = _categorical(u[0], jnp.array([0.35, 0.45, 0.2]))
+    kind = categorical(u[0], jnp.array([0.35, 0.45, 0.2]))
     size = jnp.stack(
         [
-            jnp.stack([_between(u[1], 0.4, 0.8), _between(u[2], 0.55, 1.0)]),
-            jnp.stack([_between(u[1], 0.3, 1.2), _between(u[2], 0.3, 0.9)]),
-            jnp.stack([_between(u[1], 1.2, 2.4), _between(u[2], 0.9, 1.2)]),
+            jnp.stack([between(u[1], 0.4, 0.8), between(u[2], 0.55, 1.0)]),
+            jnp.stack([between(u[1], 0.3, 1.2), between(u[2], 0.3, 0.9)]),
+            jnp.stack([between(u[1], 1.2, 2.4), between(u[2], 0.9, 1.2)]),
         ]
     )[kind]
     width, height = size[0], size[1]
-    bottom = jnp.where(kind == DecalKind.WHITEBOARD, _between(u[3], 0.8, 1.0), _between(u[3], 1.35, 1.75) - height / 2)
+    bottom = jnp.where(kind == DecalKind.WHITEBOARD, between(u[3], 0.8, 1.0), between(u[3], 1.35, 1.75) - height / 2)
     # Above the skirting, below the ceiling (the layout's edges stay wall pixels).
     bottom = jnp.maximum(bottom, 0.3)
     height = jnp.minimum(height, room.ceiling_height - room.floor_height - 0.2 - bottom)
-    wall, along, fits, start, direction, normal = _wall_position(u[4:6], room, width, 0.1)
+    wall, along, fits, start, direction, normal = wall_position(u[4:6], room, width, 0.1)
     poster = colour_in_hsv_box(u[6:9], (0.0, 1.0), (0.4, 0.9), (0.3, 0.95))
     frames = jnp.stack(
         [jnp.full(3, 0.95), colour_in_hsv_box(u[9:12], (0.05, 0.12), (0.0, 0.7), (0.05, 0.8)), jnp.full(3, 0.7)]
@@ -254,20 +254,20 @@ def _decal_candidate(uniform: Float[Array, 17], room: Room):
         colour_a=jnp.where(kind == DecalKind.WHITEBOARD, jnp.full(3, 0.93), poster),
         colour_b=colour_in_hsv_box(u[12:15], (0.0, 1.0), (0.1, 0.8), (0.1, 0.9)),
         frame_colour=frames[kind],
-        frame_width=jnp.stack([0.015, _between(u[15], 0.03, 0.07), 0.02])[kind],
+        frame_width=jnp.stack([0.015, between(u[15], 0.03, 0.07), 0.02])[kind],
     )
     centre = start + (along + width / 2) * direction + 0.05 * normal
-    footprint = _Footprints(centre, jnp.stack([width / 2, 0.05]), direction, fits & (height > 0.2))
+    footprint = Footprints(centre, jnp.stack([width / 2, 0.05]), direction, fits & (height > 0.2))
     return fields, footprint
 
 
-def random_decals(key, room: Room, config, obstacles: _Footprints) -> Decals:
+def random_decals(key, room: Room, config, obstacles: Footprints) -> Decals:
     """Posters, pictures and whiteboards on the walls, apart and off the doors and
     windows (``obstacles``); each slot is wanted with chance ``config.decal_probability``."""
     n = config.decal_slots * config.candidates_per_slot
     u = jax.random.uniform(key, (n + 1, 17))
     fields, footprints = jax.vmap(lambda w: _decal_candidate(w, room))(u[:n])
-    chosen, filled = _pack(footprints, config.decal_slots, obstacles, 0.2)
+    chosen, filled = pack_footprints(footprints, config.decal_slots, obstacles, 0.2)
     filled = filled & (u[n, : config.decal_slots] < config.decal_probability)
     return Decals(**{name: value[chosen] for name, value in fields.items()}, mask=filled)
 
@@ -278,11 +278,11 @@ def sun_patches(key, room: Room, openings: Openings, config) -> SunPatches:
     20-55 degrees high, within 50 degrees of facing the first window; the other
     windows it reaches light patches too."""
     u = jax.random.uniform(key, (7,))
-    start, direction, normal, _, _, _ = _room_frame(room)
+    start, direction, normal, _, _, _ = room_frame(room)
     windows = openings.mask & openings.is_window
     first = jnp.argmax(windows)
-    turn = _between(u[1], -0.87, 0.87)
-    elevation = _between(u[2], 0.35, 0.96)
+    turn = between(u[1], -0.87, 0.87)
+    elevation = between(u[2], 0.35, 0.96)
     n = normal[openings.wall[first]]
     horizontal = jnp.cos(turn) * n + jnp.sin(turn) * perpendicular(n)
     sun = jnp.concatenate([jnp.cos(elevation) * horizontal, -jnp.sin(elevation)[None]])
@@ -290,7 +290,7 @@ def sun_patches(key, room: Room, openings: Openings, config) -> SunPatches:
     # The first lit windows (a stable sort keeps the slot order).
     order = jnp.argsort(~lit, stable=True)[: config.sun_slots]
     wall = openings.wall[order]
-    colour = _between(u[3], 1.0, 2.5) * colour_in_hsv_box(u[4:7], (0.08, 0.13), (0.1, 0.4), (1.0, 1.0))
+    colour = between(u[3], 1.0, 2.5) * colour_in_hsv_box(u[4:7], (0.08, 0.13), (0.1, 0.4), (1.0, 1.0))
     return SunPatches(
         origin=start[wall],
         axis=direction[wall],
@@ -310,13 +310,13 @@ def door_leaves(key, room: Room, openings: Openings, doorways: Doorways, config)
     door, clear of the camera and of the leaves before them."""
     d = openings.mask.shape[0]
     u = jax.random.uniform(key, (d, 3))
-    start, direction, normal, _, _, _ = _room_frame(room)
+    start, direction, normal, _, _, _ = room_frame(room)
     wall_start, wall_direction, wall_normal = start[openings.wall], direction[openings.wall], normal[openings.wall]
     width = openings.span[:, 1] - openings.span[:, 0] - 2 * FRAME_WIDTH
     at_start = u[:, 0] < 0.5
     hinge_along = jnp.where(at_start, openings.span[:, 0] + FRAME_WIDTH, openings.span[:, 1] - FRAME_WIDTH)
     hinge = wall_start + hinge_along[:, None] * wall_direction
-    angle = _between(u[:, 1:2], math.pi / 6, math.pi / 2)
+    angle = between(u[:, 1:2], math.pi / 6, math.pi / 2)
     towards = jnp.where(at_start[:, None], wall_direction, -wall_direction)
     leaf_axis = jnp.cos(angle) * towards + jnp.sin(angle) * wall_normal
     # 3 cm off the wall plane, so that the 4 cm leaf's back corner stays in the room.

@@ -45,21 +45,19 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from ..geometry.polygon import perpendicular
 from .decor import LAMP_PARTS, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
 from .elements import Boxes, Decor, Doorways, Lights, Openings
-from .furniture import (
-    _TEMPLATES,
-    BASIC_TYPES,
-    PARTS_PER_PIECE,
-    _between,
-    _categorical,
-    _Footprints,
-    _nothing,
-    _pack,
-    _room_frame,
-    _wall_position,
+from .furniture import BASIC_TYPES, PARTS_PER_PIECE, TEMPLATES
+from .materials import Material, Pattern, colour_in_hsv_box
+from .placement import (
+    Footprints,
+    between,
+    categorical,
+    no_footprints,
+    pack_footprints,
     rectangle_distance_to_point,
     rectangle_in_room,
+    room_frame,
+    wall_position,
 )
-from .materials import Material, Pattern, colour_in_hsv_box
 from .rooms import Room, distance_to_walls, point_in_polygon
 
 # fold_in data of the decor's random key (far above any split count of the basic draws).
@@ -207,20 +205,20 @@ def _furniture_candidate(key, room: Room, config: SceneConfig):
     """One random piece: (type, size (3,), centre (2,), rotation (2,), valid)."""
     u = jax.random.uniform(key, (11,))
     # The types of the realistic scenes come last in the pool: the basic pool is its head.
-    weight = _TEMPLATES["weight"] if config.decor else _TEMPLATES["weight"][:BASIC_TYPES]
-    kind = _categorical(u[0], jnp.asarray(weight))
-    size = _between(u[1:4], jnp.asarray(_TEMPLATES["size_low"])[kind], jnp.asarray(_TEMPLATES["size_high"])[kind])
+    weight = TEMPLATES["weight"] if config.decor else TEMPLATES["weight"][:BASIC_TYPES]
+    kind = categorical(u[0], jnp.asarray(weight))
+    size = between(u[1:4], jnp.asarray(TEMPLATES["size_low"])[kind], jnp.asarray(TEMPLATES["size_high"])[kind])
     size = size.at[2].min(room.ceiling_height - room.floor_height - 0.25)
     # Against a wall: the back 1 cm off the wall, the piece's x axis along it.
-    wall, along, fits, start, direction, normal = _wall_position(u[4:6], room, size[0], 0.05)
+    wall, along, fits, start, direction, normal = wall_position(u[4:6], room, size[0], 0.05)
     wall_centre = start + (along + size[0] / 2) * direction + (size[1] / 2 + 0.01) * normal
     # Free-standing: anywhere, aligned with the room (wall 0) more often than not.
-    _, room_direction, _, _, low_xy, high_xy = _room_frame(room)
-    free_centre = _between(u[6:8], low_xy, high_xy)
+    _, room_direction, _, _, low_xy, high_xy = room_frame(room)
+    free_centre = between(u[6:8], low_xy, high_xy)
     aligned = jnp.arctan2(room_direction[0, 1], room_direction[0, 0]) + jnp.floor(4 * u[8]) * (math.pi / 2)
     angle = jnp.where(u[9] < 0.6, aligned, 2 * math.pi * u[10])
     free_rotation = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
-    against_wall = jnp.asarray(_TEMPLATES["against_wall"])[kind]
+    against_wall = jnp.asarray(TEMPLATES["against_wall"])[kind]
     centre = jnp.where(against_wall, wall_centre, free_centre)
     rotation = jnp.where(against_wall, direction, free_rotation)
     half = size[:2] / 2
@@ -229,7 +227,7 @@ def _furniture_candidate(key, room: Room, config: SceneConfig):
     )
     valid = (
         rectangle_in_room(centre, half, rotation, room)
-        & (clear_of_camera | jnp.asarray(_TEMPLATES["may_cover_camera"])[kind])
+        & (clear_of_camera | jnp.asarray(TEMPLATES["may_cover_camera"])[kind])
         & jnp.where(against_wall, fits, True)
     )
     return kind, size, centre, rotation, valid
@@ -246,7 +244,7 @@ def _piece_materials(key, fabric: Bool[Array, ""]):
     primary_pattern = jnp.where(fabric, Pattern.FABRIC, jnp.where(is_wood, Pattern.WOOD, Pattern.PAINT))
     secondary_colour = jnp.where(fabric, wood, jnp.where(u[10] < 0.5, 0.6 * primary_colour, painted))
     secondary_pattern = jnp.where(fabric, Pattern.WOOD, Pattern.PAINT)
-    shade = _between(u[11:13], 0.6, 0.9)
+    shade = between(u[11:13], 0.6, 0.9)
     return (
         Material(primary_pattern.astype(jnp.int32), primary_colour, shade[0] * primary_colour, jnp.array(0.3)),
         Material(secondary_pattern.astype(jnp.int32), secondary_colour, shade[1] * secondary_colour, jnp.array(0.3)),
@@ -255,11 +253,11 @@ def _piece_materials(key, fabric: Bool[Array, ""]):
 
 def _piece_boxes(kind, size, centre, rotation, floor_height, primary: Material, secondary: Material):
     """The boxes of one piece of furniture (PARTS_PER_PIECE of them, with a mask)."""
-    parts = jnp.asarray(_TEMPLATES["parts"])[kind]
+    parts = jnp.asarray(TEMPLATES["parts"])[kind]
     low, high = parts[:, 0::2] * size, parts[:, 1::2] * size
     local = (low + high) / 2 - jnp.array([size[0] / 2, size[1] / 2, 0.0])
     xy = centre + local[:, :1] * rotation + local[:, 1:2] * perpendicular(rotation)
-    secondary_part = jnp.asarray(_TEMPLATES["secondary"])[kind]
+    secondary_part = jnp.asarray(TEMPLATES["secondary"])[kind]
     material = jax.tree.map(
         lambda a, b: jnp.where(secondary_part.reshape((-1,) + (1,) * a.ndim), b, a), primary, secondary
     )
@@ -269,7 +267,7 @@ def _piece_boxes(kind, size, centre, rotation, floor_height, primary: Material, 
         rotation=jnp.broadcast_to(rotation, (PARTS_PER_PIECE, 2)),
         material=material,
         emission=jnp.zeros((PARTS_PER_PIECE, 3)),
-        mask=jnp.asarray(_TEMPLATES["part_mask"])[kind],
+        mask=jnp.asarray(TEMPLATES["part_mask"])[kind],
     )
 
 
@@ -279,11 +277,11 @@ def _opening_candidate(key, room: Room, config: SceneConfig):
     an open door's leaf is wide)."""
     u = jax.random.uniform(key, (10,))
     is_window = u[0] >= config.door_probability
-    door = jnp.stack([_between(u[1], 0.75, 1.0), 0.0, _between(u[2], 1.95, 2.15)])
-    window = jnp.stack([_between(u[1], 0.6, 2.2), _between(u[2], 0.5, 1.1), _between(u[3], 0.8, 1.6)])
+    door = jnp.stack([between(u[1], 0.75, 1.0), 0.0, between(u[2], 1.95, 2.15)])
+    window = jnp.stack([between(u[1], 0.6, 2.2), between(u[2], 0.5, 1.1), between(u[3], 0.8, 1.6)])
     width, bottom, height = jnp.where(is_window, window, door)
     height = jnp.minimum(height, room.ceiling_height - room.floor_height - 0.15 - bottom)
-    wall, along, fits, start, direction, normal = _wall_position(u[4:6], room, width, 0.15)
+    wall, along, fits, start, direction, normal = wall_position(u[4:6], room, width, 0.15)
     centre = start + (along + width / 2) * direction + 0.05 * normal
     colour = jnp.where(
         is_window,
@@ -298,22 +296,22 @@ def _opening_candidate(key, room: Room, config: SceneConfig):
         colour=colour,
         frame_colour=jnp.where(u[9] < 0.5, jnp.full(3, 0.9), 0.7 * colour),
     )
-    footprint = _Footprints(centre, jnp.stack([width / 2 + 0.1, 0.05]), direction, fits & (height > 0.5))
+    footprint = Footprints(centre, jnp.stack([width / 2 + 0.1, 0.05]), direction, fits & (height > 0.5))
     if not config.decor:
-        keep_out = _Footprints(centre + 0.45 * normal, jnp.stack([width / 2, 0.45]), direction, ~is_window)
+        keep_out = Footprints(centre + 0.45 * normal, jnp.stack([width / 2, 0.45]), direction, ~is_window)
         return fields, None, footprint, keep_out
     w = jax.random.uniform(jax.random.fold_in(key, _DECOR_STREAM), (7,))
     is_open = ~is_window & (w[0] < config.open_door_probability)
     doorway = dict(
         is_open=is_open,
-        wall_thickness=_between(w[1], 0.1, 0.25),
-        room_depth=_between(w[2], 1.2, 4.0),
-        room_sides=_between(w[3:5], 0.3, 2.5),
-        room_ceiling=jnp.maximum(room.ceiling_height + _between(w[5], -0.3, 0.3), fields["z_range"][1] + 0.1),
-        room_light=_between(w[6], 0.35, 1.8),
+        wall_thickness=between(w[1], 0.1, 0.25),
+        room_depth=between(w[2], 1.2, 4.0),
+        room_sides=between(w[3:5], 0.3, 2.5),
+        room_ceiling=jnp.maximum(room.ceiling_height + between(w[5], -0.3, 0.3), fields["z_range"][1] + 0.1),
+        room_light=between(w[6], 0.35, 1.8),
     )
     depth = jnp.where(is_open, jnp.maximum(0.45, width / 2 + 0.05), 0.45)
-    keep_out = _Footprints(centre + depth * normal, jnp.stack([width / 2 + 0.05, depth]), direction, ~is_window)
+    keep_out = Footprints(centre + depth * normal, jnp.stack([width / 2 + 0.05, depth]), direction, ~is_window)
     return fields, doorway, footprint, keep_out
 
 
@@ -326,7 +324,7 @@ def _openings(key, room: Room, config: SceneConfig):
     fields, doorways, footprints, keep_out = jax.vmap(lambda k: _opening_candidate(k, room, config))(
         jax.random.split(key_candidates, n)
     )
-    chosen, filled = _pack(footprints, config.opening_slots, _nothing(), 0.3)
+    chosen, filled = pack_footprints(footprints, config.opening_slots, no_footprints(), 0.3)
     wanted = 1 + jnp.floor(jax.random.uniform(key_count) * config.opening_slots)
     filled = filled & (jnp.arange(config.opening_slots) < wanted)
     openings = Openings(**{name: value[chosen] for name, value in fields.items()}, mask=filled)
@@ -343,18 +341,18 @@ def _lamps(key, room: Room, config: SceneConfig):
     slots = config.lamp_slots
     u = jax.random.uniform(key, (n, 3))
     v = jax.random.uniform(jax.random.fold_in(key, 1), (slots, 2 + 3 + 1))
-    _, room_direction, _, _, low_xy, high_xy = _room_frame(room)
-    centre = _between(u[:, :2], low_xy, high_xy)
-    half = _between(u[:, 2:3], 0.12, 0.3) * jnp.ones((1, 2))
+    _, room_direction, _, _, low_xy, high_xy = room_frame(room)
+    centre = between(u[:, :2], low_xy, high_xy)
+    half = between(u[:, 2:3], 0.12, 0.3) * jnp.ones((1, 2))
     rotation = jnp.broadcast_to(room_direction[0], (n, 2))
     inside = jax.vmap(point_in_polygon, in_axes=(0, None, None))(centre, room.corners, room.mask)
     away = (
         jax.vmap(distance_to_walls, in_axes=(0, None, None))(centre, room.corners, room.mask) > 0.6 + 1.5 * half[:, 0]
     )
-    chosen, filled = _pack(_Footprints(centre, half, rotation, inside & away), slots, _nothing(), 0.8)
+    chosen, filled = pack_footprints(Footprints(centre, half, rotation, inside & away), slots, no_footprints(), 0.8)
     filled = filled & (jnp.arange(slots) <= jnp.floor(v[0, 5] * slots))
-    thickness = _between(v[:, 0], 0.04, 0.12)
-    power = _between(v[:, 1:2], 1.5, 5.0)
+    thickness = between(v[:, 0], 0.04, 0.12)
+    power = between(v[:, 1:2], 1.5, 5.0)
     tint = jax.vmap(lambda w: colour_in_hsv_box(w, (0.05, 0.15), (0.0, 0.35), (1.0, 1.0)))(v[:, 2:5])
     boxes = Boxes(
         centre=jnp.concatenate([centre[chosen], (room.ceiling_height - thickness / 2)[:, None]], -1),
@@ -397,10 +395,10 @@ def _surface_material(uniform: Float[Array, 9], pool: list[tuple[float, Pattern]
     """A material from a weighted pool of patterns, with its period drawn in the pattern's range.
 
     ``colour_a`` and ``colour_b`` map (pattern, uniforms (3,)) to a colour."""
-    pattern = jnp.array([int(p) for _, p in pool], jnp.int32)[_categorical(uniform[0], jnp.array([w for w, _ in pool]))]
+    pattern = jnp.array([int(p) for _, p in pool], jnp.int32)[categorical(uniform[0], jnp.array([w for w, _ in pool]))]
     low, high = jnp.asarray(_SCALE_RANGE)[pattern]
     a = colour_a(pattern, uniform[2:5])
-    return Material(pattern, a, jnp.clip(colour_b(pattern, a, uniform[5:9]), 0.0, 1.0), _between(uniform[1], low, high))
+    return Material(pattern, a, jnp.clip(colour_b(pattern, a, uniform[5:9]), 0.0, 1.0), between(uniform[1], low, high))
 
 
 def _surface_materials(key, config: SceneConfig):
@@ -414,14 +412,14 @@ def _surface_materials(key, config: SceneConfig):
             colour_in_hsv_box(w, (0.04, 0.11), (0.3, 0.8), (0.2, 0.8)),
             colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.5), (0.15, 0.9)),
         ),
-        lambda pattern, a, w: a * _between(w[0], 0.45, 1.4),
+        lambda pattern, a, w: a * between(w[0], 0.45, 1.4),
     )
     walls = _surface_material(
         u[1],
         [(0.35, Pattern.PAINT), (0.25, Pattern.PLASTER), (0.2, Pattern.STRIPES), (0.2, Pattern.DIAMONDS)],
         lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.05, 0.55), (0.45, 0.9)),
         lambda pattern, a, w: jnp.where(
-            w[0] < 0.5, a * _between(w[1], 0.6, 0.9), colour_in_hsv_box(w[1:4], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95))
+            w[0] < 0.5, a * between(w[1], 0.6, 0.9), colour_in_hsv_box(w[1:4], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95))
         ),
     )
     if config.decor:
@@ -441,7 +439,7 @@ def _surface_materials(key, config: SceneConfig):
         lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.1), (0.8, 0.98)),
         # A suspended ceiling's grid is a grey or white metal T-bar.
         lambda pattern, a, w: (
-            jnp.where(pattern == Pattern.GRID, a * _between(w[0], 0.55, 1.0), 0.85 * a) if config.decor else 0.85 * a
+            jnp.where(pattern == Pattern.GRID, a * between(w[0], 0.55, 1.0), 0.85 * a) if config.decor else 0.85 * a
         ),
     )
     return floor, ceiling, walls
@@ -455,7 +453,7 @@ def _decorate(
     pieces: Boxes,
     openings: Openings,
     doorways: Doorways,
-    opening_footprints: _Footprints,
+    opening_footprints: Footprints,
     floor: Material,
     ceiling: Material,
 ) -> tuple[Boxes, Lights, Decor]:
@@ -474,7 +472,7 @@ def _decorate(
         config,
         axis,
         ceiling,
-        _Footprints(standing.centre[:, :2], standing.half_size[:, :2], standing.rotation, standing.mask),
+        Footprints(standing.centre[:, :2], standing.half_size[:, :2], standing.rotation, standing.mask),
         standing.centre[:, 2] + standing.half_size[:, 2],
     )
     next_floor, _, next_walls = _surface_materials(keys[1], config)
@@ -511,10 +509,12 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
     kind, size, centre, rotation, valid = jax.vmap(lambda k: _furniture_candidate(k, room, config))(
         jax.random.split(keys[1], n)
     )
-    chosen, filled = _pack(_Footprints(centre, size[:, :2] / 2, rotation, valid), config.furniture_slots, keep_out, 0.1)
+    chosen, filled = pack_footprints(
+        Footprints(centre, size[:, :2] / 2, rotation, valid), config.furniture_slots, keep_out, 0.1
+    )
     u = jax.random.uniform(keys[2], (config.furniture_slots + 9,))
     filled = filled & (u[: config.furniture_slots] < config.furniture_probability)
-    fabric = jnp.asarray(_TEMPLATES["fabric"])[kind[chosen]]
+    fabric = jnp.asarray(TEMPLATES["fabric"])[kind[chosen]]
     primary, secondary = jax.vmap(_piece_materials)(jax.random.split(keys[3], config.furniture_slots), fabric)
     pieces = jax.vmap(_piece_boxes, in_axes=(0, 0, 0, 0, None, 0, 0))(
         kind[chosen], size[chosen], centre[chosen], rotation[chosen], room.floor_height, primary, secondary
@@ -547,7 +547,7 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
         floor=floor,
         ceiling=ceiling,
         walls=walls,
-        skirting_height=jnp.where(extra[0] < 0.75, _between(extra[1], 0.05, 0.14), 0.0),
+        skirting_height=jnp.where(extra[0] < 0.75, between(extra[1], 0.05, 0.14), 0.0),
         skirting_colour=jnp.where(extra[2] < 0.5, jnp.full(3, 0.92), 0.8 * floor.colour_a),
         ambient=colour_in_hsv_box(extra[3:6], (0.05, 0.6), (0.0, 0.15), (0.2, 0.5)),
         ambient_direction=jnp.array([jnp.cos(2 * math.pi * extra[7]), jnp.sin(2 * math.pi * extra[7]), 0.3]) / 1.044,

@@ -138,9 +138,13 @@ SYNTH_COMMAND_CONFIG = SynthConfig(room=RoomConfig(world="mix"))
 SYNTH_SOURCES = {
     "synth": SYNTH_COMMAND_CONFIG,
     "synth-decor": dataclasses.replace(SYNTH_COMMAND_CONFIG, scene=SceneConfig(decor=True)),
+    "synth-decor-central": dataclasses.replace(
+        SYNTH_COMMAND_CONFIG, room=RoomConfig(world="mix", rc_range=(0.0, 0.0)), scene=SceneConfig(decor=True)
+    ),
 }
 """The configuration of each kind of rendered data source, ``KIND:SEED:N``
-(``synth-decor``: what ``ncjax synth --decor`` renders)."""
+(``synth-decor``: what ``ncjax synth --decor`` renders; ``synth-decor-central``: such
+rooms seen by a central camera, rc = 0, as most real panoramas are)."""
 
 
 def rendered_splits(
@@ -212,11 +216,11 @@ def load_split(
 
 
 def parse_synth_source(source: str) -> tuple[int, int] | None:
-    """``(seed, n)`` of a ``synth:SEED:N`` or ``synth-decor:SEED:N`` data source
+    """``(seed, n)`` of a ``KIND:SEED:N`` data source (``KIND`` one of :data:`SYNTH_SOURCES`)
     (its configuration: ``SYNTH_SOURCES[source.split(":")[0]]``), None for a folder path.
 
     Raises:
-        ValueError: ``synth:`` or ``synth-decor:`` followed by anything but two integers, N >= 1.
+        ValueError: ``KIND:`` followed by anything but two integers, N >= 1.
     """
     kind = source.split(":")[0]
     if kind not in SYNTH_SOURCES or ":" not in source:
@@ -231,7 +235,7 @@ def training_data(
     sources: list[str], height: int, width: int, validation_limit: int | None
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Train and validation arrays pooled, in the given order, from dataset folders and
-    ``synth:SEED:N`` or ``synth-decor:SEED:N`` renders.
+    ``KIND:SEED:N`` renders (:data:`SYNTH_SOURCES`).
 
     Such a source is rendered in memory (:func:`rendered_splits`);
     validation takes the first ``validation_limit`` images of the pooled valid

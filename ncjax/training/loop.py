@@ -289,6 +289,7 @@ def train(
     resume: bool = True,
     progress: bool = True,
     initial_weights: str | pathlib.Path | None = None,
+    time_budget: float | None = None,
 ) -> TrainResult:
     """Train (or resume training) a :class:`HorizonNet` up to ``steps`` optimisation steps.
 
@@ -318,6 +319,7 @@ def train(
     """
     from tqdm.auto import tqdm
 
+    deadline = None if time_budget is None else time.monotonic() + time_budget
     model, optimizer, start = _restore_or_init(config, train_config, checkpoint_dir, seed, resume, initial_weights)
     model.train()
     iterator = data(start) if callable(data) else data
@@ -342,6 +344,7 @@ def train(
 
     bar = tqdm(range(start, steps), initial=start, total=steps, disable=not progress, desc="train")
     tick, images = time.perf_counter(), 0
+    reached = start
     for step in bar:
         batch = next(iterator)
         terms = train_step(model, optimizer, batch, jax.random.fold_in(base_key, step), train_config)
@@ -357,9 +360,15 @@ def train(
         if validate is not None and validate_every and (step + 1) % validate_every == 0:
             metrics = run_validation(step + 1)
             bar.write(f"step {step + 1}: " + ", ".join(f"{k} {float(v):.4g}" for k, v in metrics.items()))
-    if steps > start:
-        save(steps)
-        if validate is not None and not (validate_every and steps % validate_every == 0):
-            run_validation(steps)
+        reached = step + 1
+        if deadline is not None and time.monotonic() >= deadline and reached < steps:
+            bar.write(f"time budget of {time_budget:.0f} s spent: stopping at step {reached} of {steps}")
+            break
+    bar.close()
+    if reached > start:
+        if not (checkpoint_every and reached % checkpoint_every == 0):
+            save(reached)
+        if validate is not None and not (validate_every and reached % validate_every == 0):
+            run_validation(reached)
     model.eval()
-    return TrainResult(model, max(start, steps), history)
+    return TrainResult(model, reached, history)
