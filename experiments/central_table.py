@@ -30,6 +30,7 @@ import dataclasses
 import functools
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -43,6 +44,9 @@ from tqdm import tqdm  # noqa: E402
 import ncjax  # noqa: E402
 from ncjax import metrics  # noqa: E402
 from ncjax.pipeline.prior import HeightPrior, scale_layout  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).parent))
+from pipeline_table import noisy_rows  # noqa: E402  (the same row noise as the non-central tables)
 
 OUT = Path(__file__).parent / "out"
 WIDTH, HEIGHT = 1024, 512
@@ -72,16 +76,6 @@ def pipeline(world: str, central: bool):
         return ncjax.layout_from_boundaries(ceiling_v, floor_v, corner_prob, cam, world, config, prior=prior)
 
     return run
-
-
-def noisy(labels, sigma: float, seed: int):
-    if sigma == 0:
-        return labels.ceiling_v, labels.floor_v
-    k1, k2 = jax.random.split(jax.random.key(seed + 1000))
-    return (
-        labels.ceiling_v + sigma * jax.random.normal(k1, labels.ceiling_v.shape),
-        labels.floor_v + sigma * jax.random.normal(k2, labels.floor_v.shape),
-    )
 
 
 def scores(layouts, truths, camera_heights):
@@ -125,7 +119,7 @@ def main(argv=None):
             jax.random.split(jax.random.key(21), count)
         )
         seen = central_labels if central else labels
-        ceiling_v, floor_v = noisy(seen, sigma, 21)
+        ceiling_v, floor_v = noisy_rows(seen, sigma, 21)
         true_height = -np.asarray(rooms.floor_height)
         prior = np.full(count, args.camera_height, np.float32) if args.camera_height else true_height
         rc = np.zeros(count, np.float32) if central else np.asarray(rooms.rc)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
@@ -68,11 +69,9 @@ class HeightPrior(eqx.Module):
         self.value = jnp.asarray(value, jnp.float32)
 
     def __check_init__(self):
-        try:
-            smallest = float(jnp.min(self.value))
-        except Exception:  # traced: the caller's job
+        if isinstance(self.value, jax.core.Tracer):  # traced (inside jit or vmap): the caller's job
             return
-        if not smallest > 0 or not bool(jnp.all(jnp.isfinite(self.value))):
+        if not float(jnp.min(self.value)) > 0 or not bool(jnp.all(jnp.isfinite(self.value))):
             raise ValueError(f"the {self.kind.replace('_', ' ')} must be a finite height > 0 in metres")
 
 
