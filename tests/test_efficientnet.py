@@ -82,6 +82,16 @@ def test_depthwise_conv_is_a_grouped_convolution(kernel, stride):
     np.testing.assert_allclose(conv(x), expected, atol=1e-5, rtol=1e-5)
 
 
+def test_pointwise_convolution_is_a_one_by_one_convolution():
+    conv = effnet.PointwiseConv(4, 6, rngs=nnx.Rngs(0))
+    x = jax.random.normal(jax.random.key(0), (2, 5, 7, 4))
+    expected = jax.lax.conv_general_dilated(
+        x, conv.kernel.get_value(), (1, 1), "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC")
+    )
+    assert conv.kernel.get_value().shape == (1, 1, 4, 6)  # nnx.Conv's layout: the same weight files load
+    np.testing.assert_allclose(conv(x), expected, atol=1e-5, rtol=1e-5)
+
+
 def test_imagenet_top5_on_sample_photos():
     photos = [data.chelsea(), data.coffee()]  # a tabby cat; a cup of espresso
     batch = np.stack([cv2.resize(p, (224, 224), interpolation=cv2.INTER_AREA) for p in photos]) / np.float32(255)

@@ -226,6 +226,22 @@ class DepthwiseConv(nnx.Module):
         return y
 
 
+class PointwiseConv(nnx.Module):
+    """1 x 1 convolution (stride 1, no bias) written as a matrix product over the channels.
+
+    The kernel has the layout of an ``nnx.Conv``'s, ``(1, 1, C, D)``, so the
+    weights load the same. XLA's CPU backend runs the matrix product 3 to 4
+    times faster than the equivalent convolution (measured on EfficientNet's
+    shapes at 512 x 1024); the results agree to float32 rounding.
+    """
+
+    def __init__(self, in_channels: int, out_channels: int, *, rngs: nnx.Rngs):
+        self.kernel = nnx.Param(_conv_init(rngs.params(), (1, 1, in_channels, out_channels)))
+
+    def __call__(self, x: Float[Array, "B H W C"]) -> Float[Array, "B H W D"]:
+        return x @ self.kernel.get_value()[0, 0]
+
+
 class ConvNorm(nnx.Module):
     """Convolution (no bias, TensorFlow ``"SAME"`` padding), batch norm and optional ReLU6.
 
@@ -252,6 +268,8 @@ class ConvNorm(nnx.Module):
             if in_channels != out_channels:
                 raise ValueError(f"a depthwise convolution keeps the channels, got {in_channels} -> {out_channels}")
             self.conv = DepthwiseConv(in_channels, kernel, stride, rngs=rngs)
+        elif kernel == 1 and stride == 1:
+            self.conv = PointwiseConv(in_channels, out_channels, rngs=rngs)
         else:
             self.conv = nnx.Conv(
                 in_channels,
