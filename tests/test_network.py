@@ -27,7 +27,7 @@ import ncjax.synth.rooms
 import ncjax.training.data
 import ncjax.training.loop
 from ncjax.network import efficientnet
-from ncjax.network.checkpoint import load_checkpoint, load_weights, read_metadata, save_checkpoint
+from ncjax.network.checkpoint import load_checkpoint, load_weights, model_file, read_metadata, save_checkpoint
 from ncjax.network.denoise import denoise_for_network
 from ncjax.synth.rooms import Room
 
@@ -380,7 +380,7 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path):
 
 
 def test_shipped_models_load_by_name_and_an_unknown_name_says_what_ships():
-    from ncjax.network.checkpoint import model_file, shipped_models
+    from ncjax.network.checkpoint import shipped_models
 
     assert "compact1024" in shipped_models()
     assert "efficientnet_lite0_imagenet" not in shipped_models()  # a backbone's weights, not a layout network
@@ -500,9 +500,10 @@ def test_averaged_views_follow_the_panorama_symmetries():
 
 
 def test_shipped_model_outputs_are_unchanged():
-    """The shipped file (written before the backbone choice existed) loads as the ResNet network it was
+    """``compact1024`` (written before the backbone choice existed) loads as the ResNet network it was
     and gives the outputs it gave then (values computed with the code of that time)."""
-    path = ncjax.network.predict.DEFAULT_MODEL_PATH
+    assert ncjax.network.predict.DEFAULT_MODEL_PATH == model_file("lite0-1024")
+    path = model_file("compact1024")
     assert "backbone" not in json.loads(read_metadata(path)["config"])
     model = ncjax.load_model(path)
     assert model.config == ncjax.HorizonNetConfig.preset("compact1024") and model.config.backbone == "resnet"

@@ -27,7 +27,7 @@ from .denoise import denoise_for_network
 from .edges import EdgeSnap, snap_to_edges
 from .model import HorizonNet, check_views, predict_views, prediction_to_rows
 
-DEFAULT_MODEL_PATH = pathlib.Path(__file__).parent.parent / "models" / "compact1024.safetensors"
+DEFAULT_MODEL_PATH = pathlib.Path(__file__).parent.parent / "models" / "lite0-1024.safetensors"
 # views averaged by default (predict_boundaries, reconstruct): 4 cut the shipped model's boundary error by a tenth
 DEFAULT_VIEWS = 4
 
@@ -38,7 +38,7 @@ def _load_cached(path: str) -> HorizonNet:
 
 
 def default_model() -> HorizonNet:
-    """The shipped model (``ncjax/models/compact1024.safetensors``), loaded once."""
+    """The shipped model (``ncjax/models/lite0-1024.safetensors``), loaded once."""
     if not DEFAULT_MODEL_PATH.is_file():
         raise FileNotFoundError(
             f"the default network weights are missing ({DEFAULT_MODEL_PATH}); train a model with "

@@ -362,7 +362,7 @@ def train(
             bar.write(f"step {step + 1}: " + ", ".join(f"{k} {float(v):.4g}" for k, v in metrics.items()))
         reached = step + 1
         if deadline is not None and time.monotonic() >= deadline and reached < steps:
-            bar.write(f"time budget of {time_budget:.0f} s spent: stopping at step {reached} of {steps}")
+            bar.write(f"time budget spent: stopping at step {reached} of {steps} (a rerun resumes from its checkpoint)")
             break
     bar.close()
     if reached > start:
