@@ -7,6 +7,7 @@ on the snapped rows), after compilation, median of ``--repeats`` runs; latency
 per image and images per second.
 
     uv run python benchmarks/bench_reconstruct.py [--batches 1 8] [--world manhattan] [--repeats 3] [--views 4]
+        [--model NAME]
 """
 
 from __future__ import annotations
@@ -47,11 +48,12 @@ def main(argv=None):
     parser.add_argument("--world", default="manhattan", choices=("manhattan", "atlanta", "auto"))
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--views", type=int, default=DEFAULT_VIEWS, help="network views averaged (1 or even)")
+    parser.add_argument("--model", help="weights (.safetensors) or a shipped model's name; default: the default model")
     args = parser.parse_args(argv)
     name = next(p for p in os.listdir(DEMO_DIR) if p.endswith(".png"))
     image = read_panorama(DEMO_DIR / name)
     rc = ncjax.synth.dataset.rc_from_name(name)
-    model = default_model()
+    model = ncjax.load_model(args.model) if args.model else default_model()
     model.eval()
     height, width = image.shape[:2]
     print(f"{jax.devices()[0]}, {os.cpu_count()} CPUs, world {args.world}, image {width} x {height}, {args.views} network view(s)")
