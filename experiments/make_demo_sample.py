@@ -1,7 +1,7 @@
 """Render the sample that ``ncjax demo`` ships (ncjax/data/demo), reproducibly.
 
 The sample is the first room of seed 2026 (never used for training: the
-shipped model is trained on seeds 11-14) that is Manhattan with at least 6 walls,
+shipped models were trained on seeds 11-14, 21-22 and 31-33) that is Manhattan with at least 6 walls,
 rendered at 512 x 1024 with 3 x 3 supersampling. Its ground truth is the exact
 visible layout (camera frame, image order), stored with the image name, whose
 ``_R<rc>`` suffix carries the radius as in the authors' real captures.

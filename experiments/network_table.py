@@ -1,8 +1,8 @@
 """Table netcorExp (the network) and the "Network predictions" tables (pipeExp, comparison) on fixed test renders.
 
 Test set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` at 512 x 1024
-with seeds 99 (Manhattan) and 98 (Atlanta); the shipped model was trained on
-seeds 11-14 only, so none of these rooms, scenes or images was seen in training.
+with seeds 99 (Manhattan) and 98 (Atlanta); the shipped models were trained on
+seeds 11-14, 21-22 and 31-33, so none of these rooms, scenes or images was seen in training.
 They are rendered once into ``experiments/out/test_renders_<world>/`` and reused.
 
 1. Table netcorExp: boundary pixel error (PE, in pixels of a 1024-wide image)
