@@ -14,7 +14,6 @@ uses only its peaks, which any encoding of ``d`` keeps in place.
 from __future__ import annotations
 
 import functools
-import pathlib
 
 import jax
 import jax.numpy as jnp
@@ -22,12 +21,12 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float, Shaped
 
-from .checkpoint import load_model
+from .checkpoint import SHIPPED_MODELS_DIR, load_model
 from .denoise import denoise_for_network
 from .edges import EdgeSnap, snap_to_edges
 from .model import HorizonNet, check_views, predict_views, prediction_to_rows
 
-DEFAULT_MODEL_PATH = pathlib.Path(__file__).parent.parent / "models" / "lite0-1024.safetensors"
+DEFAULT_MODEL_PATH = SHIPPED_MODELS_DIR / "lite0-1024.safetensors"
 # views averaged by default (predict_boundaries, reconstruct): 4 cut the shipped model's boundary error by a tenth
 DEFAULT_VIEWS = 4
 
