@@ -5,7 +5,7 @@ Tuning set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` with seeds 7
 ``network_table.py`` (seeds 99 and 98) and none of the training seeds (11-14), so
 the test renders are never used to choose the configuration. The shipped model's
 boundaries (snapped, ``--views`` views) are computed once and cached in
-``experiments/out/tune_<world>_<rooms>_views<V>.npz``; each configuration then runs the
+``experiments/out/tune_<world>_<rooms>_views<V>_<model>_<hash>.npz``; each configuration then runs the
 pipeline alone (``layout_from_evidence``, each room with its own world). ``--model``
 runs another model's boundaries through the same configurations (cached under its
 file's name and content hash), to compare a new model with the shipped one before it replaces it.
@@ -43,7 +43,7 @@ from tqdm import tqdm
 
 import ncjax
 from ncjax.network.checkpoint import load_model
-from ncjax.network.predict import DEFAULT_VIEWS, default_model, predict_boundaries
+from ncjax.network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, predict_boundaries
 from ncjax.pipeline.run import layout_from_evidence
 from ncjax.pipeline.uncertainty import room_height_sigma
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
@@ -88,11 +88,11 @@ SCALE_TEST_THRESHOLDS = (0.04, 0.06, 0.08, 0.1, 0.15, 0.2, math.inf)
 
 
 def model_suffix(model_path: Path | None) -> str:
-    """What names a model's cached rows and tables: nothing for the shipped model, else the file's
-    name and the start of its SHA-256, so that new weights saved under an old name are not mistaken for it."""
-    if model_path is None:
-        return ""
-    return f"_{model_path.stem}_{hashlib.sha256(model_path.read_bytes()).hexdigest()[:8]}"
+    """What names a model's cached rows and tables: the file's name and the start of its SHA-256 (the
+    shipped model's when ``model_path`` is None), so that new weights saved under an old name are not
+    mistaken for it."""
+    path = DEFAULT_MODEL_PATH if model_path is None else model_path
+    return f"_{path.stem}_{hashlib.sha256(path.read_bytes()).hexdigest()[:8]}"
 
 
 def tuning_boundaries(world: str, rooms: int, views: int, out: Path, model_path: Path | None = None) -> dict:
@@ -101,12 +101,17 @@ def tuning_boundaries(world: str, rooms: int, views: int, out: Path, model_path:
     The rows and corner probability are those of the model in ``model_path``
     (default: the shipped one), cached per model (:func:`model_suffix`).
     """
-    cache = out / f"tune_{world}_{rooms}_views{views}{model_suffix(model_path)}.npz"
     folder = out / f"tune_renders_{world}_{rooms}"
     if not (folder.is_dir() and len(list_samples(str(folder))) == rooms):
         config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
         with tqdm(total=rooms, desc=f"render {world} tuning set") as bar:
             write_dataset(str(folder), rooms, SEEDS[world], config, batch_size=BATCH, overwrite=True, progress=bar.update)
+    cache = out / f"tune_{world}_{rooms}_views{views}{model_suffix(model_path)}.npz"
+    return rendered_boundaries(folder, world, cache, views, model_path)
+
+
+def rendered_boundaries(folder: Path, world: str, cache: Path, views: int, model_path: Path | None = None) -> dict:
+    """:func:`tuning_boundaries` of the renders in ``folder``, the network's outputs cached in ``cache``."""
     samples = [read_sample(str(folder), name) for name in list_samples(str(folder))]
     data = {
         "rc": np.array([s.rc for s in samples], np.float32),
@@ -117,7 +122,7 @@ def tuning_boundaries(world: str, rooms: int, views: int, out: Path, model_path:
     if cache.is_file():
         with np.load(cache) as stored:
             return data | dict(stored)
-    model, rows = (default_model() if model_path is None else load_model(model_path)), []
+    model, rows, rooms = (default_model() if model_path is None else load_model(model_path)), [], len(samples)
     for start in tqdm(range(0, rooms, BATCH), desc=f"network {world}"):
         chunk = samples[start : start + BATCH]
         chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))

@@ -17,7 +17,8 @@ cannot fix it (:data:`SCALE_FAILURES`); :class:`Reconstruction` says which
 
 from __future__ import annotations
 
-import functools
+import dataclasses
+import os
 from typing import NamedTuple
 
 import jax
@@ -35,6 +36,7 @@ from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part,
 from .pipeline.prior import HeightPrior
 from .pipeline.run import layout_for, layout_from_boundaries
 from .pipeline.types import Layout, LayoutStatus
+from .programs import call_saved
 
 # The pipeline's defaults suit exact and white-noise rows. The network's corner probability has lobes several
 # columns wide, in which NMS over +-2 columns leaves spurious second peaks: +-4 columns and a 0.4 threshold keep one
@@ -42,21 +44,28 @@ from .pipeline.types import Layout, LayoutStatus
 # columns, so the noise-scaled part of the occlusion test falls to its floor, but not beside the corners, where two
 # walls' edges mix: a jump there must reach 8 px, not 4, to count as an occlusion. Chosen for the shipped model on
 # tuning renders, never the test renders (experiments/tune_network_pipeline.py; experiments/RESULTS.md).
-# A layout whose room height the rows fix no better than 8% (one sigma) fails with UNCERTAIN_SCALE: on the tuning
-# renders 91% (Manhattan) and 76% (Atlanta) of the ok layouts that this fails were more than 0.3 m off, and 0.08 is the
-# smallest threshold at which three quarters of them were (experiments/RESULTS.md).
+# A layout whose room height the rows fix no better than 15% (one sigma of the calibrated covariance below) fails
+# with UNCERTAIN_SCALE: on the tuning renders two thirds of the ok layouts this fails were more than 0.3 m off, and
+# 0.15 is the smallest threshold at which they were in both worlds (experiments/RESULTS.md).
 # Floor rows more than 2 px from the row their column's ceiling row implies are replaced by it for the walls' fits
 # (step 0, ncjax.pipeline.floor_check; 2 and 3 px compared on the tuning renders, experiments/RESULTS.md).
 # A layout that reprojects fewer than 60% of the usable rows within 3 px is flagged LOW_CONFIDENCE: on the tuning
 # renders the fewest was 72% (none flagged), on real photographs 19-79%, and the layouts below 60% there had a mean
 # 3D IoU of 0.44 against 0.68 above (experiments/confidence.py; experiments/RESULTS.md).
+# The covariances count two errors of the network's rows that the fit absorbs and its residuals cannot show: an
+# offset per wall and boundary (2 times the rows' noise and 2 px, combined) and the corner columns' error (2 px):
+# the sharpest setting whose 95% ellipses and height intervals covered 92-97% of the truth on the tuning renders
+# (experiments/calibrate_uncertainty.py).
 NETWORK_PIPELINE_CONFIG = PipelineConfig(
     corner_threshold=0.4,
     nms_radius=4.0,
     occlusion_threshold=8.0,
-    max_height_uncertainty=0.08,
+    max_height_uncertainty=0.15,
     floor_consistency_threshold=2.0,
     min_explained_fraction=0.6,
+    wall_offset_ratio=2.0,
+    wall_offset_noise=2.0,
+    corner_column_noise=2.0,
 )
 
 
@@ -95,8 +104,7 @@ class Reconstruction(NamedTuple):
     geometry: Layout | None = None
 
 
-@functools.partial(nnx.jit, static_argnames=("world", "config", "views", "edge_snap"))
-def _reconstruct(
+def _reconstruct_body(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
     rc: Float[Array, " B"],
@@ -119,6 +127,37 @@ def _reconstruct(
     layouts = jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, prior, keys)
     source = jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR)
     return Reconstruction(layouts, ceiling_v, floor_v, corner_prob, source)
+
+
+_reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "config", "views", "edge_snap"))
+
+
+def _reconstruct_saved(
+    directory, model: HorizonNet, images, rc, keys, thresholds, prior, world, config, views, edge_snap
+):
+    """:func:`_reconstruct` through its program saved in ``directory`` (:func:`ncjax.programs.call_saved`):
+    a later process skips the tracing. The model's weights are arguments, its architecture part of the key."""
+    graphdef, state = nnx.split(model)
+
+    def run(state, images, rc, key_data, thresholds, prior):
+        result = _reconstruct_body(
+            nnx.merge(graphdef, state),
+            images,
+            rc,
+            jax.random.wrap_key_data(key_data),
+            thresholds,
+            prior,
+            world,
+            config,
+            views,
+            edge_snap,
+        )
+        # plain containers: a saved program's result tree must survive pickling (Layout's does not)
+        return {field.name: getattr(result.layout, field.name) for field in dataclasses.fields(Layout)}, result[1:5]
+
+    key = repr(("reconstruct", model.config, world, config, views, edge_snap))
+    layout, rest = call_saved(directory, key, run, state, images, rc, jax.random.key_data(keys), thresholds, prior)
+    return Reconstruction(Layout(**layout), *rest)
 
 
 def _with_prior_fallback(
@@ -169,6 +208,7 @@ def reconstruct_batch(
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
     prior: HeightPrior | None = None,
+    program_cache: str | os.PathLike | None = None,
 ) -> Reconstruction:
     """Metric layouts of a batch of panoramas of one size, each with its own radius.
 
@@ -189,6 +229,10 @@ def reconstruct_batch(
         prior: a :class:`~ncjax.HeightPrior` (value scalar or (B,)): the scale of the
             central panoramas (``rc = 0``), and of the non-central ones whose geometry
             fails with one of :data:`SCALE_FAILURES`. None: metric scale from the geometry only.
+        program_cache: a folder where the traced program is kept (:mod:`ncjax.programs`): a later
+            process with the same settings and shapes skips the tracing (about half a minute on 2
+            CPU cores; with XLA's persistent compilation cache the compiler too). None: traced in
+            each process, as any jitted function.
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).
@@ -217,18 +261,12 @@ def reconstruct_batch(
     key = jax.random.key(0) if key is None else key
     keys = jax.random.split(key, images.shape[0])
     central = prior is not None and not np.any(rc > 0)
-    result = _reconstruct(
-        model,
-        jnp.asarray(images),
-        jnp.asarray(rc),
-        keys,
-        traced_part(config),
-        prior if central else None,
-        world,
-        static_part(config),
-        views,
-        edge_snap,
-    )
+    arguments = (model, jnp.asarray(images), jnp.asarray(rc), keys, traced_part(config), prior if central else None)
+    settings = (world, static_part(config), views, edge_snap)
+    if program_cache is None:
+        result = _reconstruct(*arguments, *settings)
+    else:
+        result = _reconstruct_saved(program_cache, *arguments, *settings)
     if prior is None or central:
         return result
     return _with_prior_fallback(result, rc, prior, key, world, config)
@@ -245,6 +283,7 @@ def reconstruct(
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
     prior: HeightPrior | None = None,
+    program_cache: str | os.PathLike | None = None,
 ) -> Layout:
     """Metric room layout of one RGB panorama: network, then geometry (paper Fig. pipeline).
 
@@ -258,6 +297,8 @@ def reconstruct(
         views: rolled and mirrored views the network averages (1 or even).
         edge_snap: rows snapped to the image's edges (None: the network's rows).
         prior: a :class:`~ncjax.HeightPrior` for the scale (needed when ``cam.rc`` is 0; see
+            :func:`reconstruct_batch`).
+        program_cache: a folder that keeps the traced program for later processes (see
             :func:`reconstruct_batch`).
 
     Returns:
@@ -279,5 +320,6 @@ def reconstruct(
         views=views,
         edge_snap=edge_snap,
         prior=prior,
+        program_cache=program_cache,
     )
     return jax.tree.map(lambda x: x[0], result.layout)

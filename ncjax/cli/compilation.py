@@ -2,7 +2,8 @@
 
 The first ``ncjax reconstruct`` with a given image size, batch and settings traces and compiles one
 program for the network and the geometry: on 2 CPU cores one to two minutes, more than all the
-rest of the run. Later runs load it from the cache. :class:`CompileLedger` remembers, beside the
+rest of the run. Later runs load the traced program (:mod:`ncjax.programs`) and the compiled one
+from the cache. :class:`CompileLedger` remembers, beside the
 cache, which settings this machine has compiled and how long the first call took, so that a run
 which is about to compile says so and for about how long, instead of a progress bar at 0%.
 """
@@ -28,11 +29,17 @@ def cache_directory() -> str:
     return os.environ.get("NCJAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "ncjax", "xla"))
 
 
+def program_directory() -> str:
+    """Where the CLI keeps its traced programs (:mod:`ncjax.programs`): beside XLA's cache."""
+    return os.path.join(cache_directory(), "programs")
+
+
 def enable_compilation_cache() -> str:
     """Keep XLA's compiled programs in :func:`cache_directory` across runs; returns the directory.
 
     Compilation is most of a first run's time; the persistent cache spares later runs with the same
-    image size, batch and settings the compilation (not the tracing: about half a minute on 2 cores).
+    image size, batch and settings the compilation; the programs saved in :func:`program_directory`
+    spare them the tracing.
     """
     import jax
 

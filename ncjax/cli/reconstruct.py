@@ -38,7 +38,7 @@ from ..network.edges import EdgeSnap
 from ..network.model import check_views
 from ..network.predict import DEFAULT_VIEWS
 from ..pipeline.config import DEFAULT_WORLD, WORLDS
-from .compilation import CompileLedger, enable_compilation_cache, settings_key
+from .compilation import CompileLedger, enable_compilation_cache, program_directory, settings_key
 from .inputs import (
     PANORAMA_SUFFIXES,
     check_output_folder,
@@ -118,6 +118,7 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
                         views=settings.views,
                         edge_snap=settings.edge_snap,
                         prior=settings.prior,
+                        program_cache=program_directory(),
                     )
                 )
         except RuntimeError as error:  # XLA's errors (out of memory, ...): reported per image, the next batch goes on
@@ -334,6 +335,7 @@ def run_demo(args: argparse.Namespace) -> int:
                 config=config,
                 views=args.views,
                 edge_snap=args.edge_snap,
+                program_cache=program_directory(),
             )
         )
     one = jax.tree.map(lambda x: x[0], tuple(result))

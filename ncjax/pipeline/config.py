@@ -107,6 +107,19 @@ class PipelineConfig:
         covariance: compute ``Layout.corner_covariance`` and ``height_covariance``
             (a Jacobian of the final adjustment: 10-20% of the batched throughput
             in our benchmark); False leaves them NaN.
+        wall_offset_ratio: the covariance's share of an error that the rows of
+            one wall share (an offset per wall and boundary, which the fit
+            absorbs and its residuals cannot show): its standard deviation as
+            a multiple of the boundary's row noise
+            (:func:`ncjax.pipeline.uncertainty.layout_uncertainty`). Off (0)
+            by default, as for rows with independent errors; the network's
+            configuration sets it.
+        wall_offset_noise: that offset's standard deviation not tied to the
+            rows' noise, pixels of a 512-row panorama. Off (0) by default.
+        corner_column_noise: the covariance's share of the detected corner
+            columns' error, their standard deviation in columns of a
+            1024-column panorama (the corner rows count at the rows' noise
+            without it). Off (0) by default.
         min_finite_fraction: fraction of columns with finite rows needed.
         max_height_uncertainty: a layout whose room height ``h_c - h_f`` has a
             standard deviation (:attr:`Layout.height_covariance`) above this
@@ -160,6 +173,9 @@ class PipelineConfig:
     inlier_pass_stride: int = 4
     chunk_size: int = 32
     covariance: bool = True
+    wall_offset_ratio: float = 0.0
+    wall_offset_noise: float = 0.0
+    corner_column_noise: float = 0.0
     min_finite_fraction: float = 0.5
     max_height_uncertainty: float = math.inf
     max_room_height: float = 10.0
@@ -198,8 +214,9 @@ class PipelineConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if math.isfinite(self.max_height_uncertainty) and not self.covariance:
             raise ValueError("max_height_uncertainty needs covariance=True (it tests the height's covariance)")
-        if self.occlusion_noise_factor < 0:
-            raise ValueError(f"occlusion_noise_factor must be >= 0, got {self.occlusion_noise_factor}")
+        for name in ("occlusion_noise_factor", "wall_offset_ratio", "wall_offset_noise", "corner_column_noise"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("adjustment_stride", "inlier_pass_stride"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1 column, got {getattr(self, name)}")
@@ -250,6 +267,9 @@ TRACED_FIELDS = (
     "turn_weight",
     "corner_weight",
     "min_boundary_noise",
+    "wall_offset_ratio",
+    "wall_offset_noise",
+    "corner_column_noise",
     "min_finite_fraction",
     "max_height_uncertainty",
     "max_room_height",

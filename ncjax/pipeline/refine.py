@@ -109,7 +109,17 @@ def refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c,
     )
     if config.covariance:
         max_lag = max(1, round(scaled(CORRELATION_COLUMNS, cam.width, 1024) / config.adjustment_stride))
-        uncertainty = layout_uncertainty(cam, inliers, *adjusted[:4], labels, config.corner_weight, max_lag)
+        uncertainty = layout_uncertainty(
+            cam,
+            inliers,
+            *adjusted[:4],
+            labels,
+            config.corner_weight,
+            max_lag,
+            config.wall_offset_ratio,
+            config.wall_offset_noise * scaled(1.0, cam.height, 512),
+            config.corner_column_noise * scaled(1.0, cam.width, 1024),
+        )
     else:
         uncertainty = not_computed(distances.shape[0], distances.dtype)
     # every usable column counts, on whichever wall this layout gives it, so that the two branches compare

@@ -18,7 +18,14 @@ from .adjust import (
     loop_corners,
     used_rows,
 )
-from .sparse_normal import jacobian_product, normal_matrix, probe_jacobian, scale_columns, squared_column_norms
+from .sparse_normal import (
+    jacobian_product,
+    normal_matrix,
+    probe_jacobian,
+    scale_columns,
+    squared_column_norms,
+    transpose_product,
+)
 
 _LAGS_PER_ITERATION = 8
 
@@ -93,6 +100,34 @@ def room_height_sigma(height_covariance: Float[ArrayLike, "*#batch 2 2"]) -> Flo
     return jnp.where(jnp.isfinite(variance), jnp.sqrt(jnp.maximum(jnp.nan_to_num(variance), 0.0)), jnp.inf)
 
 
+def _wall_offset_spread(
+    jacobian: Float[Array, "R A"],
+    structure,
+    inverse: Float[Array, "P P"],
+    observations: BoundaryObservations,
+    boundary_variance: Float[Array, " 2"],
+    ratio: Float[ArrayLike, ""],
+    noise: Float[ArrayLike, ""],
+) -> Float[Array, "offsets P"]:
+    """Rows ``s_b (A^-1 J^T u_wb)^T`` whose Gram matrix is the per-wall offsets' share of the covariance.
+
+    ``u_wb`` indicates the used rows of boundary ``b`` on wall ``w``, ``s_b`` the offset's standard
+    deviation in the fit's weighted units (see :func:`layout_uncertainty`).
+    """
+    count = observations.columns.shape[0]
+    slots = observations.wall_mask.shape[0]
+    on_wall = used_rows(observations)[:, None, :] & (
+        observations.column_wall[None, None, :] == jnp.arange(slots)[None, :, None]
+    )  # (2, K, N)
+    indicators = jnp.zeros((2, slots, jacobian.shape[0]), jacobian.dtype)
+    indicators = indicators.at[0, :, :count].set(on_wall[0]).at[1, :, count : 2 * count].set(on_wall[1])
+    gradients = jax.vmap(lambda u: transpose_product(jacobian, structure, u))(indicators.reshape(2 * slots, -1))
+    sigma = jnp.sqrt(
+        ratio**2 * boundary_variance + (noise * observations.row_weights) ** 2
+    )  # weighted units: a weight times pixels
+    return jnp.repeat(sigma, slots)[:, None] * (gradients @ inverse)
+
+
 # A weak prior on every parameter, in units of its own scale (the equilibrated normal matrix has a unit
 # diagonal): 1e-6 of the information the rows give a parameter that they alone fix, so a standard deviation
 # 1000 times that parameter's. float32
@@ -112,6 +147,9 @@ def layout_uncertainty(
     labels: Int[Array, " K"] | None,
     corner_weight: Float[ArrayLike, ""] = 1.0,
     max_lag: int = 64,
+    wall_offset_ratio: Float[ArrayLike, ""] = 0.0,
+    wall_offset_noise: Float[ArrayLike, ""] = 0.0,
+    corner_column_noise: Float[ArrayLike, ""] = 0.0,
 ) -> LayoutUncertainty:
     """First-order covariance of the corners and heights of a layout that :func:`adjust_layout` returned.
 
@@ -122,7 +160,18 @@ def layout_uncertainty(
     squared residuals over their count minus their share of the free parameters;
     the corner rows at that of all rows), ``tau`` the rows' :func:`correlation_time`.
     When both boundaries' weighted rows are equally noisy, as the weights of
-    independent noise would make them, it is ``tau sigma^2 (J^T J)^-1``. It is propagated to
+    independent noise would make them, it is ``tau sigma^2 (J^T J)^-1``.
+
+    Rows may also share an error along a whole wall (a network that follows a
+    skirting board or a furniture edge): an offset per wall and boundary, of
+    standard deviation ``hypot(wall_offset_ratio sigma_b, wall_offset_noise)``
+    (``sigma_b`` the boundary's row noise above). The fit absorbs such an
+    offset into the wall, so its residuals cannot show it; its share
+    ``(J^T J)^-1 J^T u u^T J (J^T J)^-1`` per wall (``u`` the wall's used
+    rows) is added to the sandwich, and does not shrink as the wall's
+    columns grow. Likewise a corner detector's column error: the corner rows'
+    variance is the rows' pooled one plus ``(corner_weight corner_column_noise)^2``.
+    It is propagated to
     each corner's plan position through the Jacobian of the corner (where
     consecutive walls meet). It describes the noise of the rows, not a
     wrong wall structure (a missed or extra corner).
@@ -137,6 +186,10 @@ def layout_uncertainty(
         cam, observations, directions, distances, ceiling_height, floor_height, labels, corner_weight:
             as for :func:`adjust_layout`; the walls are its result.
         max_lag: static largest lag of :func:`correlation_time`, in observations.
+        wall_offset_ratio: the per-wall offset's standard deviation, as a multiple of the rows' noise.
+        wall_offset_noise: the per-wall offset's standard deviation not tied to the rows' noise, pixels
+            of this panorama.
+        corner_column_noise: standard deviation of the detected corner columns, pixels of this panorama.
 
     Returns:
         A :class:`LayoutUncertainty`; infinite where a parameter is free (see above).
@@ -162,7 +215,10 @@ def layout_uncertainty(
     # on the weighted rows: exact rows, whose residuals are float rounding, do not count
     tau = correlation_time(rows, used, observations.column_wall, max_lag)
     residual_variance = jnp.concatenate(
-        [jnp.repeat(boundary_variance, count), jnp.full(values.shape[0] - 2 * count, pooled_variance)]
+        [
+            jnp.repeat(boundary_variance, count),
+            jnp.full(values.shape[0] - 2 * count, pooled_variance + (corner_weight * corner_column_noise) ** 2),
+        ]
     )
     # unit columns first: angles (radians) and lengths (metres) differ in scale, and float32
     # inverts the equilibrated normal matrix far more accurately (no negative variances)
@@ -184,7 +240,11 @@ def layout_uncertainty(
     # the prior's share of the sandwich, (A^-1 (J^T V J + ridge s I) A^-1 with A = J^T J + ridge I): without it a
     # direction the rows leave free (J v = 0) would get variance 0 instead of s / ridge
     prior = safe_sqrt(COVARIANCE_RIDGE * pooled_variance) * inverse
-    covariance = tau * scale[:, None] * (spread.T @ spread + prior.T @ prior) * scale[None, :]
+    offsets = _wall_offset_spread(
+        scaled, structure, inverse, observations, boundary_variance, wall_offset_ratio, wall_offset_noise
+    )
+    sandwich = tau * (spread.T @ spread + prior.T @ prior) + offsets.T @ offsets
+    covariance = scale[:, None] * sandwich * scale[None, :]
     # a parameter no residual depends on (a wall that no used row or corner row sees, a height without rows) has
     # scale 0, hence covariance 0: what depends on it is set infinite below
     unconstrained = norms == 0

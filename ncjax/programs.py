@@ -1,0 +1,122 @@
+"""Traced programs kept on disk with ``jax.export``, so that a later process skips tracing.
+
+Tracing the reconstruction (the network and both worlds' geometry, tens of
+thousands of operations) takes about half a minute on 2 CPU cores in every new
+process, even when XLA's persistent compilation cache
+(:func:`ncjax.cli.compilation.enable_compilation_cache`) holds the compiled
+program. :func:`call_saved` exports a function's traced program (StableHLO)
+once into a folder; a later process deserializes it in well under a second,
+and the compilation cache spares it the compiler as well.
+
+A saved program is named by the caller's key, the arguments' shapes, dtypes
+and tree, the versions of jax and jaxlib, the backend and a digest of
+ncjax's own sources, so that a program traced by other code is never reused.
+The files are Python pickles (the argument and result trees): like XLA's
+cache, the folder must be the user's own.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import pathlib
+import pickle
+from collections.abc import Callable
+from typing import Any
+
+import jax
+
+from .io.files import write_atomic
+
+SUFFIX = ".jaxexport"
+
+
+@functools.cache
+def source_digest() -> str:
+    """SHA-256 of ncjax's Python sources."""
+    root = pathlib.Path(__file__).parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(path.relative_to(root).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def program_path(directory: str | os.PathLike, key: str, args: tuple) -> pathlib.Path:
+    """Where the program of ``key`` for arguments like ``args`` is saved."""
+    leaves, tree = jax.tree.flatten(args)
+    signature = [(tuple(x.shape), str(x.dtype)) for x in leaves]
+    text = repr((key, str(tree), signature, jax.__version__, jax.lib.__version__, jax.default_backend()))
+    name = hashlib.sha256((text + source_digest()).encode()).hexdigest()[:24]
+    return pathlib.Path(directory) / f"{name}{SUFFIX}"
+
+
+def call_saved(directory: str | os.PathLike, key: str, function: Callable[..., Any], *args: Any) -> Any:
+    """``function(*args)``, run through its traced program saved in ``directory``.
+
+    The program is loaded when a process saved it before (:func:`program_path`),
+    else traced, exported and saved (a folder that cannot be written only
+    costs the next process the tracing again). The result is the same
+    pytree ``function`` returns.
+
+    Args:
+        directory: the folder of the saved programs.
+        key: what else ``function`` depends on (static settings), as text.
+        function: a function of pytrees of arrays, traceable by ``jax.jit``, that returns Python's own
+            containers (tuples, lists, dicts, None) of arrays: the result's tree is pickled, and a custom
+            pytree node (an ``equinox.Module``, say) may not come back the same.
+        *args: its arguments: pytrees whose leaves are arrays.
+
+    Raises:
+        TypeError: ``function``'s result is not made of Python's own containers.
+    """
+    path = program_path(directory, key, args)
+    leaves, in_tree = jax.tree.flatten(args)
+    if path not in _CALLABLE:
+        saved = _load(path)
+        if saved is None:
+            saved = _export(function, in_tree, leaves)
+            try:
+                os.makedirs(path.parent, exist_ok=True)
+                exported, out_tree = saved
+                write_atomic(str(path), pickle.dumps((bytes(exported.serialize()), out_tree)))
+            except OSError:
+                pass
+        exported, out_tree = saved
+        # one jitted caller per program and process: Exported.call alone lowers the program anew each call
+        _CALLABLE[path] = jax.jit(exported.call), out_tree
+    call, out_tree = _CALLABLE[path]
+    return jax.tree.unflatten(out_tree, call(*leaves))
+
+
+# the programs this process has loaded or exported: path -> (jitted call, result tree)
+_CALLABLE: dict[pathlib.Path, tuple[Callable, Any]] = {}
+
+
+def _export(function, in_tree, leaves) -> tuple[jax.export.Exported, Any]:
+    out_trees = []
+
+    def flat(*flat_args):
+        leaves_out, out_tree = jax.tree.flatten(function(*jax.tree.unflatten(in_tree, flat_args)))
+        out_trees.append(out_tree)
+        return leaves_out
+
+    exported = jax.export.export(jax.jit(flat))(*leaves)
+    try:
+        survives = pickle.loads(pickle.dumps(out_trees[0])) == out_trees[0]
+    except (pickle.PicklingError, AttributeError, TypeError):
+        survives = False
+    if not survives:
+        raise TypeError(f"a saved program must return Python containers of arrays, not {out_trees[0]}")
+    return exported, out_trees[0]
+
+
+def _load(path: pathlib.Path) -> tuple[jax.export.Exported, Any] | None:
+    """The saved program at ``path``, or None when there is none or it cannot be read."""
+    try:
+        with open(path, "rb") as file:
+            serialized, out_tree = pickle.load(file)
+        return jax.export.deserialize(bytearray(serialized)), out_tree
+    except Exception:  # a missing, truncated or foreign file is traced again, whatever broke
+        return None

@@ -1,0 +1,65 @@
+"""Traced programs saved with jax.export and called again without tracing."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncjax import programs
+
+
+def _traced_calls():
+    calls = []
+
+    def function(x, pair):
+        calls.append(1)  # runs only while tracing
+        return {"sum": x + pair[0], "product": x * pair[1], "none": None}
+
+    return function, calls
+
+
+def test_a_saved_program_is_called_without_tracing_again(tmp_path):
+    function, calls = _traced_calls()
+    x, pair = jnp.arange(3.0), (jnp.ones(3), jnp.float32(2.0))
+    first = programs.call_saved(tmp_path, "k", function, x, pair)
+    assert len(calls) == 1 and len(list(tmp_path.glob(f"*{programs.SUFFIX}"))) == 1
+    programs._CALLABLE.clear()  # as a new process: only the file is left
+    second = programs.call_saved(tmp_path, "k", function, x, pair)
+    assert len(calls) == 1
+    assert second["none"] is None
+    np.testing.assert_array_equal(second["sum"], first["sum"])
+    np.testing.assert_array_equal(second["product"], np.arange(3.0) * 2)
+
+
+def test_other_shapes_keys_or_a_broken_file_are_traced_anew(tmp_path):
+    function, calls = _traced_calls()
+    pair = (jnp.ones(3), jnp.float32(2.0))
+    programs.call_saved(tmp_path, "k", function, jnp.zeros(3), pair)
+    programs.call_saved(tmp_path, "k", function, jnp.zeros(4), (jnp.ones(4), jnp.float32(2.0)))
+    programs.call_saved(tmp_path, "other", function, jnp.zeros(3), pair)
+    assert len(calls) == 3 and len(list(tmp_path.glob(f"*{programs.SUFFIX}"))) == 3
+    path = programs.program_path(tmp_path, "k", (jnp.zeros(3), pair))
+    path.write_bytes(b"not a program")
+    programs._CALLABLE.clear()
+    result = programs.call_saved(tmp_path, "k", function, jnp.full(3, 1.0), pair)
+    assert len(calls) == 4
+    np.testing.assert_array_equal(result["sum"], np.full(3, 2.0))
+
+
+def test_an_unwritable_folder_still_gives_the_result(tmp_path):
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    function, _ = _traced_calls()
+    result = programs.call_saved(blocked / "programs", "k", function, jnp.ones(2), (jnp.ones(2), jnp.float32(3.0)))
+    np.testing.assert_array_equal(result["product"], np.full(2, 3.0))
+    assert jax.tree.structure(result) == jax.tree.structure({"sum": 0, "product": 0, "none": None})
+
+
+class Box(eqx.Module):
+    value: jax.Array
+
+
+def test_a_result_that_would_not_survive_pickling_is_refused(tmp_path):
+    with pytest.raises(TypeError, match="Python containers"):
+        programs.call_saved(tmp_path, "k", lambda x: Box(x), jnp.ones(2))
