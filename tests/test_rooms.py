@@ -1,5 +1,6 @@
 """Synthetic rooms and their exact labels: hand-computed box room, invariants on random rooms."""
 
+import dataclasses
 import functools
 import math
 from functools import partial
@@ -200,3 +201,19 @@ def test_failure_is_reported_not_hidden():
 def test_bad_config_is_rejected(kwargs):
     with pytest.raises(ValueError):
         ncjax.RoomConfig(**kwargs)
+
+
+def test_small_room_source_gives_closets_and_corridors():
+    from ncjax.training.data import SYNTH_SOURCES
+
+    config = dataclasses.replace(SYNTH_SOURCES["synth-decor-small"].room, camera_tries=64)
+    rooms = _generate(config, 32, seed=3)
+    assert np.all(np.asarray(rooms.status) == ncjax.RoomStatus.OK)
+    manhattan = ~np.asarray(rooms.is_atlanta)
+    assert np.all(np.asarray(rooms.rc) == 0) and 0 < manhattan.sum() < 32
+    assert np.asarray(rooms.num_walls)[manhattan].max() <= 6
+    for i in range(32):
+        corners = np.asarray(rooms.corners[i])[np.asarray(rooms.mask[i])]
+        diameter = np.linalg.norm(corners[:, None] - corners[None], axis=-1).max()
+        assert diameter <= 4.0 * math.sqrt(2) + 1e-4 and 0 < float(polygon_area(rooms.corners[i], rooms.mask[i])) <= 16
+        assert float(distance_to_walls(jnp.zeros(2), rooms.corners[i], rooms.mask[i])) > 0.3 - 1e-5

@@ -141,10 +141,17 @@ SYNTH_SOURCES = {
     "synth-decor-central": dataclasses.replace(
         SYNTH_COMMAND_CONFIG, room=RoomConfig(world="mix", rc_range=(0.0, 0.0)), scene=SceneConfig(decor=True)
     ),
+    "synth-decor-small": dataclasses.replace(
+        SYNTH_COMMAND_CONFIG,
+        room=RoomConfig(world="mix", size_range=(1.2, 4.0), max_walls=6, rc_range=(0.0, 0.0)),
+        scene=SceneConfig(decor=True),
+    ),
 }
 """The configuration of each kind of rendered data source, ``KIND:SEED:N``
 (``synth-decor``: what ``ncjax synth --decor`` renders; ``synth-decor-central``: such
-rooms seen by a central camera, rc = 0, as most real panoramas are)."""
+rooms seen by a central camera, rc = 0, as most real panoramas are; ``synth-decor-small``:
+closets, bathrooms and corridors, sides of 1.2-4 m and at most 6 walls, seen by a central
+camera, whose walls fill the panorama as no room of the other kinds does)."""
 
 
 def rendered_splits(
