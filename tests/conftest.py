@@ -88,3 +88,11 @@ def x64():
     """Run the test with 64-bit floats enabled."""
     with jax.enable_x64(True):
         yield
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items):
+    """An ``extended`` test is also ``slow``: the fast tier (``-m 'not slow'``) leaves it out too."""
+    for item in items:
+        if item.get_closest_marker("extended"):
+            item.add_marker(pytest.mark.slow)

@@ -279,7 +279,7 @@ def test_bad_input_is_a_value_error():
         align.TiltConfig(max_tilt=90.0)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_estimate_tilt_on_a_render(tmp_path):
     """A furnished room of the project's renderer (central, 256 x 512), tilted by resampling."""
     from ncjax.synth.dataset import rendered_samples, rendering_rgb8

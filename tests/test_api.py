@@ -98,6 +98,7 @@ def test_documented_signatures(function, parameters):
 CAM = ncjax.NonCentralPanorama(width=64, height=32, rc=0.3)
 
 
+@pytest.mark.slow
 def test_camera_maps_jit_vmap_and_grad():
     u = jnp.linspace(0.0, 63.0, 5)
     v = jnp.linspace(4.0, 28.0, 5)
@@ -132,6 +133,7 @@ def _wall_rays(ceiling_height):
     return rays(ceiling_height), rays(-1.4)
 
 
+@pytest.mark.slow
 def test_wall_solver_jit_vmap_and_grad():
     mask = jnp.ones(8, bool)
     ceiling, floor = _wall_rays(1.1)

@@ -128,6 +128,7 @@ def test_bad_height_prior_is_refused_before_anything_is_written(tmp_path, capsys
     assert message in error and len(error.strip().splitlines()) == 1 and not out.exists()
 
 
+@pytest.mark.slow
 def test_a_batch_that_raises_is_reported_and_the_run_goes_on(tmp_path, capsys, monkeypatch):
     import ncjax.reconstruction
 
@@ -186,6 +187,7 @@ def batch_run(tmp_path_factory):
     return code, out, errors.getvalue(), list(files.values())
 
 
+@pytest.mark.slow
 def test_reconstruct_writes_every_output_of_good_images(batch_run):
     # Plumbing, not accuracy (experiments/network_table.py measures that): every decodable image gets its
     # json, overlay and plan; a mesh exactly when a layout was found (also one of uncertain scale); a layout that
@@ -210,6 +212,7 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
     assert records[0]["ceiling_corners"] == records[1]["ceiling_corners"]
 
 
+@pytest.mark.slow
 def test_central_reconstruct_takes_its_scale_from_the_camera_height(tmp_path):
     """``--rc 0``: levelled, scale from the default camera height, the layout also in the four formats."""
     from ncjax.io.formats import FORMATS, format_path
@@ -230,6 +233,7 @@ def test_central_reconstruct_takes_its_scale_from_the_camera_height(tmp_path):
         assert corners.count == len(record["floor_corners"]), format
 
 
+@pytest.mark.slow
 def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
     code, out, errors, _ = batch_run
     assert code == 1
@@ -242,6 +246,7 @@ def test_reconstruct_reports_bad_files_and_writes_nothing_for_them(batch_run):
     assert not any(".tmp" in name or name.startswith(".") for name in written), written
 
 
+@pytest.mark.slow
 def test_reconstruct_summarises_every_image_in_one_csv(batch_run):
     import csv
 
@@ -306,6 +311,7 @@ def test_summary_rows_of_each_result():
     assert error["result"] == "error" and error["status"] == "" and error["message"] == "truncated"
 
 
+@pytest.mark.slow
 def test_demo_reconstructs_the_shipped_sample(tmp_path, capsys):
     assert cli.main(["demo", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
@@ -317,6 +323,7 @@ def test_demo_reconstructs_the_shipped_sample(tmp_path, capsys):
     assert (tmp_path / f"{pathlib.Path(DEMO_TRUTH['image']).stem}_plan.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_failure_messages_say_whether_a_layout_was_written():
     uncertain = {
         "status": "UNCERTAIN_SCALE",

@@ -204,6 +204,7 @@ def test_random_augment_is_pure_keeps_shape_and_range_and_compiles_once():
     assert len(_TRACES) == 1
 
 
+@pytest.mark.slow
 def test_random_augment_with_every_effect_on():
     image = jnp.asarray(smooth_image(), jnp.float32)
     augmented = jax.jit(jax.vmap(augment.random_augment, in_axes=(0, None, None)), static_argnums=2)

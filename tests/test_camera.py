@@ -64,6 +64,7 @@ def test_field_of_view_parameters():
     assert (float(u), float(v)) == pytest.approx((-0.5, -0.5), abs=1e-5)
 
 
+@pytest.mark.slow
 def test_points_inside_the_circle_are_nan_with_finite_gradients():
     cam = ncjax.NonCentralPanorama(width=64, height=32, rc=0.5)
     inside = jnp.array([[0.1, 0.2, 1.0], [0.0, 0.0, -1.0]])
@@ -121,6 +122,7 @@ def _central_difference(f, x, eps=1e-6):
     return np.stack(columns, -1)
 
 
+@pytest.mark.slow
 def test_projection_gradients_match_finite_differences(x64):
     def pixel(inputs):
         cam = ncjax.NonCentralPanorama(width=1024, height=512, rc=inputs[3])
@@ -132,6 +134,7 @@ def test_projection_gradients_match_finite_differences(x64):
     np.testing.assert_allclose(forward, _central_difference(pixel, x), rtol=1e-6, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_ray_gradients_match_finite_differences(x64):
     def ray(inputs):
         cam = ncjax.NonCentralPanorama(width=1024, height=512, rc=inputs[2])

@@ -20,6 +20,7 @@ def test_unknown_command_fails_cleanly():
     assert excinfo.value.code == 2
 
 
+@pytest.mark.slow
 def test_console_script_runs():
     result = subprocess.run([sys.executable, "-m", "ncjax.cli", "--version"], capture_output=True, text=True)
     assert result.returncode == 0 and "ncjax" in result.stdout
@@ -38,6 +39,7 @@ def test_edge_snap_is_on_unless_asked_off():
     assert parser.parse_args([*base, "--no-edge-snap"]).edge_snap is None
 
 
+@pytest.mark.slow
 def test_fine_tuning_from_another_architecture_is_refused(tmp_path, capsys):
     import ncjax
 

@@ -100,6 +100,7 @@ def error_lines(stderr):
 # ----------------------------------------------------------------------------- outputs of one image
 
 
+@pytest.mark.slow
 def test_the_outputs_of_an_image_appear_together_or_not_at_all(tmp_path, fake, monkeypatch, capsys):
     real_write_png = ncjax.io.export.write_png
 
@@ -205,6 +206,7 @@ def test_skip_existing_resumes_a_batch(tmp_path, fake, capsys):
     assert "1 of 3 images reconstructed" in printed and "2 skipped" in printed
 
 
+@pytest.mark.slow
 def test_folders_give_their_panoramas(tmp_path, fake, capsys):
     folder = tmp_path / "captures"
     panoramas(folder, "b", "a")

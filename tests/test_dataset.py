@@ -22,7 +22,7 @@ def dataset(tmp_path_factory):
     return out
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_written_files_are_mutually_consistent(dataset):
     names = ncjax.list_samples(dataset)
     assert len(names) == N
@@ -55,6 +55,7 @@ def test_written_files_are_mutually_consistent(dataset):
         assert meta["world"] in ("manhattan", "atlanta") and name.startswith(meta["world"])
 
 
+@pytest.mark.slow
 def test_reader_round_trip(dataset):
     for sample in ncjax.read_dataset(dataset):
         assert sample.image.shape == (HEIGHT, WIDTH, 3) and sample.image.dtype == np.uint8
@@ -67,6 +68,7 @@ def test_reader_round_trip(dataset):
         np.testing.assert_allclose(sample.ceiling_corners, np.asarray(sample.metadata["ceiling_corners"]), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_reader_reads_the_authors_layout(dataset, tmp_path):
     """Without json/depth/semantic (the authors' release) rc comes from the file
     name and the boundaries are recomputed from 3D_gt; they match ours."""
@@ -91,6 +93,7 @@ def test_reader_reads_the_authors_layout(dataset, tmp_path):
     assert ncjax.read_sample(str(authors), "room", rc=0.5).rc == 0.5
 
 
+@pytest.mark.slow
 def test_split_never_shares_a_layout(dataset):
     split = ncjax.read_split(dataset)
     assert set(split) == {"train", "valid", "test"}
@@ -103,6 +106,7 @@ def test_split_never_shares_a_layout(dataset):
             assert layouts.setdefault(layout, part) == part
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes(dataset, tmp_path):
     again = str(tmp_path / "again")
     assert cli.main(["synth", "--n", str(N), "--out", again, "--seed", "7"] + CLI_ARGS) == 0
@@ -152,6 +156,7 @@ def test_unknown_world_is_an_argparse_error(tmp_path):
 # ----------------------------------------------------------------------------- training data from a folder
 
 
+@pytest.mark.slow
 def test_folder_samples_at_the_network_size_keep_exact_labels(dataset):
     from ncjax.training.data import load_split
 
@@ -184,6 +189,7 @@ def list_split_names(directory):
         return json.load(file)
 
 
+@pytest.mark.slow
 def test_folder_batches_are_reproducible_and_resumable(dataset):
     from ncjax.training.data import folder_batches, load_split
 
@@ -199,6 +205,7 @@ def test_folder_batches_are_reproducible_and_resumable(dataset):
         load_split(dataset, "holdout", HEIGHT, WIDTH, progress=False)
 
 
+@pytest.mark.slow
 def test_folders_are_pooled_in_order(dataset):
     from ncjax.training.data import load_split, training_data
 
@@ -214,6 +221,7 @@ def test_folders_are_pooled_in_order(dataset):
     assert everything["image"].shape[0] == 2 * valid_count
 
 
+@pytest.mark.slow
 def test_evaluate_command_prints_the_network_table(dataset, tmp_path, capsys):
     config = ncjax.HorizonNetConfig(depth=10, width=8, input_height=32, input_width=64, lstm_hidden=8, lstm_layers=1)
     path = str(tmp_path / "tiny.safetensors")
@@ -228,6 +236,7 @@ def test_evaluate_command_prints_the_network_table(dataset, tmp_path, capsys):
     assert cli.main(["evaluate", "--data", str(tmp_path / "missing"), "--model", path]) == 2
 
 
+@pytest.mark.slow
 def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
     from _synth import BATCH, CONFIG
 

@@ -73,6 +73,7 @@ def _without_decor(scenes):
     return eqx.tree_at(lambda s: s.boxes.mask, scenes, np.asarray(scenes.boxes.mask) & keep)
 
 
+@pytest.mark.slow
 def test_same_key_same_scene_and_the_decor_is_there():
     keys = jax.random.split(jax.random.key(0), BATCH)
     again = jax.device_get(_batched_scenes(DECOR)(keys))
@@ -89,6 +90,7 @@ def _plain():
     return scenes, render_scenes(scenes)
 
 
+@pytest.mark.slow
 def test_decals_change_only_wall_pixels_inside_their_rectangles():
     plain_scenes, plain = _plain()
     scenes = eqx.tree_at(lambda s: s.decor.decals.mask, plain_scenes, np.asarray(batch(0)[0].decor.decals.mask))
@@ -269,7 +271,7 @@ def _decorated_scenes():
     return config, jax.device_get(generate(keys, rooms))
 
 
-@pytest.mark.slow  # compiles a scene generator of its own (about 20 s)
+@pytest.mark.extended  # compiles a scene generator of its own (about 20 s)
 def test_door_leaves_hang_in_their_doorways_and_lamps_stay_up():
     config, scenes = _decorated_scenes()
     furniture = config.furniture_slots * ncjax.synth.furniture.PARTS_PER_PIECE

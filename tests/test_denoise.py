@@ -23,6 +23,7 @@ def test_noise_sigma_matches_the_added_noise(sigma):
     assert float(noise_sigma(_scene())) < 0.2 * NOISE_TARGET
 
 
+@pytest.mark.slow
 def test_clean_images_pass_unchanged_and_noisy_ones_reach_the_target():
     clean = _scene(512, 1024)  # the blur's cap is 2.5 px at 512 rows
     np.testing.assert_array_equal(denoise_for_network(clean[None]), clean[None])  # a clean batch skips the blur

@@ -77,6 +77,7 @@ def test_rows_stay_where_there_is_no_edge():
     assert np.max(np.abs(np.asarray(c) - (ceiling + 20.0))) <= 4.0
 
 
+@pytest.mark.slow
 def test_uint8_images_and_the_blur():
     image, ceiling, floor = painted(2.0, 4.0)
     as_bytes = jnp.round(image * 255).astype(jnp.uint8)

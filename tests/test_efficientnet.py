@@ -34,6 +34,7 @@ def small_images(seed: int = 0) -> jax.Array:
     return jax.random.uniform(jax.random.key(seed), SMALL)
 
 
+@pytest.mark.slow
 def test_shipped_weights_load_in_eval_mode():
     m = model()
     assert effnet.DEFAULT_WEIGHTS_PATH.stat().st_size < 10_000_000  # float16
@@ -92,6 +93,7 @@ def test_pointwise_convolution_is_a_one_by_one_convolution():
     np.testing.assert_allclose(conv(x), expected, atol=1e-5, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_imagenet_top5_on_sample_photos():
     photos = [data.chelsea(), data.coffee()]  # a tabby cat; a cup of espresso
     batch = np.stack([cv2.resize(p, (224, 224), interpolation=cv2.INTER_AREA) for p in photos]) / np.float32(255)
@@ -102,6 +104,7 @@ def test_imagenet_top5_on_sample_photos():
     assert top5[1] & {504, 967, 968}  # coffee mug, espresso, cup
 
 
+@pytest.mark.slow
 def test_features_strides_and_channels():
     config = effnet.LITE0
     assert config.feature_stages() == (1, 2, 4, 6)
@@ -132,6 +135,7 @@ TINY = effnet.EfficientNetConfig(
 )
 
 
+@pytest.mark.slow
 def test_gradients_flow_through_features():
     """Train mode (batch statistics) as in fine-tuning: every trunk weight gets a finite, non-zero gradient."""
     assert TINY.feature_stages() == (1, 2, 3, 4)
@@ -152,6 +156,7 @@ def test_gradients_flow_through_features():
             assert np.any(g), path
 
 
+@pytest.mark.slow
 def test_circular_width_features_roll_with_the_image():
     """With circular width padding, rolling the image by 32 columns rolls every feature map."""
     images = small_images(2)

@@ -18,7 +18,7 @@ def experiment(name: str):
     return module
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_noise_sweep_small(tmp_path):
     module = experiment("noise_sweep")
     results, rc_results, ablation = module.main(["--small", "--out", str(tmp_path)])
@@ -38,7 +38,7 @@ def test_noise_sweep_small(tmp_path):
         assert ablation["manhattan/refined"]["corner"] < ablation[f"manhattan/{other}"]["corner"]
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_pipeline_table_small(tmp_path):
     module = experiment("pipeline_table")
     rows = module.main(["--small", "--out", str(tmp_path)])
@@ -126,6 +126,7 @@ def test_network_table_scores_the_geometry_of_uncertain_scale_layouts_but_counts
     assert not failed["written"] and failed["failed"] and "iou3d" not in failed
 
 
+@pytest.mark.slow
 def test_robustness_degradations_keep_the_image_format():
     module = experiment("robustness")
     image = np.random.default_rng(0).integers(0, 256, (16, 32, 3), dtype=np.uint8)

@@ -3,6 +3,7 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -31,6 +32,7 @@ def test_arctan2_special_values_match_numpy():
     np.testing.assert_allclose(np.asarray(arctan2(y, x)), np.arctan2(y, x), atol=2 * ULP_AT_PI)
 
 
+@pytest.mark.slow
 @given(st.floats(-1e3, 1e3), st.floats(-1e3, 1e3))
 def test_arctan2_gradient_is_the_exact_one(y, x):
     if x * x + y * y < 1e-6:

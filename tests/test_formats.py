@@ -96,6 +96,7 @@ def test_a_layout_and_its_record_write_the_same_files(tmp_path):
     np.testing.assert_allclose(text_a.label_cor, text_b.label_cor, atol=2e-3)
 
 
+@pytest.mark.slow
 @settings(max_examples=15)
 @given(
     corners=st.integers(3, 8),

@@ -66,6 +66,7 @@ def _check(errors, metres, degrees):
     assert max(errors["distance"], errors["heights"], errors["corners"]) < metres, errors
 
 
+@pytest.mark.slow
 def test_manhattan_float32():
     rooms = sample_rooms(0, "manhattan", N_ROOMS)
     layout = _manhattan_many(rooms)
@@ -73,18 +74,19 @@ def test_manhattan_float32():
     _check(_errors(rooms, layout), 5e-3, 0.2)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_manhattan_float64(x64):
     rooms = sample_rooms(0, "manhattan", N_ROOMS)
     _check(_errors(rooms, _manhattan_many(rooms)), 1e-4, 1e-3)
 
 
+@pytest.mark.slow
 def test_atlanta_float32():
     rooms = sample_rooms(1, "atlanta", N_ROOMS)
     _check(_errors(rooms, _atlanta_many(rooms)), 5e-3, 1e-3)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_atlanta_float64(x64):
     rooms = sample_rooms(1, "atlanta", N_ROOMS)
     _check(_errors(rooms, _atlanta_many(rooms)), 1e-4, 1e-6)
@@ -99,6 +101,7 @@ def _padded(room, capacity):
     return {**room, **{k: pad(room[k]) for k in ("mask", "labels", "directions", "distances", "corners")}}
 
 
+@pytest.mark.slow
 def test_capacity_padding_and_label_swap():
     """K = 12 or K = 32 give the same walls; swapping the labels 0 <-> 1 too."""
     room = sample_room(2, "manhattan")
@@ -112,6 +115,7 @@ def test_capacity_padding_and_label_swap():
     )
 
 
+@pytest.mark.slow
 def test_unseen_wall_is_not_ok():
     room = sample_room(3, "manhattan")
     n = int(room["mask"].sum())
@@ -128,6 +132,7 @@ def _both_solvers(ceiling_rays, floor_rays, room):
     return jnp.concatenate([manhattan.distances, atlanta.distances])
 
 
+@pytest.mark.slow
 @given(seed=st.integers(0, 2**31 - 1))
 def test_column_order_invariance(seed):
     """Shuffling the columns (rays with their wall index) changes nothing."""
@@ -167,7 +172,7 @@ def _atlanta_from(room, ceiling_rays, floor_rays):
     return ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"])
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_layout_gradients(x64):
     """jacfwd = jacrev = finite differences for both solvers, axis-aligned room included."""
     room = box_room(AXIS_ALIGNED, h_f=-1.4, capacity=6)
@@ -176,6 +181,7 @@ def test_layout_gradients(x64):
         check_gradients(_layout_outputs(room, solver), rows)
 
 
+@pytest.mark.slow
 def test_layout_corners_of_parallel_walls_are_invalid_not_nan():
     """Consecutive parallel walls (and a lone wall) have no corner: zero, flagged invalid, finite gradients."""
     directions = jnp.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [1.0, 0.0]])
@@ -210,6 +216,7 @@ def _stacked_rows(room, ceiling_rays, floor_rays):
     return arguments, truth
 
 
+@pytest.mark.slow
 def test_scale_search_recovers_a_scale_the_linear_solve_lost():
     """A linear solution whose ``x_0`` (the metric scale) came out with the wrong sign is
     re-scaled by the likelihood: the room's shape survives, the refinement recovers the room."""
@@ -226,6 +233,7 @@ def test_scale_search_recovers_a_scale_the_linear_solve_lost():
     np.testing.assert_allclose(exact[1:], truth, rtol=1e-6, atol=1e-6)  # an exact linear solution is kept
 
 
+@pytest.mark.slow
 def test_atlanta_boundary_weights_follow_the_cleaner_boundary():
     """Exact ceiling rows, floor rows with 2 px noise: weighting the floor down recovers the ceiling's
     height and the walls far better than weighting both alike; exact rows are exact with any weights."""
@@ -261,6 +269,7 @@ def _weighted_problem():
     return arguments, jnp.concatenate([jnp.zeros(1), truth]), weights
 
 
+@pytest.mark.slow
 def test_weighted_gauss_newton_step_is_the_weighted_least_squares_step(x64):
     """The structured step equals the least-squares step of the weighted residuals' dense Jacobian."""
     (rays_, base, row_wall, is_floor), truth, weights = _weighted_problem()
@@ -281,6 +290,7 @@ def test_weighted_gauss_newton_step_is_the_weighted_least_squares_step(x64):
     np.testing.assert_array_equal(np.asarray(delta)[~free], 0.0)
 
 
+@pytest.mark.slow
 def test_equal_row_weights_change_nothing():
     """Every row weighted alike (here 0.3) gives the stages' unweighted results: only ratios of weights count."""
     arguments, truth, _ = _weighted_problem()
@@ -311,6 +321,7 @@ def test_equal_row_weights_change_nothing():
     )
 
 
+@pytest.mark.slow
 def test_boundary_weights_need_the_refined_solver():
     room = sample_room(5, "atlanta")
     ceiling_rays, floor_rays = rays(room)

@@ -84,6 +84,7 @@ def test_cen_and_line_errors():
     assert result["depth_error"] == pytest.approx(expected)
 
 
+@pytest.mark.slow
 def test_room_and_labels_are_layouts():
     import jax
 

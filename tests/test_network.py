@@ -106,6 +106,7 @@ def params_of(model):
 # ----------------------------------------------------------------------------- architecture
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backbone", ncjax.network.model.BACKBONES)
 @pytest.mark.parametrize("height, width", [(32, 64), (64, 128), (96, 160), (64, 256)])
 def test_output_shapes_follow_input_shape(height, width, backbone):
@@ -137,6 +138,7 @@ def test_config_validation():
     assert ncjax.HorizonNetConfig.from_json(json.dumps(old_fields)).corner_base == 0.96
 
 
+@pytest.mark.slow
 def test_parameter_counts():
     # PyTorch HorizonNet (ResNet-50, 512 x 1024, LSTM 512) has 81,570,348 parameters:
     # ResNet-50 trunk 23,508,032 + height compression 45,450,720 + LSTM 12,599,296
@@ -168,6 +170,7 @@ def test_resample_columns_wraps_around():
     np.testing.assert_allclose(rolled, np.roll(result, out // width, axis=0), atol=1e-6)
 
 
+@pytest.mark.slow
 def test_convolutional_features_roll_with_the_panorama():
     model = tiny_model()
     model.eval()
@@ -240,6 +243,7 @@ def test_sharper_corner_encoding():
     np.testing.assert_allclose(terms["corner"], expected, rtol=1e-5)
 
 
+@pytest.mark.slow
 def test_augmented_images_match_augmented_labels():
     samples = painted_samples()
     colours = jnp.array([[0.9, 0.8, 0.7], [0.5, 0.6, 0.2], [0.2, 0.3, 0.4]])
@@ -294,6 +298,7 @@ def test_flip_is_the_mirrored_room():
     np.testing.assert_array_equal(rolled["floor_v"], np.roll(labels.floor_v, 5))
 
 
+@pytest.mark.slow
 def test_photometric_augmentation_is_random_augment_and_keeps_the_labels():
     sample = {k: v[0] for k, v in painted_samples().items()}
     no_geometry = ncjax.TrainConfig(roll=False, flip=False)
@@ -324,7 +329,7 @@ def test_train_config_json_round_trip_and_older_configurations():
 # ----------------------------------------------------------------------------- training, checkpoints, resume
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_training_reduces_loss_and_resume_continues(tmp_path):
     straight = ncjax.train(TINY, batches, 24, tmp_path / "a", train_config=TRAIN, checkpoint_every=0, progress=False)
     losses = [h["loss"] for h in straight.history]
@@ -340,6 +345,7 @@ def test_training_reduces_loss_and_resume_continues(tmp_path):
     assert not np.allclose(a["backbone/stem/norm/mean"], 0.0)
 
 
+@pytest.mark.slow
 def test_time_budget_stops_after_a_step_with_a_checkpoint_to_resume(tmp_path):
     stopped = ncjax.train(
         TINY, batches, 3, tmp_path, train_config=TRAIN, checkpoint_every=0, progress=False, time_budget=0.0
@@ -351,6 +357,7 @@ def test_time_budget_stops_after_a_step_with_a_checkpoint_to_resume(tmp_path):
     assert ncjax.training.loop.latest_checkpoint(tmp_path).name == "step_00000003.safetensors"
 
 
+@pytest.mark.slow
 def test_checkpoint_round_trip_is_bit_exact(tmp_path):
     model = ncjax.init_model(TINY, seed=0)
     optimizer = ncjax.training.loop.make_optimizer(model, TRAIN)
@@ -389,7 +396,7 @@ def test_shipped_models_load_by_name_and_an_unknown_name_says_what_ships():
         model_file("no-such-model")
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_fine_tuning_starts_from_the_weights_with_a_new_corner_encoding(tmp_path):
     model = tiny_model()
     ncjax.save_model(model, tmp_path / "model.safetensors")
@@ -451,6 +458,7 @@ def test_corner_metrics_on_hand_made_columns():
 # ----------------------------------------------------------------------------- prediction
 
 
+@pytest.mark.slow
 def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
     model = tiny_model()
     image = np.random.default_rng(0).integers(0, 256, (128, 256, 3), dtype=np.uint8)
@@ -476,6 +484,7 @@ def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
         ncjax.predict_boundaries(image)
 
 
+@pytest.mark.slow
 def test_averaged_views_follow_the_panorama_symmetries():
     """The average over views is exactly mirror- and half-turn-equivariant (each view is mapped back)."""
     model = tiny_model()
@@ -499,6 +508,7 @@ def test_averaged_views_follow_the_panorama_symmetries():
 # ----------------------------------------------------------------------------- the EfficientNet-Lite0 backbone
 
 
+@pytest.mark.slow
 def test_shipped_model_outputs_are_unchanged():
     """``compact1024`` (written before the backbone choice existed) loads as the ResNet network it was
     and gives the outputs it gave then (values computed with the code of that time)."""
@@ -534,6 +544,7 @@ def test_efficientnet_backbone_configuration():
         ncjax.HorizonNetConfig(backbone="efficientnet_b7")
 
 
+@pytest.mark.slow
 def test_efficientnet_backbone_parameter_counts():
     lite0 = ncjax.HorizonNetConfig.preset("lite0-1024")
     backbone = ncjax.network.model.abstract_model(lite0).backbone
@@ -546,6 +557,7 @@ def test_efficientnet_backbone_parameter_counts():
     assert ncjax.count_parameters(ncjax.HorizonNetConfig.preset("compact1024")) == 3_907_848
 
 
+@pytest.mark.slow
 def test_init_model_starts_the_efficientnet_backbone_from_imagenet():
     model, other_seed = lite0_model(), ncjax.init_model(LITE0_TINY, seed=1)
     imagenet = params_of(efficientnet.load_efficientnet_lite0(circular_width=True))
@@ -559,6 +571,7 @@ def test_init_model_starts_the_efficientnet_backbone_from_imagenet():
     assert not other_seed.backbone.stem.norm.use_running_average
 
 
+@pytest.mark.slow
 def test_efficientnet_backbone_features_roll_with_the_panorama():
     model = lite0_model()
     model.eval()
@@ -573,6 +586,7 @@ def test_efficientnet_backbone_features_roll_with_the_panorama():
         np.testing.assert_allclose(rolled, np.roll(reference, shift // LITE0_TINY.step_cols, axis=1), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_efficientnet_backbone_model_round_trip(tmp_path):
     model = lite0_model()
     ncjax.save_model(model, tmp_path / "lite0.safetensors")
@@ -583,6 +597,7 @@ def test_efficientnet_backbone_model_round_trip(tmp_path):
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
+@pytest.mark.slow
 def test_backbone_learning_rate_scale_scales_the_backbone_updates():
     """One AdamW update: the backbone moves ``scale`` times as far, the rest as with the full learning rate."""
     with pytest.raises(ValueError, match="backbone_learning_rate_scale"):
@@ -606,7 +621,7 @@ def test_backbone_learning_rate_scale_scales_the_backbone_updates():
             np.testing.assert_array_equal(steps[0.25][name], full, err_msg=name)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_frozen_efficientnet_backbone_keeps_its_weights_in_a_train_step():
     frozen = dataclasses.replace(TRAIN, warmup_steps=0, backbone_learning_rate_scale=0.0)
     model = nnx.clone(lite0_model())

@@ -75,6 +75,7 @@ def target(width: int, corners) -> np.ndarray:
 # --- corner extraction -------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.floats(0.5, 20.0))
 def test_inlier_slopes_match_the_row_errors(seed, threshold):
@@ -110,6 +111,7 @@ def test_inlier_slopes_match_the_row_errors(seed, threshold):
         assert clear.mean() > 0.95 and 0 < inside.sum() < WIDTH
 
 
+@pytest.mark.slow
 @given(st.lists(st.floats(0.0, 511.0), min_size=1, max_size=6, unique=True))
 def test_find_corners_recovers_sub_column_positions(corners):
     corners = sorted(corners)
@@ -130,6 +132,7 @@ def test_plateau_gives_one_peak_and_wrap_around():
     np.testing.assert_array_equal(walls, [1, 1, 1, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1])
 
 
+@pytest.mark.slow
 @given(st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6), st.integers(0, 6))
 def test_weak_peaks_make_up_the_minimum_corner_count(heights, min_corners):
     # Six lobes at known columns with peak heights in [0, 1]: the threshold 0.4 keeps the strong ones; when fewer
@@ -165,6 +168,7 @@ def test_paper_number_of_hypotheses():
         num_hypotheses(1.0, 0.2, 3)
 
 
+@pytest.mark.slow
 def test_wall_columns_spread_over_each_wall():
     width, size = 64, 8
     corners = jnp.array([5.3, 20.0, 58.7, 64.0])  # the last wall wraps around the seam
@@ -183,6 +187,7 @@ def test_wall_columns_spread_over_each_wall():
     assert not valid[3].any()
 
 
+@pytest.mark.slow
 def test_boundary_residuals_fast_jvp_matches_autodiff():
     """The local-Jacobian JVP of the adjustment's per-column residuals equals JAX's own, for every argument."""
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
@@ -224,6 +229,7 @@ def test_boundary_residuals_fast_jvp_matches_autodiff():
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("manhattan, stride, floor_weight", [(True, 1, 1.0), (False, 3, 0.25)])
 def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride, floor_weight):
     batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
@@ -292,6 +298,7 @@ def test_boundary_weights_are_one_for_exact_or_missing_rows():
     np.testing.assert_array_equal(boundary_weights(noisy, noisy, ~used, ~used, 0.5), [1.0, 1.0])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("world", ["manhattan", "atlanta"])
 def test_adjustment_structure_gives_the_dense_normal_matrix(world):
     """The colouring of the final adjustment's parameters is valid: probing recovers ``J^T J`` exactly,
@@ -356,7 +363,7 @@ def _noisy_label_rows(room, label, ceiling_noise, floor_noise) -> BoundaryObserv
     )
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize("manhattan, floor_noise", [(True, 1.0), (False, 3.0)])
 def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
     """Rows of a known room with 1 px ceiling noise and ``floor_noise`` px floor noise, white or averaged over
@@ -398,7 +405,7 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
         np.testing.assert_allclose(np.median(uncertainty.row_sigma[kind], 0), [1.0, floor_noise], rtol=0.15)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize("manhattan", [True, False])
 def test_layout_uncertainty_with_wall_offsets_matches_monte_carlo(manhattan):
     """Rows of a known room with 0.5 px white noise plus a 2 px offset per wall and boundary (an error the
@@ -439,7 +446,7 @@ def test_layout_uncertainty_with_wall_offsets_matches_monte_carlo(manhattan):
         assert inside[0] >= 0.95 and inside[1] < 0.92, inside
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize("manhattan", [True, False])
 def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
     """Noisy ceiling rows, exact floor rows (the floor's variance 0): the covariances stay positive
@@ -465,7 +472,7 @@ def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
     assert checked >= 2
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize("manhattan", [True, False])
 def test_layout_uncertainty_of_a_wall_no_row_sees(manhattan):
     """One wall's rows unused: its corners' covariance is infinite, the heights' and the other corners' finite;
@@ -493,6 +500,7 @@ def test_layout_uncertainty_of_a_wall_no_row_sees(manhattan):
     assert np.all(np.linalg.eigvalsh(corners[~touching]) > 0)
 
 
+@pytest.mark.slow
 def test_layout_uncertainty_of_a_wall_one_corner_pins():
     """Atlanta: a wall whose rows are unused and whose start corner alone is observed (two parameters, one
     constraint: J^T J singular, no column zero) leaves its far corner free: a variance orders of magnitude
@@ -523,6 +531,7 @@ def test_layout_uncertainty_of_a_wall_one_corner_pins():
     np.testing.assert_allclose(np.diag(partial.height_covariance), np.diag(full.height_covariance), rtol=0.5)
 
 
+@pytest.mark.slow
 def test_layout_uncertainty_of_a_height_no_row_sees():
     """No ceiling row used: the ceiling height is free, so the room height's sigma is infinite (not 0)."""
     batch, labels = rooms("manhattan", "none")
@@ -569,6 +578,7 @@ def test_correlation_time_matches_a_direct_sum():
 # --- forward model of the boundaries ------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_wall_rows_match_exact_labels():
     batch, labels = rooms("atlanta", "any")
     for i in range(3):
@@ -589,6 +599,7 @@ def test_wall_rows_match_exact_labels():
         np.testing.assert_allclose(floor, label.floor_v, atol=2e-3)
 
 
+@pytest.mark.slow
 def test_boundary_points_invert_the_rows_and_fit_the_wall_line():
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
     direction, distance = jnp.array([0.6, 0.8]), jnp.array(-2.5)
@@ -613,10 +624,11 @@ def test_wall_planes_meet_like_plucker_lines():
 # --- the pipeline on exact boundaries --------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "world,occlusion",
-    # Atlanta's own program is the slow tier's (its solvers are tested in test_layout_solvers.py)
-    [("manhattan", "none"), pytest.param("atlanta", "none", marks=pytest.mark.slow), ("manhattan", "required")],
+    # Atlanta's own program is the extended tier's (its solvers are tested in test_layout_solvers.py)
+    [("manhattan", "none"), pytest.param("atlanta", "none", marks=pytest.mark.extended), ("manhattan", "required")],
 )
 def test_exact_boundaries_give_the_room(world, occlusion):
     batch, labels = rooms(world, occlusion)
@@ -638,7 +650,7 @@ def test_exact_boundaries_give_the_room(world, occlusion):
     assert good >= 4  # 512 x 256: corners a few columns apart may merge
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_batch_auto_world_and_shapes():
     """A batch of two rooms, each with its own camera (rc), in a (1, 2) batch shape."""
     batch, labels = rooms("manhattan", "none")
@@ -661,7 +673,7 @@ def test_batch_auto_world_and_shapes():
         ncjax.layout_from_boundaries(*stacked, cams, world="auto")
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun():
     batch, labels = rooms("manhattan", "required")
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
@@ -689,7 +701,7 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
     np.testing.assert_allclose(layout.floor_corners[last], expected.floor_corners, atol=1e-4)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     batch, labels = rooms("manhattan", "none")
     room, label = pick(batch, 0), pick(labels, 0)
@@ -727,6 +739,7 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     assert int(layout.status) == ncjax.LayoutStatus.DEGENERATE_LAYOUT
 
 
+@pytest.mark.slow
 def test_scale_test_fails_layouts_whose_height_sigma_exceeds_the_threshold():
     """Rows with 1 px of noise: the layout's relative room-height sigma is positive and finite; a scale
     test just below it fails the same layout with UNCERTAIN_SCALE, which the default (off) never does."""
@@ -774,7 +787,7 @@ def _one_peak_for_the_narrowest_wall(label):
     return corner_target(kept, np.ones(len(kept), bool), WIDTH), peak, narrow
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     """The two corners of a Manhattan room's narrowest wall given as one peak (as the network's lobes merge
     close corners), the wall after that peak one that RANSAC could not fit (a narrow wall's usual fate) and
@@ -823,6 +836,7 @@ def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     assert result["ce"] < 0.1 and result["iou3d"] > 0.95, result
 
 
+@pytest.mark.slow
 def test_corner_offsets_are_zero_at_the_true_corners_and_inf_for_parallel_walls():
     batch, _ = rooms("manhattan", "none")
     room = pick(batch, 0)
@@ -840,7 +854,7 @@ def test_corner_offsets_are_zero_at_the_true_corners_and_inf_for_parallel_walls(
     assert np.isinf(float(dropped[1])) and np.all(np.isfinite(np.asarray(dropped)[np.arange(len(keep)) != 1]))
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
     """An Atlanta room's narrowest wall given as one peak and no boundary jump seen there: its two walls
     meet far from the peak's column (or not at all), so a wall is inserted between them in the corner
@@ -871,7 +885,7 @@ def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
     assert int(jnp.sum(missed.mask)) == count - 1 and int(jnp.sum(missed.inserted)) == 0
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_noisy_rows_do_not_fake_occlusions():
     """2 px of white noise on the rows of rooms without occlusions: a fixed 4 px jump threshold sees
     occlusions at most corners; scaled by the rows' own noise (the default) it sees almost none."""
@@ -890,7 +904,7 @@ def test_noisy_rows_do_not_fake_occlusions():
     assert occluded_fraction(ncjax.PipelineConfig(occlusion_noise_factor=0.0)) > 0.4
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_joint_solver_weights_follow_the_row_noise():
     """Floor rows three times noisier than the ceiling's: the evidence weighs the floor down for the joint
     solvers (the ceiling keeps 1); a huge ``min_boundary_noise`` turns the weighting off."""
@@ -937,7 +951,7 @@ def test_bad_arguments_raise():
         ncjax.PipelineConfig(fallback_corner_threshold=-0.1)
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_gradients_through_the_pipeline_are_finite_and_match_finite_differences():
     batch, labels = rooms("manhattan", "none")
     room, label = pick(batch, 1), pick(labels, 1)
@@ -957,6 +971,7 @@ def test_gradients_through_the_pipeline_are_finite_and_match_finite_differences(
     np.testing.assert_allclose(float(jnp.sum(gradient)), float(finite_difference), rtol=0.2)
 
 
+@pytest.mark.slow
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.integers(1, 6))
 def test_cyclic_labels_are_the_least_cost_labelling(seed, count):
@@ -979,6 +994,7 @@ def test_cyclic_labels_are_the_least_cost_labelling(seed, count):
     np.testing.assert_allclose(cost(labels[:count]), best, rtol=1e-6)
 
 
+@pytest.mark.slow
 @given(st.integers(0, 2**31 - 1))
 @settings(max_examples=10)
 def test_plan_lines_per_segment_match_one_line_each(seed):
@@ -1001,6 +1017,7 @@ def test_plan_lines_per_segment_match_one_line_each(seed):
         np.testing.assert_allclose(sign * distances[s], distance, atol=2e-3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("weights", [np.zeros(4), np.array([0.0, 1.0, 0.0, 0.0])])
 def test_plan_line_without_spread_has_finite_gradients(weights):
     """An empty or one-point wall has no direction; its gradient must still be finite (no atan2(0, 0) NaN)."""
@@ -1045,6 +1062,7 @@ def test_every_status_has_a_reason():
 # --- step 0: floor rows the ceiling contradicts ----------------------------------------------------------
 
 
+@pytest.mark.slow
 @settings(max_examples=15, deadline=None)
 @given(st.integers(0, 5), st.integers(0, WIDTH - 1), st.integers(1, WIDTH // 3), st.floats(3.0, 10.0), st.booleans())
 def test_floor_rows_the_ceiling_contradicts_are_replaced_by_the_true_rows(room_index, start, length, offset, upwards):
@@ -1077,6 +1095,7 @@ def test_floor_consistency_keeps_exact_and_missing_rows():
     assert not np.any(np.asarray(replaced))
 
 
+@pytest.mark.slow
 def test_floor_rows_hidden_by_furniture_do_not_bias_the_layout():
     """A block of floor rows 1.3 px too high (at 256 rows: within RANSAC's inlier cut) biases the layout; step 0
     puts them back for the walls' fits and keeps them out of the final adjustment."""

@@ -5,6 +5,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -50,6 +51,7 @@ def test_closest_points_and_distance_match_numpy(x64):
         assert float(distance) == np.float64(expected).round(12) or abs(float(distance) - expected) < 1e-9
 
 
+@pytest.mark.slow
 def test_closest_points_of_parallel_lines_are_finite():
     a = ncjax.line_from_point_direction(jnp.array([0.0, 0.0, 1.0]), jnp.array([1.0, 0.0, 0.0]))
     b = ncjax.line_from_point_direction(jnp.array([0.0, 2.0, 1.0]), jnp.array([-2.0, 0.0, 0.0]))
@@ -100,6 +102,7 @@ def test_horizontal_wall_line_contains_its_wall_points():
     np.testing.assert_allclose(line, ncjax.line_from_point_direction(p + 0.7 * e1, e1), atol=1e-6)
 
 
+@pytest.mark.slow
 def test_batch_shapes():
     a = jnp.ones((4, 3, 6))
     assert ncjax.side(a, a).shape == (4, 3)

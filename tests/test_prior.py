@@ -54,6 +54,7 @@ def test_a_height_prior_must_be_a_positive_height(value):
         HeightPrior("eye_height", 1.6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rc", [0.0, 0.05])
 def test_ratio_and_virtual_rows_are_exact_on_a_room(rc):
     """The median ratio is the room's h_c / h_f, and the virtual rig sees the room's boundaries at its rows."""
@@ -91,7 +92,7 @@ def test_scale_layout_scales_lengths_and_covariances():
     np.testing.assert_allclose(again.floor_corners, layout.floor_corners, rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.slow  # the central mode's end to end run in the default tier is test_app.py's
+@pytest.mark.extended  # the central mode's end to end run in the default tier is test_app.py's
 @pytest.mark.parametrize("world", ["manhattan", "atlanta"])
 def test_central_rooms_from_exact_rows_and_the_true_camera_height(world):
     """rc = 0 and rc = 2-5 cm, one compiled program: the layout is the room, its floor at the prior's height.
@@ -116,6 +117,7 @@ def test_central_rooms_from_exact_rows_and_the_true_camera_height(world):
             assert scores["iou3d"] > 0.99, (rc_range, i, scores)
 
 
+@pytest.mark.slow
 def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it():
     """rc 2-5 cm: with the scale test on at an impossible threshold every layout falls back to the prior."""
     from ncjax.reconstruction import GEOMETRY, PRIOR_FALLBACK, Reconstruction, _with_prior_fallback

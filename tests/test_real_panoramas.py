@@ -68,6 +68,7 @@ def label_rows_from_file(label_cor: np.ndarray, path: Path) -> tuple[np.ndarray,
     return ceiling_v, floor_v, corners[:, 1, 0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("corners", ROOMS.values(), ids=ROOMS.keys())
 def test_label_rows_match_the_renderers_exact_rows(corners, tmp_path):
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.0)
@@ -120,6 +121,7 @@ def bad_folder(tmp_path: Path, problem: str) -> Path:
     return folder
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "problem", ["missing folder", "no labelled image", "unreadable image", "malformed label", "floor above the horizon"]
 )
@@ -142,7 +144,7 @@ def rendered_folder(tmp_path_factory):
     return folder, names
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_benchmark_on_renders(rendered_folder, tmp_path):
     folder, names = rendered_folder
     out = tmp_path / "out"

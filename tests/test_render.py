@@ -48,6 +48,7 @@ def _edge_errors(semantic: np.ndarray, labels, window: int = 3):
     return errors
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_semantic_edges_sit_on_the_exact_label_rows(seed):
     scenes, renderings, labels = batch(seed)
@@ -90,6 +91,7 @@ def _sha256(arrays) -> str:
     return digest.hexdigest()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_default_scenes_reproduce_the_basic_generator_bit_for_bit(seed):
     """The default configuration (no decor) must draw and render exactly the basic
@@ -191,6 +193,7 @@ def _single_render(supersampling: int):
     return jax.jit(lambda scene: ncjax.render(scene, scene.room.camera(32, 16), config))
 
 
+@pytest.mark.slow
 def test_supersampling_keeps_depth_and_semantics_of_the_pixel_centre():
     scenes, _, _ = batch(0)
     scene = jax.tree.map(lambda x: x[0], scenes)
@@ -246,6 +249,7 @@ def test_blur_matches_scipy_wrapping_horizontally_and_clamping_vertically(sigma,
     np.testing.assert_allclose(ncjax.gaussian_blur(jnp.asarray(image), sigma, radius), expected, atol=2e-6)
 
 
+@pytest.mark.slow
 def test_random_augment_is_a_pure_batched_function():
     keys = jax.random.split(jax.random.key(1), 3)
     augment = jax.jit(jax.vmap(ncjax.random_augment, in_axes=(0, None)))

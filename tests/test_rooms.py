@@ -33,6 +33,7 @@ def _box_room(half=2.0, h_c=1.0, h_f=-1.5, rc=0.5, capacity=8):
     )
 
 
+@pytest.mark.slow
 def test_box_room_labels_by_hand(x64):
     room = _box_room()
     cam = ncjax.NonCentralPanorama(width=W, height=H, rc=0.5)
@@ -65,6 +66,7 @@ def test_box_room_labels_by_hand(x64):
     assert list(np.asarray(labels.wall_index)[changes + 1]) == [1, 0, 3, 2]
 
 
+@pytest.mark.slow
 def test_walls_of_box_room_follow_design_convention():
     direction, distance, ceiling, floor = ncjax.room_walls(_box_room())
     np.testing.assert_allclose(direction[:4], [[0, 1], [-1, 0], [0, -1], [1, 0]], atol=1e-7)
@@ -94,6 +96,7 @@ def mixed_rooms():
     return _generate(MIXED, 100, seed=1)
 
 
+@pytest.mark.slow
 def test_same_key_same_room():
     a = _generate(MIXED, 100, seed=7)
     b = _generate(MIXED, 100, seed=7)
@@ -102,6 +105,7 @@ def test_same_key_same_room():
     assert not np.allclose(a.corners[0], a.corners[1])
 
 
+@pytest.mark.slow
 def test_random_rooms_are_valid(mixed_rooms):
     rooms = mixed_rooms
     assert np.all(np.asarray(rooms.status) == ncjax.RoomStatus.OK)
@@ -165,6 +169,7 @@ def test_corners_sit_where_the_visible_wall_changes(mixed_rooms):
         np.testing.assert_array_equal(between, np.sort(changes))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("occlusion", ["none", "required"])
 def test_occlusion_option(occlusion):
     config = ncjax.RoomConfig(world="mix", occlusion=occlusion, camera_tries=64)
@@ -180,6 +185,7 @@ def test_occlusion_option(occlusion):
         np.testing.assert_allclose(u[0::2], u[1::2], atol=1e-5)
 
 
+@pytest.mark.slow
 def test_failure_is_reported_not_hidden():
     # A 3.5 m room cannot hold a 1.5 m circle of centres with a 1 m margin: say so.
     config = ncjax.RoomConfig(size_range=(3.5, 3.6), rc_range=(1.5, 1.5), camera_margin=1.0, room_tries=1)
@@ -203,6 +209,7 @@ def test_bad_config_is_rejected(kwargs):
         ncjax.RoomConfig(**kwargs)
 
 
+@pytest.mark.slow
 def test_small_room_source_gives_closets_and_corridors():
     from ncjax.training.data import SYNTH_SOURCES
 

@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import lineax as lx
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -46,6 +47,7 @@ def random_problem(seed: int):
     return jnp.asarray(jacobian), structure, jnp.asarray(rng.normal(size=ROWS), jnp.float32)
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 def test_sparse_normal_solve_matches_least_squares(seed):

@@ -116,6 +116,7 @@ def _line_of(direction, distance, height):
     return ncjax.horizontal_wall_line(direction, distance, height)
 
 
+@pytest.mark.slow
 def test_rows_are_side():
     """eqs. manx/many (with the corrected sign) equal side(ray, wall line)."""
     key = jax.random.PRNGKey(0)
@@ -174,6 +175,7 @@ def _errors(rooms, walls):
 N_ROOMS = 24  # Atlanta rooms, 5-10 walls each
 
 
+@pytest.mark.slow
 def test_exact_walls_float32():
     rooms = sample_rooms(2, "atlanta", N_ROOMS)
     walls = _solve_many(rooms)
@@ -184,6 +186,7 @@ def test_exact_walls_float32():
     assert max(errors["distance"], errors["ceiling"], errors["floor"]) < 5e-3, errors
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["paper", "refined", "null_vector"])
 def test_exact_walls_float64(x64, method):
     rooms = sample_rooms(2, "atlanta", N_ROOMS)
@@ -196,6 +199,7 @@ def test_exact_walls_float64(x64, method):
     assert bool(jnp.all(jnp.where(rooms["mask"], walls.distance, -1.0) < 0))
 
 
+@pytest.mark.slow
 def test_unknown_method_is_a_value_error():
     room = sample_room(3, "manhattan")
     ceiling_rays, floor_rays = rays(room)
@@ -204,6 +208,7 @@ def test_unknown_method_is_a_value_error():
         ncjax.solve_wall(ceiling_rays, floor_rays, mask, mask, method="quadratic")
 
 
+@pytest.mark.slow
 def test_failure_is_a_value():
     room = sample_room(4, "manhattan")
     ceiling_rays, floor_rays = rays(room)
@@ -213,6 +218,7 @@ def test_failure_is_a_value():
     assert all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(wall) if x.dtype != bool)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["one ray repeated", "one column", "two columns", "NaN rays"])
 def test_degenerate_rays_fix_no_wall(case):
     """Inputs that do not determine a wall give ok=False and finite fields, never a confident wall."""
@@ -247,6 +253,7 @@ def test_distinct_azimuths_counts_columns_not_rows():
     assert int(ncjax.solvers.wall.distinct_azimuths(ceiling_rays, jnp.zeros_like(mask))) == 0
 
 
+@pytest.mark.slow
 @given(seed=st.integers(0, 2**31 - 1))
 def test_order_and_masked_rows(seed):
     """Permuting rays changes nothing; masked-out rows (even NaN) have no effect."""
@@ -308,7 +315,7 @@ def check_gradients(f, x, eps=1e-6, rtol=1e-3, directions=6):
     return reverse
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 @pytest.mark.parametrize(("axis_aligned", "method"), [(True, "paper"), (False, "paper"), (True, "refined")])
 def test_wall_gradients(x64, axis_aligned, method):
     room = box_room(AXIS_ALIGNED) if axis_aligned else sample_room(6, "manhattan")
@@ -318,6 +325,7 @@ def test_wall_gradients(x64, axis_aligned, method):
     assert float(jnp.max(jnp.abs(reverse[..., room["wall_index"] != 0]))) == 0.0
 
 
+@pytest.mark.slow
 def test_null_space_gradient_with_repeated_singular_values(x64):
     """Repeated singular values (outside the null space) give finite, correct derivatives."""
     a = jnp.concatenate([jnp.eye(4)[:, :3] * 2.0, jnp.zeros((4, 1))], 1)  # singular values 2, 2, 2, 0
@@ -339,6 +347,7 @@ def test_null_space_gradient_with_repeated_singular_values(x64):
 _sorted_svd = jax.jit(jax.vmap(ncjax.geometry.linalg._sorted_svd))
 
 
+@pytest.mark.slow
 @given(
     seed=st.integers(0, 2**31 - 1), kind=st.sampled_from(["random", "rank_deficient", "repeated_column", "zero_column"])
 )
@@ -369,6 +378,7 @@ def _check_sorted_svd(seed, kind):
         np.testing.assert_allclose(np.abs(np.einsum("bi,bi->b", smallest, reference)), 1.0, atol=1e-10)
 
 
+@pytest.mark.slow
 def test_minimal_solver(x64):
     room = sample_room(7, "atlanta")
     ceiling_rays, floor_rays = rays(room)
@@ -386,6 +396,7 @@ def test_minimal_solver(x64):
     assert float(direction_error_deg(walls.direction[best], room["directions"][2])) < 1e-4
 
 
+@pytest.mark.slow
 def test_horizontal_line_baseline():
     room = sample_room(8, "manhattan")
     ceiling_rays, floor_rays = rays(room)
@@ -410,6 +421,7 @@ _masked_null_spaces = jax.jit(
 )
 
 
+@pytest.mark.slow
 @given(seed=st.integers(0, 2**31 - 1))
 def test_segment_null_spaces_match_masked_ones(seed):
     """One pass over the rows gives every segment's scaled null space (empty and NaN-free segments included)."""
@@ -430,6 +442,7 @@ def test_segment_null_spaces_match_masked_ones(seed):
             np.testing.assert_allclose(projector(got[s]), projector(want[s]), atol=1e-8)
 
 
+@pytest.mark.slow
 def test_batched_baseline_matches_one_line_at_a_time():
     room = sample_room(8, "atlanta")
     ceiling_rays, _ = rays(room)
@@ -447,7 +460,7 @@ def test_batched_baseline_matches_one_line_at_a_time():
         )  # float32, sums in another order
 
 
-@pytest.mark.slow
+@pytest.mark.extended
 def test_batched_baseline_gradient(x64):
     """Derivatives of the batched fit match central differences (rows of every line perturbed at once)."""
     room = sample_room(9, "manhattan")
