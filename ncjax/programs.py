@@ -77,12 +77,7 @@ def call_saved(directory: str | os.PathLike, key: str, function: Callable[..., A
         saved = _load(path)
         if saved is None:
             saved = _export(function, in_tree, leaves)
-            try:
-                os.makedirs(path.parent, exist_ok=True)
-                exported, out_tree = saved
-                write_atomic(str(path), pickle.dumps((bytes(exported.serialize()), out_tree)))
-            except OSError:
-                pass
+            _save(path, *saved)
         exported, out_tree = saved
         # one jitted caller per program and process: Exported.call alone lowers the program anew each call
         _CALLABLE[path] = jax.jit(exported.call), out_tree
@@ -110,6 +105,15 @@ def _export(function, in_tree, leaves) -> tuple[jax.export.Exported, Any]:
     if not survives:
         raise TypeError(f"a saved program must return Python containers of arrays, not {out_trees[0]}")
     return exported, out_trees[0]
+
+
+def _save(path: pathlib.Path, exported: jax.export.Exported, out_tree: Any) -> None:
+    """Write a program for :func:`_load`; a folder that cannot be written is left as it is."""
+    try:
+        os.makedirs(path.parent, exist_ok=True)
+        write_atomic(str(path), pickle.dumps((bytes(exported.serialize()), out_tree)))
+    except OSError:
+        pass
 
 
 def _load(path: pathlib.Path) -> tuple[jax.export.Exported, Any] | None:
