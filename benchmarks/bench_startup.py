@@ -31,12 +31,12 @@ from ncjax.cli.reconstruct import DEMO_DIR
 DEMO_IMAGE = next(DEMO_DIR.glob("*.png"))
 
 
-def run_reconstruct(images: list[str], out: str, cache: str, batch: int) -> float:
-    """Seconds of one ``ncjax reconstruct`` process (raises if it fails)."""
+def run_reconstruct(images: list[str], out: str, cache: str, batch: int | None = None) -> float:
+    """Seconds of one ``ncjax reconstruct`` process (raises if it fails); ``batch`` None: the default ``--batch``."""
     environment = os.environ | {"NCJAX_CACHE": cache, "OPENBLAS_NUM_THREADS": "1"}
     environment.pop("PYTHONDONTWRITEBYTECODE", None)
     command = [sys.executable, "-m", "ncjax.cli", "reconstruct", *images, "--rc", "auto", "--out", out]
-    command += ["--batch", str(batch)]
+    command += [] if batch is None else ["--batch", str(batch)]
     start = time.perf_counter()
     subprocess.run(command, env=environment, check=True, stdout=subprocess.DEVNULL)
     return time.perf_counter() - start
@@ -51,8 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as work:
         cache, out = os.path.join(work, "cache"), os.path.join(work, "out")
         image = [str(DEMO_IMAGE)]
-        cold = run_reconstruct(image, out, cache, 1)
-        warm = min(run_reconstruct(image, out, cache, 1) for _ in range(args.warm_runs))
+        cold = run_reconstruct(image, out, cache)
+        warm = min(run_reconstruct(image, out, cache) for _ in range(args.warm_runs))
         copies = []
         for i in range(args.images):
             copy = os.path.join(work, f"copy{i}_{DEMO_IMAGE.name}")

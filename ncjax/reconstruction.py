@@ -29,9 +29,10 @@ from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped
 
 from .geometry.camera import NonCentralPanorama
 from .io.images import panorama_size_error
+from .network.checkpoint import ModelWeights, load_model, model_from_weights, model_weights
 from .network.edges import EdgeSnap
 from .network.model import HorizonNet, check_views
-from .network.predict import DEFAULT_VIEWS, default_model, image_boundaries
+from .network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, image_boundaries
 from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
 from .pipeline.prior import HeightPrior
 from .pipeline.run import layout_for, layout_from_boundaries
@@ -133,15 +134,15 @@ _reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "config", "v
 
 
 def _reconstruct_saved(
-    directory, model: HorizonNet, images, rc, keys, thresholds, prior, world, config, views, edge_snap
+    directory, weights: ModelWeights, images, rc, keys, thresholds, prior, world, config, views, edge_snap
 ):
     """:func:`_reconstruct` through its program saved in ``directory`` (:func:`ncjax.programs.call_saved`):
-    a later process skips the tracing. The model's weights are arguments, its architecture part of the key."""
-    graphdef, state = nnx.split(model)
+    a later process skips the tracing, and building the network too. The weights are arguments, the
+    architecture part of the key."""
 
-    def run(state, images, rc, key_data, thresholds, prior):
+    def run(tensors, images, rc, key_data, thresholds, prior):
         result = _reconstruct_body(
-            nnx.merge(graphdef, state),
+            model_from_weights(weights._replace(tensors=tensors)),
             images,
             rc,
             jax.random.wrap_key_data(key_data),
@@ -155,8 +156,9 @@ def _reconstruct_saved(
         # plain containers: a saved program's result tree must survive pickling (Layout's does not)
         return {field.name: getattr(result.layout, field.name) for field in dataclasses.fields(Layout)}, result[1:5]
 
-    key = repr(("reconstruct", model.config, world, config, views, edge_snap))
-    layout, rest = call_saved(directory, key, run, state, images, rc, jax.random.key_data(keys), thresholds, prior)
+    key = repr(("reconstruct", weights.config, world, config, views, edge_snap))
+    arguments = (weights.tensors, images, rc, jax.random.key_data(keys), thresholds, prior)
+    layout, rest = call_saved(directory, key, run, *arguments)
     return Reconstruction(Layout(**layout), *rest)
 
 
@@ -186,6 +188,18 @@ def _with_prior_fallback(
     )
 
 
+def _network(model: HorizonNet | ModelWeights | str | os.PathLike | None) -> HorizonNet:
+    """The :class:`~ncjax.HorizonNet` that ``model`` is, holds or names (None: the shipped one), in eval mode."""
+    if model is None:
+        model = default_model()
+    elif isinstance(model, ModelWeights):
+        model = model_from_weights(model)
+    elif not isinstance(model, HorizonNet):
+        model = load_model(model)
+    model.eval()
+    return model
+
+
 def check_panorama(images: np.ndarray) -> None:
     """Raise ValueError unless ``images`` is RGB uint8 (H, W, 3) or (B, H, W, 3) of a full panorama."""
     if images.dtype != np.uint8 or images.ndim not in (3, 4) or images.shape[-1] != 3:
@@ -202,7 +216,7 @@ def reconstruct_batch(
     rc: Float[ArrayLike, " B"],
     world: str = DEFAULT_WORLD,
     *,
-    model: HorizonNet | None = None,
+    model: HorizonNet | ModelWeights | str | os.PathLike | None = None,
     config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,
@@ -216,7 +230,11 @@ def reconstruct_batch(
         images: RGB uint8 (B, H, W, 3), W = 2 H.
         rc: (B,) radius of each panorama's circle of optical centres, metres.
         world: static: "manhattan", "atlanta" or "auto".
-        model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
+        model: a :class:`~ncjax.HorizonNet`, its :class:`~ncjax.network.checkpoint.ModelWeights`, or the
+            name of a shipped model or a model file (:func:`~ncjax.load_model`'s argument; default: the shipped
+            model). With ``program_cache`` a named
+            model's weights are only read (no network is built once its program is saved); without it, a
+            named model is loaded at every call: load it once with :func:`~ncjax.load_model` to call often.
         config: :class:`~ncjax.PipelineConfig`, thresholds traced, the rest static (default:
             :data:`NETWORK_PIPELINE_CONFIG`, the pipeline's defaults with the corner and occlusion settings for
             the network's output).
@@ -239,8 +257,10 @@ def reconstruct_batch(
 
     Raises:
         ValueError: bad image array, world, rc (negative or not finite; rc = 0
-            without a prior is accepted and gives ``LayoutStatus.NO_SCALE``) or prior.
-        FileNotFoundError: no model given and the shipped weights are missing.
+            without a prior is accepted and gives ``LayoutStatus.NO_SCALE``) or prior, or a model file that is
+            not an ncjax model.
+        FileNotFoundError: the model named is neither a file nor a shipped model, or no model given and the
+            shipped weights are missing.
     """
     images = np.asarray(images)
     check_panorama(images)
@@ -256,17 +276,16 @@ def reconstruct_batch(
         if np.ndim(prior.value) not in (0, 1) or np.size(prior.value) not in (1, images.shape[0]):
             raise ValueError(f"the prior's value must be a scalar or one per image ({images.shape[0]})")
         prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
-    model = default_model() if model is None else model
-    model.eval()
     key = jax.random.key(0) if key is None else key
     keys = jax.random.split(key, images.shape[0])
     central = prior is not None and not np.any(rc > 0)
-    arguments = (model, jnp.asarray(images), jnp.asarray(rc), keys, traced_part(config), prior if central else None)
+    arguments = (jnp.asarray(images), jnp.asarray(rc), keys, traced_part(config), prior if central else None)
     settings = (world, static_part(config), views, edge_snap)
     if program_cache is None:
-        result = _reconstruct(*arguments, *settings)
+        result = _reconstruct(_network(model), *arguments, *settings)
     else:
-        result = _reconstruct_saved(program_cache, *arguments, *settings)
+        weights = model_weights(DEFAULT_MODEL_PATH if model is None else model)
+        result = _reconstruct_saved(program_cache, weights, *arguments, *settings)
     if prior is None or central:
         return result
     return _with_prior_fallback(result, rc, prior, key, world, config)
@@ -277,7 +296,7 @@ def reconstruct(
     cam: NonCentralPanorama,
     world: str = DEFAULT_WORLD,
     *,
-    model: HorizonNet | None = None,
+    model: HorizonNet | ModelWeights | str | os.PathLike | None = None,
     config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,
@@ -291,7 +310,8 @@ def reconstruct(
         image: RGB uint8 (H, W, 3), a full panorama (W = 2 H).
         cam: its camera; ``cam.width`` and ``cam.height`` must be the image's.
         world: "manhattan", "atlanta" or "auto".
-        model: a :class:`~ncjax.HorizonNet` (default: the shipped model).
+        model: a :class:`~ncjax.HorizonNet`, or a shipped model's name or a model file (default: the shipped
+            model; see :func:`reconstruct_batch`).
         config: :class:`~ncjax.PipelineConfig` (default: :data:`NETWORK_PIPELINE_CONFIG`).
         key: RANSAC key (default ``jax.random.key(0)``).
         views: rolled and mirrored views the network averages (1 or even).

@@ -410,7 +410,7 @@ def test_help_shows_every_default():
             text = formatter._get_help_string(action)
             assert "default" in text or text.startswith("required"), (name, action.option_strings)
     reconstruct_help = " ".join(subcommands()["reconstruct"].format_help().split())
-    assert "--batch BATCH images per jitted call (default: 4)" in reconstruct_help
+    assert "--batch BATCH images per jitted call (at most the number of images) (default: 4)" in reconstruct_help
     train_help = " ".join(subcommands()["train"].format_help().split())
     assert "--batch N, --batch-size N images per step (default: 4)" in train_help
     assert "--checkpoint-every CHECKPOINT_EVERY steps between checkpoints (default: 250)" in train_help

@@ -386,6 +386,30 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path):
         ncjax.load_model(tmp_path / "missing.safetensors")
 
 
+@pytest.mark.slow
+def test_model_weights_are_the_files_tensors_and_rebuild_the_same_network(tmp_path):
+    from ncjax.network.checkpoint import model_from_weights, model_weights
+
+    model = ncjax.init_model(TINY, seed=0)
+    model.eval()
+    ncjax.save_model(model, tmp_path / "model.safetensors")
+    from_file, from_model = model_weights(tmp_path / "model.safetensors"), model_weights(model)
+    assert from_file.config == from_model.config == TINY
+    assert from_file.tensors.keys() == from_model.tensors.keys()
+    assert all(np.array_equal(from_file.tensors[k], from_model.tensors[k]) for k in from_file.tensors)
+    assert model_weights(tmp_path / "model.safetensors") is from_file  # an unchanged file is read once
+    rebuilt = model_from_weights(from_file)
+    original, restored = params_of(model), params_of(rebuilt)
+    assert rebuilt.config == TINY and original.keys() == restored.keys()
+    norms = [node for _, node in nnx.iter_graph(rebuilt) if isinstance(node, nnx.BatchNorm)]
+    assert norms and all(norm.use_running_average for norm in norms)  # eval mode
+    assert all(np.array_equal(original[k], restored[k]) for k in original)
+    name = next(iter(from_file.tensors))
+    broken = from_file._replace(tensors=from_file.tensors | {name: from_file.tensors[name][..., :1]})
+    with pytest.raises(ValueError, match=f"{name} is float32"):
+        model_from_weights(broken)
+
+
 def test_shipped_models_load_by_name_and_an_unknown_name_says_what_ships():
     from ncjax.network.checkpoint import shipped_models
 

@@ -119,8 +119,12 @@ def test_central_rooms_from_exact_rows_and_the_true_camera_height(world):
 
 @pytest.mark.slow
 def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it():
-    """rc 2-5 cm: with the scale test on at an impossible threshold every layout falls back to the prior."""
-    from ncjax.reconstruction import GEOMETRY, PRIOR_FALLBACK, Reconstruction, _with_prior_fallback
+    """rc 2-5 cm: the geometry's layout stays unless its status is one of SCALE_FAILURES, then the prior's replaces it.
+
+    The geometry's layouts stand in as the prior's scaled by 1.1 (what a geometry with a wrong scale would give),
+    with the status the scale test gave: one compiled pipeline, the prior's.
+    """
+    from ncjax.reconstruction import GEOMETRY, PRIOR_FALLBACK, SCALE_FAILURES, Reconstruction, _with_prior_fallback
 
     batch, labels = rooms("manhattan", (0.02, 0.05))
     rc = np.asarray(batch.rc)
@@ -128,14 +132,15 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it():
     prior = HeightPrior("camera_height", -batch.floor_height)
     key = jax.random.key(0)
     rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
-    for threshold, expected in ((float("inf"), GEOMETRY), (1e-9, PRIOR_FALLBACK)):
-        config = ncjax.PipelineConfig(max_height_uncertainty=threshold)
-        measured = ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, key=key)
+    config = ncjax.PipelineConfig()
+    from_prior = ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, key=key, prior=prior)
+    assert np.all(np.asarray(from_prior.ok))
+    np.testing.assert_allclose(from_prior.floor_height, batch.floor_height, rtol=1e-5)
+    for status, expected in [(ncjax.LayoutStatus.OK, GEOMETRY)] + [(s, PRIOR_FALLBACK) for s in SCALE_FAILURES]:
+        measured = dataclasses.replace(scale_layout(from_prior, 1.1), status=jnp.full(rc.shape, int(status)))
         result = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, key, "manhattan", config)
-        assert np.all(np.asarray(result.scale_source) == expected)
-        assert result.geometry is measured and np.all(np.asarray(result.layout.ok))
-        if expected == PRIOR_FALLBACK:
-            assert np.all(np.asarray(measured.status) == ncjax.LayoutStatus.UNCERTAIN_SCALE)
-            np.testing.assert_allclose(result.layout.floor_height, batch.floor_height, rtol=1e-5)
-        else:
-            np.testing.assert_array_equal(result.layout.floor_corners, measured.floor_corners)
+        assert np.all(np.asarray(result.scale_source) == expected), status
+        assert result.geometry is measured
+        chosen = from_prior if expected == PRIOR_FALLBACK else measured
+        np.testing.assert_array_equal(result.layout.floor_corners, chosen.floor_corners)
+        np.testing.assert_array_equal(result.layout.status, chosen.status)

@@ -158,3 +158,15 @@ def load_model_option(path: str):
         return load_model(path)
     except ValueError as error:
         raise ValueError(f"--model {one_line(error)}") from None
+
+
+def model_weights_option(path: str | None):
+    """The weights of ``--model PATH`` or of the shipped model (:func:`~ncjax.network.checkpoint.model_weights`,
+    no network built), or a one-line ValueError."""
+    from ..network.checkpoint import model_weights
+    from ..network.predict import DEFAULT_MODEL_PATH
+
+    try:
+        return model_weights(DEFAULT_MODEL_PATH if path is None else path)
+    except ValueError as error:
+        raise ValueError(f"--model {one_line(error)}") from None

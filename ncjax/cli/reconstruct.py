@@ -44,7 +44,7 @@ from .inputs import (
     check_output_folder,
     expand_inputs,
     height_prior,
-    load_model_option,
+    model_weights_option,
     one_line,
     parse_rc,
     radius_of,
@@ -197,8 +197,6 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     """
     from tqdm import tqdm
 
-    from ..network.predict import default_model
-
     rc = parse_rc(args.rc)
     prior = height_prior(args)
     check_views(args.views)
@@ -213,9 +211,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     check_output_folder(args.out)
     summary_path = os.path.join(args.out, SUMMARY_FILE)
     read_summary(summary_path)  # an earlier summary.csv that cannot be merged stops the run before any work
-    model = load_model_option(args.model) if args.model else default_model()
+    model = model_weights_option(args.model)
+    # fewer images than --batch: a smaller program, not one padded with copies to compute for nothing
+    batch_size = max(1, min(args.batch, len(images)))
     settings = ReconstructSettings(
-        model, args.batch, args.world, config, args.views, args.edge_snap, args.out, args.export, prior
+        model, batch_size, args.world, config, args.views, args.edge_snap, args.out, args.export, prior
     )
     ledger = CompileLedger(enable_compilation_cache())
 
@@ -267,7 +267,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                 image, gravity = align_to_gravity(image) if radius == 0 and args.align else (image, None)
                 group = groups[image.shape[:2]]
                 group.append((path, name, image, radius, gravity))
-                if len(group) == args.batch:
+                if len(group) == batch_size:
                     _reconstruct_group(settings, group, done, failed, ledger, bar.write)
                     group.clear()
                 stop.check()
@@ -302,7 +302,6 @@ def run_demo(args: argparse.Namespace) -> int:
     import jax
 
     from .. import metrics
-    from ..network.predict import default_model
     from ..reconstruction import reconstruct_batch
 
     start = time.perf_counter()
@@ -319,7 +318,7 @@ def run_demo(args: argparse.Namespace) -> int:
         f"a {truth['world']} room rendered by ncjax synth and never seen in training)"
     )
     settings = ReconstructSettings(
-        default_model(), 1, args.world, config, args.views, args.edge_snap, args.out, (), None
+        model_weights_option(None), 1, args.world, config, args.views, args.edge_snap, args.out, (), None
     )
     key = program_key((1, *image.shape), settings, central=False)
     with ledger.compiling(
@@ -396,7 +395,7 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         "--model",
         help="network weights (.safetensors) or a shipped model's name, e.g. compact1024 (default: the default model)",
     )
-    parser.add_argument("--batch", type=int, default=4, help="images per jitted call")
+    parser.add_argument("--batch", type=int, default=4, help="images per jitted call (at most the number of images)")
     add_prior_arguments(parser)
     parser.add_argument(
         "--no-align",

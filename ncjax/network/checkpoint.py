@@ -13,9 +13,12 @@ statistics) and ``optimizer/`` (the optax state and step of an
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import pathlib
+from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
@@ -30,17 +33,19 @@ _MODEL_STATE = nnx.Any(nnx.Param, nnx.BatchStat)
 _OPTIMIZER_STATE = nnx.OptState
 
 
+def _flat_values(state, prefix: str) -> dict:
+    """``state``'s values by their tensor names in a file: ``prefix`` + the ``/``-joined state path."""
+    return {prefix + "/".join(map(str, path)): variable.get_value() for path, variable in nnx.to_flat_state(state)}
+
+
 def _flat_arrays(state, prefix: str) -> dict[str, np.ndarray]:
-    return {
-        prefix + "/".join(str(part) for part in path): np.asarray(variable.get_value())
-        for path, variable in nnx.to_flat_state(state)
-    }
+    return {name: np.asarray(value) for name, value in _flat_values(state, prefix).items()}
 
 
-def _restore(node, state_filter, tensors: dict[str, np.ndarray], prefix: str, path: str) -> None:
+def _restore(node, state_filter, tensors: dict[str, np.ndarray | jax.Array], prefix: str, path: str) -> None:
     """Copy ``tensors[prefix + ...]`` into ``node``'s state, checking names, shapes and dtypes."""
     flat = nnx.to_flat_state(nnx.state(node, state_filter))
-    names = [prefix + "/".join(str(part) for part in p) for p, _ in flat]
+    names = list(_flat_values(nnx.state(node, state_filter), prefix))
     stored = {name for name in tensors if name.startswith(prefix)}
     if set(names) != stored:
         missing, unexpected = sorted(set(names) - stored), sorted(stored - set(names))
@@ -118,18 +123,67 @@ def load_checkpoint(path: str | os.PathLike, optimizer_factory=None) -> tuple[Ho
         ValueError: the file is not an ncjax checkpoint of a model that can be built (one line).
     """
     metadata = read_metadata(path)
-    config = stored_config(path, metadata)
     tensors = read_tensors(path)
-    model = abstract_model(config)
-    _restore(model, _MODEL_STATE, tensors, "model/", str(path))
+    model = model_from_weights(ModelWeights(stored_config(path, metadata), tensors), str(path))
     optimizer = None
     if optimizer_factory is not None:
         if not any(name.startswith("optimizer/") for name in tensors):
             raise ValueError(f"{path} holds no optimizer state (a model file, not a training checkpoint)")
         optimizer = nnx.eval_shape(lambda m: optimizer_factory(m, metadata.get("train_config")), model)
         _restore(optimizer, _OPTIMIZER_STATE, tensors, "optimizer/", str(path))
-    model.eval()
     return model, optimizer, int(metadata.get("step", "0"))
+
+
+class ModelWeights(NamedTuple):
+    """A network as its file holds it: the architecture and the named tensors, no module built.
+
+    Building the :class:`HorizonNet` (:func:`model_from_weights`) traces its constructor, seconds on a CPU;
+    a program that takes the weights as arguments (:mod:`ncjax.programs`) needs it only when it is traced.
+
+    Attributes:
+        config: the architecture.
+        tensors: ``"model/<state path>"`` -> array, the parameters and batch-norm statistics
+            (:func:`save_checkpoint`'s names; a training checkpoint's optimizer state left out).
+    """
+
+    config: HorizonNetConfig
+    tensors: dict[str, np.ndarray | jax.Array]
+
+
+def model_weights(model: HorizonNet | ModelWeights | str | os.PathLike) -> ModelWeights:
+    """The :class:`ModelWeights` of a model, or of the shipped model or file that ``model`` names.
+
+    A file is read once per process while it is unchanged (its size and modification time).
+
+    Raises:
+        FileNotFoundError: neither a file nor a shipped model's name.
+        ValueError: the file is not an ncjax model (one line).
+    """
+    if isinstance(model, ModelWeights):
+        return model
+    if isinstance(model, HorizonNet):
+        return ModelWeights(model.config, _flat_values(nnx.state(model, _MODEL_STATE), "model/"))
+    path = model_file(model).resolve()
+    status = path.stat()
+    return _read_weights(path, status.st_size, status.st_mtime_ns)
+
+
+@functools.cache
+def _read_weights(path: pathlib.Path, size: int, modified: int) -> ModelWeights:
+    tensors = {name: value for name, value in read_tensors(path).items() if name.startswith("model/")}
+    return ModelWeights(stored_config(path, read_metadata(path)), tensors)
+
+
+def model_from_weights(weights: ModelWeights, source: str = "the weights") -> HorizonNet:
+    """The :class:`HorizonNet` of ``weights`` in eval mode (the tensors may be traced).
+
+    Raises:
+        ValueError: the tensors are not the architecture's (names, shapes or dtypes; ``source`` names them).
+    """
+    model = abstract_model(weights.config)
+    _restore(model, _MODEL_STATE, weights.tensors, "model/", source)
+    model.eval()
+    return model
 
 
 def stored_config(path: str | os.PathLike, metadata: dict[str, str]) -> HorizonNetConfig:
