@@ -39,13 +39,14 @@ def enable_compilation_cache() -> str:
 
     Compilation is most of a first run's time; the persistent cache spares later runs with the same
     image size, batch and settings the compilation; the programs saved in :func:`program_directory`
-    spare them the tracing.
+    spare them the tracing. Small programs are kept too (the outputs' projections, say): compiling
+    them again costs a warm run more than reading them.
     """
     import jax
 
     directory = cache_directory()
     jax.config.update("jax_compilation_cache_dir", directory)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return directory
 
 

@@ -49,6 +49,7 @@ import math
 import os
 
 import cv2
+import jax
 import numpy as np
 from jaxtyping import Float, UInt8
 
@@ -143,7 +144,11 @@ def _numbers(array, number=_number) -> list:
 
 def layout_height_sigma(layout: Layout) -> float:
     """Standard deviation (m) of ``h_c - h_f`` under :attr:`ncjax.Layout.height_covariance` (inf if unknown)."""
-    return float(room_height_sigma(np.asarray(layout.height_covariance, np.float64)))
+    return float(_room_height_sigma(np.asarray(layout.height_covariance, np.float64)))
+
+
+# one compiled program (kept in the CLI's compilation cache) instead of a compilation per operation
+_room_height_sigma = jax.jit(room_height_sigma)
 
 
 def _significant(x) -> float | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import cv2
+import jax
 import numpy as np
 from jaxtyping import ArrayLike, Float, UInt8
 
@@ -24,6 +25,8 @@ LEGEND_LABELS = {
     "corner": "corner probability (bottom)",
 }
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
+# one compiled program (kept in the CLI's compilation cache) instead of a compilation per operation
+_project = jax.jit(project)
 
 
 # --- overlay on the panorama --------------------------------------------------------------------------
@@ -156,7 +159,7 @@ def draw_overlay(
         samples = np.concatenate(
             [ceiling_edges.reshape(-1, 3), floor_edges.reshape(-1, 3), vertical_edges.reshape(-1, 3)]
         )
-        u, v = project(cam, samples.astype(np.float32))  # one call for everything: one dispatch
+        u, v = _project(cam, samples.astype(np.float32))  # one call for everything: one dispatch
         u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
         horizontal = 2 * n * along.shape[1]
         u_edges, v_edges = u[:horizontal].reshape(2, n, -1), v[:horizontal].reshape(2, n, -1)
