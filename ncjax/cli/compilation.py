@@ -51,12 +51,13 @@ def enable_compilation_cache() -> str:
 
 
 def settings_key(*parts: object) -> str:
-    """A short stable key of the settings a program depends on (their ``repr``, with ncjax's and jax's versions)."""
+    """A short stable key of the settings a program depends on (their ``repr``, with jax's version and the digest
+    of ncjax's sources: changed sources trace the program again, and the run then says so)."""
     import jax
 
-    from .. import __version__
+    from ..programs import source_digest
 
-    text = repr((__version__, jax.__version__, *parts))
+    text = repr((source_digest(), jax.__version__, *parts))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
