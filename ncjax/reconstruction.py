@@ -232,9 +232,9 @@ def reconstruct_batch(
         world: static: "manhattan", "atlanta" or "auto".
         model: a :class:`~ncjax.HorizonNet`, its :class:`~ncjax.network.checkpoint.ModelWeights`, or the
             name of a shipped model or a model file (:func:`~ncjax.load_model`'s argument; default: the shipped
-            model). With ``program_cache`` a named
-            model's weights are only read (no network is built once its program is saved); without it, a
-            named model is loaded at every call: load it once with :func:`~ncjax.load_model` to call often.
+            model). With ``program_cache`` a named model's weights are only read (no network is built once its
+            program is saved); without it, a named model is loaded at every call: load it once with
+            :func:`~ncjax.load_model` to call often.
         config: :class:`~ncjax.PipelineConfig`, thresholds traced, the rest static (default:
             :data:`NETWORK_PIPELINE_CONFIG`, the pipeline's defaults with the corner and occlusion settings for
             the network's output).

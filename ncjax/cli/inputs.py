@@ -154,10 +154,7 @@ def load_model_option(path: str):
     """The model of ``--model PATH`` (:func:`~ncjax.network.checkpoint.load_model`), or a one-line ValueError."""
     from ..network.checkpoint import load_model
 
-    try:
-        return load_model(path)
-    except ValueError as error:
-        raise ValueError(f"--model {one_line(error)}") from None
+    return _model_option(load_model, path)
 
 
 def model_weights_option(path: str | None):
@@ -166,7 +163,12 @@ def model_weights_option(path: str | None):
     from ..network.checkpoint import model_weights
     from ..network.predict import DEFAULT_MODEL_PATH
 
+    return _model_option(model_weights, DEFAULT_MODEL_PATH if path is None else path)
+
+
+def _model_option(read, path):
+    """``read(path)``, its one-line ValueError said to be about ``--model``."""
     try:
-        return model_weights(DEFAULT_MODEL_PATH if path is None else path)
+        return read(path)
     except ValueError as error:
         raise ValueError(f"--model {one_line(error)}") from None

@@ -44,8 +44,9 @@ def _flat_arrays(state, prefix: str) -> dict[str, np.ndarray]:
 
 def _restore(node, state_filter, tensors: dict[str, np.ndarray | jax.Array], prefix: str, path: str) -> None:
     """Copy ``tensors[prefix + ...]`` into ``node``'s state, checking names, shapes and dtypes."""
-    flat = nnx.to_flat_state(nnx.state(node, state_filter))
-    names = list(_flat_values(nnx.state(node, state_filter), prefix))
+    state = nnx.state(node, state_filter)
+    flat = nnx.to_flat_state(state)
+    names = list(_flat_values(state, prefix))
     stored = {name for name in tensors if name.startswith(prefix)}
     if set(names) != stored:
         missing, unexpected = sorted(set(names) - stored), sorted(stored - set(names))
