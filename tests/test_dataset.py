@@ -264,6 +264,7 @@ def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
         ("synth:-3:1", (-3, 1)),
         ("synth-decor-central:5:7", (5, 7)),
         ("synth-decor-small:8:9", (8, 9)),
+        ("synth-decor-home:4:2", (4, 2)),
         ("data/synth1024", None),
         ("painted", None),
     ],

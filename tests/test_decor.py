@@ -295,3 +295,29 @@ def test_door_leaves_hang_in_their_doorways_and_lamps_stay_up():
     assert np.all(np.where(lamp_boxes.mask, bottom > 0.3, True))  # above the camera
     assert np.all(np.where(lamp_boxes.mask, bottom < np.asarray(scenes.room.ceiling_height)[:, None], True))
     assert scenes.decor.panels.mask.any() or lamp_boxes.mask.any()
+
+
+def test_neutral_paint_gives_pale_walls_and_leaves_the_rest_of_the_scene_as_it_was():
+    from ncjax.synth.materials import Pattern
+    from ncjax.synth.scene import random_scene
+
+    def scenes(config):
+        def one(key):
+            room_key, scene_key = jax.random.split(key)
+            return random_scene(scene_key, ncjax.random_room(room_key, CONFIG.room), config)
+
+        return jax.device_get(jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(5), 16)))
+
+    plain = scenes(ncjax.SceneConfig())
+    neutral = scenes(ncjax.SceneConfig(neutral_paint_probability=1.0))
+    colour = neutral.walls.colour_a
+    value, saturation = colour.max(-1), 1.0 - colour.min(-1) / colour.max(-1)
+    assert np.all(saturation <= 0.12 + 1e-5) and np.all((value >= 0.75 - 1e-5) & (value <= 0.97 + 1e-5))
+    assert set(np.unique(neutral.walls.pattern)) <= {Pattern.PAINT, Pattern.PLASTER}
+    assert np.all(neutral.walls.colour_b <= neutral.walls.colour_a)
+    # The plain scenes' walls were not all pale: the option changed them.
+    assert np.any(1.0 - plain.walls.colour_a.min(-1) / plain.walls.colour_a.max(-1) > 0.12)
+    # Only the walls change: same room, furniture, lights, floor and ceiling.
+    for field in ("room", "boxes", "openings", "lights", "floor", "ceiling", "skirting_height", "ambient"):
+        for a, b in zip(jax.tree.leaves(getattr(plain, field)), jax.tree.leaves(getattr(neutral, field)), strict=True):
+            np.testing.assert_array_equal(a, b)

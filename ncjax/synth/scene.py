@@ -62,6 +62,7 @@ from .rooms import Room, distance_to_walls, point_in_polygon
 
 # fold_in data of the decor's random key (far above any split count of the basic draws).
 _DECOR_STREAM = 0xDEC0
+_NEUTRAL_PAINT_STREAM = 0x9A17
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +96,9 @@ class SceneConfig:
         suspended_ceiling_probability, stipple_ceiling_probability: chance of a
             suspended-ceiling grid, a popcorn ceiling (otherwise paint, plaster or tiles).
         sun_probability: chance that the sun shines in through the windows.
+        neutral_paint_probability: chance that the walls are painted white, off-white or
+            a pale grey or beige (flat paint or plaster), as in most homes: the wall meets
+            a ceiling of nearly the same colour and only the shading shows the edge.
     """
 
     decor: bool = False
@@ -116,6 +120,7 @@ class SceneConfig:
     suspended_ceiling_probability: float = 0.2
     stipple_ceiling_probability: float = 0.15
     sun_probability: float = 0.4
+    neutral_paint_probability: float = 0.0
 
     def __post_init__(self):
         for name in (
@@ -142,6 +147,7 @@ class SceneConfig:
             "suspended_ceiling_probability",
             "stipple_ceiling_probability",
             "sun_probability",
+            "neutral_paint_probability",
         )
         for name in probabilities:
             if not 0.0 <= getattr(self, name) <= 1.0:
@@ -422,6 +428,15 @@ def _surface_materials(key, config: SceneConfig):
             w[0] < 0.5, a * between(w[1], 0.6, 0.9), colour_in_hsv_box(w[1:4], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95))
         ),
     )
+    if config.neutral_paint_probability > 0.0:
+        w = jax.random.uniform(jax.random.fold_in(key, _NEUTRAL_PAINT_STREAM), (10,))
+        neutral = _surface_material(
+            w[1:],
+            [(0.6, Pattern.PAINT), (0.4, Pattern.PLASTER)],
+            lambda pattern, w: colour_in_hsv_box(w, (0.05, 0.15), (0.0, 0.12), (0.75, 0.97)),
+            lambda pattern, a, w: a * between(w[0], 0.88, 0.97),
+        )
+        walls = jax.tree.map(lambda a, b: jnp.where(w[0] < config.neutral_paint_probability, a, b), neutral, walls)
     if config.decor:
         plain = 1.0 - config.suspended_ceiling_probability - config.stipple_ceiling_probability
         ceiling_pool = [
