@@ -163,7 +163,12 @@ def _reconstruct_saved(
 
 
 def _with_prior_fallback(
-    result: Reconstruction, rc: np.ndarray, prior: HeightPrior, key: PRNGKeyArray, world: str, config: PipelineConfig
+    result: Reconstruction,
+    rc: np.ndarray,
+    prior: HeightPrior,
+    keys: Key[Array, " B"],
+    world: str,
+    config: PipelineConfig,
 ) -> Reconstruction:
     """``result`` (the geometry's) with the prior's layout where ``rc = 0`` or the status is a :data:`SCALE_FAILURES`.
 
@@ -178,7 +183,7 @@ def _with_prior_fallback(
     width = result.ceiling_v.shape[-1]
     cam = NonCentralPanorama(width, width // 2, rc=jnp.asarray(rc))  # full panoramas: H = W / 2 (check_panorama)
     from_prior = layout_from_boundaries(
-        result.ceiling_v, result.floor_v, result.corner_prob, cam, world, config, key=key, prior=prior
+        result.ceiling_v, result.floor_v, result.corner_prob, cam, world, config, key=keys, prior=prior
     )
     chosen = jax.tree.map(
         lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
@@ -218,7 +223,7 @@ def reconstruct_batch(
     *,
     model: HorizonNet | ModelWeights | str | os.PathLike | None = None,
     config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
-    key: PRNGKeyArray | None = None,
+    key: PRNGKeyArray | Key[Array, " B"] | None = None,
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
     prior: HeightPrior | None = None,
@@ -238,7 +243,8 @@ def reconstruct_batch(
         config: :class:`~ncjax.PipelineConfig`, thresholds traced, the rest static (default:
             :data:`NETWORK_PIPELINE_CONFIG`, the pipeline's defaults with the corner and occlusion settings for
             the network's output).
-        key: RANSAC key (default ``jax.random.key(0)``), split over the batch.
+        key: RANSAC key (default ``jax.random.key(0)``): one key, split over the batch, or one key per image
+            (shape (B,)), with which an image gets the layout it gets alone with that key, in any batch.
         views: static, rolled and mirrored views the network's output is
             averaged over (1 or even, :func:`ncjax.predict_boundaries`).
         edge_snap: static; how the network's rows are moved onto the image's
@@ -277,7 +283,9 @@ def reconstruct_batch(
             raise ValueError(f"the prior's value must be a scalar or one per image ({images.shape[0]})")
         prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
     key = jax.random.key(0) if key is None else key
-    keys = jax.random.split(key, images.shape[0])
+    if jnp.shape(key) not in ((), images.shape[:1]):
+        raise ValueError(f"key must be one PRNG key or one per image ({images.shape[0]}), got shape {jnp.shape(key)}")
+    keys = jax.random.split(key, images.shape[0]) if jnp.shape(key) == () else key
     central = prior is not None and not np.any(rc > 0)
     arguments = (jnp.asarray(images), jnp.asarray(rc), keys, traced_part(config), prior if central else None)
     settings = (world, static_part(config), views, edge_snap)
@@ -288,7 +296,7 @@ def reconstruct_batch(
         result = _reconstruct_saved(program_cache, weights, *arguments, *settings)
     if prior is None or central:
         return result
-    return _with_prior_fallback(result, rc, prior, key, world, config)
+    return _with_prior_fallback(result, rc, prior, keys, world, config)
 
 
 def reconstruct(

@@ -39,6 +39,7 @@ class FakeReconstruction:
     Attributes:
         layout: the unbatched layout every image gets.
         calls: the number of images of each call, padding included.
+        keys: the RANSAC keys of each call (``key_data``), one per image.
         interrupt_on_call: raise KeyboardInterrupt on this call (1-based), None never.
         signal_on_call: send this process SIGINT (a Ctrl-C) during this call, None never.
     """
@@ -46,11 +47,13 @@ class FakeReconstruction:
     def __init__(self, layout=None, interrupt_on_call=None, signal_on_call=None):
         self.layout = make_layout(RECTANGLE) if layout is None else layout
         self.calls: list[int] = []
+        self.keys: list[np.ndarray] = []
         self.interrupt_on_call = interrupt_on_call
         self.signal_on_call = signal_on_call
 
     def __call__(self, images, rc, world, **options):
         self.calls.append(len(images))
+        self.keys.append(np.asarray(jax.random.key_data(options["key"])))
         if len(self.calls) == self.interrupt_on_call:
             raise KeyboardInterrupt
         if len(self.calls) == self.signal_on_call:
@@ -204,6 +207,16 @@ def test_skip_existing_resumes_a_batch(tmp_path, fake, capsys):
     assert "earlier result: ok" in rows["a"]["message"] and "unreadable" in rows["c"]["message"]
     printed = capsys.readouterr().out
     assert "1 of 3 images reconstructed" in printed and "2 skipped" in printed
+
+
+def test_every_image_gets_the_key_it_gets_alone_whatever_the_batch(tmp_path, fake):
+    alone = np.asarray(jax.random.key_data(jax.random.split(jax.random.key(0), 1)[0]))
+    for batch in ("1", "2"):
+        fake.keys.clear()
+        assert reconstruct_cli(panoramas(tmp_path / "in", "a", "b", "c"), tmp_path / batch, "--batch", batch) == 0
+        keys = np.concatenate(fake.keys)
+        assert keys.shape == (3 if batch == "1" else 4, *alone.shape)  # the last batch of two is padded
+        np.testing.assert_array_equal(keys, np.broadcast_to(alone, keys.shape))
 
 
 @pytest.mark.slow

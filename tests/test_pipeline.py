@@ -10,6 +10,7 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import jaxtyping
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -932,6 +933,13 @@ def test_bad_arguments_raise():
         ncjax.layout_from_boundaries(rows, rows, rows, cam, world="gothic")
     with pytest.raises(ValueError, match="cam.width"):
         ncjax.layout_from_boundaries(rows[:-1], rows[:-1], rows[:-1], cam, world="manhattan")
+    # A key of another shape than the batch's: the annotation refuses it under the tests' type checks, a
+    # ValueError without them.
+    with pytest.raises((ValueError, jaxtyping.TypeCheckError)):
+        ncjax.layout_from_boundaries(rows, rows, rows, cam, key=jax.random.split(jax.random.key(0), 2))
+    with pytest.raises((ValueError, jaxtyping.TypeCheckError)):
+        images = np.zeros((2, 256, 512, 3), np.uint8)
+        ncjax.reconstruct_batch(images, [0.5, 0.5], key=jax.random.split(jax.random.key(0), 3))
     with pytest.raises(ValueError, match="capacity"):
         ncjax.PipelineConfig(capacity=2)
     with pytest.raises(ValueError, match="adjustment_stride"):

@@ -135,10 +135,14 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it():
     config = ncjax.PipelineConfig()
     from_prior = ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, key=key, prior=prior)
     assert np.all(np.asarray(from_prior.ok))
+    # One key per panorama: the keys one key is split into give the same layouts.
+    keys = jax.random.split(key, rc.shape[0])
+    per_panorama = ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, key=keys, prior=prior)
+    np.testing.assert_array_equal(per_panorama.floor_corners, from_prior.floor_corners)
     np.testing.assert_allclose(from_prior.floor_height, batch.floor_height, rtol=1e-5)
     for status, expected in [(ncjax.LayoutStatus.OK, GEOMETRY)] + [(s, PRIOR_FALLBACK) for s in SCALE_FAILURES]:
         measured = dataclasses.replace(scale_layout(from_prior, 1.1), status=jnp.full(rc.shape, int(status)))
-        result = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, key, "manhattan", config)
+        result = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, keys, "manhattan", config)
         assert np.all(np.asarray(result.scale_source) == expected), status
         assert result.geometry is measured
         chosen = from_prior if expected == PRIOR_FALLBACK else measured

@@ -99,6 +99,10 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
     from ..reconstruction import reconstruct_batch
 
     batch_size = settings.batch_size
+    # Each image gets the RANSAC key that reconstruct gives one image alone, so a folder's layouts do not
+    # depend on --batch or on the image's place in its batch.
+    image_key = jax.random.split(jax.random.key(0), 1)[0]
+    keys = jax.numpy.broadcast_to(image_key, (batch_size,))
     for start in range(0, len(items), batch_size):
         chunk = items[start : start + batch_size]
         padding = [chunk[-1]] * (batch_size - len(chunk))
@@ -116,6 +120,7 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
                         model=settings.model,
                         config=settings.config,
                         views=settings.views,
+                        key=keys,
                         edge_snap=settings.edge_snap,
                         prior=settings.prior,
                         program_cache=program_directory(),

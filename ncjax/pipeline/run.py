@@ -60,7 +60,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Key, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
 from .atlanta import atlanta_layout
@@ -163,7 +163,7 @@ def layout_from_boundaries(
     cam: NonCentralPanorama,
     world: str = DEFAULT_WORLD,
     config: PipelineConfig = PipelineConfig(),
-    key: PRNGKeyArray | None = None,
+    key: PRNGKeyArray | Key[Array, "*batch"] | None = None,
     prior: HeightPrior | None = None,
 ) -> Layout:
     """Metric room layout from the per-column network outputs (paper Section 4.4).
@@ -184,7 +184,9 @@ def layout_from_boundaries(
         world: static: "manhattan", "atlanta" or "auto" (the default, :data:`DEFAULT_WORLD`).
         config: :class:`PipelineConfig`; its thresholds (:data:`~ncjax.pipeline.config.TRACED_FIELDS`)
             are traced, the rest static.
-        key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``).
+        key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``): one key, split over the batch,
+            or one key per panorama (the batch's shape), whose layout is then the one the panorama gets alone
+            with its key, in any batch.
         prior: a :class:`~ncjax.pipeline.prior.HeightPrior` (a scalar value or one per panorama): the scale
             comes from it instead of the rows' parallax (:func:`layout_from_prior`; needed for ``rc = 0``).
 
@@ -193,7 +195,7 @@ def layout_from_boundaries(
 
     Raises:
         ValueError: for an unknown ``world``, arrays whose shapes do not match
-            the camera, or camera fields of another shape than the batch's.
+            the camera, camera fields or keys of another shape than the batch's.
     """
     if world not in WORLDS:
         raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
@@ -215,11 +217,13 @@ def layout_from_boundaries(
     if prior is not None and jnp.shape(prior.value) not in ((), batch):
         raise ValueError(f"the prior's value must be a scalar or of the batch's shape {batch}")
     key = jax.random.key(0) if key is None else key
+    if jnp.shape(key) not in ((), batch):
+        raise ValueError(f"key must be one PRNG key or one per panorama {batch}, got shape {jnp.shape(key)}")
     if not batch:
         return _layout_with_fallback(*arrays, cam, prior, key, world, config)
     flat = [x.reshape(-1, cam.width) for x in arrays]
     cams, prior = jax.tree.map(lambda x: jnp.broadcast_to(x, batch).reshape(-1), (cam, prior))
-    keys = jax.random.split(key, flat[0].shape[0])
+    keys = jax.random.split(key, flat[0].shape[0]) if jnp.shape(key) == () else jnp.reshape(key, (-1,))
     layout = _layout_with_fallback(*flat, cams, prior, keys, world, config)
     return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layout)
 
