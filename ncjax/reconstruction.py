@@ -244,7 +244,7 @@ def reconstruct_batch(
             :data:`NETWORK_PIPELINE_CONFIG`, the pipeline's defaults with the corner and occlusion settings for
             the network's output).
         key: RANSAC key (default ``jax.random.key(0)``): one key, split over the batch, or one key per image
-            (shape (B,)), with which an image gets the layout it gets alone with that key, in any batch.
+            (shape (B,)): an image's RANSAC samples then do not depend on the batch it is in.
         views: static, rolled and mirrored views the network's output is
             averaged over (1 or even, :func:`ncjax.predict_boundaries`).
         edge_snap: static; how the network's rows are moved onto the image's

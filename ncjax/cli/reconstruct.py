@@ -99,7 +99,7 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
     from ..reconstruction import reconstruct_batch
 
     batch_size = settings.batch_size
-    # Each image gets the RANSAC key that reconstruct gives one image alone, so a folder's layouts do not
+    # Each image gets the RANSAC key that reconstruct gives one image alone, so its RANSAC samples do not
     # depend on --batch or on the image's place in its batch.
     image_key = jax.random.split(jax.random.key(0), 1)[0]
     keys = jax.numpy.broadcast_to(image_key, (batch_size,))

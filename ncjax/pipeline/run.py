@@ -185,8 +185,8 @@ def layout_from_boundaries(
         config: :class:`PipelineConfig`; its thresholds (:data:`~ncjax.pipeline.config.TRACED_FIELDS`)
             are traced, the rest static.
         key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``): one key, split over the batch,
-            or one key per panorama (the batch's shape), whose layout is then the one the panorama gets alone
-            with its key, in any batch.
+            or one key per panorama (the batch's shape): a panorama's RANSAC samples then do not depend on the
+            batch it is in.
         prior: a :class:`~ncjax.pipeline.prior.HeightPrior` (a scalar value or one per panorama): the scale
             comes from it instead of the rows' parallax (:func:`layout_from_prior`; needed for ``rc = 0``).
 
