@@ -5,10 +5,10 @@
 - ``x64`` fixture: float64 only for the tests that need it.
 - Hypothesis profile sized for 2-core CI machines.
 - XLA's LLVM backend at -O0: the suite's time is mostly compilation.
-- A private XLA compilation cache: the CLI tests switch on the persistent
-  cache (``ncjax.cli.compilation.enable_compilation_cache``) for the rest of the
-  session; entries of other runs (other flags, a concurrent writer) must
-  not be read back.
+- A private XLA compilation cache per process (pytest-xdist runs two): the CLI
+  tests switch on the persistent cache (``ncjax.cli.compilation.enable_compilation_cache``)
+  for the rest of the session; entries of other runs (other flags, a concurrent
+  writer) must not be read back.
 """
 
 import atexit

@@ -297,6 +297,7 @@ def test_door_leaves_hang_in_their_doorways_and_lamps_stay_up():
     assert scenes.decor.panels.mask.any() or lamp_boxes.mask.any()
 
 
+@pytest.mark.slow
 def test_neutral_paint_gives_pale_walls_and_leaves_the_rest_of_the_scene_as_it_was():
     from ncjax.synth.materials import Pattern
     from ncjax.synth.scene import random_scene
