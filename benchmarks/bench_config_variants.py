@@ -15,10 +15,10 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import jax  # noqa: E402
+import jax
 
-import ncjax  # noqa: E402
-from ncjax.pipeline.run import _layout_jit  # noqa: E402
+import ncjax
+from ncjax.pipeline.run import _layout_jit
 
 
 def main(argv: list[str] | None = None) -> None:

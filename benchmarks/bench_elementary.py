@@ -18,9 +18,9 @@ import time
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
 
 from ncjax.geometry.fastmath import arctan2
 
@@ -54,7 +54,10 @@ def main(argv=None) -> int:
         print(f"{name:>24}: {best / args.size * 1e9:6.2f} ns per element")
     exact = np.arctan2(np.asarray(y, np.float64), np.asarray(x, np.float64))
     error = np.max(np.abs(np.asarray(jax.jit(arctan2)(y, x), np.float64) - exact))
-    print(f"ncjax.geometry.fastmath.arctan2: largest error {error:.2e} rad (float32 spacing at pi: {np.spacing(np.float32(np.pi)):.2e})")
+    print(
+        f"ncjax.geometry.fastmath.arctan2: largest error {error:.2e} rad (float32 spacing at pi: "
+        f"{np.spacing(np.float32(np.pi)):.2e})"
+    )
     return 0
 
 

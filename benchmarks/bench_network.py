@@ -26,11 +26,11 @@ import time
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-from flax import nnx  # noqa: E402
+import jax
+import jax.numpy as jnp
+from flax import nnx
 
-from ncjax import HorizonNetConfig, TrainConfig, count_parameters, init_model  # noqa: E402
+from ncjax import HorizonNetConfig, TrainConfig, count_parameters, init_model
 from ncjax.training.loop import make_optimizer, step_key_root, train_step
 
 

@@ -29,10 +29,10 @@ import time
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
+import jax
+import jax.numpy as jnp
 
-import ncjax  # noqa: E402
+import ncjax
 from ncjax.pipeline.config import WORLDS, PipelineConfig
 
 WIDTH, HEIGHT = 1024, 512
@@ -75,20 +75,34 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=11)
     parser.add_argument("--batches", type=int, nargs="*", default=[64, 256])
     parser.add_argument("--worlds", nargs="*", default=list(WORLDS), choices=WORLDS)
-    parser.add_argument("--adjustment-stride", type=int, default=PipelineConfig.adjustment_stride,
-                        help="PipelineConfig.adjustment_stride: the final adjustment fits every n-th column")
-    parser.add_argument("--compact-capacity", type=int, default=PipelineConfig.compact_capacity,
-                        help="PipelineConfig.compact_capacity (0: every room with all the slots)")
-    parser.add_argument("--chunk-size", type=int, default=PipelineConfig.chunk_size,
-                        help="PipelineConfig.chunk_size: panoramas per vmap inside a batch (0: all)")
+    parser.add_argument(
+        "--adjustment-stride",
+        type=int,
+        default=PipelineConfig.adjustment_stride,
+        help="PipelineConfig.adjustment_stride: the final adjustment fits every n-th column",
+    )
+    parser.add_argument(
+        "--compact-capacity",
+        type=int,
+        default=PipelineConfig.compact_capacity,
+        help="PipelineConfig.compact_capacity (0: every room with all the slots)",
+    )
+    parser.add_argument(
+        "--chunk-size",
+        type=int,
+        default=PipelineConfig.chunk_size,
+        help="PipelineConfig.chunk_size: panoramas per vmap inside a batch (0: all)",
+    )
     parser.add_argument("--sigma", type=float, default=0.0, help="white noise on the boundary rows, pixels")
     args = parser.parse_args(argv)
     config = PipelineConfig(
         adjustment_stride=args.adjustment_stride, compact_capacity=args.compact_capacity, chunk_size=args.chunk_size
     )
-    print(f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}, "
-          f"row noise {args.sigma} px")
+    print(
+        f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}, load average {os.getloadavg()[0]:.2f}, "
+        f"row noise {args.sigma} px"
+    )
     for world in args.worlds:
         ceiling, floor, prob, cams = inputs(world, max(args.batches + [args.repeats]), args.sigma)
 
@@ -106,8 +120,10 @@ def main(argv=None):
         # a different room per repeat: the iteration counts depend on the data
         times = [timed(lambda i=i: single(i)) for i in range(args.repeats)]
         wall, cpu = statistics.median(t[0] for t in times), statistics.median(t[1] for t in times)
-        print(f"{world}: compile {compile_wall:.1f} s (cpu {compile_cpu:.1f} s), "
-              f"latency {1e3 * wall:.1f} ms per panorama (cpu {1e3 * cpu:.1f} ms), median of {args.repeats} rooms")
+        print(
+            f"{world}: compile {compile_wall:.1f} s (cpu {compile_cpu:.1f} s), "
+            f"latency {1e3 * wall:.1f} ms per panorama (cpu {1e3 * cpu:.1f} ms), median of {args.repeats} rooms"
+        )
         for size in args.batches:
             data = (ceiling[:size], floor[:size], prob[:size], jax.tree.map(lambda x: x[:size], cams))
 
@@ -118,9 +134,11 @@ def main(argv=None):
             # the rooms rerun with all the slots (more walls than compact_capacity)
             reruns = int(jnp.sum(jnp.sum(layouts.mask, -1) > config.compact_capacity))
             wall, cpu = median_time(batched, max(1, args.repeats // 4))
-            print(f"{world}: batch {size}: {size / wall:.0f} panoramas/s ({1e3 * wall / size:.2f} ms each, "
-                  f"cpu {1e3 * cpu / size:.2f} ms each; ok {float(jnp.mean(layouts.ok)):.2f}, "
-                  f"{reruns} rerun with {config.capacity} slots)")
+            print(
+                f"{world}: batch {size}: {size / wall:.0f} panoramas/s ({1e3 * wall / size:.2f} ms each, "
+                f"cpu {1e3 * cpu / size:.2f} ms each; ok {float(jnp.mean(layouts.ok)):.2f}, "
+                f"{reruns} rerun with {config.capacity} slots)"
+            )
     print(f"load average {os.getloadavg()[0]:.2f}")
     return 0
 

@@ -19,10 +19,10 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see README, Development
 
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
+import jax
+import numpy as np
 
-import ncjax  # noqa: E402
+import ncjax
 from ncjax.cli.reconstruct import DEMO_DIR
 from ncjax.io.images import read_panorama
 from ncjax.network.predict import DEFAULT_VIEWS, _predict, default_model
@@ -56,14 +56,22 @@ def main(argv=None):
     model = ncjax.load_model(args.model) if args.model else default_model()
     model.eval()
     height, width = image.shape[:2]
-    print(f"{jax.devices()[0]}, {os.cpu_count()} CPUs, world {args.world}, image {width} x {height}, {args.views} network view(s)")
-    print("| batch | end to end: compile (s) | per call (s) | images/s | network per call (s) | edge snap per call (s) | geometry per call (s) |")
+    print(
+        f"{jax.devices()[0]}, {os.cpu_count()} CPUs, world {args.world}, image {width} x {height}, {args.views} "
+        "network view(s)"
+    )
+    print(
+        "| batch | end to end: compile (s) | per call (s) | images/s | network per call (s) | edge snap per call (s) "
+        "| geometry per call (s) |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- |")
     snap = jax.jit(jax.vmap(ncjax.snap_to_edges))
     for batch in args.batches:
         images = np.repeat(image[None], batch, axis=0)
         radii = np.full(batch, rc, np.float32)
-        compile_time, total = timed(lambda: reconstruct_batch(images, radii, args.world, model=model, views=args.views), args.repeats)
+        compile_time, total = timed(
+            lambda: reconstruct_batch(images, radii, args.world, model=model, views=args.views), args.repeats
+        )
         _, network = timed(lambda: _predict(model, images, views=args.views, edge_snap=None), args.repeats)
         ceiling_v, floor_v, corner_prob = _predict(model, images, views=args.views, edge_snap=None)
         _, snapping = timed(lambda: snap(images, ceiling_v, floor_v), args.repeats)
@@ -72,7 +80,10 @@ def main(argv=None):
         _, geometry = timed(
             lambda: ncjax.layout_from_boundaries(ceiling_v, floor_v, corner_prob, cam, world=args.world), args.repeats
         )
-        print(f"| {batch} | {compile_time:.1f} | {total:.3f} | {batch / total:.2f} | {network:.3f} | {snapping:.3f} | {geometry:.3f} |")
+        print(
+            f"| {batch} | {compile_time:.1f} | {total:.3f} | {batch / total:.2f} | {network:.3f} | {snapping:.3f} | "
+            f"{geometry:.3f} |"
+        )
 
 
 if __name__ == "__main__":

@@ -35,8 +35,10 @@ def main():
 
     mesh = jax.make_mesh((args.devices,), ("batch",), axis_types=(jax.sharding.AxisType.Auto,))
     sharding = NamedSharding(mesh, PartitionSpec("batch"))
-    print(f"jax {jax.__version__} on {jax.devices()[0].platform} x {args.devices}, batch {args.batch}, "
-          f"shadows {args.shadows}, supersampling {args.supersampling}, world {args.world}")
+    print(
+        f"jax {jax.__version__} on {jax.devices()[0].platform} x {args.devices}, batch {args.batch}, "
+        f"shadows {args.shadows}, supersampling {args.supersampling}, world {args.world}"
+    )
     for size in args.sizes:
         height, width = (int(x) for x in size.split("x"))
         config = ncjax.SynthConfig(

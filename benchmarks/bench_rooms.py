@@ -1,6 +1,6 @@
 """Rooms + exact labels generated per second (batched, jit(vmap)), on this machine.
 
-    uv run python benchmarks/bench_rooms.py [--batch 256] [--width 1024] [--height 512]
+uv run python benchmarks/bench_rooms.py [--batch 256] [--width 1024] [--height 512]
 """
 
 import argparse

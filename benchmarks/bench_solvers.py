@@ -20,14 +20,16 @@ import time
 # pool from NPROC when it is set: twice the cores leaves threads free for those kernels.
 os.environ.setdefault("NPROC", str(2 * os.cpu_count()))
 # one single-threaded XLA device per core; the batch is split over them
-os.environ.setdefault("XLA_FLAGS", f"--xla_cpu_multi_thread_eigen=false --xla_force_host_platform_device_count={os.cpu_count()}")
+os.environ.setdefault(
+    "XLA_FLAGS", f"--xla_cpu_multi_thread_eigen=false --xla_force_host_platform_device_count={os.cpu_count()}"
+)
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-from jax.sharding import NamedSharding  # noqa: E402
-from jax.sharding import PartitionSpec as P  # noqa: E402
+import jax
+import jax.numpy as jnp
+from jax.sharding import NamedSharding
+from jax.sharding import PartitionSpec as P
 
-import ncjax  # noqa: E402
+import ncjax
 
 CONFIG = ncjax.RoomConfig(world="manhattan", max_walls=6, capacity=12, occlusion="none")
 
@@ -52,7 +54,9 @@ def wall_batch(key, batch, rays, dtype):
 
 def split_over_devices(*arrays):
     """The arrays with their leading (batch) axis split over all devices: ``jit`` then runs one share per core."""
-    mesh = jax.make_mesh((len(jax.devices()),), ("batch",), devices=jax.devices(), axis_types=(jax.sharding.AxisType.Auto,))
+    mesh = jax.make_mesh(
+        (len(jax.devices()),), ("batch",), devices=jax.devices(), axis_types=(jax.sharding.AxisType.Auto,)
+    )
     return jax.device_put(arrays, NamedSharding(mesh, P("batch")))
 
 
@@ -69,7 +73,9 @@ def solves_per_second(batch, rays, dtype, repeats=5):
 
 
 def svd_only_per_second(batch, rays, dtype, repeats=5):
-    """The null space of the (2 rays, 7) matrices alone (Gram-Schmidt reduction + 7 x 7 Jacobi SVD): the solver's floor."""
+    """The null space of the (2 rays, 7) matrices alone (Gram-Schmidt reduction + 7 x 7 Jacobi SVD).
+
+    The solver's floor."""
     (a,) = split_over_devices(jax.random.normal(jax.random.PRNGKey(1), (batch, 2 * rays, 7), dtype))
     svd = jax.jit(jax.vmap(lambda m: ncjax.null_space(m, 2)))
     jax.block_until_ready(svd(a))
@@ -92,7 +98,10 @@ def main():
         with jax.enable_x64(enable):
             rate = solves_per_second(args.batch, args.rays, dtype)
             floor = svd_only_per_second(args.batch, args.rays, dtype)
-            print(f"{jnp.dtype(dtype).name}: {rate:,.0f} wall solves/s ({args.rays}+{args.rays} rays); null space alone {floor:,.0f}/s")
+            print(
+                f"{jnp.dtype(dtype).name}: {rate:,.0f} wall solves/s ({args.rays}+{args.rays} rays); null space "
+                f"alone {floor:,.0f}/s"
+            )
     if args.sweep:
         import importlib.util
         from pathlib import Path

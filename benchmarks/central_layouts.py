@@ -30,12 +30,12 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads busy-wait on a loaded CPU
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from ncjax.cli.main import main as ncjax_main  # noqa: E402
-from ncjax.io.formats import format_path  # noqa: E402
-from ncjax.io.formats_read import read_layout  # noqa: E402
-from ncjax.metrics_central import evaluate_corners  # noqa: E402
+from ncjax.cli.main import main as ncjax_main
+from ncjax.io.formats import format_path
+from ncjax.io.formats_read import read_layout
+from ncjax.metrics_central import evaluate_corners
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 COLUMNS = ("iou2d", "iou3d", "corner_error", "pixel_error", "depth_rmse", "delta1")

@@ -25,20 +25,48 @@ import tempfile
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 
-import jax  # noqa: E402
-from bench_pipeline import inputs  # noqa: E402
+import jax
+from bench_pipeline import inputs
 
 import ncjax.pipeline.config
 import ncjax.pipeline.run
 
 # the functions whose operations are attributed to a stage of their own name
 STAGES = [
-    "gather_evidence", "ransac_wall", "side_extrapolation", "boundary_errors", "manhattan_labels", "final_walls",
-    "solve_atlanta_layout", "plan_lines", "refine", "adjust_layout", "layout_uncertainty", "assemble_layout",
-    "_row_errors", "pixel_to_ray", "correlation_time", "_residual_terms", "corner_residual", "_fitted_residuals",
-    "probe_jacobian", "normal_matrix", "transpose_product", "jacobian_product", "solve_wall", "sample_columns",
-    "inlier_rows", "elevation_band", "scaled_null_space", "constrained_null_vector", "_jacobi_svd",
-    "_triangular_factor", "linear_walls", "search_scale", "refine_walls", "gauss_newton_step",
+    "gather_evidence",
+    "ransac_wall",
+    "side_extrapolation",
+    "boundary_errors",
+    "manhattan_labels",
+    "final_walls",
+    "solve_atlanta_layout",
+    "plan_lines",
+    "refine",
+    "adjust_layout",
+    "layout_uncertainty",
+    "assemble_layout",
+    "_row_errors",
+    "pixel_to_ray",
+    "correlation_time",
+    "_residual_terms",
+    "corner_residual",
+    "_fitted_residuals",
+    "probe_jacobian",
+    "normal_matrix",
+    "transpose_product",
+    "jacobian_product",
+    "solve_wall",
+    "sample_columns",
+    "inlier_rows",
+    "elevation_band",
+    "scaled_null_space",
+    "constrained_null_vector",
+    "_jacobi_svd",
+    "_triangular_factor",
+    "linear_walls",
+    "search_scale",
+    "refine_walls",
+    "gauss_newton_step",
 ]
 _PREFIX = "stage_"
 
@@ -85,9 +113,15 @@ def main(argv=None):
     parser.add_argument("--world", default="manhattan", choices=["manhattan", "atlanta", "auto"])
     parser.add_argument("--batch", type=int, default=64)
     parser.add_argument("--top", type=int, default=20)
-    parser.add_argument("--adjustment-stride", type=int, default=ncjax.pipeline.config.PipelineConfig.adjustment_stride,
-                        help="PipelineConfig.adjustment_stride")
-    parser.add_argument("--capacity", type=int, default=ncjax.pipeline.config.PipelineConfig.capacity, help="PipelineConfig.capacity")
+    parser.add_argument(
+        "--adjustment-stride",
+        type=int,
+        default=ncjax.pipeline.config.PipelineConfig.adjustment_stride,
+        help="PipelineConfig.adjustment_stride",
+    )
+    parser.add_argument(
+        "--capacity", type=int, default=ncjax.pipeline.config.PipelineConfig.capacity, help="PipelineConfig.capacity"
+    )
     args = parser.parse_args(argv)
     # every module that holds a stage's function (its own, and those that import it) calls the scoped one
     for module in [m for n, m in sys.modules.items() if n.startswith("ncjax.")]:
@@ -98,7 +132,9 @@ def main(argv=None):
     cam = jax.tree.map(lambda x: x[0], cams)
     keys = jax.random.split(jax.random.key(0), args.batch)
     config = ncjax.pipeline.config.PipelineConfig(capacity=args.capacity, adjustment_stride=args.adjustment_stride)
-    batched = jax.jit(jax.vmap(lambda c, f, p, k: ncjax.pipeline.run.layout_from_evidence(c, f, p, cam, k, args.world, config)))
+    batched = jax.jit(
+        jax.vmap(lambda c, f, p, k: ncjax.pipeline.run.layout_from_evidence(c, f, p, cam, k, args.world, config))
+    )
     jax.block_until_ready(batched(ceiling, floor, prob, keys))
     with tempfile.TemporaryDirectory() as folder:
         with jax.profiler.trace(folder, create_perfetto_trace=True):

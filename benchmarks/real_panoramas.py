@@ -51,21 +51,21 @@ import warnings
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads busy-wait on a loaded CPU
 
-import cv2  # noqa: E402
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm import tqdm
 
-import ncjax  # noqa: E402
-from ncjax import metrics  # noqa: E402
-from ncjax.io.files import write_atomic  # noqa: E402
-from ncjax.io.images import PanoramaError, panorama_size_error, read_rgb  # noqa: E402
-from ncjax.network.model import check_views  # noqa: E402
-from ncjax.network.predict import default_model  # noqa: E402
-from ncjax.network.scores import REFERENCE_WIDTH  # noqa: E402
-from ncjax.pipeline.config import nms_radius  # noqa: E402
-from ncjax.pipeline.corners import find_corners  # noqa: E402
+import ncjax
+from ncjax import metrics
+from ncjax.io.files import write_atomic
+from ncjax.io.images import PanoramaError, panorama_size_error, read_rgb
+from ncjax.network.model import check_views
+from ncjax.network.predict import default_model
+from ncjax.network.scores import REFERENCE_WIDTH
+from ncjax.pipeline.config import nms_radius
+from ncjax.pipeline.corners import find_corners
 
 DEFAULT_OUT = pathlib.Path(__file__).resolve().parent / "out" / "real_panoramas"
 CSV_NAME = "real_panoramas.csv"

@@ -51,9 +51,9 @@ from ncjax.network.predict import DEFAULT_VIEWS
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
 sys.path.insert(0, str(Path(__file__).parent))
-from error_sources import corner_calibration  # noqa: E402
-from network_table import OUT, test_renders  # noqa: E402
-from tune_network_pipeline import model_suffix, rendered_boundaries, tuning_boundaries  # noqa: E402
+from error_sources import corner_calibration
+from network_table import OUT, test_renders
+from tune_network_pipeline import model_suffix, rendered_boundaries, tuning_boundaries
 
 WORLDS = ("manhattan", "atlanta")
 RATIOS = (0.0, 1.0, 2.0)

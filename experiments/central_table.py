@@ -37,16 +37,16 @@ from pathlib import Path
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # busy-waiting BLAS threads stall on a shared machine
 
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import jax
+import numpy as np
+from tqdm import tqdm
 
-import ncjax  # noqa: E402
-from ncjax import metrics  # noqa: E402
-from ncjax.pipeline.prior import HeightPrior, scale_layout  # noqa: E402
+import ncjax
+from ncjax import metrics
+from ncjax.pipeline.prior import HeightPrior, scale_layout
 
 sys.path.insert(0, str(Path(__file__).parent))
-from pipeline_table import noisy_rows  # noqa: E402  (the same row noise as the non-central tables)
+from pipeline_table import noisy_rows  # the same row noise as the non-central tables
 
 OUT = Path(__file__).parent / "out"
 WIDTH, HEIGHT = 1024, 512

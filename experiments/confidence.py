@@ -28,8 +28,8 @@ from ncjax.pipeline.run import layout_from_evidence
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
 sys.path.insert(0, str(Path(__file__).parent))
-from network_table import scores  # noqa: E402
-from tune_network_pipeline import tuning_boundaries  # noqa: E402
+from network_table import scores
+from tune_network_pipeline import tuning_boundaries
 
 THRESHOLDS = (0.5, 0.6, 0.7, 0.75, 0.8)
 

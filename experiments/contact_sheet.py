@@ -31,8 +31,11 @@ def draw_labels(image: np.ndarray, labels, cam: ncjax.NonCentralPanorama) -> np.
         for piece in np.split(points, breaks):
             cv2.polylines(canvas, [np.round(piece * 4).astype(np.int32)], False, colour, 1, cv2.LINE_AA, shift=2)
     for ceiling, floor, valid, occlusion in zip(
-        np.asarray(labels.ceiling_corners), np.asarray(labels.floor_corners),
-        np.asarray(labels.corner_mask), np.asarray(labels.corner_is_occlusion),
+        np.asarray(labels.ceiling_corners),
+        np.asarray(labels.floor_corners),
+        np.asarray(labels.corner_mask),
+        np.asarray(labels.corner_is_occlusion),
+        strict=False,
     ):
         if not valid:
             continue

@@ -54,8 +54,8 @@ from ncjax.synth.rooms import corner_target
 from ncjax.viz.plan import CHI2_2D_95
 
 sys.path.insert(0, str(Path(__file__).parent))
-from network_table import OUT, SEEDS, ground_truth, test_renders  # noqa: E402
-from pipeline_table import compiled  # noqa: E402
+from network_table import OUT, SEEDS, ground_truth, test_renders
+from pipeline_table import compiled
 
 BATCH = 8
 SOURCES = ("network", "true corners", "true ceiling", "true floor", "exact")
@@ -68,7 +68,7 @@ def network_outputs(samples, views: int, model, edge_snap) -> dict[str, np.ndarr
     for start in tqdm(range(0, len(samples), BATCH), desc="network"):
         images = np.stack([s.image for s in samples[start : start + BATCH]])
         predicted.append(ncjax.predict_boundaries(images, model, views=views, edge_snap=edge_snap))
-    ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*predicted))
+    ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*predicted, strict=False))
     width = samples[0].image.shape[1]
     return {
         "ceiling_v": ceiling_v,
@@ -77,8 +77,16 @@ def network_outputs(samples, views: int, model, edge_snap) -> dict[str, np.ndarr
         "true_ceiling_v": np.stack([s.metadata["ceiling_v"] for s in samples]).astype(np.float32),
         "true_floor_v": np.stack([s.metadata["floor_v"] for s in samples]).astype(np.float32),
         "true_corner_prob": np.stack(
-            [np.asarray(corner_target(np.asarray(s.metadata["corner_u"], np.float32), np.ones(len(s.metadata["corner_u"]), bool), width))
-             for s in samples]
+            [
+                np.asarray(
+                    corner_target(
+                        np.asarray(s.metadata["corner_u"], np.float32),
+                        np.ones(len(s.metadata["corner_u"]), bool),
+                        width,
+                    )
+                )
+                for s in samples
+            ]
         ).astype(np.float32),
     }
 
@@ -113,7 +121,9 @@ def row(samples, layouts, truths) -> dict:
             corner_sigma.extend(sigma)
             corner_miss.extend(miss)
         iou_ok.append(result["iou3d"])
-        by_explained[np.searchsorted(EXPLAINED_BINS, float(layout.explained_fraction), side="right")].append(result["iou3d"])
+        by_explained[np.searchsorted(EXPLAINED_BINS, float(layout.explained_fraction), side="right")].append(
+            result["iou3d"]
+        )
         iou_u2s.append(result["iou3d_up_to_scale"])
         iou_all.append(result["iou3d"])
         if math.isfinite(result["ce"]):
@@ -135,7 +145,8 @@ def row(samples, layouts, truths) -> dict:
         "height_within": 100 * float(np.mean(height_within)) if height_within else math.nan,
         "rank_correlation": rank_correlation(corner_sigma, corner_miss),
         "iou_by_explained": ", ".join(
-            f"{_bin_name(b)}: {100 * np.mean(by_explained[b]):.1f}% ({len(by_explained[b])})" for b in sorted(by_explained)
+            f"{_bin_name(b)}: {100 * np.mean(by_explained[b]):.1f}% ({len(by_explained[b])})"
+            for b in sorted(by_explained)
         ),
     }
 
@@ -171,12 +182,17 @@ def main(argv=None):
     add_boundary_arguments(parser)
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--model", help="weights (.safetensors); default: the shipped model")
-    parser.add_argument("--branch", choices=("own", "auto"), default="own",
-                        help="pipeline world: each test set's own (default) or auto (ncjax reconstruct's default)")
+    parser.add_argument(
+        "--branch",
+        choices=("own", "auto"),
+        default="own",
+        help="pipeline world: each test set's own (default) or auto (ncjax reconstruct's default)",
+    )
     args = parser.parse_args(argv)
     start = time.time()
     lines = [
-        f"Network output averaged over {args.views} view(s); {args.rooms} rooms per world; pipeline world: {args.branch}; "
+        f"Network output averaged over {args.views} view(s); {args.rooms} rooms per world; pipeline world: "
+        f"{args.branch}; "
         f"rows snapped to the image's edges: {args.edge_snap is not None}.",
         "",
         "| world | input | ok | failed (%) | CE mean (m) | CE median (m) | 3D IoU ok (%) | 3D IoU all (%) | "
@@ -188,16 +204,23 @@ def main(argv=None):
         folder = str(test_renders(world, args.rooms, args.out))
         samples = [read_sample(folder, name) for name in list_samples(folder)]
         truths = [ground_truth(s, world) for s in samples]
-        outputs = network_outputs(samples, args.views, load_model(args.model) if args.model else default_model(), args.edge_snap)
+        outputs = network_outputs(
+            samples, args.views, load_model(args.model) if args.model else default_model(), args.edge_snap
+        )
         height, width = samples[0].image.shape[:2]
-        cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(np.array([s.rc for s in samples], np.float32))
+        cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(
+            np.array([s.rc for s in samples], np.float32)
+        )
         keys = jax.random.split(jax.random.key(0), len(samples))
         branch = world if args.branch == "own" else "auto"
         for source in tqdm(SOURCES, desc=f"pipeline {world}"):
-            layouts = jax.device_get(compiled("pipeline", branch, NETWORK_PIPELINE_CONFIG)(*inputs_of(outputs, source), cams, keys))
+            layouts = jax.device_get(
+                compiled("pipeline", branch, NETWORK_PIPELINE_CONFIG)(*inputs_of(outputs, source), cams, keys)
+            )
             r = row(samples, layouts, truths)
             lines.append(
-                f"| {world} | {source} | {r['statuses'].get('OK', 0)} / {len(samples)} | {r['failed']:.1f} | {r['ce_mean']:.3f} | "
+                f"| {world} | {source} | {r['statuses'].get('OK', 0)} / {len(samples)} | {r['failed']:.1f} | "
+                f"{r['ce_mean']:.3f} | "
                 f"{r['ce_median']:.3f} | {r['iou_ok']:.1f} | {r['iou_all']:.1f} | {r['iou_u2s']:.1f} | "
                 f"{r['scale_median']:.3f} / {r['scale_p90']:.3f} | {r['scale_bias']:+.3f} |"
             )
@@ -206,19 +229,28 @@ def main(argv=None):
                 f"{r['rank_correlation']:.2f} | {r['height_within']:.1f} |"
             )
             if source == "network":
-                quality.append(f"- {world}: 3D IoU of the ok layouts by explained fraction (rooms): {r['iou_by_explained']}")
+                quality.append(
+                    f"- {world}: 3D IoU of the ok layouts by explained fraction (rooms): {r['iou_by_explained']}"
+                )
     table = "\n".join(
         lines
         + ["", "Is `Layout.explained_fraction` a quality indicator? Network input:", *quality]
-        + ["", "Are the layouts' covariances calibrated? (rooms with the true corner count; 95% expected)", "",
-           "| world | input | corners in their 95% ellipse (%) | corner sigma median (m) | corner error median (m) | "
-           "rank correlation sigma / error | room heights within 1.96 sigma (%) |", "| --- | --- | --- | --- | --- | --- | --- |",
-           *calibration]
+        + [
+            "",
+            "Are the layouts' covariances calibrated? (rooms with the true corner count; 95% expected)",
+            "",
+            "| world | input | corners in their 95% ellipse (%) | corner sigma median (m) | corner error median (m) | "
+            "rank correlation sigma / error | room heights within 1.96 sigma (%) |",
+            "| --- | --- | --- | --- | --- | --- | --- |",
+            *calibration,
+        ]
     )
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"error_sources_views{args.views}_{args.branch}{'' if args.edge_snap else '_no_snap'}.md").write_text(table + "\n")
+    (args.out / f"error_sources_views{args.views}_{args.branch}{'' if args.edge_snap else '_no_snap'}.md").write_text(
+        table + "\n"
+    )
 
 
 if __name__ == "__main__":

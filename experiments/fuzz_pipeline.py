@@ -24,14 +24,14 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-import ncjax  # noqa: E402
-from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG  # noqa: E402
+import ncjax
+from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
 WIDTH, HEIGHT = 256, 128
 ROOMS = 6

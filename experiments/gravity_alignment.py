@@ -26,12 +26,12 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import numpy as np
+from tqdm import tqdm
 
-import ncjax  # noqa: E402
-from ncjax.io.align import estimate_tilt, level_panorama, rotation_from_tilt  # noqa: E402
-from ncjax.synth.dataset import list_samples, read_sample, write_dataset  # noqa: E402
+import ncjax
+from ncjax.io.align import estimate_tilt, level_panorama, rotation_from_tilt
+from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 
 OUT = Path(__file__).parent / "out"
 RENDER_SEED = 2024  # the rooms' seed (the tilts have their own, --seed)

@@ -15,10 +15,10 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import jax.numpy as jnp
+import numpy as np
 
-import ncjax  # noqa: E402
+import ncjax
 
 
 def check(room, width, height):
@@ -49,7 +49,9 @@ def main():
     for seed, (world, occlusion, n) in enumerate(groups):
         config = ncjax.RoomConfig(world=world, occlusion=occlusion)
         rooms = jax.jit(jax.vmap(partial(ncjax.random_room, config=config)))(jax.random.split(jax.random.key(seed), n))
-        ok, row, column, corner, has_occlusion = jax.jit(jax.vmap(partial(check, width=args.width, height=args.height)))(rooms)
+        ok, row, column, corner, has_occlusion = jax.jit(
+            jax.vmap(partial(check, width=args.width, height=args.height))
+        )(rooms)
         statuses = np.bincount(np.asarray(rooms.status), minlength=len(ncjax.RoomStatus))
         named = ", ".join(f"{s.name}={statuses[s]}" for s in ncjax.RoomStatus if statuses[s])
         errors = np.array([np.max(row), np.max(column), np.max(corner)])
@@ -61,8 +63,10 @@ def main():
             f"{np.asarray(rooms.num_walls).max()}; max |row| {errors[0]:.2e} px, |column| {errors[1]:.2e} px, "
             f"|corner column| {errors[2]:.2e} px"
         )
-    print(f"TOTAL: {total_ok}/{sum(g[2] for g in groups)} rooms ok; max row error {worst[0]:.2e} px "
-          f"(goal < 1e-3), column {worst[1]:.2e} px, corner column {worst[2]:.2e} px")
+    print(
+        f"TOTAL: {total_ok}/{sum(g[2] for g in groups)} rooms ok; max row error {worst[0]:.2e} px "
+        f"(goal < 1e-3), column {worst[1]:.2e} px, corner column {worst[2]:.2e} px"
+    )
 
 
 if __name__ == "__main__":

@@ -61,13 +61,20 @@ from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 from ncjax.training.data import evaluate_arrays, load_split
 
 sys.path.insert(0, str(Path(__file__).parent))
-from pipeline_table import compiled  # noqa: E402  (the paper's "Solvers" route, shared)
+from pipeline_table import compiled  # the paper's "Solvers" route, shared
 
 OUT = Path(__file__).parent / "out"
 SEEDS = {"manhattan": 99, "atlanta": 98}
 BATCH = 8
 PAPER = {
-    "netcorExp": {"precision": 0.934, "recall": 0.962, "accuracy": 0.986, "iou": 0.901, "pe_mean": 1.167, "pe_std": 0.490},
+    "netcorExp": {
+        "precision": 0.934,
+        "recall": 0.962,
+        "accuracy": 0.986,
+        "iou": 0.901,
+        "pe_mean": 1.167,
+        "pe_std": 0.490,
+    },
     "pipeExp": {
         ("solvers", "manhattan"): (0.5569, 81.7364),
         ("solvers", "atlanta"): (1.2860, 42.6701),
@@ -109,7 +116,17 @@ def layouts_of(samples, world: str, model, config: PipelineConfig, views: int, e
         chunk = samples[start : start + BATCH]
         chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
         images = np.stack([s.image for s in chunk])
-        result = jax.device_get(reconstruct_batch(images, np.array([s.rc for s in chunk], np.float32), world, model=model, config=config, views=views, edge_snap=edge_snap))
+        result = jax.device_get(
+            reconstruct_batch(
+                images,
+                np.array([s.rc for s in chunk], np.float32),
+                world,
+                model=model,
+                config=config,
+                views=views,
+                edge_snap=edge_snap,
+            )
+        )
         for index in range(min(BATCH, len(samples) - start)):
             layouts.append(jax.tree.map(lambda x: x[index], result.layout))
             boundaries.append((result.ceiling_v[index], result.floor_v[index], result.corner_prob[index]))
@@ -119,7 +136,7 @@ def layouts_of(samples, world: str, model, config: PipelineConfig, views: int, e
 def solver_layouts(samples, boundaries, world: str):
     """The paper's "Solvers" route on the network's boundaries."""
     width, height = samples[0].image.shape[1], samples[0].image.shape[0]
-    rows = [np.stack(parts) for parts in zip(*boundaries)]
+    rows = [np.stack(parts) for parts in zip(*boundaries, strict=False)]
     radii = np.array([s.rc for s in samples], np.float32)
     cams = jax.vmap(lambda rc: ncjax.NonCentralPanorama(width, height, rc=rc))(radii)
     keys = jax.random.split(jax.random.key(0), len(samples))
@@ -144,8 +161,10 @@ def by_narrowest_wall(per_room: list[dict], narrowest: np.ndarray) -> list[dict]
     out = []
     for low, high in WIDTH_BINS:
         keep = (narrowest >= low) & (narrowest < high)
-        rooms = [r for r, k in zip(per_room, keep) if k]
-        out.append({"low": low, "high": high if math.isfinite(high) else None, **(summary(rooms) if rooms else {"rooms": 0})})
+        rooms = [r for r, k in zip(per_room, keep, strict=False) if k]
+        out.append(
+            {"low": low, "high": high if math.isfinite(high) else None, **(summary(rooms) if rooms else {"rooms": 0})}
+        )
     return out
 
 
@@ -154,8 +173,11 @@ def used_row_errors(samples, boundaries) -> dict:
     out = {}
     for index, name in ((0, "ceiling"), (1, "floor")):
         error = np.abs(np.stack([b[index] for b in boundaries]) - np.stack([s.metadata[f"{name}_v"] for s in samples]))
-        out |= {f"{name}_mean": float(error.mean()), f"{name}_median": float(np.median(error)),
-                f"{name}_within_1px": float(np.mean(error < 1))}
+        out |= {
+            f"{name}_mean": float(error.mean()),
+            f"{name}_median": float(np.median(error)),
+            f"{name}_within_1px": float(np.mean(error < 1)),
+        }
     return out
 
 
@@ -171,26 +193,31 @@ def scores(layouts, truths) -> list[dict]:
     is a layout that is not ok or has another corner count than the truth.
     """
     out = []
-    for layout, truth in zip(layouts, truths):
+    for layout, truth in zip(layouts, truths, strict=False):
         ok = bool(_field(layout, "ok"))
         status, mask = _field(layout, "status"), _field(layout, "mask")
         written = status_has_geometry(ok, -1 if status is None else status)
         result = metrics.evaluate_layout(layout, truth) if written else None
         failed = not ok or not math.isfinite(result["ce"])
-        out.append({
-            "returned": ok,
-            "written": written,
-            "failed": failed,
-            "status": (0 if ok else -1) if status is None else int(status),
-            "corners": -1 if mask is None else int(np.sum(mask)),
-            "true_corners": len(truth["ceiling_corners"]),
-            **({} if result is None else result),
-        })
+        out.append(
+            {
+                "returned": ok,
+                "written": written,
+                "failed": failed,
+                "status": (0 if ok else -1) if status is None else int(status),
+                "corners": -1 if mask is None else int(np.sum(mask)),
+                "true_corners": len(truth["ceiling_corners"]),
+                **({} if result is None else result),
+            }
+        )
     return out
 
 
 def failure_causes(per_room: list[dict]) -> str:
-    """Why the failed rooms failed, in % of all rooms: a status other than OK (by name), or too few or too many corners."""
+    """Why the failed rooms failed, in % of all rooms.
+
+    A status other than OK (by name), or too few or too many corners."""
+
     def cause(r):
         if r["status"]:
             return ncjax.LayoutStatus(r["status"]).name if r["status"] > 0 else "not ok"
@@ -205,7 +232,10 @@ def miscounted_layouts(per_room: list[dict]) -> str:
     parts = []
     for name, sign in (("too few corners", -1), ("too many corners", 1)):
         iou = [r["iou3d"] for r in per_room if r["returned"] and np.sign(r["corners"] - r["true_corners"]) == sign]
-        parts.append(f"{name} {len(iou)} rooms" + (f", 3D IoU {100 * np.mean(iou):.1f} / {100 * np.median(iou):.1f}%" if iou else ""))
+        parts.append(
+            f"{name} {len(iou)} rooms"
+            + (f", 3D IoU {100 * np.mean(iou):.1f} / {100 * np.median(iou):.1f}%" if iou else "")
+        )
     return "; ".join(parts)
 
 
@@ -242,12 +272,16 @@ def main(argv=None):
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--corner-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.corner_threshold)
     parser.add_argument("--nms-radius", type=float, default=NETWORK_PIPELINE_CONFIG.nms_radius, help="columns at 1024")
-    parser.add_argument("--occlusion-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.occlusion_threshold, help="pixels")
+    parser.add_argument(
+        "--occlusion-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.occlusion_threshold, help="pixels"
+    )
     parser.add_argument("--skip-network", action="store_true", help="only the layout tables")
     add_boundary_arguments(parser)
     args = parser.parse_args(argv)
     config = dataclasses.replace(
-        NETWORK_PIPELINE_CONFIG, corner_threshold=args.corner_threshold, nms_radius=args.nms_radius,
+        NETWORK_PIPELINE_CONFIG,
+        corner_threshold=args.corner_threshold,
+        nms_radius=args.nms_radius,
         occlusion_threshold=args.occlusion_threshold,
     )
     count = 8 if args.small else args.rooms
@@ -260,20 +294,38 @@ def main(argv=None):
         folder = str(test_renders(world, count, args.out))
         arrays[world] = load_split(folder, "all", model.config.input_height, model.config.input_width)
     pooled = {key: np.concatenate([a[key] for a in arrays.values()]) for key in arrays["manhattan"]}
-    lines += ["### Table netcorExp (network)", "", "| test set | views | images | precision | recall | accuracy | IoU | PE mean (px) | PE std (px) |",
-              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines += [
+        "### Table netcorExp (network)",
+        "",
+        "| test set | views | images | precision | recall | accuracy | IoU | PE mean (px) | PE std (px) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for name, data in [] if args.skip_network else [*arrays.items(), ("all", pooled)]:
         for views in sorted({1, args.views}):
             row = evaluate_arrays(model, data, views=views)
             record[f"network_{name}" + ("" if views == 1 else f"_views{views}")] = row
-            lines.append(f"| {name} | {views} | {len(data['image'])} | {row['precision']:.3f} | {row['recall']:.3f} | {row['accuracy']:.3f} | "
-                         f"{row['iou']:.3f} | {row['pe_mean']:.3f} | {row['pe_std']:.3f} |")
+            lines.append(
+                f"| {name} | {views} | {len(data['image'])} | {row['precision']:.3f} | {row['recall']:.3f} | "
+                f"{row['accuracy']:.3f} | "
+                f"{row['iou']:.3f} | {row['pe_mean']:.3f} | {row['pe_std']:.3f} |"
+            )
     p = PAPER["netcorExp"]
-    lines.append(f"| paper (its test set) | 1 | 499 | {p['precision']} | {p['recall']} | {p['accuracy']} | {p['iou']} | {p['pe_mean']} | {p['pe_std']} |")
+    lines.append(
+        f"| paper (its test set) | 1 | 499 | {p['precision']} | {p['recall']} | {p['accuracy']} | {p['iou']} | "
+        f"{p['pe_mean']} | {p['pe_std']} |"
+    )
 
-    lines += ["", "### Table pipeExp, network predictions", "", f"Network output averaged over {args.views} view(s); rows snapped to the image's edges: {args.edge_snap is not None}.", "",
-              "| method | world | rooms | occluded rooms | failed (%) | CE mean / median (m) | 3D IoU ok (%) | 3D IoU all (%) | paper CE / IoU |",
-              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines += [
+        "",
+        "### Table pipeExp, network predictions",
+        "",
+        f"Network output averaged over {args.views} view(s); rows snapped to the image's edges: "
+        f"{args.edge_snap is not None}.",
+        "",
+        "| method | world | rooms | occluded rooms | failed (%) | CE mean / median (m) | 3D IoU ok (%) | 3D IoU all "
+        "(%) | paper CE / IoU |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     comparison, row_errors, causes, widths, miscounts = {}, {}, {}, {}, {}
     for world in SEEDS:
         folder = str(args.out / f"test_renders_{world}_{count}")
@@ -281,70 +333,138 @@ def main(argv=None):
         truths = [ground_truth(s, world) for s in samples]
         clear = np.array([not any(s.metadata["corner_is_occlusion"]) for s in samples])
         layouts, boundaries = layouts_of(samples, world, model, config, args.views, args.edge_snap)
-        results = {"pipeline": scores(layouts, truths), "solvers": scores(solver_layouts(samples, boundaries, world), truths)}
+        results = {
+            "pipeline": scores(layouts, truths),
+            "solvers": scores(solver_layouts(samples, boundaries, world), truths),
+        }
         for method, per_room in results.items():
             for subset, keep in (("no occlusion", clear), ("all", np.ones_like(clear))):
-                s = summary([r for r, k in zip(per_room, keep) if k])
+                s = summary([r for r, k in zip(per_room, keep, strict=False) if k])
                 record[f"{method}_{world}_{subset}"] = s
                 paper = PAPER["pipeExp"][(method, world)] if subset == "no occlusion" else ("", "")
-                lines.append(f"| {method} | {world} | {s['rooms']} | {subset} | {s['failed']:.1f} | {s['ce']:.3f} / {s['ce_median']:.3f} | "
-                             f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {paper[0]} / {paper[1]} |")
+                lines.append(
+                    f"| {method} | {world} | {s['rooms']} | {subset} | {s['failed']:.1f} | {s['ce']:.3f} / "
+                    f"{s['ce_median']:.3f} | "
+                    f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {paper[0]} / {paper[1]} |"
+                )
         comparison[world] = summary(results["pipeline"])
         record[f"pipeline_{world}_per_room"] = [
-            {key: float(r[key]) if isinstance(r[key], (float, np.floating)) else r[key]
-             for key in ("returned", "written", "failed", "status", "corners", "true_corners", "ce", "iou3d", "height_error") if key in r}
-            | {"occluded": not bool(keep)} for r, keep in zip(results["pipeline"], clear)
+            {
+                key: float(r[key]) if isinstance(r[key], (float, np.floating)) else r[key]
+                for key in (
+                    "returned",
+                    "written",
+                    "failed",
+                    "status",
+                    "corners",
+                    "true_corners",
+                    "ce",
+                    "iou3d",
+                    "height_error",
+                )
+                if key in r
+            }
+            | {"occluded": not bool(keep)}
+            for r, keep in zip(results["pipeline"], clear, strict=False)
         ]
         causes[world] = failure_causes(results["pipeline"])
         miscounts[world] = miscounted_layouts(results["pipeline"])
         narrowest = np.array([narrowest_wall(s) for s in samples])
-        widths[world] = by_narrowest_wall([r for r, k in zip(results["pipeline"], clear) if k], narrowest[clear])
+        widths[world] = by_narrowest_wall(
+            [r for r, k in zip(results["pipeline"], clear, strict=False) if k], narrowest[clear]
+        )
         row_errors[world] = used_row_errors(samples, boundaries)
     lines += ["", "Pipeline failures by cause, all rooms (% of the rooms):", ""]
     lines += [f"- {world}: {text}" for world, text in causes.items()]
     record["failure_causes"] = causes
     record["pipeline_by_narrowest_wall"] = widths
-    lines += ["", "Pipeline by the room's narrowest wall (columns of a 1024-wide panorama), rooms without occlusion:", "",
-              "| world | narrowest wall (columns) | rooms | failed (%) | CE mean / median (m) | 3D IoU ok (%) |", "| --- | --- | --- | --- | --- | --- |"]
+    lines += [
+        "",
+        "Pipeline by the room's narrowest wall (columns of a 1024-wide panorama), rooms without occlusion:",
+        "",
+        "| world | narrowest wall (columns) | rooms | failed (%) | CE mean / median (m) | 3D IoU ok (%) |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for world, bins in widths.items():
         for b in bins:
             span = f">= {b['low']:g}" if b["high"] is None else f"{b['low']:g}-{b['high']:g}"
-            lines.append(f"| {world} | {span} | {b['rooms']} | " + (
-                f"{b['failed']:.1f} | {b['ce']:.3f} / {b['ce_median']:.3f} | {b['iou3d']:.1f} |" if b["rooms"] else "- | - | - |"))
-    lines += ["", "### Table comparison, ncjax rows (pipeline, all test rooms)", "",
-              "| world | 3D IoU u2s (%) | 3D IoU (%) | CEN (% of diagonal) | CE (m) | failed (%) | paper: u2s / IoU / CEN / CE |",
-              "| --- | --- | --- | --- | --- | --- | --- |"]
+            lines.append(
+                f"| {world} | {span} | {b['rooms']} | "
+                + (
+                    f"{b['failed']:.1f} | {b['ce']:.3f} / {b['ce_median']:.3f} | {b['iou3d']:.1f} |"
+                    if b["rooms"]
+                    else "- | - | - |"
+                )
+            )
+    lines += [
+        "",
+        "### Table comparison, ncjax rows (pipeline, all test rooms)",
+        "",
+        "| world | 3D IoU u2s (%) | 3D IoU (%) | CEN (% of diagonal) | CE (m) | failed (%) | paper: u2s / IoU / CEN "
+        "/ CE |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for world, s in comparison.items():
         p = PAPER["comparison"][world]
-        lines.append(f"| {world} | {s['iou3d_u2s']:.1f} | {s['iou3d']:.1f} | {s['cen']:.2f} | {s['ce']:.3f} | {s['failed']:.1f} | "
-                     f"{p[0]} / {p[1]} / {p[2]} / {p[3]} |")
-    lines += ["", "### Every layout returned (pipeline, any corner count)", "",
-              "Scores every ok layout, also those whose corner count differs from the ground truth (CE is undefined "
-              "for them); no layout (a status other than OK) counts 0 in \"3D IoU all rooms\". The last two columns "
-              "also score the layouts flagged UNCERTAIN_SCALE (not ok, but `ncjax reconstruct` writes their geometry "
-              "with the flag and the height's sigma).", "",
-              "| world | rooms | layout returned (%) | with the true corner count (%) | 3D IoU mean / median of the returned (%) | "
-              "3D IoU all rooms (%) | flagged uncertain scale (%), their 3D IoU (%) | 3D IoU all rooms, flagged included (%) |",
-              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines.append(
+            f"| {world} | {s['iou3d_u2s']:.1f} | {s['iou3d']:.1f} | {s['cen']:.2f} | {s['ce']:.3f} | "
+            f"{s['failed']:.1f} | "
+            f"{p[0]} / {p[1]} / {p[2]} / {p[3]} |"
+        )
+    lines += [
+        "",
+        "### Every layout returned (pipeline, any corner count)",
+        "",
+        "Scores every ok layout, also those whose corner count differs from the ground truth (CE is undefined "
+        'for them); no layout (a status other than OK) counts 0 in "3D IoU all rooms". The last two columns '
+        "also score the layouts flagged UNCERTAIN_SCALE (not ok, but `ncjax reconstruct` writes their geometry "
+        "with the flag and the height's sigma).",
+        "",
+        "| world | rooms | layout returned (%) | with the true corner count (%) | 3D IoU mean / median of the "
+        "returned (%) | "
+        "3D IoU all rooms (%) | flagged uncertain scale (%), their 3D IoU (%) | 3D IoU all rooms, flagged included "
+        "(%) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for world, s in comparison.items():
-        lines.append(f"| {world} | {s['rooms']} | {s['returned']:.1f} | {100 - s['failed']:.1f} | "
-                     f"{s['iou3d_returned']:.1f} / {s['iou3d_returned_median']:.1f} | {s['iou3d_all_returned']:.1f} | "
-                     f"{s['flagged']:.1f}, {s['iou3d_flagged']:.1f} | {s['iou3d_all_written']:.1f} |")
+        lines.append(
+            f"| {world} | {s['rooms']} | {s['returned']:.1f} | {100 - s['failed']:.1f} | "
+            f"{s['iou3d_returned']:.1f} / {s['iou3d_returned_median']:.1f} | {s['iou3d_all_returned']:.1f} | "
+            f"{s['flagged']:.1f}, {s['iou3d_flagged']:.1f} | {s['iou3d_all_written']:.1f} |"
+        )
     lines += ["", "Returned layouts with another corner count than the ground truth:", ""]
     lines += [f"- {world}: {text}" for world, text in miscounts.items()]
-    lines += ["", "### The boundary rows the geometry used (full-size image pixels)", "",
-              "| world | ceiling mean / median (px) | ceiling within 1 px | floor mean / median (px) | floor within 1 px |",
-              "| --- | --- | --- | --- | --- |"]
+    lines += [
+        "",
+        "### The boundary rows the geometry used (full-size image pixels)",
+        "",
+        "| world | ceiling mean / median (px) | ceiling within 1 px | floor mean / median (px) | floor within 1 px |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     for world, e in row_errors.items():
         record[f"rows_{world}"] = e
-        lines.append(f"| {world} | {e['ceiling_mean']:.2f} / {e['ceiling_median']:.2f} | {100 * e['ceiling_within_1px']:.0f}% | "
-                     f"{e['floor_mean']:.2f} / {e['floor_median']:.2f} | {100 * e['floor_within_1px']:.0f}% |")
+        lines.append(
+            f"| {world} | {e['ceiling_mean']:.2f} / {e['ceiling_median']:.2f} | {100 * e['ceiling_within_1px']:.0f}% | "
+            f"{e['floor_mean']:.2f} / {e['floor_median']:.2f} | {100 * e['floor_within_1px']:.0f}% |"
+        )
     table = "\n".join(lines)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
-    suffix = ("_small" if args.small else "") + ("" if args.edge_snap else "_no_snap") + ("" if args.views == DEFAULT_VIEWS else f"_views{args.views}") + ("" if config == NETWORK_PIPELINE_CONFIG else f"_t{args.corner_threshold}_r{args.nms_radius}_o{args.occlusion_threshold}")
-    record["pipeline_config"] = {"corner_threshold": args.corner_threshold, "nms_radius": args.nms_radius,
-                                 "occlusion_threshold": args.occlusion_threshold}
+    suffix = (
+        ("_small" if args.small else "")
+        + ("" if args.edge_snap else "_no_snap")
+        + ("" if args.views == DEFAULT_VIEWS else f"_views{args.views}")
+        + (
+            ""
+            if config == NETWORK_PIPELINE_CONFIG
+            else f"_t{args.corner_threshold}_r{args.nms_radius}_o{args.occlusion_threshold}"
+        )
+    )
+    record["pipeline_config"] = {
+        "corner_threshold": args.corner_threshold,
+        "nms_radius": args.nms_radius,
+        "occlusion_threshold": args.occlusion_threshold,
+    }
     record["views"] = args.views
     (args.out / f"network_table{suffix}.md").write_text(table + "\n")
     (args.out / f"network_table{suffix}.json").write_text(json.dumps(record, indent=1) + "\n")

@@ -47,14 +47,14 @@ os.environ.setdefault(
     "--xla_backend_optimization_level=1",
 )
 
-import equinox as eqx  # noqa: E402
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from jax.sharding import NamedSharding  # noqa: E402
-from jax.sharding import PartitionSpec as P  # noqa: E402
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import NamedSharding
+from jax.sharding import PartitionSpec as P
 
-import ncjax  # noqa: E402
+import ncjax
 
 OUT = Path(__file__).parent / "out"
 MIN_COLUMNS = 3  # every wall seen by at least this many columns (else it is not measurable)
@@ -155,12 +155,16 @@ def _layout_metrics(room, layout):
 
 
 def manhattan(room, ceiling_rays, floor_rays, method="refined"):
-    layout = ncjax.solve_manhattan_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"], method=method)
+    layout = ncjax.solve_manhattan_layout(
+        ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"], method=method
+    )
     return _layout_metrics(room, layout)
 
 
 def atlanta(room, ceiling_rays, floor_rays, method="refined"):
-    layout = ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], method=method)
+    layout = ncjax.solve_atlanta_layout(
+        ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], method=method
+    )
     return _layout_metrics(room, layout)
 
 
@@ -228,12 +232,17 @@ class Sweep:
         self._function = jax.jit(
             jax.shard_map(
                 lambda c, r: jax.lax.map(lambda case: one(case, r), c, batch_size=batch_size),
-                mesh=mesh, in_specs=(P("cases"), P()), out_specs=P("cases"), check_vma=False,
+                mesh=mesh,
+                in_specs=(P("cases"), P()),
+                out_specs=P("cases"),
+                check_vma=False,
             )
         )
         self._cases = jax.device_put(cases, NamedSharding(mesh, P("cases")))
         self._rooms_sharding = NamedSharding(mesh, P())
-        self._room_shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self._rooms_sharding), rooms)
+        self._room_shapes = jax.tree.map(
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self._rooms_sharding), rooms
+        )
         self._compiled = None
 
     def compile(self) -> None:
@@ -245,7 +254,9 @@ class Sweep:
             self.compile()
         output = self._compiled(self._cases, jax.device_put(rooms, self._rooms_sharding))
         result = {k: np.asarray(v)[: self.n_cases] for k, v in output.items()}
-        return {k: [v[lo:hi] for lo, hi in zip(self.bounds[:-1], self.bounds[1:])] for k, v in result.items()}
+        return {
+            k: [v[lo:hi] for lo, hi in zip(self.bounds[:-1], self.bounds[1:], strict=False)] for k, v in result.items()
+        }
 
 
 def compile_all(sweeps) -> None:
@@ -261,7 +272,11 @@ def _stat(values, fn):
 
 def _summary(result, level):
     """Mean and median of each metric at one level (the median also under the bare metric name)."""
-    summary = {f"{m}_{stat}": _stat(result[m][level], fn) for m in ("corner", "direction", "depth") for stat, fn in (("mean", np.mean), ("median", np.median))}
+    summary = {
+        f"{m}_{stat}": _stat(result[m][level], fn)
+        for m in ("corner", "direction", "depth")
+        for stat, fn in (("mean", np.mean), ("median", np.median))
+    }
     return summary | {m: summary[f"{m}_median"] for m in ("corner", "direction", "depth")}
 
 
@@ -274,8 +289,15 @@ def _write(path, x_name, xs, results):
                 for metric in ("corner", "direction", "depth"):
                     values = res[metric][i]
                     writer.writerow(
-                        [method, f"{x:.4f}", metric, _stat(values, np.mean), _stat(values, np.median),
-                         _stat(res["ok"][i], np.mean), int(np.isfinite(res["ok"][i]).sum())]
+                        [
+                            method,
+                            f"{x:.4f}",
+                            metric,
+                            _stat(values, np.mean),
+                            _stat(values, np.median),
+                            _stat(res["ok"][i], np.mean),
+                            int(np.isfinite(res["ok"][i]).sum()),
+                        ]
                     )
 
 
@@ -288,7 +310,7 @@ def _plot(path, x_name, xs, results):
     colours = {"manhattan": "tab:blue", "atlanta": "tab:green", "baseline": "tab:red"}
     labels = {"corner": "corner error (m)", "direction": "direction error (deg)", "depth": "depth error (m)"}
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-    for ax, metric in zip(axes, ("corner", "direction", "depth")):
+    for ax, metric in zip(axes, ("corner", "direction", "depth"), strict=False):
         for method, res in results.items():
             base = method.split("/")[0]
             values = np.array([_stat(v, np.mean) for v in res[metric]])
@@ -325,7 +347,9 @@ def main(argv=None):
     start = time.perf_counter()
     levels = np.concatenate([[rc_default], rcs])
     arrays = jax.block_until_ready(
-        jax.jit(rooms_per_rc, static_argnums=(2, 3))(generate_rooms(n_rooms), jnp.asarray(levels, jnp.float32), width, height)
+        jax.jit(rooms_per_rc, static_argnums=(2, 3))(
+            generate_rooms(n_rooms), jnp.asarray(levels, jnp.float32), width, height
+        )
     )
     usable = np.asarray(arrays["usable"])
     timings = {"rooms and labels": time.perf_counter() - start}
@@ -337,13 +361,21 @@ def main(argv=None):
     }
     sigma_levels = [(sigma, 0, draws) for sigma in sigmas]
     rc_levels = [(1.0, i + 1, rc_draws) for i in range(len(rcs))]
-    sweeps = {name: Sweep(method, arrays, ids, sigma_levels + rc_levels, width, height) for name, (method, ids) in methods.items()}
+    sweeps = {
+        name: Sweep(method, arrays, ids, sigma_levels + rc_levels, width, height)
+        for name, (method, ids) in methods.items()
+    }
     # refined vs the paper's solutions (parallelism quadratics; Atlanta: the literal null vector)
     # vs the unconstrained null vector, sigma = 1 px, Manhattan rooms (Atlanta solver: all rooms).
     # The layout solvers' refined rows are the sigma = 1 px level of the main sweep.
     ablation_sweeps = {
         f"{solver_name}/{label}": Sweep(
-            lambda r, c, f, s=solver, m=label: s(r, c, f, method=m), arrays, ids, [(1.0, 0, ablation_draws)], width, height
+            lambda r, c, f, s=solver, m=label: s(r, c, f, method=m),
+            arrays,
+            ids,
+            [(1.0, 0, ablation_draws)],
+            width,
+            height,
         )
         for solver_name, solver, labels, ids in (
             ("manhattan", manhattan, ("paper", "null_vector"), manhattan_ids),
@@ -355,8 +387,11 @@ def main(argv=None):
     t0 = time.perf_counter()
     compile_all([*sweeps.values(), *ablation_sweeps.values()])
     timings["compilation"] = time.perf_counter() - t0
-    print(f"rooms and labels {timings['rooms and labels']:.1f} s; compiled {len(sweeps) + len(ablation_sweeps)} sweeps "
-          f"{timings['compilation']:.1f} s", flush=True)
+    print(
+        f"rooms and labels {timings['rooms and labels']:.1f} s; compiled {len(sweeps) + len(ablation_sweeps)} sweeps "
+        f"{timings['compilation']:.1f} s",
+        flush=True,
+    )
     results, rc_results = {}, {}
     for name, method_sweep in sweeps.items():
         t0 = time.perf_counter()
@@ -379,16 +414,24 @@ def main(argv=None):
     timings["ablation"] = time.perf_counter() - t0
 
     total = time.perf_counter() - start  # everything after the imports
-    print(f"rooms {n_rooms} ({len(manhattan_ids)} Manhattan), usable at rc = {rc_default}: {usable[0].sum()}, "
-          f"draws {draws}, {width}x{height}, rc = {rc_default} m (sigma sweep)")
-    print(f"wall time (2 cores, incl. compilation): total {total:.1f} s; " + ", ".join(f"{k} {v:.1f} s" for k, v in timings.items()))
+    print(
+        f"rooms {n_rooms} ({len(manhattan_ids)} Manhattan), usable at rc = {rc_default}: {usable[0].sum()}, "
+        f"draws {draws}, {width}x{height}, rc = {rc_default} m (sigma sweep)"
+    )
+    print(
+        f"wall time (2 cores, incl. compilation): total {total:.1f} s; "
+        + ", ".join(f"{k} {v:.1f} s" for k, v in timings.items())
+    )
     for name, res in results.items():
         print(f"  {name}")
         for i, sigma in enumerate(sigmas):
             print(
-                f"    sigma {sigma:4.2f} px: corner {_stat(res['corner'][i], np.mean):.4f} / {_stat(res['corner'][i], np.median):.4f} m, "
-                f"direction {_stat(res['direction'][i], np.mean):.4f} / {_stat(res['direction'][i], np.median):.4f} deg, "
-                f"depth {_stat(res['depth'][i], np.mean):.4f} / {_stat(res['depth'][i], np.median):.4f} m (mean / median), "
+                f"    sigma {sigma:4.2f} px: corner {_stat(res['corner'][i], np.mean):.4f} / "
+                f"{_stat(res['corner'][i], np.median):.4f} m, "
+                f"direction {_stat(res['direction'][i], np.mean):.4f} / {_stat(res['direction'][i], np.median):.4f} "
+                "deg, "
+                f"depth {_stat(res['depth'][i], np.mean):.4f} / {_stat(res['depth'][i], np.median):.4f} m (mean / "
+                "median), "
                 f"ok {_stat(res['ok'][i], np.mean):.3f}"
             )
     print("rc sweep at sigma = 1 px (mean / median):")
@@ -396,13 +439,15 @@ def main(argv=None):
         print(f"  {name}")
         for i, rc in enumerate(rcs):
             print(
-                f"    rc {rc:.1f} m: corner {_stat(res['corner'][i], np.mean):.4f} / {_stat(res['corner'][i], np.median):.4f} m, "
+                f"    rc {rc:.1f} m: corner {_stat(res['corner'][i], np.mean):.4f} / "
+                f"{_stat(res['corner'][i], np.median):.4f} m, "
                 f"depth {_stat(res['depth'][i], np.mean):.4f} / {_stat(res['depth'][i], np.median):.4f} m"
             )
     print("sigma = 1 px, mean / median: refined vs paper vs unconstrained null vector")
     for key, v in ablation.items():
         print(
-            f"  {key:24s} corner {v['corner_mean']:.4f} / {v['corner_median']:.4f} m  direction {v['direction_mean']:.4f} / "
+            f"  {key:24s} corner {v['corner_mean']:.4f} / {v['corner_median']:.4f} m  direction "
+            f"{v['direction_mean']:.4f} / "
             f"{v['direction_median']:.4f} deg  depth {v['depth_mean']:.4f} / {v['depth_median']:.4f} m"
         )
     return results, rc_results, ablation

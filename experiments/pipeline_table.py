@@ -33,13 +33,13 @@ from pathlib import Path
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # busy-waiting BLAS threads stall on a shared machine
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from tqdm import tqdm  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm import tqdm
 
-import ncjax  # noqa: E402
-from ncjax import metrics  # noqa: E402
+import ncjax
+from ncjax import metrics
 from ncjax.pipeline.config import PipelineConfig
 from ncjax.pipeline.corners import column_walls, find_corners
 from ncjax.pipeline.manhattan import manhattan_frame
@@ -80,7 +80,9 @@ def solvers_only(ceiling_v, floor_v, corner_prob, cam, world: str):
     columns = jnp.arange(WIDTH, dtype=ceiling_v.dtype)
     ceiling_rays = ncjax.pixel_to_ray(cam, columns, ceiling_v)
     floor_rays = ncjax.pixel_to_ray(cam, columns, floor_v)
-    corners, mask, _ = find_corners(corner_prob, CAPACITY, 2, config.corner_threshold)  # the paper's peaks: no minimum count
+    corners, mask, _ = find_corners(
+        corner_prob, CAPACITY, 2, config.corner_threshold
+    )  # the paper's peaks: no minimum count
     wall_index = column_walls(corners, mask, WIDTH)
     own = wall_index[None, :] == jnp.arange(CAPACITY)[:, None]
     walls = jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m))(own)
@@ -91,7 +93,12 @@ def solvers_only(ceiling_v, floor_v, corner_prob, cam, world: str):
         layout = ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, wall_index, mask, walls.direction)
     ceiling = ncjax.layout_corners(layout.ceiling_lines, layout.mask)
     floor = ncjax.layout_corners(layout.floor_lines, layout.mask)
-    return {"ceiling_corners": ceiling, "floor_corners": floor, "mask": layout.mask, "ok": layout.ok & jnp.all(walls.ok | ~mask)}
+    return {
+        "ceiling_corners": ceiling,
+        "floor_corners": floor,
+        "mask": layout.mask,
+        "ok": layout.ok & jnp.all(walls.ok | ~mask),
+    }
 
 
 def evaluate(layouts, rooms, labels, world: str):
@@ -145,8 +152,18 @@ def main(argv=None):
         ceiling_v, floor_v = noisy_rows(labels, sigma, seed) if sigma > 0 else (labels.ceiling_v, labels.floor_v)
         layouts = run(method, world, ceiling_v, floor_v, labels.corner_target, rooms)
         ce, iou, failed = evaluate(layouts, rooms, labels, world)
-        rows.append((world, method, occlusion, sigma, count, np.nanmean(ce) if (~failed).any() else math.nan,
-                     100 * np.nanmean(iou) if (~failed).any() else math.nan, 100 * failed.mean()))
+        rows.append(
+            (
+                world,
+                method,
+                occlusion,
+                sigma,
+                count,
+                np.nanmean(ce) if (~failed).any() else math.nan,
+                100 * np.nanmean(iou) if (~failed).any() else math.nan,
+                100 * failed.mean(),
+            )
+        )
     header = "| world | method | occlusion | sigma (px) | rooms | CE (m) | 3D IoU (%) | failed (%) |"
     lines = [header, "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for world, method, occlusion, sigma, n, ce, iou, fail in rows:

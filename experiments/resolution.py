@@ -42,8 +42,8 @@ from ncjax.reconstruction import reconstruct_batch
 from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 
 sys.path.insert(0, str(Path(__file__).parent))
-from network_table import ground_truth, scores  # noqa: E402
-from tune_network_pipeline import SEEDS  # noqa: E402  (the tuning rooms)
+from network_table import ground_truth, scores
+from tune_network_pipeline import SEEDS  # the tuning rooms
 
 OUT = Path(__file__).parent / "out"
 RENDER_WIDTH = 4096
@@ -54,7 +54,9 @@ def renders(world: str, rooms: int, out: Path) -> list:
     """The first ``rooms`` tuning rooms of ``world`` at RENDER_WIDTH x RENDER_WIDTH / 2 (rendered on first use)."""
     folder = out / f"resolution_renders_{world}_{rooms}_{RENDER_WIDTH}"
     if not (folder.is_dir() and len(list_samples(str(folder))) == rooms):
-        config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)), width=RENDER_WIDTH, height=RENDER_WIDTH // 2)
+        config = ncjax.SynthConfig(
+            room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)), width=RENDER_WIDTH, height=RENDER_WIDTH // 2
+        )
         with tqdm(total=rooms, desc=f"render {world} at {RENDER_WIDTH}") as bar:
             write_dataset(str(folder), rooms, SEEDS[world], config, batch_size=1, overwrite=True, progress=bar.update)
     return [read_sample(str(folder), name) for name in list_samples(str(folder))]
@@ -88,8 +90,13 @@ def width_scores(layouts, truths) -> dict:
     ok = [r for r in per_room if r["returned"]]
     strict = [r["ce"] for r in ok if not r["failed"]]
     height_error = np.array([r["height_error"] for r in ok])
-    sigma = np.array([float(room_height_sigma(layout.height_covariance)) / float(layout.ceiling_height - layout.floor_height)
-                      for layout in layouts if bool(layout.ok)])
+    sigma = np.array(
+        [
+            float(room_height_sigma(layout.height_covariance)) / float(layout.ceiling_height - layout.floor_height)
+            for layout in layouts
+            if bool(layout.ok)
+        ]
+    )
     uncertain = [int(layout.status) == ncjax.LayoutStatus.UNCERTAIN_SCALE for layout in layouts]
     pct = lambda values, q: float(np.percentile(values, q)) if len(values) else math.nan  # noqa: E731
     return {
@@ -115,11 +122,15 @@ def main(argv=None):
     if any(w % 2 or not 64 <= w <= RENDER_WIDTH for w in args.widths):
         parser.error(f"widths must be even and in [64, {RENDER_WIDTH}]")
     start = time.time()
-    lines = [f"Tuning rooms rendered at {RENDER_WIDTH} x {RENDER_WIDTH // 2}, shrunk by area averaging; "
-             f"{args.rooms} rooms per world; shipped model and configuration.", "",
-             "| world | width | ok (%) | uncertain scale (%) | height error median / p90 (m) | height sigma / height, median | "
-             "true corner count (%) | CE median (m) | 3D IoU ok / all rooms (%) | s per panorama |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        f"Tuning rooms rendered at {RENDER_WIDTH} x {RENDER_WIDTH // 2}, shrunk by area averaging; "
+        f"{args.rooms} rooms per world; shipped model and configuration.",
+        "",
+        "| world | width | ok (%) | uncertain scale (%) | height error median / p90 (m) | height sigma / height, "
+        "median | "
+        "true corner count (%) | CE median (m) | 3D IoU ok / all rooms (%) | s per panorama |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     record = {"rooms": args.rooms, "render_width": RENDER_WIDTH}
     for world in SEEDS:
         samples = renders(world, args.rooms, args.out)
@@ -128,9 +139,11 @@ def main(argv=None):
             layouts, seconds = layouts_at(samples, world, width)
             r = width_scores(layouts, truths) | {"seconds_per_panorama": seconds}
             record[f"{world}_{width}"] = r
-            lines.append(f"| {world} | {width} | {r['ok']:.1f} | {r['uncertain_scale']:.1f} | {r['height_error_median']:.3f} / "
-                         f"{r['height_error_p90']:.3f} | {r['relative_sigma_median']:.3f} | {r['true_corner_count']:.1f} | "
-                         f"{r['ce_median']:.3f} | {r['iou3d_ok']:.1f} / {r['iou3d_all']:.1f} | {seconds:.2f} |")
+            lines.append(
+                f"| {world} | {width} | {r['ok']:.1f} | {r['uncertain_scale']:.1f} | {r['height_error_median']:.3f} / "
+                f"{r['height_error_p90']:.3f} | {r['relative_sigma_median']:.3f} | {r['true_corner_count']:.1f} | "
+                f"{r['ce_median']:.3f} | {r['iou3d_ok']:.1f} / {r['iou3d_all']:.1f} | {seconds:.2f} |"
+            )
     table = "\n".join(lines)
     print(table)
     print(f"total time {time.time() - start:.0f} s")

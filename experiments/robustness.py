@@ -38,7 +38,7 @@ from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 from ncjax.synth.dataset import list_samples, read_sample
 
 sys.path.insert(0, str(Path(__file__).parent))
-from network_table import OUT, SEEDS, ground_truth, layouts_of, scores, summary, test_renders, used_row_errors  # noqa: E402
+from network_table import OUT, SEEDS, ground_truth, layouts_of, scores, summary, test_renders, used_row_errors
 
 TEST_ROOMS = 128  # the renders of network_table.py
 
@@ -69,7 +69,10 @@ DEGRADATIONS = {
     "greyscale": (_float_op(ncjax.synth.augment.to_greyscale), True),
     "blur 1 px": (_float_op(lambda x: ncjax.synth.augment.gaussian_blur(x, 1.0)), True),
     "blur 2.5 px": (_float_op(lambda x: ncjax.synth.augment.gaussian_blur(x, 2.5, radius=8)), False),
-    "sensor noise 0.05": (_float_op(lambda x: ncjax.synth.augment.add_sensor_noise(jax.random.key(0), x, 0.05, 0.05)), False),
+    "sensor noise 0.05": (
+        _float_op(lambda x: ncjax.synth.augment.add_sensor_noise(jax.random.key(0), x, 0.05, 0.05)),
+        False,
+    ),
     "dark (exposure x0.25)": (_float_op(lambda x: ncjax.synth.augment.adjust_exposure(x, 0.25)), False),
     "JPEG quality 30": (jpeg(30), False),
 }
@@ -86,11 +89,16 @@ def main(argv=None):
         parser.error("--rooms must be >= 1")
     start = time.time()
     model = default_model()
-    lines = [f"First {args.rooms} test renders without occlusion per world, {args.views} view(s), rows snapped: {args.edge_snap is not None}, "
-             "NETWORK_PIPELINE_CONFIG.", "",
-             "| degradation | in training ranges | world | failed (%) | CE mean / median (m) | 3D IoU ok (%) | IoU all0 (%) | "
-             "layout returned (%) | 3D IoU of the returned (%) | row error ceiling / floor (px) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        f"First {args.rooms} test renders without occlusion per world, {args.views} view(s), rows snapped: "
+        f"{args.edge_snap is not None}, "
+        "NETWORK_PIPELINE_CONFIG.",
+        "",
+        "| degradation | in training ranges | world | failed (%) | CE mean / median (m) | 3D IoU ok (%) | IoU all0 "
+        "(%) | "
+        "layout returned (%) | 3D IoU of the returned (%) | row error ceiling / floor (px) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     record = {}
     for world in SEEDS:
         folder = str(test_renders(world, TEST_ROOMS, args.out))
@@ -100,13 +108,18 @@ def main(argv=None):
         for name in args.degradations:
             operation, trained = DEGRADATIONS[name]
             degraded = [dataclasses.replace(s, image=operation(s.image)) for s in samples]
-            layouts, boundaries = layouts_of(degraded, world, model, NETWORK_PIPELINE_CONFIG, args.views, args.edge_snap)
+            layouts, boundaries = layouts_of(
+                degraded, world, model, NETWORK_PIPELINE_CONFIG, args.views, args.edge_snap
+            )
             s = summary(scores(layouts, truths))
             rows = used_row_errors(samples, boundaries)
             record[f"{name}/{world}"] = s | rows
-            lines.append(f"| {name} | {'yes' if trained else 'no'} | {world} | {s['failed']:.1f} | {s['ce']:.3f} / {s['ce_median']:.3f} | "
-                         f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {s['returned']:.1f} | {s['iou3d_returned']:.1f} | "
-                         f"{rows['ceiling_mean']:.2f} / {rows['floor_mean']:.2f} |")
+            lines.append(
+                f"| {name} | {'yes' if trained else 'no'} | {world} | {s['failed']:.1f} | {s['ce']:.3f} / "
+                f"{s['ce_median']:.3f} | "
+                f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {s['returned']:.1f} | {s['iou3d_returned']:.1f} | "
+                f"{rows['ceiling_mean']:.2f} / {rows['floor_mean']:.2f} |"
+            )
     table = "\n".join(lines)
     print(table)
     print(f"total time {time.time() - start:.0f} s")

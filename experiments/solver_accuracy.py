@@ -34,11 +34,11 @@ import time
 
 os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-import ncjax  # noqa: E402
+import ncjax
 
 WIDTH, HEIGHT = 1024, 512
 CAPACITY = 16
@@ -101,12 +101,16 @@ def layout_errors(room, layout, mask):
 
 
 def manhattan(room):
-    layout = ncjax.solve_manhattan_layout(room["ceiling_rays"], room["floor_rays"], room["wall_index"], room["mask"], room["labels"])
+    layout = ncjax.solve_manhattan_layout(
+        room["ceiling_rays"], room["floor_rays"], room["wall_index"], room["mask"], room["labels"]
+    )
     return layout_errors(room, layout, room["mask"])
 
 
 def atlanta(room):
-    layout = ncjax.solve_atlanta_layout(room["ceiling_rays"], room["floor_rays"], room["wall_index"], room["mask"], room["directions"])
+    layout = ncjax.solve_atlanta_layout(
+        room["ceiling_rays"], room["floor_rays"], room["wall_index"], room["mask"], room["directions"]
+    )
     return layout_errors(room, layout, room["mask"])
 
 
@@ -114,7 +118,9 @@ def _wall_errors(room, wall, mask):
     return dict(
         direction=jnp.where(mask, _angle(wall.direction, room["directions"]), 0.0),
         distance=jnp.where(mask, jnp.abs(wall.distance - room["distances"]), 0.0),
-        height=jnp.where(mask, jnp.maximum(jnp.abs(wall.ceiling_height - room["h_c"]), jnp.abs(wall.floor_height - room["h_f"])), 0.0),
+        height=jnp.where(
+            mask, jnp.maximum(jnp.abs(wall.ceiling_height - room["h_c"]), jnp.abs(wall.floor_height - room["h_f"])), 0.0
+        ),
         corner=jnp.zeros(()),
         ok=jnp.all(wall.ok | ~mask),
     )
@@ -153,7 +159,11 @@ def baseline(room):
             corner=jnp.zeros(()),
             ok=jnp.all(lines.ok | ~mask),
         )
-        worst = errors if worst is None else {k: jnp.maximum(worst[k], v) if k != "ok" else worst[k] & v for k, v in errors.items()}
+        worst = (
+            errors
+            if worst is None
+            else {k: jnp.maximum(worst[k], v) if k != "ok" else worst[k] & v for k, v in errors.items()}
+        )
     return worst
 
 
@@ -224,13 +234,17 @@ def main(argv=None):
                 rows += rounded_input_rows(float32_rooms, args.min_columns)
             print(f"{dtype}: {time.perf_counter() - start:.1f} s", flush=True)
     print("\nmax errors on exact rays (goal: <= 5 mm and 0.2 deg in float32, <= 0.1 mm in float64)")
-    print(f"{'solver':24s} {'dtype':8s} {'cases':28s} {'dir (deg)':>10s} {'dist (mm)':>10s} {'height (mm)':>12s} {'corner (mm)':>12s} {'ok':>6s}  goal")
+    print(
+        f"{'solver':24s} {'dtype':8s} {'cases':28s} {'dir (deg)':>10s} {'dist (mm)':>10s} {'height (mm)':>12s} "
+        f"{'corner (mm)':>12s} {'ok':>6s}  goal"
+    )
     for name, dtype, what, e in rows:
         metres = max(e["distance"], e["height"], e["corner"])
         goal = metres <= (5e-3 if dtype == "float32" else 1e-4) and (dtype == "float64" or e["direction"] <= 0.2)
         goal = "-" if dtype == "f32 rays" else "met" if goal else "MISSED"
         print(
-            f"{name:24s} {dtype:8s} {what:28s} {e['direction']:10.2e} {1e3 * e['distance']:10.3f} {1e3 * e['height']:12.3f} "
+            f"{name:24s} {dtype:8s} {what:28s} {e['direction']:10.2e} {1e3 * e['distance']:10.3f} "
+            f"{1e3 * e['height']:12.3f} "
             f"{1e3 * e['corner']:12.3f} {e['ok']:6.3f}  {goal}"
         )
     return rows

@@ -1,4 +1,6 @@
-"""Choose ``NETWORK_PIPELINE_CONFIG`` on tuning renders: the pipeline's corner and occlusion settings for the shipped model.
+"""Choose ``NETWORK_PIPELINE_CONFIG`` on tuning renders.
+
+The pipeline's corner and occlusion settings for the shipped model.
 
 Tuning set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` with seeds 71
 (Manhattan) and 72 (Atlanta), the same generator settings as the test renders of
@@ -50,7 +52,7 @@ from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 
 sys.path.insert(0, str(Path(__file__).parent))
-from network_table import BATCH, failure_causes, ground_truth, scores, summary  # noqa: E402
+from network_table import BATCH, failure_causes, ground_truth, scores, summary
 
 OUT = Path(__file__).parent / "out"
 SEEDS = {"manhattan": 71, "atlanta": 72}
@@ -67,21 +69,36 @@ CONFIGS = {
     "nms 3, occlusion 8, threshold 0.4": {"corner_threshold": 0.4, "nms_radius": 3.0, "occlusion_threshold": 8.0},
     # the ceiling and floor rows weighted alike in the joint solvers and the adjustment (the paper's weighting)
     "nms 4, occlusion 8, threshold 0.4, equal row weights": {
-        "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "min_boundary_noise": 1e9,
+        "corner_threshold": 0.4,
+        "nms_radius": 4.0,
+        "occlusion_threshold": 8.0,
+        "min_boundary_noise": 1e9,
     },
-    # a Manhattan labelling whose corner types weigh as much as the walls' directions (the default 0.02: the directions decide)
+    # a Manhattan labelling whose corner types weigh as much as the walls' directions
+    # (the default 0.02: the directions decide)
     "nms 4, occlusion 8, threshold 0.4, turn weight 0.5": {
-        "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "turn_weight": 0.5,
+        "corner_threshold": 0.4,
+        "nms_radius": 4.0,
+        "occlusion_threshold": 8.0,
+        "turn_weight": 0.5,
     },
     # Atlanta: no wall inserted where a corner's walls meet far from its peak, or other offsets
     **{
         f"nms 4, occlusion 8, threshold 0.4, corner offset {offset:g}": {
-            "corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "max_corner_offset": offset,
+            "corner_threshold": 0.4,
+            "nms_radius": 4.0,
+            "occlusion_threshold": 8.0,
+            "max_corner_offset": offset,
         }
         for offset in (16.0, 64.0, 1e6)
     },
     # no layout fails for an uncertain scale: the scale test's thresholds are compared on its layouts
-    NO_SCALE_TEST: {"corner_threshold": 0.4, "nms_radius": 4.0, "occlusion_threshold": 8.0, "max_height_uncertainty": math.inf},
+    NO_SCALE_TEST: {
+        "corner_threshold": 0.4,
+        "nms_radius": 4.0,
+        "occlusion_threshold": 8.0,
+        "max_height_uncertainty": math.inf,
+    },
 }
 # relative standard deviations of the room height compared as PipelineConfig.max_height_uncertainty
 SCALE_TEST_THRESHOLDS = (0.04, 0.06, 0.08, 0.1, 0.15, 0.2, math.inf)
@@ -105,7 +122,9 @@ def tuning_boundaries(world: str, rooms: int, views: int, out: Path, model_path:
     if not (folder.is_dir() and len(list_samples(str(folder))) == rooms):
         config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
         with tqdm(total=rooms, desc=f"render {world} tuning set") as bar:
-            write_dataset(str(folder), rooms, SEEDS[world], config, batch_size=BATCH, overwrite=True, progress=bar.update)
+            write_dataset(
+                str(folder), rooms, SEEDS[world], config, batch_size=BATCH, overwrite=True, progress=bar.update
+            )
     cache = out / f"tune_{world}_{rooms}_views{views}{model_suffix(model_path)}.npz"
     return rendered_boundaries(folder, world, cache, views, model_path)
 
@@ -126,8 +145,19 @@ def rendered_boundaries(folder: Path, world: str, cache: Path, views: int, model
     for start in tqdm(range(0, rooms, BATCH), desc=f"network {world}"):
         chunk = samples[start : start + BATCH]
         chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
-        rows.append([part[: min(BATCH, rooms - start)] for part in predict_boundaries(np.stack([s.image for s in chunk]), model, views)])
-    boundaries = dict(zip(("ceiling_v", "floor_v", "corner_prob"), (np.concatenate(parts) for parts in zip(*rows))))
+        rows.append(
+            [
+                part[: min(BATCH, rooms - start)]
+                for part in predict_boundaries(np.stack([s.image for s in chunk]), model, views)
+            ]
+        )
+    boundaries = dict(
+        zip(
+            ("ceiling_v", "floor_v", "corner_prob"),
+            (np.concatenate(parts) for parts in zip(*rows, strict=False)),
+            strict=False,
+        )
+    )
     np.savez(cache, **boundaries)
     return data | boundaries
 
@@ -135,9 +165,14 @@ def rendered_boundaries(folder: Path, world: str, cache: Path, views: int, model
 def row_errors(data: dict) -> str:
     """The network's rows against the true ones, per boundary: mean / median |error| (px) and the share within 1 px."""
     parts = []
-    for name, predicted, true in zip(("ceiling", "floor"), (data["ceiling_v"], data["floor_v"]), data["true_rows"]):
+    for name, predicted, true in zip(
+        ("ceiling", "floor"), (data["ceiling_v"], data["floor_v"]), data["true_rows"], strict=False
+    ):
         error = np.abs(predicted - true)  # a missing row (NaN) counts as not within 1 px
-        parts.append(f"{name} {np.nanmean(error):.2f} / {np.nanmedian(error):.2f} px, {100 * np.mean(error < 1):.0f}% within 1 px")
+        parts.append(
+            f"{name} {np.nanmean(error):.2f} / {np.nanmedian(error):.2f} px, {100 * np.mean(error < 1):.0f}% within "
+            "1 px"
+        )
     return "; ".join(parts)
 
 
@@ -145,13 +180,21 @@ def pipeline_scores(data: dict, world: str, config: ncjax.PipelineConfig) -> lis
     width = data["ceiling_v"].shape[1]
 
     def one(ceiling_v, floor_v, corner_prob, rc, key):
-        return layout_from_evidence(ceiling_v, floor_v, corner_prob, ncjax.NonCentralPanorama(width, width // 2, rc=rc), key, world, config)
+        return layout_from_evidence(
+            ceiling_v, floor_v, corner_prob, ncjax.NonCentralPanorama(width, width // 2, rc=rc), key, world, config
+        )
 
     keys = jax.random.split(jax.random.key(0), len(data["rc"]))
-    layouts = jax.device_get(jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys))
+    layouts = jax.device_get(
+        jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys)
+    )
     per_room = scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
-    relative_sigma = np.asarray(room_height_sigma(layouts.height_covariance)) / (layouts.ceiling_height - layouts.floor_height)
-    return [room | {"relative_height_sigma": float(sigma)} for room, sigma in zip(per_room, relative_sigma)]
+    relative_sigma = np.asarray(room_height_sigma(layouts.height_covariance)) / (
+        layouts.ceiling_height - layouts.floor_height
+    )
+    return [
+        room | {"relative_height_sigma": float(sigma)} for room, sigma in zip(per_room, relative_sigma, strict=False)
+    ]
 
 
 def plot_scale_test(per_room: dict[str, list[dict]], path: Path, threshold: float) -> None:
@@ -162,16 +205,25 @@ def plot_scale_test(per_room: dict[str, list[dict]], path: Path, threshold: floa
     import matplotlib.pyplot as plt
 
     figure, axes = plt.subplots(1, len(per_room), figsize=(5.5 * len(per_room), 4.5), squeeze=False)
-    for ax, (world, rooms) in zip(axes[0], per_room.items()):
+    for ax, (world, rooms) in zip(axes[0], per_room.items(), strict=False):
         good = [r for r in rooms if not r["failed"]]
         # infinite sigma (a wall the rows leave free) drawn at the right edge
-        sigma = np.array([1.0 if math.isnan(r["relative_height_sigma"]) else min(r["relative_height_sigma"], 1.0) for r in good])
+        sigma = np.array(
+            [1.0 if math.isnan(r["relative_height_sigma"]) else min(r["relative_height_sigma"], 1.0) for r in good]
+        )
         ce = np.array([r["ce"] for r in good])
         ax.scatter(sigma, ce, s=12, alpha=0.6, c=np.where(sigma > threshold, "tab:red", "tab:blue"))
-        ax.axvline(threshold, color="black", linestyle="--", linewidth=1, label=f"max_height_uncertainty = {threshold:g}")
+        ax.axvline(
+            threshold, color="black", linestyle="--", linewidth=1, label=f"max_height_uncertainty = {threshold:g}"
+        )
         ax.axhline(0.3, color="0.6", linewidth=1, label="CE 0.3 m")
-        ax.set(xscale="log", yscale="log", xlabel="room height sigma / room height (1: infinite)", ylabel="corner error (m)",
-               title=f"{world}: {len(good)} ok layouts, tuning renders")
+        ax.set(
+            xscale="log",
+            yscale="log",
+            xlabel="room height sigma / room height (1: infinite)",
+            ylabel="corner error (m)",
+            title=f"{world}: {len(good)} ok layouts, tuning renders",
+        )
         ax.legend(fontsize=8, loc="upper left")
     figure.tight_layout()
     figure.savefig(path, dpi=90)
@@ -184,20 +236,26 @@ def scale_test_table(per_room: dict[str, list[dict]]) -> list[str]:
     Args:
         per_room: world -> the per-room scores of a configuration without the scale test.
     """
-    lines = ["", "Scale test (`max_height_uncertainty`) on the layouts of the configuration without it, per world: "
-             "the ok layouts it would fail (% of all rooms), their CE median (m) and the share of them with CE > 0.3 m; "
-             "then the CE mean / median (m) of the layouts it keeps.", "",
-             "| threshold | world | failed by the test (%) | their CE median | CE > 0.3 m (%) | kept: CE mean / median |",
-             "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        "",
+        "Scale test (`max_height_uncertainty`) on the layouts of the configuration without it, per world: "
+        "the ok layouts it would fail (% of all rooms), their CE median (m) and the share of them with CE > 0.3 m; "
+        "then the CE mean / median (m) of the layouts it keeps.",
+        "",
+        "| threshold | world | failed by the test (%) | their CE median | CE > 0.3 m (%) | kept: CE mean / median |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for threshold in SCALE_TEST_THRESHOLDS:
         for world, rooms in per_room.items():
             good = [r for r in rooms if not r["failed"]]
             ce = np.array([r["ce"] for r in good])
             flagged = np.array([not r["relative_height_sigma"] <= threshold for r in good])
             share = 100 * np.mean(ce[flagged] > 0.3) if flagged.any() else math.nan
-            lines.append(f"| {threshold:g} | {world} | {100 * flagged.sum() / len(rooms):.1f} | "
-                         f"{np.median(ce[flagged]) if flagged.any() else math.nan:.3f} | {share:.0f} | "
-                         f"{ce[~flagged].mean():.3f} / {np.median(ce[~flagged]):.3f} |")
+            lines.append(
+                f"| {threshold:g} | {world} | {100 * flagged.sum() / len(rooms):.1f} | "
+                f"{np.median(ce[flagged]) if flagged.any() else math.nan:.3f} | {share:.0f} | "
+                f"{ce[~flagged].mean():.3f} / {np.median(ce[~flagged]):.3f} |"
+            )
     return lines
 
 
@@ -205,8 +263,13 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rooms", type=int, default=256, help="tuning renders per world")
     parser.add_argument("--views", type=int, default=DEFAULT_VIEWS)
-    parser.add_argument("--configs", nargs="+", choices=[*CONFIGS, "current"], default=[*CONFIGS, "current"],
-                        help="configurations to compare ('current': NETWORK_PIPELINE_CONFIG)")
+    parser.add_argument(
+        "--configs",
+        nargs="+",
+        choices=[*CONFIGS, "current"],
+        default=[*CONFIGS, "current"],
+        help="configurations to compare ('current': NETWORK_PIPELINE_CONFIG)",
+    )
     parser.add_argument("--model", type=Path, help="weights (.safetensors) to run instead of the shipped model")
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args(argv)
@@ -217,27 +280,37 @@ def main(argv=None):
     data = {world: tuning_boundaries(world, args.rooms, args.views, args.out, args.model) for world in SEEDS}
     model = "the shipped model" if args.model is None else f"model {args.model.name}"
     suffix = model_suffix(args.model)  # names this run's table and plot
-    lines = [f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {model}, {args.views} view(s), snapped rows.", "",
-             *(f"- rows, {world}: {row_errors(data[world])}" for world in SEEDS), "",
-             "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / CE (m) / 3D IoU (%) "
-             "| IoU all0 (%) | returned (%), IoU all rooms (%) |",
-             "| --- | --- | --- | --- | --- | --- |"]
+    lines = [
+        f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {model}, {args.views} view(s), snapped rows.",
+        "",
+        *(f"- rows, {world}: {row_errors(data[world])}" for world in SEEDS),
+        "",
+        "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / "
+        "CE (m) / 3D IoU (%) "
+        "| IoU all0 (%) | returned (%), IoU all rooms (%) |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     causes = ["", "Failures by cause, all rooms (% of the rooms):", ""]
     record, unscaled = {}, {}
     for name in tqdm(args.configs, desc="configurations"):
         kwargs = (
-            {key: getattr(NETWORK_PIPELINE_CONFIG, key) for key in CONFIGS["pipeline defaults"]} if name == "current" else CONFIGS[name]
+            {key: getattr(NETWORK_PIPELINE_CONFIG, key) for key in CONFIGS["pipeline defaults"]}
+            if name == "current"
+            else CONFIGS[name]
         )
         config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **kwargs)
         for world in SEEDS:
             per_room = pipeline_scores(data[world], world, config)
-            clear = [r for r, keep in zip(per_room, data[world]["clear"]) if keep]
+            clear = [r for r, keep in zip(per_room, data[world]["clear"], strict=False) if keep]
             s_clear, s_all = summary(clear), summary(per_room)
             median = np.median([r["ce"] for r in clear if not r["failed"]] or [np.nan])
             record[(name, world)] = s_all
-            lines.append(f"| {name} {kwargs} | {world} | {s_clear['failed']:.1f} / {s_clear['ce']:.3f} / {median:.3f} / {s_clear['iou3d']:.1f} | "
-                         f"{s_all['failed']:.1f} / {s_all['ce']:.3f} / {s_all['iou3d']:.1f} | {s_all['iou3d_all']:.1f} | "
-                         f"{s_all['returned']:.1f}, {s_all['iou3d_all_returned']:.1f} |")
+            lines.append(
+                f"| {name} {kwargs} | {world} | {s_clear['failed']:.1f} / {s_clear['ce']:.3f} / {median:.3f} / "
+                f"{s_clear['iou3d']:.1f} | "
+                f"{s_all['failed']:.1f} / {s_all['ce']:.3f} / {s_all['iou3d']:.1f} | {s_all['iou3d_all']:.1f} | "
+                f"{s_all['returned']:.1f}, {s_all['iou3d_all_returned']:.1f} |"
+            )
             causes.append(f"- {name}, {world}: {failure_causes(per_room)}")
             if name == NO_SCALE_TEST:
                 unscaled[world] = per_room
