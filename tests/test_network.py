@@ -521,6 +521,19 @@ def test_averaged_views_follow_the_panorama_symmetries():
     for field, flipped, rolled in zip(averaged, mirrored, turned, strict=True):
         np.testing.assert_allclose(flipped[:, ::-1], field, atol=1e-5)
         np.testing.assert_allclose(rolled, jnp.roll(field, width // 2, axis=1), atol=1e-5)
+    # Against the network run on every view, mapped back: with rolls of a multiple of 32 columns (4 views) the
+    # backbone runs on the image and its mirror image only; with other rolls (6 views) on every view.
+    for views in (4, 6):
+        shifts = [width * i // (views // 2) for i in range(views // 2)]
+        expected = []
+        for shift in shifts:
+            for mirror in (False, True):
+                view = jnp.roll(images, shift, axis=2)
+                out = model(view[:, :, ::-1] if mirror else view)
+                expected.append([jnp.roll(x[:, ::-1] if mirror else x, -shift, axis=1) for x in out])
+        computed = ncjax.network.model.predict_views(model, images, views)
+        for field, views_of_field in zip(computed, zip(*expected, strict=True), strict=True):
+            np.testing.assert_allclose(field, jnp.mean(jnp.stack(views_of_field), 0), atol=1e-5)
     single = ncjax.network.model.predict_views(model, images, 1)
     np.testing.assert_array_equal(single.ceiling_elevation, model(images).ceiling_elevation)
     assert not np.allclose(single.ceiling_elevation, averaged.ceiling_elevation)

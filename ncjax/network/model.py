@@ -50,6 +50,10 @@ from jaxtyping import Array, ArrayLike, Float
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 from .efficientnet import LITE0, LITE0_FEATURE_CHANNELS, EfficientNet, load_efficientnet_lite0
 
+# The backbones' coarsest feature map is 1/32 of the image: input sizes are multiples of it, and the
+# convolutional features of a panorama rolled by a multiple of it are the features rolled.
+NETWORK_STRIDE = 32
+
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -113,7 +117,12 @@ class HorizonNetConfig:
             raise ValueError(
                 f"width must be a positive multiple of 8 (channels / 8 after compression), got {self.width}"
             )
-        if self.input_height % 32 or self.input_width % 32 or self.input_height <= 0 or self.input_width <= 0:
+        if (
+            self.input_height % NETWORK_STRIDE
+            or self.input_width % NETWORK_STRIDE
+            or self.input_height <= 0
+            or self.input_width <= 0
+        ):
             raise ValueError(
                 f"input size must be positive multiples of 32, got {self.input_height} x {self.input_width}"
             )
@@ -450,10 +459,13 @@ class HorizonNet(nnx.Module):
                 ``config.dropout > 0`` (explicit keys keep training reproducible
                 from (seed, step) alone).
         """
-        batch, _, width, _ = images.shape
-        features = self.lstm(self.column_features(images), dropout_key)
-        out = self.head(features).reshape(batch, width // self.config.step_cols, 3, self.config.step_cols)
-        out = jnp.moveaxis(out, 2, 0).reshape(3, batch, width)
+        return self.sequence_head(self.column_features(images), dropout_key=dropout_key)
+
+    def sequence_head(self, features: Float[Array, "B S F"], *, dropout_key: Array | None = None) -> BoundaryPrediction:
+        """The LSTM and the linear head on :meth:`column_features` (the part that reads the columns from an edge)."""
+        batch, positions, _ = features.shape
+        out = self.head(self.lstm(features, dropout_key)).reshape(batch, positions, 3, self.config.step_cols)
+        out = jnp.moveaxis(out, 2, 0).reshape(3, batch, positions * self.config.step_cols)
         return BoundaryPrediction(out[0], out[1], out[2])
 
 
@@ -543,6 +555,12 @@ def predict_views(model: HorizonNet, images: Float[Array, "B H W 3"], views: int
     from a starting edge, so the views do differ; averaging them cuts the
     boundary error (experiments/RESULTS.md).
 
+    The convolutional features of a panorama rolled by a multiple of
+    :data:`NETWORK_STRIDE` columns are its features rolled, so when every roll is
+    such a multiple the backbone runs on the image and its mirror image only, and
+    the LSTM and head on the rolled features of each view: the same outputs for
+    half the backbone's work.
+
     Args:
         images: (B, H, W, 3) at the network's input size, values in [0, 1].
         views: static, 1 or an even number.
@@ -552,9 +570,22 @@ def predict_views(model: HorizonNet, images: Float[Array, "B H W 3"], views: int
     if views == 1:
         return model(images)
     shifts = [width * i // (views // 2) for i in range(views // 2)]
-    rolled = [jnp.roll(images, shift, axis=2) for shift in shifts]
-    batch = jnp.concatenate([view for image in rolled for view in (image, image[:, :, ::-1])])
-    outputs = jax.tree.map(lambda x: x.reshape(views, images.shape[0], *x.shape[1:]), model(batch))
+    if all(shift % NETWORK_STRIDE == 0 for shift in shifts):
+        # a mirrored rolled image is the mirror image rolled the other way
+        plain, mirrored = jnp.split(model.column_features(jnp.concatenate([images, images[:, :, ::-1]])), 2)
+        step = width // plain.shape[1]
+        features = jnp.concatenate(
+            [
+                view
+                for shift in shifts
+                for view in (jnp.roll(plain, shift // step, axis=1), jnp.roll(mirrored, -shift // step, axis=1))
+            ]
+        )
+        predicted = model.sequence_head(features)
+    else:
+        rolled = [jnp.roll(images, shift, axis=2) for shift in shifts]
+        predicted = model(jnp.concatenate([view for image in rolled for view in (image, image[:, :, ::-1])]))
+    outputs = jax.tree.map(lambda x: x.reshape(views, images.shape[0], *x.shape[1:]), predicted)
 
     def back(view, x):
         x = x[:, ::-1] if view % 2 else x
