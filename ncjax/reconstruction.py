@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped
+from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
 
 from .geometry.camera import NonCentralPanorama
 from .io.images import panorama_size_error
@@ -35,7 +35,7 @@ from .network.model import HorizonNet, check_views
 from .network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, image_boundaries
 from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
 from .pipeline.prior import HeightPrior
-from .pipeline.run import layout_for, layout_from_boundaries
+from .pipeline.run import layout_for, layout_from_boundaries, panorama_keys
 from .pipeline.types import Layout, LayoutStatus
 from .programs import call_saved
 
@@ -223,7 +223,7 @@ def reconstruct_batch(
     *,
     model: HorizonNet | ModelWeights | str | os.PathLike | None = None,
     config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
-    key: PRNGKeyArray | Key[Array, " B"] | None = None,
+    key: PRNGKeyArray | Key[Array, " B"] | UInt32[Array, "B 2"] | None = None,
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
     prior: HeightPrior | None = None,
@@ -243,8 +243,8 @@ def reconstruct_batch(
         config: :class:`~ncjax.PipelineConfig`, thresholds traced, the rest static (default:
             :data:`NETWORK_PIPELINE_CONFIG`, the pipeline's defaults with the corner and occlusion settings for
             the network's output).
-        key: RANSAC key (default ``jax.random.key(0)``): one key, split over the batch, or one key per image
-            (shape (B,)): an image's RANSAC samples then do not depend on the batch it is in.
+        key: RANSAC key (default ``jax.random.key(0)``; typed or raw): one key, split over the batch, or one
+            key per image (shape (B,)): an image's RANSAC samples then do not depend on the batch it is in.
         views: static, rolled and mirrored views the network's output is
             averaged over (1 or even, :func:`ncjax.predict_boundaries`).
         edge_snap: static; how the network's rows are moved onto the image's
@@ -282,10 +282,7 @@ def reconstruct_batch(
         if np.ndim(prior.value) not in (0, 1) or np.size(prior.value) not in (1, images.shape[0]):
             raise ValueError(f"the prior's value must be a scalar or one per image ({images.shape[0]})")
         prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
-    key = jax.random.key(0) if key is None else key
-    if jnp.shape(key) not in ((), images.shape[:1]):
-        raise ValueError(f"key must be one PRNG key or one per image ({images.shape[0]}), got shape {jnp.shape(key)}")
-    keys = jax.random.split(key, images.shape[0]) if jnp.shape(key) == () else key
+    keys = panorama_keys(jax.random.key(0) if key is None else key, images.shape[:1])
     central = prior is not None and not np.any(rc > 0)
     arguments = (jnp.asarray(images), jnp.asarray(rc), keys, traced_part(config), prior if central else None)
     settings = (world, static_part(config), views, edge_snap)

@@ -521,9 +521,10 @@ def test_averaged_views_follow_the_panorama_symmetries():
     for field, flipped, rolled in zip(averaged, mirrored, turned, strict=True):
         np.testing.assert_allclose(flipped[:, ::-1], field, atol=1e-5)
         np.testing.assert_allclose(rolled, jnp.roll(field, width // 2, axis=1), atol=1e-5)
-    # Against the network run on every view, mapped back: with rolls of a multiple of 32 columns (4 views) the
-    # backbone runs on the image and its mirror image only; with other rolls (6 views) on every view.
-    for views in (4, 6):
+    # Against the network run on every view, mapped back: with rolls of a multiple of 32 columns (4 and 8 views;
+    # 8 rolls by a quarter turn, which tells the two directions apart) the backbone runs on the image and its
+    # mirror image only; with other rolls (6 views) on every view.
+    for views in (4, 6, 8):
         shifts = [width * i // (views // 2) for i in range(views // 2)]
         expected = []
         for shift in shifts:

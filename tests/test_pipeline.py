@@ -1121,3 +1121,20 @@ def test_floor_rows_hidden_by_furniture_do_not_bias_the_layout():
         assert bool(layout.ok)
         errors[threshold] = metrics.evaluate_layout(layout, room)["ce"]
     assert errors[math.inf] > 3e-3 and errors[2.0] < 1e-4, errors  # measured: 8 mm and 1 um
+
+
+def test_panorama_keys_split_one_key_or_keep_one_per_panorama():
+    from ncjax.pipeline.run import panorama_keys
+
+    key = jax.random.key(7)
+    split = jax.random.key_data(jax.random.split(key, 6))
+    for key_in in (key, jax.random.PRNGKey(7)):  # typed or raw
+        np.testing.assert_array_equal(jax.random.key_data(panorama_keys(key_in, (2, 3))), split)
+    per_panorama = jax.random.split(jax.random.key(8), 6).reshape(2, 3)
+    for key_in in (per_panorama, jax.random.key_data(per_panorama)):
+        np.testing.assert_array_equal(
+            jax.random.key_data(panorama_keys(key_in, (2, 3))), jax.random.key_data(per_panorama.reshape(-1))
+        )
+    np.testing.assert_array_equal(jax.random.key_data(panorama_keys(key, ())), jax.random.key_data(key))
+    with pytest.raises(ValueError, match="one per panorama"):
+        panorama_keys(jax.random.split(key, 2), (3,))

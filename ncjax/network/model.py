@@ -462,7 +462,12 @@ class HorizonNet(nnx.Module):
         return self.sequence_head(self.column_features(images), dropout_key=dropout_key)
 
     def sequence_head(self, features: Float[Array, "B S F"], *, dropout_key: Array | None = None) -> BoundaryPrediction:
-        """The LSTM and the linear head on :meth:`column_features` (the part that reads the columns from an edge)."""
+        """The LSTM and the linear head on :meth:`column_features` (the part that reads the columns from an edge).
+
+        Args:
+            features: (B, S, F) column features, ``S = W / step_cols`` positions.
+            dropout_key: as in :meth:`__call__`.
+        """
         batch, positions, _ = features.shape
         out = self.head(self.lstm(features, dropout_key)).reshape(batch, positions, 3, self.config.step_cols)
         out = jnp.moveaxis(out, 2, 0).reshape(3, batch, positions * self.config.step_cols)
@@ -559,7 +564,7 @@ def predict_views(model: HorizonNet, images: Float[Array, "B H W 3"], views: int
     :data:`NETWORK_STRIDE` columns are its features rolled, so when every roll is
     such a multiple the backbone runs on the image and its mirror image only, and
     the LSTM and head on the rolled features of each view: the same outputs for
-    half the backbone's work.
+    two backbone passes per panorama instead of ``views``.
 
     Args:
         images: (B, H, W, 3) at the network's input size, values in [0, 1].
@@ -573,12 +578,12 @@ def predict_views(model: HorizonNet, images: Float[Array, "B H W 3"], views: int
     if all(shift % NETWORK_STRIDE == 0 for shift in shifts):
         # a mirrored rolled image is the mirror image rolled the other way
         plain, mirrored = jnp.split(model.column_features(jnp.concatenate([images, images[:, :, ::-1]])), 2)
-        step = width // plain.shape[1]
+        step = model.config.step_cols  # columns per LSTM position
         features = jnp.concatenate(
             [
                 view
                 for shift in shifts
-                for view in (jnp.roll(plain, shift // step, axis=1), jnp.roll(mirrored, -shift // step, axis=1))
+                for view in (jnp.roll(plain, shift // step, axis=1), jnp.roll(mirrored, -(shift // step), axis=1))
             ]
         )
         predicted = model.sequence_head(features)

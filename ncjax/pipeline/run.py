@@ -55,12 +55,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Key, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Key, PRNGKeyArray, UInt32
 
 from ..geometry.camera import NonCentralPanorama
 from .atlanta import atlanta_layout
@@ -163,7 +164,7 @@ def layout_from_boundaries(
     cam: NonCentralPanorama,
     world: str = DEFAULT_WORLD,
     config: PipelineConfig = PipelineConfig(),
-    key: PRNGKeyArray | Key[Array, "*batch"] | None = None,
+    key: PRNGKeyArray | Key[Array, "*batch"] | UInt32[Array, "*batch 2"] | None = None,
     prior: HeightPrior | None = None,
 ) -> Layout:
     """Metric room layout from the per-column network outputs (paper Section 4.4).
@@ -184,9 +185,9 @@ def layout_from_boundaries(
         world: static: "manhattan", "atlanta" or "auto" (the default, :data:`DEFAULT_WORLD`).
         config: :class:`PipelineConfig`; its thresholds (:data:`~ncjax.pipeline.config.TRACED_FIELDS`)
             are traced, the rest static.
-        key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``): one key, split over the batch,
-            or one key per panorama (the batch's shape): a panorama's RANSAC samples then do not depend on the
-            batch it is in.
+        key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``; typed or raw): one key, split
+            over the batch, or one key per panorama (the batch's shape): a panorama's RANSAC samples then do
+            not depend on the batch it is in.
         prior: a :class:`~ncjax.pipeline.prior.HeightPrior` (a scalar value or one per panorama): the scale
             comes from it instead of the rows' parallax (:func:`layout_from_prior`; needed for ``rc = 0``).
 
@@ -216,16 +217,31 @@ def layout_from_boundaries(
         )
     if prior is not None and jnp.shape(prior.value) not in ((), batch):
         raise ValueError(f"the prior's value must be a scalar or of the batch's shape {batch}")
-    key = jax.random.key(0) if key is None else key
+    keys = panorama_keys(jax.random.key(0) if key is None else key, batch)
+    if not batch:
+        return _layout_with_fallback(*arrays, cam, prior, keys, world, config)
+    flat = [x.reshape(-1, cam.width) for x in arrays]
+    cams, prior = jax.tree.map(lambda x: jnp.broadcast_to(x, batch).reshape(-1), (cam, prior))
+    layout = _layout_with_fallback(*flat, cams, prior, keys, world, config)
+    return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layout)
+
+
+def panorama_keys(key: Array, batch: tuple[int, ...]) -> Array:
+    """The RANSAC key of each panorama of ``batch``, flat: ``key`` split over the batch, or ``key`` itself
+    when it holds one key per panorama (the batch's shape); ``key`` unchanged when ``batch`` is ``()``.
+
+    Raw ``uint32`` keys (``jax.random.PRNGKey``, shape ``(..., 2)``) are wrapped first.
+
+    Raises:
+        ValueError: a key of another shape.
+    """
+    if not jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
+        key = jax.random.wrap_key_data(jnp.asarray(key, jnp.uint32))
     if jnp.shape(key) not in ((), batch):
         raise ValueError(f"key must be one PRNG key or one per panorama {batch}, got shape {jnp.shape(key)}")
     if not batch:
-        return _layout_with_fallback(*arrays, cam, prior, key, world, config)
-    flat = [x.reshape(-1, cam.width) for x in arrays]
-    cams, prior = jax.tree.map(lambda x: jnp.broadcast_to(x, batch).reshape(-1), (cam, prior))
-    keys = jax.random.split(key, flat[0].shape[0]) if jnp.shape(key) == () else jnp.reshape(key, (-1,))
-    layout = _layout_with_fallback(*flat, cams, prior, keys, world, config)
-    return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layout)
+        return key
+    return jax.random.split(key, math.prod(batch)) if jnp.shape(key) == () else jnp.reshape(key, (-1,))
 
 
 def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> Layout:
