@@ -96,13 +96,13 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
     """
     import jax
 
+    from ..pipeline.run import panorama_keys
     from ..reconstruction import reconstruct_batch
 
     batch_size = settings.batch_size
-    # Each image gets the RANSAC key that reconstruct gives one image alone, so its RANSAC samples do not
-    # depend on --batch or on the image's place in its batch.
-    image_key = jax.random.split(jax.random.key(0), 1)[0]
-    keys = jax.numpy.broadcast_to(image_key, (batch_size,))
+    # Each image gets the RANSAC key that reconstruct gives one image alone (the default key's for a batch
+    # of one), so its RANSAC samples do not depend on --batch or on the image's place in its batch.
+    keys = jax.numpy.broadcast_to(panorama_keys(jax.random.key(0), (1,)), (batch_size,))
     for start in range(0, len(items), batch_size):
         chunk = items[start : start + batch_size]
         padding = [chunk[-1]] * (batch_size - len(chunk))

@@ -124,7 +124,8 @@ class HorizonNetConfig:
             or self.input_width <= 0
         ):
             raise ValueError(
-                f"input size must be positive multiples of 32, got {self.input_height} x {self.input_width}"
+                f"input size must be positive multiples of {NETWORK_STRIDE}, "
+                f"got {self.input_height} x {self.input_width}"
             )
         if self.step_cols not in (1, 2, 4):
             raise ValueError(f"step_cols must be 1, 2 or 4 (so every stage is upsampled), got {self.step_cols}")

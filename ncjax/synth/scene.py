@@ -430,14 +430,15 @@ def _surface_materials(key, config: SceneConfig):
         ),
     )
     if config.neutral_paint_probability > 0.0:
-        w = jax.random.uniform(jax.random.fold_in(key, _NEUTRAL_PAINT_STREAM), (10,))
+        draw = jax.random.uniform(jax.random.fold_in(key, _NEUTRAL_PAINT_STREAM), (10,))
         neutral = _surface_material(
-            w[1:],
+            draw[1:],
             [(0.6, Pattern.PAINT), (0.4, Pattern.PLASTER)],
             lambda pattern, w: colour_in_hsv_box(w, (0.05, 0.15), (0.0, 0.12), (0.75, 0.97)),
             lambda pattern, a, w: a * between(w[0], 0.88, 0.97),
         )
-        walls = jax.tree.map(lambda a, b: jnp.where(w[0] < config.neutral_paint_probability, a, b), neutral, walls)
+        painted = draw[0] < config.neutral_paint_probability
+        walls = jax.tree.map(lambda a, b: jnp.where(painted, a, b), neutral, walls)
     if config.decor:
         plain = 1.0 - config.suspended_ceiling_probability - config.stipple_ceiling_probability
         ceiling_pool = [
