@@ -66,8 +66,8 @@ class TrainConfig:
         gradient_clip: maximum global gradient norm.
         backbone_learning_rate_scale: the backbone's learning rate relative to
             the rest of the network (its updates, weight decay included, are
-            scaled by it); 0 freezes the backbone's weights (its batch-norm
-            statistics still follow the data in train mode).
+            scaled by it); 0 freezes the backbone: its weights and its batch-norm
+            statistics (the backbone stays in eval mode while the rest trains).
         roll, flip: random horizontal roll / left-right flip (labels follow).
         photometric: a random camera's rendition of each image (``augment``).
         augment: ranges and probabilities of the photometric and camera effects.
@@ -216,6 +216,17 @@ def augment_batch(key: PRNGKeyArray, batch: dict[str, Array], train_config: Trai
 # ----------------------------------------------------------------------------- steps
 
 
+def set_train_mode(model: HorizonNet, train_config: TrainConfig) -> None:
+    """Train mode, except for a frozen backbone (learning-rate scale 0), which stays in eval mode.
+
+    Frozen, the pretrained features stay exactly those it was trained with: its batch-norm
+    statistics do not drift to the renders' colours and textures.
+    """
+    model.train()
+    if train_config.backbone_learning_rate_scale == 0:
+        model.backbone.eval()
+
+
 @functools.partial(nnx.jit, static_argnames=("train_config",))
 def train_step(
     model: HorizonNet, optimizer: nnx.Optimizer, batch: dict[str, Array], key: PRNGKeyArray, train_config: TrainConfig
@@ -321,7 +332,7 @@ def train(
 
     deadline = None if time_budget is None else time.monotonic() + time_budget
     model, optimizer, start = _restore_or_init(config, train_config, checkpoint_dir, seed, resume, initial_weights)
-    model.train()
+    set_train_mode(model, train_config)
     iterator = data(start) if callable(data) else data
     base_key = step_key_root(seed)
     history: list[dict[str, float]] = []
@@ -338,7 +349,7 @@ def train(
     def run_validation(step):
         model.eval()
         metrics = validate(model, step)
-        model.train()
+        set_train_mode(model, train_config)
         history.append({"step": step, **{f"val_{k}": float(v) for k, v in metrics.items()}})
         return metrics
 
