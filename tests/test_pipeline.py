@@ -24,6 +24,7 @@ from ncjax.geometry.reprojection import (
     column_directions,
     fit_plan_line,
     fit_plan_lines,
+    range_along,
     wall_boundary_rows,
 )
 from ncjax.pipeline.adjust import (
@@ -41,7 +42,7 @@ from ncjax.pipeline.adjust import (
 )
 from ncjax.pipeline.atlanta import atlanta_layout, corner_offsets
 from ncjax.pipeline.config import static_part, traced_part
-from ncjax.pipeline.corners import column_walls, find_corners, is_peak
+from ncjax.pipeline.corners import column_walls, find_corners, full_window_spread, is_peak, side_extrapolation
 from ncjax.pipeline.evidence import gather_evidence
 from ncjax.pipeline.floor_check import ceiling_consistent_floor
 from ncjax.pipeline.manhattan import _segment_directions, cyclic_binary_labels, manhattan_frame, manhattan_layout
@@ -872,9 +873,11 @@ def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
     cam = room.camera(WIDTH, HEIGHT)
     target, _, _ = _one_peak_for_the_narrowest_wall(label)
 
-    def layout(config):
+    def layout(config, row_noise=None):
         evidence = gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
         evidence = eqx.tree_at(lambda e: e.occluded, evidence, jnp.zeros_like(evidence.occluded))
+        if row_noise is not None:
+            evidence = eqx.tree_at(lambda e: e.row_noise, evidence, jnp.asarray(row_noise, evidence.row_noise.dtype))
         return atlanta_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
 
     count = int(np.sum(np.asarray(label.corner_mask)))
@@ -884,6 +887,29 @@ def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
     assert result["iou3d"] > 0.95, result
     missed = layout(ncjax.PipelineConfig(max_corner_offset=1e6))
     assert int(jnp.sum(missed.mask)) == count - 1 and int(jnp.sum(missed.inserted)) == 0
+    # rows as noisy as the walls' boundaries are apart at the peak: their far meeting may be the noise's
+    lost = layout(ncjax.PipelineConfig(), row_noise=1e3)
+    assert int(jnp.sum(lost.mask)) == count - 1 and int(jnp.sum(lost.inserted)) == 0
+
+
+@pytest.mark.parametrize("rc", [0.0, 0.8])
+def test_side_extrapolation_follows_a_near_walls_curved_boundary(rc):
+    """A wall 0.3 m beyond the camera's circle, seen 70 degrees off its normal: ``h / R`` extrapolated from the
+    8 columns 3 to 10 columns right of a corner gives its value at the corner column to 1e-5 (its boundary rows
+    curve there: a line through 8 of them misses the corner's row by 0.55 px when central)."""
+    cam = ncjax.NonCentralPanorama(rc=rc, width=1024, height=512)
+    direction = jnp.array([np.cos(1.6), np.sin(1.6)])
+    distance = -(rc + 0.3)
+    height = 1.2
+    corner = 300.4
+    radial = rc + range_along(cam, direction, distance, column_directions(cam, jnp.arange(1024.0)))
+    _, _, seen = wall_boundary_rows(cam, direction, distance, height, -height, jnp.arange(1024.0))
+    usable = seen & (radial > rc)
+    assert bool(usable[296:312].all())
+    value, ok, spread = side_extrapolation(height / radial, usable, jnp.asarray(corner), 1, 8, 2.0, 2 * np.pi / 1024)
+    truth = height / (rc + range_along(cam, direction, distance, column_directions(cam, jnp.asarray(corner))))
+    assert bool(ok) and abs(float(value) - float(truth)) < 1e-5 * float(truth)
+    assert float(spread) == pytest.approx(float(full_window_spread(8, 2.0)), rel=0.1)  # the corner is 0.4 off
 
 
 @pytest.mark.extended

@@ -9,7 +9,7 @@ from jaxtyping import Array, Bool, Float
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
 from ..geometry.polygon import previous_in_loop
-from ..geometry.reprojection import column_directions
+from ..geometry.reprojection import column_directions, wall_boundary_rows
 from ..solvers.layout import solve_atlanta_layout
 from .adjust import corner_column_offset
 from .assemble import assemble_layout
@@ -98,14 +98,26 @@ def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     parallel = jnp.abs(turn) < jnp.sin(jnp.radians(config.merge_angle))
     merge = evidence.same_plane & parallel & ~evidence.occluded & several_corners(evidence)
     insert = evidence.occluded
-    final, _, directions, distances, _, _ = _solve_atlanta_walls(
+    final, _, directions, distances, h_c, h_f = _solve_atlanta_walls(
         evidence, merge, insert, ceiling_v, floor_v, cam, config
     )
     # two observed walls that meet far from their corner's column (or are parallel) hold a wall between them
-    # whose two corners gave one peak: it is inserted in the corner ray's plane, as at an occlusion
-    both_observed = final.observed & final.observed[previous_in_loop(final.mask)]
+    # whose two corners gave one peak: it is inserted in the corner ray's plane, as at an occlusion. Noisy
+    # directions of walls that turn a little move their meeting far along them, but not their boundaries
+    # apart at the corner: there the two walls' rows must differ by more than the rows' noise
+    previous = previous_in_loop(final.mask)
+    both_observed = final.observed & final.observed[previous]
     offsets = corner_offsets(cam, directions, distances, final.mask, final.corner_columns)
-    stray = both_observed & (offsets > scaled(config.max_corner_offset, cam.width, 1024))
+    ceiling_here, floor_here, _ = wall_boundary_rows(cam, directions, distances, h_c, h_f, final.corner_columns)
+    ceiling_before, floor_before, _ = wall_boundary_rows(
+        cam, directions[previous], distances[previous], h_c, h_f, final.corner_columns
+    )
+    gap = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
+    stray = (
+        both_observed
+        & (offsets > scaled(config.max_corner_offset, cam.width, 1024))
+        & ~(gap <= config.occlusion_noise_factor * evidence.row_noise)
+    )
     capacity = insert.shape[0]
     insert = insert.at[jnp.where(stray, final.start_wall, capacity)].set(True, mode="drop")
     final, ok, directions, distances, h_c, h_f = _solve_atlanta_walls(

@@ -55,8 +55,9 @@ class PipelineConfig:
         inlier_threshold: row error of an inlier, pixels.
         occlusion_threshold: boundary jump at a corner that means an occlusion, pixels.
         occlusion_noise_factor: the jump must also exceed this many times the
-            boundary noise, estimated from the rows about their RANSAC walls
-            (0: the fixed threshold alone).
+            boundary noise, estimated from the rows about their RANSAC walls,
+            times how much less surely the two sides' rows extrapolate than two
+            full windows' (0: the fixed threshold alone).
         merge_fraction: consecutive walls each of which explains at least
             this fraction of the other's inlier pixels may be one wall.
         merge_angle: Atlanta: such walls are merged only if their directions
@@ -67,8 +68,11 @@ class PipelineConfig:
             this (columns) from their corner's column, or not at all, the
             corner's peak holds two corners (the network's lobes merge close
             ones) and a wall is inserted between them in the corner ray's
-            plane, as at an occlusion. Chosen on the tuning renders
-            (experiments/RESULTS.md): 24-128 did about alike.
+            plane, as at an occlusion, if their rows at that column are also
+            more than ``occlusion_noise_factor`` times the rows' noise apart
+            (noisy directions of walls that turn a little move their meeting
+            far away). Chosen on the tuning renders (experiments/RESULTS.md):
+            24-128 did about alike.
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             RANSAC wall from the Manhattan frame for the Manhattan branch to win
             a tie (:func:`choose_manhattan`).

@@ -119,35 +119,57 @@ def distance_to_corners(
 
 
 def side_extrapolation(
-    rows: Float[Array, " W"],
+    height_over_range: Float[Array, " W"],
     usable: Bool[Array, " W"],
     corner: Float[Array, ""],
     side: int,
     window: int,
     margin: Float[ArrayLike, ""],
-) -> tuple[Float[Array, ""], Bool[Array, ""]]:
-    """A boundary's row at a corner column, extrapolated by a line fitted on one side of it.
+    column_angle: Float[ArrayLike, ""],
+) -> tuple[Float[Array, ""], Bool[Array, ""], Float[Array, ""]]:
+    """A boundary's ``h / R`` at a corner column, extrapolated from the wall on one side of it.
+
+    A boundary at height ``h`` on a wall at plan distance ``d`` from the camera's
+    axis (normal at azimuth ``theta_n``) meets the half-plane of azimuth ``theta``
+    at radial distance ``R = d / cos(theta - theta_n)``: ``h / R`` is
+    ``a cos(delta) + b sin(delta)`` at ``delta`` radians from the corner, so
+    ``(h / R) / cos(delta)`` is a line in ``tan(delta)`` whose value at the corner
+    is ``a``. Unlike a line through the rows, it follows the curve of a near
+    wall's boundary.
 
     Args:
-        rows: per-column boundary rows.
+        height_over_range: per column, the boundary's ``h / R``.
         usable: columns that may be used (finite, on the right wall).
         corner: the corner's (sub-)column.
         side: static, -1 for the columns left of the corner, +1 for the right.
         window: static number of columns fitted.
         margin: columns skipped next to the corner.
+        column_angle: azimuth step between columns (radians).
 
     Returns:
-        ``(row, ok)``; ``ok`` is False with fewer than 3 usable columns.
+        ``(h / R, ok, spread)`` at the corner: ``ok`` is False with fewer than 3 usable
+        columns; ``spread`` is the extrapolation's standard deviation for rows of unit
+        noise, ``sqrt(1 / n + mean(x)**2 / sum((x - mean(x))**2))`` (a narrow wall's few
+        columns near the corner extrapolate far less surely than a full window).
     """
-    width = rows.shape[0]
-    offsets = side * (jnp.ceil(margin) + 1 + jnp.arange(window, dtype=rows.dtype))
+    width = height_over_range.shape[0]
+    offsets = side * (jnp.ceil(margin) + 1 + jnp.arange(window, dtype=height_over_range.dtype))
     columns = jnp.round(corner) + offsets
     index = (columns.astype(jnp.int32)) % width
-    weight = usable[index].astype(rows.dtype)
-    x = columns - corner
+    weight = usable[index].astype(height_over_range.dtype)
+    delta = column_angle * (columns - corner)
+    x, y = jnp.tan(delta), height_over_range[index] / jnp.cos(delta)
     count = jnp.sum(weight)
     mean_x = jnp.sum(weight * x) / jnp.maximum(count, 1)
-    mean_y = jnp.sum(weight * rows[index]) / jnp.maximum(count, 1)
+    mean_y = jnp.sum(weight * y) / jnp.maximum(count, 1)
     spread = jnp.sum(weight * (x - mean_x) ** 2)
-    slope = jnp.sum(weight * (x - mean_x) * (rows[index] - mean_y)) / jnp.where(spread > 0, spread, 1.0)
-    return mean_y - slope * mean_x, count >= 3
+    slope = jnp.sum(weight * (x - mean_x) * (y - mean_y)) / jnp.where(spread > 0, spread, 1.0)
+    spread_ok = (count >= 3) & (spread > 0)
+    uncertainty = jnp.sqrt(1 / jnp.maximum(count, 1) + mean_x**2 / jnp.where(spread_ok, spread, 1.0))
+    return mean_y - slope * mean_x, count >= 3, jnp.where(spread_ok, uncertainty, jnp.inf)
+
+
+def full_window_spread(window: int, margin: Float[ArrayLike, ""]) -> Float[Array, ""]:
+    """:func:`side_extrapolation`'s ``spread`` with every column of its window usable (small angles)."""
+    offsets = jnp.ceil(margin) + 1 + jnp.arange(window)
+    return jnp.sqrt(1 / window + jnp.mean(offsets) ** 2 / jnp.sum((offsets - jnp.mean(offsets)) ** 2))

@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from ..geometry.camera import NonCentralPanorama, pixel_to_ray
+from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles, pixel_to_ray
 from ..geometry.polygon import previous_in_loop
 from ..geometry.reprojection import column_directions, wall_boundary_rows
+from ..solvers.layout import solve_atlanta_layout
 from ..solvers.ransac import boundary_errors, ransac_wall, wall_columns
 from .adjust import boundary_weights
 from .config import PipelineConfig, min_noise, nms_radius, scaled
-from .corners import column_walls, distance_to_corners, find_corners, side_extrapolation
+from .corners import column_walls, distance_to_corners, find_corners, full_window_spread, side_extrapolation
 from .types import WallEvidence
 
 
@@ -87,22 +90,56 @@ def gather_evidence(
         total = jax.ops.segment_sum(jnp.stack([explained, inliers], -1).astype(jnp.int32), wall_of, capacity + 1)
         return total[:capacity, 0] / jnp.maximum(total[:capacity, 1], 1)
 
-    # the boundary jump at each corner, from lines fitted to the rows on either side
+    fitted = walls.ok & corner_mask
+    on_fitted = fitted[wall]
+    ceiling_trusted = ceiling_in | (usable & ~on_fitted)
+    floor_trusted = floor_in | (usable & ~on_fitted)
+    row_weights = boundary_weights(
+        ceiling_error, floor_error, ceiling_in & on_fitted, floor_in & on_fitted, min_noise(config, cam)
+    )
+    # one wall's rows fix its own metric scale poorly: the heights come from all the fitted walls at once
+    heights = solve_atlanta_layout(
+        ceiling_rays,
+        floor_rays,
+        jnp.where(ceiling_trusted & floor_trusted, column_wall, -1),
+        fitted,
+        walls.direction,
+        boundary_weights=row_weights,
+    )
+
+    # the boundary jump at each corner, from the walls' boundaries on either side extrapolated to it
     margin = scaled(config.corner_margin, width, 1024)
     window = max(3, round(scaled(8.0, width, 1024)))
+    column_angle = cam.fov_horizontal / width
 
-    def extrapolate(rows, wall, side):
+    def extrapolate(rows, height, wall, side):
+        """Rows of the walls ``wall`` at their corners ``corner_columns`` from the given side, and their spread.
+
+        A pixel's ray leaves the circle at ``rc`` and rises at elevation ``phi``: it
+        meets height ``h`` at radial distance ``R = rc + h / tan(phi)``, so
+        ``h / R = tan(phi) / (1 + (rc / h) tan(phi))``, which
+        :func:`~ncjax.pipeline.corners.side_extrapolation` extrapolates.
+        """
+        rc_over_height = jnp.where(heights.ok & (height != 0), cam.rc / height, 0.0)
         own = finite[None, :] & (column_wall[None, :] == wall[:, None])
-        return jax.vmap(side_extrapolation, in_axes=(None, 0, 0, None, None, None))(
-            rows, own, corner_columns, side, window, margin
+        tan_elevation = jnp.tan(pixel_to_angles(cam, columns, rows)[1])
+        at_corner, seen, spread = jax.vmap(side_extrapolation, in_axes=(None, 0, 0, None, None, None, None))(
+            tan_elevation / (1 + rc_over_height * tan_elevation),
+            own,
+            corner_columns,
+            side,
+            window,
+            margin,
+            column_angle,
         )
+        tan_at_corner = at_corner / jnp.maximum(1 - rc_over_height * at_corner, jnp.finfo(at_corner.dtype).tiny)
+        return angles_to_pixel(cam, 0.0, jnp.arctan(tan_at_corner))[1], seen, spread
 
-    ceiling_here, seen_here = extrapolate(ceiling_v, jnp.arange(capacity), 1)
-    floor_here, _ = extrapolate(floor_v, jnp.arange(capacity), 1)
-    ceiling_before, seen_before = extrapolate(ceiling_v, previous, -1)
-    floor_before, _ = extrapolate(floor_v, previous, -1)
+    ceiling_here, seen_here, spread_here = extrapolate(ceiling_v, heights.ceiling_height, jnp.arange(capacity), 1)
+    floor_here, _, _ = extrapolate(floor_v, heights.floor_height, jnp.arange(capacity), 1)
+    ceiling_before, seen_before, spread_before = extrapolate(ceiling_v, heights.ceiling_height, previous, -1)
+    floor_before, _, _ = extrapolate(floor_v, heights.floor_height, previous, -1)
     jump = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
-    fitted = walls.ok & corner_mask
     both_fitted = fitted & fitted[previous]
 
     def reprojected_rows(index):
@@ -111,8 +148,8 @@ def gather_evidence(
             cam, wall_.direction, wall_.distance, wall_.ceiling_height, wall_.floor_height, corner_columns
         )
 
-    # two fitted walls that meet at the corner reproject to one point there; a
-    # line through the rows beside the corner misses it on a steep, curved boundary
+    # two fitted walls that meet at the corner reproject to one point there, which
+    # the extrapolations of their few noisy rows near the corner may miss
     ceiling_a, floor_a, seen_a = reprojected_rows(jnp.arange(capacity))
     ceiling_b, floor_b, seen_b = reprojected_rows(previous)
     wall_jump = jnp.maximum(jnp.abs(ceiling_a - ceiling_b), jnp.abs(floor_a - floor_b))
@@ -122,18 +159,19 @@ def gather_evidence(
         explained_fraction(following)[previous] >= config.merge_fraction
     )
     # noisy rows make the jump noisy too: it must also stand out of the noise, whose scale is
-    # robustly 1.4826 x the median row error of the usable columns about their RANSAC walls
+    # robustly 1.4826 x the median row error of the usable columns about their RANSAC walls,
+    # as much more as the two extrapolations spread more than those of two full windows
     residuals = jnp.concatenate([ceiling_error, floor_error])
     residuals = jnp.where(jnp.tile(usable, 2) & jnp.isfinite(residuals), residuals, jnp.nan)
     noise = 1.4826 * jnp.nanmedian(residuals)
     noise = jnp.where(jnp.isfinite(noise), noise, 0.0)
-    jump_threshold = jnp.maximum(config.occlusion_threshold * pixels, config.occlusion_noise_factor * noise)
+    full_window = full_window_spread(window, margin)
+    relative_spread = jnp.maximum(jnp.hypot(spread_here, spread_before) / (math.sqrt(2) * full_window), 1.0)
+    jump_threshold = jnp.maximum(
+        config.occlusion_threshold * pixels, config.occlusion_noise_factor * noise * relative_spread
+    )
     occluded = corner_mask & seen_here & seen_before & (jump > jump_threshold)
     previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
-    on_fitted = fitted[wall]
-    row_weights = boundary_weights(
-        ceiling_error, floor_error, ceiling_in & on_fitted, floor_in & on_fitted, min_noise(config, cam)
-    )
     return WallEvidence(
         ceiling_rays=ceiling_rays,
         floor_rays=floor_rays,
@@ -144,8 +182,8 @@ def gather_evidence(
         column_wall=column_wall,
         walls=walls,
         usable=usable,
-        ceiling_trusted=ceiling_in | (usable & ~on_fitted),
-        floor_trusted=floor_in | (usable & ~on_fitted),
+        ceiling_trusted=ceiling_trusted,
+        floor_trusted=floor_trusted,
         floor_measured=jnp.ones_like(usable),
         weights=weights.astype(ceiling_v.dtype),
         row_weights=row_weights,
@@ -154,6 +192,8 @@ def gather_evidence(
         same_plane=both_fitted & same_plane,
         occluded=occluded,
         previous_nearer=previous_nearer,
+        heights=heights,
+        row_noise=noise,
     )
 
 

@@ -115,14 +115,7 @@ def _segment_directions(
     through its boundary points at the ceiling and floor heights of the fitted
     walls' joint solve, whose rows fix the heights well, with its trusted rows as support.
     """
-    heights = solve_atlanta_layout(
-        evidence.ceiling_rays,
-        evidence.floor_rays,
-        solver_columns(evidence, evidence.column_wall),
-        evidence.fitted,
-        evidence.walls.direction,
-        boundary_weights=evidence.row_weights,
-    )
+    heights = evidence.heights
     plan = plan_lines(
         cam, evidence, evidence.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height
     )

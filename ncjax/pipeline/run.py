@@ -13,13 +13,15 @@
    between consecutive corners are one wall.
 2. Per-wall RANSAC with the single-wall solver (:mod:`ncjax.solvers.ransac`).
 3. At each corner, the boundaries of the two walls are compared at the
-   corner column (lines through the rows on either side, and the two RANSAC
-   walls' reprojections; the smaller difference counts): a jump of more than
-   ``occlusion_threshold`` pixels, and more than ``occlusion_noise_factor``
-   times the rows' noise about their walls, means an occlusion (the paper tests the
-   same in 3D for Atlanta rooms; in pixels the test does not depend on the
-   single walls' noisy scale). Consecutive walls each of which explains the
-   other's pixels may be one wall split by a spurious corner.
+   corner column (each side's rows extrapolated as a straight wall's, at the
+   fitted walls' joint heights, and the two RANSAC walls' reprojections; the
+   smaller difference counts): a jump of more than ``occlusion_threshold``
+   pixels, and more than ``occlusion_noise_factor`` times the rows' noise about
+   their walls (more where a narrow wall's few rows extrapolate less surely),
+   means an occlusion (the paper tests the same in 3D for Atlanta rooms; in
+   pixels the test does not depend on the single walls' noisy scale).
+   Consecutive walls each of which explains the other's pixels may be one wall
+   split by a spurious corner.
 4. Manhattan branch: each wall labelled ``u`` / ``u_perp`` (any yaw) from its
    direction (RANSAC's; for a wall RANSAC could not fit, its plan line at the
    heights of the fitted walls' joint solve) and the corner types together (a
@@ -31,8 +33,9 @@
    directions also agree within ``merge_angle``, a wall in the vertical
    plane of the corner ray at each occlusion, the Atlanta layout solver;
    then also such a wall at each corner whose two walls meet more than
-   ``max_corner_offset`` columns from it (not in the paper: a narrow wall
-   whose two corners gave one peak), and the solver again.
+   ``max_corner_offset`` columns from it and whose rows there are more than
+   ``occlusion_noise_factor`` times the rows' noise apart (not in the paper: a
+   narrow wall whose two corners gave one peak), and the solver again.
    Both branches' solvers weight the ceiling and floor rows by each
    boundary's noise about the RANSAC walls (not in the paper: a network's
    floor rows are several times noisier than its ceiling rows).

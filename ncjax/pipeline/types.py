@@ -9,6 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ..solvers.layout import WallLayout
 from ..solvers.wall import Wall
 
 
@@ -168,6 +169,9 @@ class WallEvidence(eqx.Module):
     threshold, so a boundary much noisier than half of it reads as less noisy than it is).
     ``floor_measured``: the floor row is the input's, not one that step 0 put where the ceiling row says
     (those help the walls' fits, but the final adjustment and its covariance use measured rows only).
+    ``heights``: the fitted walls' joint solve (:func:`ncjax.solvers.layout.solve_atlanta_layout` on their
+    RANSAC directions), for its ceiling and floor heights. ``row_noise``: the rows' noise about the
+    RANSAC walls (pixels; 1.4826 x their median absolute error).
     """
 
     ceiling_rays: Float[Array, "W 6"]
@@ -189,6 +193,8 @@ class WallEvidence(eqx.Module):
     same_plane: Bool[Array, " K"]
     occluded: Bool[Array, " K"]
     previous_nearer: Bool[Array, " K"]
+    heights: WallLayout
+    row_noise: Float[Array, ""]
 
 
 class FinalWalls(eqx.Module):
