@@ -972,6 +972,8 @@ def test_bad_arguments_raise():
         ncjax.PipelineConfig(adjustment_stride=0)
     with pytest.raises(ValueError, match="occlusion_noise_factor"):
         ncjax.PipelineConfig(occlusion_noise_factor=-1.0)
+    with pytest.raises(ValueError, match="stray_noise_factor"):
+        ncjax.PipelineConfig(stray_noise_factor=-1.0)
     with pytest.raises(ValueError, match="max_height_uncertainty must be > 0"):
         ncjax.PipelineConfig(max_height_uncertainty=0.0)
     with pytest.raises(ValueError, match="needs covariance"):

@@ -116,7 +116,7 @@ def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     stray = (
         both_observed
         & (offsets > scaled(config.max_corner_offset, cam.width, 1024))
-        & ~(gap <= config.occlusion_noise_factor * evidence.row_noise)
+        & ~(gap <= config.stray_noise_factor * evidence.row_noise)
     )
     capacity = insert.shape[0]
     insert = insert.at[jnp.where(stray, final.start_wall, capacity)].set(True, mode="drop")

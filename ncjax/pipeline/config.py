@@ -69,10 +69,15 @@ class PipelineConfig:
             corner's peak holds two corners (the network's lobes merge close
             ones) and a wall is inserted between them in the corner ray's
             plane, as at an occlusion, if their rows at that column are also
-            more than ``occlusion_noise_factor`` times the rows' noise apart
-            (noisy directions of walls that turn a little move their meeting
-            far away). Chosen on the tuning renders (experiments/RESULTS.md):
-            24-128 did about alike.
+            more than ``stray_noise_factor`` times the rows' noise apart.
+            Chosen on the tuning renders (experiments/RESULTS.md): 24-128 did
+            about alike.
+        stray_noise_factor: noisy directions of two walls that turn a little
+            move their meeting far along them, but not their rows at the corner
+            apart: see ``max_corner_offset`` (0: the offset alone). Chosen on
+            exact rows plus 0-2 px of noise of other rooms than
+            ``experiments/pipeline_table.py``'s and ``central_table.py``'s
+            (0, 2, 3, 5 tried: 2 failed fewest).
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             RANSAC wall from the Manhattan frame for the Manhattan branch to win
             a tie (:func:`choose_manhattan`).
@@ -167,6 +172,7 @@ class PipelineConfig:
     merge_fraction: float = 0.8
     merge_angle: float = 5.0
     max_corner_offset: float = 32.0
+    stray_noise_factor: float = 2.0
     manhattan_tolerance: float = 5.0
     turn_weight: float = 0.02
     corner_weight: float = 1.0
@@ -218,7 +224,13 @@ class PipelineConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if math.isfinite(self.max_height_uncertainty) and not self.covariance:
             raise ValueError("max_height_uncertainty needs covariance=True (it tests the height's covariance)")
-        for name in ("occlusion_noise_factor", "wall_offset_ratio", "wall_offset_noise", "corner_column_noise"):
+        for name in (
+            "occlusion_noise_factor",
+            "stray_noise_factor",
+            "wall_offset_ratio",
+            "wall_offset_noise",
+            "corner_column_noise",
+        ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("adjustment_stride", "inlier_pass_stride"):
@@ -267,6 +279,7 @@ TRACED_FIELDS = (
     "merge_fraction",
     "merge_angle",
     "max_corner_offset",
+    "stray_noise_factor",
     "manhattan_tolerance",
     "turn_weight",
     "corner_weight",

@@ -34,7 +34,7 @@
    plane of the corner ray at each occlusion, the Atlanta layout solver;
    then also such a wall at each corner whose two walls meet more than
    ``max_corner_offset`` columns from it and whose rows there are more than
-   ``occlusion_noise_factor`` times the rows' noise apart (not in the paper: a
+   ``stray_noise_factor`` times the rows' noise apart (not in the paper: a
    narrow wall whose two corners gave one peak), and the solver again.
    Both branches' solvers weight the ceiling and floor rows by each
    boundary's noise about the RANSAC walls (not in the paper: a network's
