@@ -9,7 +9,7 @@ from jaxtyping import Array, Bool, Float
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
 from ..geometry.polygon import previous_in_loop
-from ..geometry.reprojection import column_directions, wall_boundary_rows
+from ..geometry.reprojection import column_directions
 from ..solvers.layout import solve_atlanta_layout
 from .adjust import corner_column_offset
 from .assemble import assemble_layout
@@ -17,7 +17,15 @@ from .config import scaled
 from .evidence import previous_of, solver_columns
 from .refine import refine
 from .types import FinalWalls, Layout
-from .walls import final_walls, group_directions, plan_lines, point_on_wall, several_corners, signed_distance
+from .walls import (
+    boundary_gap,
+    final_walls,
+    group_directions,
+    plan_lines,
+    point_on_wall,
+    several_corners,
+    signed_distance,
+)
 
 
 def _place_atlanta_walls(
@@ -108,11 +116,12 @@ def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     previous = previous_in_loop(final.mask)
     both_observed = final.observed & final.observed[previous]
     offsets = corner_offsets(cam, directions, distances, final.mask, final.corner_columns)
-    ceiling_here, floor_here, _ = wall_boundary_rows(cam, directions, distances, h_c, h_f, final.corner_columns)
-    ceiling_before, floor_before, _ = wall_boundary_rows(
-        cam, directions[previous], distances[previous], h_c, h_f, final.corner_columns
+    gap, _ = boundary_gap(
+        cam,
+        (directions, distances, h_c, h_f),
+        (directions[previous], distances[previous], h_c, h_f),
+        final.corner_columns,
     )
-    gap = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
     stray = (
         both_observed
         & (offsets > scaled(config.max_corner_offset, cam.width, 1024))

@@ -153,7 +153,7 @@ def side_extrapolation(
         columns near the corner extrapolate far less surely than a full window).
     """
     width = height_over_range.shape[0]
-    offsets = side * (jnp.ceil(margin) + 1 + jnp.arange(window, dtype=height_over_range.dtype))
+    offsets = side * window_offsets(window, margin).astype(height_over_range.dtype)
     columns = jnp.round(corner) + offsets
     index = (columns.astype(jnp.int32)) % width
     weight = usable[index].astype(height_over_range.dtype)
@@ -164,12 +164,23 @@ def side_extrapolation(
     mean_y = jnp.sum(weight * y) / jnp.maximum(count, 1)
     spread = jnp.sum(weight * (x - mean_x) ** 2)
     slope = jnp.sum(weight * (x - mean_x) * (y - mean_y)) / jnp.where(spread > 0, spread, 1.0)
-    spread_ok = (count >= 3) & (spread > 0)
-    uncertainty = jnp.sqrt(1 / jnp.maximum(count, 1) + mean_x**2 / jnp.where(spread_ok, spread, 1.0))
-    return mean_y - slope * mean_x, count >= 3, jnp.where(spread_ok, uncertainty, jnp.inf)
+    return mean_y - slope * mean_x, count >= 3, _intercept_spread(count, mean_x, spread)
+
+
+def window_offsets(window: int, margin: Float[ArrayLike, ""]) -> Float[Array, " window"]:
+    """Distances (columns) from a corner of the columns :func:`side_extrapolation` fits on one side."""
+    return jnp.ceil(margin) + 1 + jnp.arange(window)
+
+
+def _intercept_spread(count, mean_x, spread) -> Float[Array, ""]:
+    """A fitted line's value at ``x = 0`` has ``sqrt(1 / n + mean(x)**2 / sum((x - mean(x))**2))`` times
+    the noise of its points as standard deviation (inf when the line is not fixed)."""
+    fixed = (count >= 3) & (spread > 0)
+    uncertainty = jnp.sqrt(1 / jnp.maximum(count, 1) + mean_x**2 / jnp.where(fixed, spread, 1.0))
+    return jnp.where(fixed, uncertainty, jnp.inf)
 
 
 def full_window_spread(window: int, margin: Float[ArrayLike, ""]) -> Float[Array, ""]:
     """:func:`side_extrapolation`'s ``spread`` with every column of its window usable (small angles)."""
-    offsets = jnp.ceil(margin) + 1 + jnp.arange(window)
-    return jnp.sqrt(1 / window + jnp.mean(offsets) ** 2 / jnp.sum((offsets - jnp.mean(offsets)) ** 2))
+    offsets = window_offsets(window, margin)
+    return _intercept_spread(window, jnp.mean(offsets), jnp.sum((offsets - jnp.mean(offsets)) ** 2))

@@ -10,13 +10,14 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles, pixel_to_ray
 from ..geometry.polygon import previous_in_loop
-from ..geometry.reprojection import column_directions, wall_boundary_rows
+from ..geometry.reprojection import column_directions
 from ..solvers.layout import solve_atlanta_layout
 from ..solvers.ransac import boundary_errors, ransac_wall, wall_columns
 from .adjust import boundary_weights
 from .config import PipelineConfig, min_noise, nms_radius, scaled
 from .corners import column_walls, distance_to_corners, find_corners, full_window_spread, side_extrapolation
 from .types import WallEvidence
+from .walls import boundary_gap
 
 
 def gather_evidence(
@@ -142,18 +143,15 @@ def gather_evidence(
     jump = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
     both_fitted = fitted & fitted[previous]
 
-    def reprojected_rows(index):
-        wall_ = jax.tree.map(lambda x: x[index], walls)
-        return wall_boundary_rows(
-            cam, wall_.direction, wall_.distance, wall_.ceiling_height, wall_.floor_height, corner_columns
-        )
+    def ransac_wall_at(index):
+        return walls.direction[index], walls.distance[index], walls.ceiling_height[index], walls.floor_height[index]
 
     # two fitted walls that meet at the corner reproject to one point there, which
     # the extrapolations of their few noisy rows near the corner may miss
-    ceiling_a, floor_a, seen_a = reprojected_rows(jnp.arange(capacity))
-    ceiling_b, floor_b, seen_b = reprojected_rows(previous)
-    wall_jump = jnp.maximum(jnp.abs(ceiling_a - ceiling_b), jnp.abs(floor_a - floor_b))
-    jump = jnp.where(both_fitted & seen_a & seen_b, jnp.minimum(jump, wall_jump), jump)
+    wall_jump, both_seen = boundary_gap(
+        cam, ransac_wall_at(jnp.arange(capacity)), ransac_wall_at(previous), corner_columns
+    )
+    jump = jnp.where(both_fitted & both_seen, jnp.minimum(jump, wall_jump), jump)
     # each of walls j - 1 and j explains most inliers of the other
     same_plane = (explained_fraction(previous) >= config.merge_fraction) & (
         explained_fraction(following)[previous] >= config.merge_fraction

@@ -8,7 +8,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
-from ..geometry.reprojection import boundary_points, column_directions, fit_plan_lines, range_along
+from ..geometry.reprojection import boundary_points, column_directions, fit_plan_lines, range_along, wall_boundary_rows
 from .types import FinalWalls, WallEvidence
 
 
@@ -105,6 +105,20 @@ def point_on_wall(
     t = range_along(cam, direction, distance, along)
     t = jnp.where(jnp.isfinite(t), t, 0.0)
     return (cam.rc + t)[:, None] * along
+
+
+def boundary_gap(
+    cam: NonCentralPanorama, first: tuple, second: tuple, column: Float[Array, " K"]
+) -> tuple[Float[Array, " K"], Bool[Array, " K"]]:
+    """How far apart two walls' boundaries cross ``column`` (pixels: the larger of the ceiling and floor rows'
+    differences), and whether both walls are seen there.
+
+    ``first`` and ``second`` are ``(direction, distance, ceiling_height, floor_height)`` of
+    :func:`~ncjax.geometry.reprojection.wall_boundary_rows`.
+    """
+    ceiling_a, floor_a, seen_a = wall_boundary_rows(cam, *first, column)
+    ceiling_b, floor_b, seen_b = wall_boundary_rows(cam, *second, column)
+    return jnp.maximum(jnp.abs(ceiling_a - ceiling_b), jnp.abs(floor_a - floor_b)), seen_a & seen_b
 
 
 def signed_distance(direction: Float[Array, "K 2"], point: Float[Array, "K 2"]) -> Float[Array, " K"]:
