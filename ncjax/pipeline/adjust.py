@@ -21,7 +21,7 @@ twice as fast here (its Newton and Cauchy steps are computed once per accepted p
 Levenberg-Marquardt solves again for every damping). Its Newton step solves the normal
 equations by Cholesky with :class:`ncjax.pipeline.sparse_normal.SparseNormalCholesky`: every
 residual depends on at most four parameters (:func:`jacobian_structure`), so the
-Jacobian is probed with 6 (Manhattan) or 8 (Atlanta) forward passes instead of one per
+Jacobian is probed with 8 forward passes instead of one per
 parameter, and ``J^T J`` is summed per wall instead of multiplied out (the same steps;
 4.5 times less time for the Atlanta adjustment, experiments/RESULTS.md). Each column's
 residuals carry a JVP through their local Jacobian (:func:`_local_jacobian_jvp`).
@@ -29,7 +29,8 @@ The residuals are evaluated per column (:func:`boundary_residuals`) and per
 corner (:func:`corner_residual`) from the wall angles: each wall's direction is
 computed once per evaluation, each column's once per solve. Gauge: none while
 ``rc > 0`` (scale is observable, the heights and distances are absolute); the
-Manhattan parametrisation has one yaw for all walls, the Atlanta one an angle per wall.
+Manhattan parametrisation has one yaw for all walls, the Atlanta one an angle per wall (both in one
+pytree, :class:`LayoutProblem`).
 """
 
 from __future__ import annotations
@@ -305,16 +306,18 @@ def manhattan_yaw(
 class LayoutProblem(eqx.Module):
     """The adjustment's parametrisation of a layout (internal).
 
-    ``y = (angles, distances, (h_c, h_f))`` with one angle per wall (Atlanta,
-    ``labels`` None) or one yaw for all (Manhattan: wall ``k`` at
-    ``yaw + labels[k] pi / 2``). ``start`` is the parameter point of the
-    walls it was built from. All fields traced.
+    ``y = (angles, distances, (h_c, h_f))`` with ``K`` angle slots: wall ``k`` is at
+    ``angles[angle_index[k]] + offsets[k]``, its own angle (Atlanta) or the one yaw of all walls plus its
+    label's quarter turns (Manhattan: every wall at slot 0). The Manhattan and Atlanta problems of one
+    capacity are one pytree, so the two branches' adjustments can run as one batch. ``start`` is the
+    parameter point of the walls it was built from; ``angle_used`` marks the slots some wall is at (the
+    others are pinned to the start). All fields traced.
     """
 
     start: tuple[Array, Array, Array]
     offsets: Float[Array, " K"]
     angle_index: Int[Array, " K"]
-    free_angles: bool = eqx.field(static=True)
+    angle_used: Bool[Array, " K"]
 
     def walls(self, y) -> tuple[Float[Array, "K 2"], Float[Array, " K"], Float[Array, ""], Float[Array, ""]]:
         """``(directions, distances, h_c, h_f)`` at the parameters ``y``."""
@@ -322,23 +325,28 @@ class LayoutProblem(eqx.Module):
         return jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1), y[1], y[2][0], y[2][1]
 
 
+# the label of a wall with its own angle (an Atlanta layout's labels)
+FREE_ANGLE = -1
+
+
 def layout_problem(directions, distances, ceiling_height, floor_height, labels, wall_mask) -> LayoutProblem:
-    """The parametrisation of :func:`adjust_layout` at the given walls."""
+    """The parametrisation of :func:`adjust_layout` at the given walls (``labels`` None or all
+    :data:`FREE_ANGLE`: an angle per wall)."""
     capacity = distances.shape[0]
     dtype = distances.dtype
     if labels is None:
-        angles = jnp.arctan2(directions[:, 1], directions[:, 0])
-        offsets = jnp.zeros(capacity, dtype)
-        angle_index = jnp.arange(capacity)
-    else:
-        yaw = manhattan_yaw(directions, labels, wall_mask)
-        aligned = jnp.sign(jnp.sum(manhattan_directions(yaw, labels) * directions, -1))
-        distances = distances * jnp.where(aligned == 0, 1.0, aligned)
-        angles = yaw[None]
-        offsets = labels.astype(dtype) * (math.pi / 2)
-        angle_index = jnp.zeros(capacity, jnp.int32)
+        labels = jnp.full(capacity, FREE_ANGLE)
+    manhattan = jnp.all(labels != FREE_ANGLE)
+    quarter_turns = jnp.where(manhattan, labels, 0)
+    yaw = manhattan_yaw(directions, quarter_turns, wall_mask)
+    aligned = jnp.sign(jnp.sum(manhattan_directions(yaw, quarter_turns) * directions, -1))
+    distances = distances * jnp.where(manhattan & (aligned != 0), aligned, 1.0)
+    angles = jnp.where(manhattan, yaw, jnp.arctan2(directions[:, 1], directions[:, 0]))
+    offsets = quarter_turns.astype(dtype) * (math.pi / 2)
+    angle_index = jnp.where(manhattan, 0, jnp.arange(capacity))
+    angle_used = jax.ops.segment_sum(wall_mask.astype(jnp.int32), angle_index, capacity) > 0
     start = (angles, distances, jnp.stack([ceiling_height, floor_height]).astype(dtype))
-    return LayoutProblem(start, offsets, angle_index, labels is None)
+    return LayoutProblem(start, offsets, angle_index, angle_used)
 
 
 def problem_residuals(
@@ -366,10 +374,10 @@ def problem_residuals(
         observed_directions,
     )
     rows = rows * observations.row_weights
-    absent = ~observations.wall_mask
-    pins = [jnp.where(absent, distances - problem.start[1], 0.0)]
-    if problem.free_angles:
-        pins.append(jnp.where(absent, wall_angles - problem.start[0], 0.0))
+    pins = [
+        jnp.where(observations.wall_mask, 0.0, distances - problem.start[1]),
+        jnp.where(problem.angle_used, 0.0, wall_angles - problem.start[0]),
+    ]
     return jnp.concatenate([_fitted_residuals(rows, corners, observations, corner_weight), *pins])
 
 
@@ -377,34 +385,33 @@ def jacobian_structure(problem: LayoutProblem, observations: BoundaryObservation
     """Which flat parameters ``(angles, distances, h_c, h_f)`` each of :func:`problem_residuals` depends on.
 
     Groups: the rows of wall ``k`` (its angle and distance, both heights), corner
-    ``k`` (walls ``k - 1`` and ``k``), the pins, and one group without parameters
+    ``k`` (walls ``k - 1`` and ``k``), the distance and angle pins, and one group without parameters
     for the columns of no wall. Colours: the heights one each; the distances, and
     the angles, a proper colouring of the wall cycle (two colours, a third for
     the last wall of an odd count), so that no corner sees two walls of one colour.
     """
     capacity = observations.wall_mask.shape[0]
-    num_angles = capacity if problem.free_angles else 1
     walls = jnp.arange(capacity)
-    angle, distance = problem.angle_index, num_angles + walls
-    ceiling, floor = jnp.full(capacity, num_angles + capacity), jnp.full(capacity, num_angles + capacity + 1)
+    angle, distance = problem.angle_index, capacity + walls
+    ceiling, floor = jnp.full(capacity, 2 * capacity), jnp.full(capacity, 2 * capacity + 1)
     previous = previous_in_loop(observations.wall_mask)
     empty = jnp.full(capacity, -1)
     groups = [
         jnp.stack([angle, distance, ceiling, floor], -1),
         jnp.stack([angle[previous], distance[previous], angle, distance], -1),
         jnp.stack([distance, empty, empty, empty], -1),
+        jnp.stack([walls, empty, empty, empty], -1),
     ]
-    if problem.free_angles:
-        groups.append(jnp.stack([angle, empty, empty, empty], -1))
     no_wall = len(groups) * capacity
     group_parameters = distinct_slots(jnp.concatenate([*groups, jnp.full((1, 4), -1)]))
     column_group = jnp.where(observations.column_wall >= 0, observations.column_wall, no_wall)
     row_group = jnp.concatenate([column_group, column_group, *(walls + i * capacity for i in range(1, len(groups)))])
     count = jnp.sum(observations.wall_mask)
     cycle = jnp.where((walls == count - 1) & (count % 2 == 1), 2, walls % 2)
-    angle_colours = 5 + cycle if problem.free_angles else jnp.array([5])
-    colours = jnp.concatenate([angle_colours, 2 + cycle, jnp.array([0, 1])])
-    return JacobianStructure(row_group, group_parameters, colours, 8 if problem.free_angles else 6)
+    # a Manhattan layout's one yaw (slot 0, colour 5) is alone in its colour in every group: the other
+    # slots of colour 5 are only pinned
+    colours = jnp.concatenate([5 + cycle, 2 + cycle, jnp.array([0, 1])])
+    return JacobianStructure(row_group, group_parameters, colours, 8)
 
 
 def layout_least_squares(
@@ -460,7 +467,7 @@ def adjust_layout(
         ceiling_height: initial ``h_c``.
         floor_height: initial ``h_f``.
         labels: Manhattan labels (0: ``u``, 1: ``u_perp``) to keep the walls
-            exactly Manhattan with one yaw; None (static) for free directions (Atlanta).
+            exactly Manhattan with one yaw; None or all :data:`FREE_ANGLE` for free directions (Atlanta).
         corner_weight: weight of the corner-plane penalty (may be traced).
         steps: static iteration cap.
         tolerance: static relative and absolute tolerance (optimistix's Cauchy

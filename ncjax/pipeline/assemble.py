@@ -1,4 +1,5 @@
-"""Step 6: corners where consecutive walls meet, Plücker lines and the status."""
+"""Steps 5-6: the final adjustment (:mod:`ncjax.pipeline.refine`), then corners where consecutive walls meet,
+Plücker lines and the status."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ from ..geometry.plucker import horizontal_wall_line
 from ..solvers.wall import canonical_orientation
 from .adjust import loop_corners
 from .config import PipelineConfig
-from .types import FinalWalls, Layout, LayoutStatus, WallEvidence
+from .refine import refine
+from .types import BranchWalls, FinalWalls, Layout, LayoutStatus, WallEvidence
 from .uncertainty import LayoutUncertainty, room_height_sigma
 
 
@@ -25,7 +27,7 @@ def assemble_layout(
     explained_fraction: Float[Array, ""],
     uncertainty: LayoutUncertainty,
     solver_ok: Bool[Array, ""],
-    manhattan: bool,
+    manhattan: Bool[Array, ""],
     config: PipelineConfig,
 ) -> Layout:
     """Step 6: corners where consecutive walls meet, Plücker lines and the status."""
@@ -43,7 +45,7 @@ def assemble_layout(
             jnp.mean(evidence.finite) < config.min_finite_fraction,
             ~jnp.any(evidence.corner_mask),
             evidence.corner_overflow | final.overflow,
-            jnp.sum(mask) < (4 if manhattan else 3),
+            jnp.sum(mask) < jnp.where(manhattan, 4, 3),
             jnp.sum(final.observed) < 2,
             ~solver_ok,
             ~(jnp.all(meet) & finite & (ceiling_height > 0) & (floor_height < 0) & plausible),
@@ -71,7 +73,7 @@ def assemble_layout(
         floor_lines=horizontal_wall_line(directions, distances, floor_height) * mask[:, None],
         inserted=final.inserted,
         corner_columns=jnp.where(mask, final.corner_columns, 0.0),
-        manhattan=jnp.array(manhattan),
+        manhattan=jnp.asarray(manhattan),
         explained_fraction=explained_fraction,
         corner_covariance=jnp.where(
             mask[:, None, None], _undetermined_as_infinite(uncertainty.corner_covariance, config), 0.0
@@ -79,6 +81,34 @@ def assemble_layout(
         height_covariance=_undetermined_as_infinite(uncertainty.height_covariance, config),
         status=status,
         ok=status == LayoutStatus.OK,
+    )
+
+
+def finish_layout(
+    cam: NonCentralPanorama,
+    evidence: WallEvidence,
+    walls: BranchWalls,
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    config: PipelineConfig,
+) -> Layout:
+    """Steps 5-6 of a branch's walls: the final adjustment and its uncertainty, then :func:`assemble_layout`."""
+    final = walls.final
+    adjusted, explained, uncertainty = refine(
+        cam,
+        evidence,
+        final,
+        ceiling_v,
+        floor_v,
+        walls.directions,
+        walls.distances,
+        walls.ceiling_height,
+        walls.floor_height,
+        walls.labels,
+        config,
+    )
+    return assemble_layout(
+        cam, evidence, final, *adjusted[:4], explained, uncertainty, walls.solver_ok, walls.manhattan, config
     )
 
 

@@ -10,21 +10,19 @@ from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
 from ..geometry.polygon import previous_in_loop
 from ..geometry.reprojection import column_directions
-from ..solvers.layout import solve_atlanta_layout
-from .adjust import corner_column_offset
-from .assemble import assemble_layout
+from .adjust import FREE_ANGLE, corner_column_offset
+from .assemble import finish_layout
 from .config import scaled
-from .evidence import previous_of, solver_columns
-from .refine import refine
-from .types import FinalWalls, Layout
+from .evidence import previous_of
+from .types import BranchWalls, FinalWalls, Layout
 from .walls import (
     boundary_gap,
     final_walls,
     group_directions,
-    plan_lines,
     point_on_wall,
     several_corners,
     signed_distance,
+    solve_final_walls,
 )
 
 
@@ -55,29 +53,11 @@ def _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, confi
         ``(final, ok, directions, distances, ceiling_height, floor_height)``.
     """
     final = final_walls(evidence, merge, insert, False, config.sample_size)
-    fit_index = solver_columns(evidence, final.column_wall)
-    heights = solve_atlanta_layout(
-        evidence.ceiling_rays,
-        evidence.floor_rays,
-        fit_index,
-        final.observed & evidence.fitted[final.start_wall],
-        group_directions(evidence, merge, final),
-        boundary_weights=evidence.row_weights,
-    )
-    # every observed wall's direction from its boundary points at those heights
-    directions = plan_lines(
-        cam, evidence, final.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height
-    )
-    solved = solve_atlanta_layout(
-        evidence.ceiling_rays,
-        evidence.floor_rays,
-        fit_index,
-        final.observed,
-        directions,
-        boundary_weights=evidence.row_weights,
+    solved, ok = solve_final_walls(
+        cam, evidence, final, ceiling_v, floor_v, group_directions(evidence, merge, final), lambda plan: plan
     )
     directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
-    return final, heights.ok & solved.ok, directions, distances, solved.ceiling_height, solved.floor_height
+    return final, ok, directions, distances, solved.ceiling_height, solved.floor_height
 
 
 def corner_offsets(
@@ -99,20 +79,14 @@ def corner_offsets(
     return jnp.where((meet | ~wall_mask) & jnp.isfinite(offset), offset, jnp.inf)
 
 
-def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
-    """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
-    ransac_directions = evidence.walls.direction
-    turn = cross_2d(ransac_directions[previous_of(evidence)], ransac_directions)
-    parallel = jnp.abs(turn) < jnp.sin(jnp.radians(config.merge_angle))
-    merge = evidence.same_plane & parallel & ~evidence.occluded & several_corners(evidence)
-    insert = evidence.occluded
-    final, _, directions, distances, h_c, h_f = _solve_atlanta_walls(
-        evidence, merge, insert, ceiling_v, floor_v, cam, config
-    )
-    # two observed walls that meet far from their corner's column (or are parallel) hold a wall between them
-    # whose two corners gave one peak: it is inserted in the corner ray's plane, as at an occlusion. Noisy
-    # directions of walls that turn a little move their meeting far along them, but not their boundaries
-    # apart at the corner: there the two walls' rows must differ by more than the rows' noise
+def _stray_corners(cam, evidence, final, directions, distances, h_c, h_f, config) -> Bool[Array, " K"]:
+    """Corners of two observed walls that hold a wall between them whose two corners gave one peak.
+
+    The two walls meet more than ``max_corner_offset`` columns from the corner (or are parallel). Noisy
+    directions of walls that turn a little move their meeting far along them, but not their boundaries
+    apart at the corner: there the two walls' rows must also differ by more than ``stray_noise_factor``
+    times the rows' noise.
+    """
     previous = previous_in_loop(final.mask)
     both_observed = final.observed & final.observed[previous]
     offsets = corner_offsets(cam, directions, distances, final.mask, final.corner_columns)
@@ -122,17 +96,37 @@ def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
         (directions[previous], distances[previous], h_c, h_f),
         final.corner_columns,
     )
-    stray = (
+    return (
         both_observed
         & (offsets > scaled(config.max_corner_offset, cam.width, 1024))
         & ~(gap <= config.stray_noise_factor * evidence.row_noise)
     )
-    capacity = insert.shape[0]
-    insert = insert.at[jnp.where(stray, final.start_wall, capacity)].set(True, mode="drop")
-    final, ok, directions, distances, h_c, h_f = _solve_atlanta_walls(
-        evidence, merge, insert, ceiling_v, floor_v, cam, config
-    )
-    adjusted, explained, uncertainty = refine(
-        cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, None, config
-    )
-    return assemble_layout(cam, evidence, final, *adjusted[:4], explained, uncertainty, ok, False, config)
+
+
+def atlanta_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
+    """Atlanta branch (step 4 of the module docstring)."""
+    ransac_directions = evidence.walls.direction
+    turn = cross_2d(ransac_directions[previous_of(evidence)], ransac_directions)
+    parallel = jnp.abs(turn) < jnp.sin(jnp.radians(config.merge_angle))
+    merge = evidence.same_plane & parallel & ~evidence.occluded & several_corners(evidence)
+    capacity = merge.shape[0]
+
+    def one_pass(insert, _):
+        # the walls with those of ``insert`` inserted (in the corner ray's plane, as at an occlusion), and
+        # ``insert`` with the stray corners of that layout's walls
+        solved = _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, config)
+        final, _, directions, distances, h_c, h_f = solved
+        stray = _stray_corners(cam, evidence, final, directions, distances, h_c, h_f, config)
+        return insert.at[jnp.where(stray, final.start_wall, capacity)].set(True, mode="drop"), solved
+
+    # the walls at the occlusions, then with the stray corners' walls too: one traced pass run twice
+    _, passes = jax.lax.scan(one_pass, evidence.occluded, length=2)
+    final, ok, directions, distances, h_c, h_f = jax.tree.map(lambda x: x[1], passes)
+    labels = jnp.full(capacity, FREE_ANGLE)
+    return BranchWalls(final, ok, directions, distances, h_c, h_f, labels, jnp.array(False))
+
+
+def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
+    """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
+    walls = atlanta_walls(evidence, ceiling_v, floor_v, cam, config)
+    return finish_layout(cam, evidence, walls, ceiling_v, floor_v, config)

@@ -197,9 +197,3 @@ def gather_evidence(
 
 def previous_of(evidence: WallEvidence) -> Int[Array, " K"]:
     return previous_in_loop(evidence.corner_mask)
-
-
-def solver_columns(evidence: WallEvidence, column_wall: Int[Array, " W"]) -> Int[Array, " W"]:
-    """Columns fed to the joint solvers, by wall: those whose ceiling and floor rows are both trusted
-    (:class:`WallEvidence`)."""
-    return jnp.where(evidence.ceiling_trusted & evidence.floor_trusted, column_wall, -1)

@@ -9,14 +9,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry.camera import NonCentralPanorama
-from ..solvers.layout import solve_atlanta_layout
 from .adjust import manhattan_directions, manhattan_yaw
-from .assemble import assemble_layout
+from .assemble import finish_layout
 from .config import PipelineConfig
-from .evidence import previous_of, solver_columns
-from .refine import refine
-from .types import FinalWalls, Layout, WallEvidence
-from .walls import final_walls, plan_lines, point_on_wall, several_corners, signed_distance
+from .evidence import previous_of
+from .types import BranchWalls, FinalWalls, Layout, WallEvidence
+from .walls import final_walls, plan_lines, point_on_wall, several_corners, signed_distance, solve_final_walls
 
 
 def manhattan_frame(
@@ -144,8 +142,8 @@ def _place_manhattan_walls(
     return jnp.where(final.observed, distances, signed_distance(directions, corner))
 
 
-def manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
-    """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
+def manhattan_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
+    """Manhattan branch (step 4 of the module docstring)."""
     labels = manhattan_labels(
         evidence, *_segment_directions(cam, evidence, ceiling_v, floor_v, config), config.turn_weight
     )
@@ -159,43 +157,21 @@ def manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
     insert = evidence.corner_mask & same_class & ~one_plane
     final = final_walls(evidence, merge, insert, True, config.sample_size)
     wall_labels = jnp.where(final.inserted, 1 - labels[final.start_wall], labels[final.start_wall])
-    fit_index = solver_columns(evidence, final.column_wall)
     fitted = final.observed & evidence.fitted[final.start_wall]
     yaw = manhattan_yaw(evidence.walls.direction[final.start_wall], wall_labels, fitted)
-    heights = solve_atlanta_layout(
-        evidence.ceiling_rays,
-        evidence.floor_rays,
-        fit_index,
-        fitted,
-        manhattan_directions(yaw, wall_labels),
-        boundary_weights=evidence.row_weights,
-    )
-    plan = plan_lines(
-        cam, evidence, final.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height
-    )
-    yaw = manhattan_yaw(plan, wall_labels, final.observed)
-    solved = solve_atlanta_layout(
-        evidence.ceiling_rays,
-        evidence.floor_rays,
-        fit_index,
-        final.observed,
-        manhattan_directions(yaw, wall_labels),
-        boundary_weights=evidence.row_weights,
+
+    def snap(plan):
+        return manhattan_directions(manhattan_yaw(plan, wall_labels, final.observed), wall_labels)
+
+    solved, ok = solve_final_walls(
+        cam, evidence, final, ceiling_v, floor_v, manhattan_directions(yaw, wall_labels), snap
     )
     distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
-    adjusted, explained, uncertainty = refine(
-        cam,
-        evidence,
-        final,
-        ceiling_v,
-        floor_v,
-        solved.directions,
-        distances,
-        solved.ceiling_height,
-        solved.floor_height,
-        wall_labels,
-        config,
-    )
-    return assemble_layout(
-        cam, evidence, final, *adjusted[:4], explained, uncertainty, heights.ok & solved.ok, True, config
-    )
+    heights = (solved.ceiling_height, solved.floor_height)
+    return BranchWalls(final, ok, solved.directions, distances, *heights, wall_labels, jnp.array(True))
+
+
+def manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
+    """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
+    walls = manhattan_walls(evidence, ceiling_v, floor_v, cam, config)
+    return finish_layout(cam, evidence, walls, ceiling_v, floor_v, config)

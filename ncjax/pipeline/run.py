@@ -67,11 +67,12 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Key, PRNGKeyArray, UInt32
 
 from ..geometry.camera import NonCentralPanorama
-from .atlanta import atlanta_layout
+from .assemble import finish_layout
+from .atlanta import atlanta_layout, atlanta_walls
 from .config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
 from .evidence import gather_evidence
 from .floor_check import ceiling_consistent_floor
-from .manhattan import manhattan_frame, manhattan_layout
+from .manhattan import manhattan_frame, manhattan_layout, manhattan_walls
 from .prior import HeightPrior, prior_rows, rescale_to_prior
 from .types import Layout, LayoutStatus, pad_layout
 
@@ -97,8 +98,16 @@ def layout_from_evidence(
     _, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
     counted = evidence.corner_mask & evidence.walls.ok
     in_frame = jnp.all(jnp.where(counted, deviation, 0.0) < jnp.radians(config.manhattan_tolerance))
-    manhattan = manhattan_layout(evidence, ceiling_v, floor_v, cam, config)
-    atlanta = atlanta_layout(evidence, ceiling_v, floor_v, cam, config)
+    # both branches' walls adjusted as one batch: the program holds steps 5-6 once
+    branches = jax.tree.map(
+        lambda m, a: jnp.stack([m, a]),
+        manhattan_walls(evidence, ceiling_v, floor_v, cam, config),
+        atlanta_walls(evidence, ceiling_v, floor_v, cam, config),
+    )
+    layouts = jax.vmap(finish_layout, in_axes=(None, None, 0, None, None, None))(
+        cam, evidence, branches, ceiling_v, floor_v, config
+    )
+    manhattan, atlanta = (jax.tree.map(lambda x, i=i: x[i], layouts) for i in range(2))
     use_manhattan = choose_manhattan(
         manhattan.ok, atlanta.ok, manhattan.explained_fraction, atlanta.explained_fraction, in_frame
     )

@@ -215,3 +215,21 @@ class FinalWalls(eqx.Module):
     near_neighbour: Int[Array, " K"]
     column_wall: Int[Array, " W"]
     overflow: Bool[Array, ""]
+
+
+class BranchWalls(eqx.Module):
+    """A branch's walls before the final adjustment (internal; traced, ``K`` slots): what steps 5-6 take.
+
+    The Manhattan and Atlanta branches' walls are one pytree, so that ``world="auto"`` adjusts both as one
+    batch. ``labels``: the Manhattan labels (0: ``u``, 1: ``u_perp``), or all
+    :data:`~ncjax.pipeline.adjust.FREE_ANGLE` (an Atlanta layout: an angle per wall).
+    """
+
+    final: FinalWalls
+    solver_ok: Bool[Array, ""]
+    directions: Float[Array, "K 2"]
+    distances: Float[Array, " K"]
+    ceiling_height: Float[Array, ""]
+    floor_height: Float[Array, ""]
+    labels: Int[Array, " K"]
+    manhattan: Bool[Array, ""]

@@ -204,7 +204,7 @@ def layout_uncertainty(
     rows = jnp.stack([values[:count], values[count : 2 * count]])  # weighted by observations.row_weights
     used = used_rows(observations)
     walls = jnp.sum(observations.wall_mask)
-    free = 2 + walls + (walls if problem.free_angles else 1)
+    free = 2 + walls + jnp.sum(problem.angle_used)
     squares = jnp.sum(jnp.where(used, rows * rows, 0.0), axis=1)
     pooled_variance = jnp.sum(squares) / jnp.maximum(jnp.sum(used) - free, 1)
     # each boundary's own variance (its weighted rows' noise differs when the weights are off), the free

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
@@ -9,6 +11,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
 from ..geometry.reprojection import boundary_points, column_directions, fit_plan_lines, range_along, wall_boundary_rows
+from ..solvers.layout import WallLayout, solve_atlanta_layout
 from .types import FinalWalls, WallEvidence
 
 
@@ -140,3 +143,51 @@ def plan_lines(cam, evidence, column_wall, ceiling_v, floor_v, h_c, h_f) -> Floa
     wall = jnp.tile(column_wall, 2)  # -1 (no wall): dropped
     directions, _ = fit_plan_lines(points, ok.astype(points.dtype), wall, evidence.corner_mask.shape[0])
     return directions
+
+
+def solver_columns(evidence: WallEvidence, column_wall: Int[Array, " W"]) -> Int[Array, " W"]:
+    """Columns fed to the joint solvers, by wall: those whose ceiling and floor rows are both trusted
+    (:class:`WallEvidence`)."""
+    return jnp.where(evidence.ceiling_trusted & evidence.floor_trusted, column_wall, -1)
+
+
+def solve_final_walls(
+    cam: NonCentralPanorama,
+    evidence: WallEvidence,
+    final: FinalWalls,
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    directions: Float[Array, "K 2"],
+    snap: Callable[[Float[Array, "K 2"]], Float[Array, "K 2"]],
+) -> tuple[WallLayout, Bool[Array, ""]]:
+    """The final walls' joint solve in two passes (:func:`~ncjax.solvers.layout.solve_atlanta_layout`).
+
+    The first pass solves the final walls that RANSAC fitted, with ``directions``, for the heights; at
+    those heights every observed wall's direction is its boundary points' plan line (:func:`plan_lines`),
+    made a branch's by ``snap`` (the Manhattan branch keeps one yaw); the second pass solves the observed
+    walls with those directions. The two passes are one traced pass run twice (``lax.scan``), so that the
+    program compiles it once.
+
+    Returns:
+        The second pass's walls, and whether both passes succeeded.
+    """
+    fit_index = solver_columns(evidence, final.column_wall)
+
+    def one_pass(state, _):
+        mask, pass_directions = state
+        solved = solve_atlanta_layout(
+            evidence.ceiling_rays,
+            evidence.floor_rays,
+            fit_index,
+            mask,
+            pass_directions,
+            boundary_weights=evidence.row_weights,
+        )
+        plan = plan_lines(
+            cam, evidence, final.column_wall, ceiling_v, floor_v, solved.ceiling_height, solved.floor_height
+        )
+        return (final.observed, snap(plan)), solved
+
+    fitted = final.observed & evidence.fitted[final.start_wall]
+    _, passes = jax.lax.scan(one_pass, (fitted, directions), length=2)
+    return jax.tree.map(lambda x: x[1], passes), jnp.all(passes.ok)
