@@ -676,6 +676,24 @@ def test_batch_auto_world_and_shapes():
 
 
 @pytest.mark.extended
+def test_auto_world_gives_the_chosen_branchs_own_layout():
+    """``world="auto"`` adjusts both branches' walls as one batch: the layout it keeps is the one that branch
+    gives alone, for a room of each world with noisy rows (where both branches return a layout)."""
+    for world in ("manhattan", "atlanta"):
+        batch, labels = rooms(world, "none")
+        room, label = pick(batch, 0), pick(labels, 0)
+        noise = jax.random.normal(jax.random.key(3), (2, WIDTH))
+        rows = (label.ceiling_v + noise[0], label.floor_v + noise[1], label.corner_target)
+        cam = room.camera(WIDTH, HEIGHT)
+        auto = ncjax.layout_from_boundaries(*rows, cam, world="auto")
+        chosen = "manhattan" if bool(auto.manhattan) else "atlanta"
+        alone = ncjax.layout_from_boundaries(*rows, cam, world=chosen)
+        assert int(auto.status) == int(alone.status)
+        for name in ("ceiling_corners", "floor_corners", "ceiling_height", "floor_height", "explained_fraction"):
+            np.testing.assert_allclose(getattr(auto, name), getattr(alone, name), atol=1e-4, err_msg=name)
+
+
+@pytest.mark.extended
 def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun():
     batch, labels = rooms("manhattan", "required")
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
