@@ -329,6 +329,11 @@ class LayoutProblem(eqx.Module):
 FREE_ANGLE = -1
 
 
+def is_manhattan(labels: Int[Array, " K"]) -> Bool[Array, ""]:
+    """Whether ``labels`` are a Manhattan layout's (every wall labelled, one yaw) rather than all :data:`FREE_ANGLE`."""
+    return jnp.all(labels != FREE_ANGLE)
+
+
 def layout_problem(directions, distances, ceiling_height, floor_height, labels, wall_mask) -> LayoutProblem:
     """The parametrisation of :func:`adjust_layout` at the given walls (``labels`` None or all
     :data:`FREE_ANGLE`: an angle per wall)."""
@@ -336,7 +341,7 @@ def layout_problem(directions, distances, ceiling_height, floor_height, labels, 
     dtype = distances.dtype
     if labels is None:
         labels = jnp.full(capacity, FREE_ANGLE)
-    manhattan = jnp.all(labels != FREE_ANGLE)
+    manhattan = is_manhattan(labels)
     quarter_turns = jnp.where(manhattan, labels, 0)
     yaw = manhattan_yaw(directions, quarter_turns, wall_mask)
     aligned = jnp.sign(jnp.sum(manhattan_directions(yaw, quarter_turns) * directions, -1))

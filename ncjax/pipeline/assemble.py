@@ -9,7 +9,7 @@ from jaxtyping import Array, Bool, Float
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import horizontal_wall_line
 from ..solvers.wall import canonical_orientation
-from .adjust import loop_corners
+from .adjust import is_manhattan, loop_corners
 from .config import PipelineConfig
 from .refine import refine
 from .types import BranchWalls, FinalWalls, Layout, LayoutStatus, WallEvidence
@@ -108,7 +108,7 @@ def finish_layout(
         config,
     )
     return assemble_layout(
-        cam, evidence, final, *adjusted[:4], explained, uncertainty, walls.solver_ok, walls.manhattan, config
+        cam, evidence, final, *adjusted[:4], explained, uncertainty, walls.solver_ok, is_manhattan(walls.labels), config
     )
 
 

@@ -123,7 +123,7 @@ def atlanta_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
     _, passes = jax.lax.scan(one_pass, evidence.occluded, length=2)
     final, ok, directions, distances, h_c, h_f = jax.tree.map(lambda x: x[1], passes)
     labels = jnp.full(capacity, FREE_ANGLE)
-    return BranchWalls(final, ok, directions, distances, h_c, h_f, labels, jnp.array(False))
+    return BranchWalls(final, ok, directions, distances, h_c, h_f, labels)
 
 
 def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:

@@ -168,7 +168,7 @@ def manhattan_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
     )
     distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
     heights = (solved.ceiling_height, solved.floor_height)
-    return BranchWalls(final, ok, solved.directions, distances, *heights, wall_labels, jnp.array(True))
+    return BranchWalls(final, ok, solved.directions, distances, *heights, wall_labels)
 
 
 def manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:

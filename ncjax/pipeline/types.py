@@ -232,4 +232,3 @@ class BranchWalls(eqx.Module):
     ceiling_height: Float[Array, ""]
     floor_height: Float[Array, ""]
     labels: Int[Array, " K"]
-    manhattan: Bool[Array, ""]
