@@ -1,7 +1,5 @@
 """``python -m ncjax.cli``: the ``ncjax`` command."""
 
-import sys
+from .main import console_script
 
-from .main import main
-
-sys.exit(main())
+console_script()

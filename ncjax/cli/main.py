@@ -7,6 +7,7 @@ import math
 import os
 import re
 import sys
+from typing import NoReturn
 
 CONVENTIONS = """\
 frame      metres, right-handed, z up (revolution axis), circle of optical centres in z = 0
@@ -280,5 +281,18 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+def console_script() -> NoReturn:
+    """The ``ncjax`` command: :func:`main`, then the process ends at once with its exit code.
+
+    Every file is written and closed when :func:`main` returns, so Python's teardown has nothing
+    left to do but free what the process loaded: on 2 CPU cores, unloading XLA's compiled programs
+    and running the libraries' exit hooks add 0.5-0.9 s to every command.
+    """
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console_script()

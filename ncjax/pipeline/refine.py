@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -74,7 +75,11 @@ def refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c,
     as less noisy than it is, which softens the weighting (it was tuned so, on
     tuning renders). The first pass only has to bring the layout within
     ``inlier_threshold`` of the inlier rows, so it fits a subset of the columns
-    (``inlier_pass_stride``); the second starts next to its optimum.
+    (every ``inlier_pass_stride``-th); the second starts next to its optimum.
+    Both passes are one traced pass run twice (``lax.scan``), the first with the
+    other columns' rows unused: the program compiles and loads faster than with
+    a pass of each shape, and each step of the first pass costs as much as the
+    second's.
 
     Returns:
         The adjusted walls (:func:`ncjax.pipeline.adjust.adjust_layout`), the fraction of the usable
@@ -82,31 +87,25 @@ def refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c,
         :func:`ncjax.pipeline.uncertainty.layout_uncertainty` on the rows of the second adjustment.
     """
     observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
-    subset = _strided(observations, config.inlier_pass_stride)
-    subset = _noise_weighted(cam, subset, _row_errors(cam, subset, (directions, distances, h_c, h_f)), config)
-    adjusted = adjust_layout(
-        cam,
-        subset,
-        directions,
-        distances,
-        h_c,
-        h_f,
-        labels,
-        config.corner_weight,
-        config.adjustment_steps,
-        config.adjustment_tolerance,
-    )
     threshold = config.inlier_threshold * scaled(1.0, cam.height, 512)
-    ceiling_error, floor_error = _row_errors(cam, observations, adjusted[:4])
-    inliers = _using(
-        observations,
-        observations.ceiling_used & (jnp.abs(ceiling_error) < threshold),
-        observations.floor_used & (jnp.abs(floor_error) < threshold),
-    )
-    inliers = _noise_weighted(cam, inliers, (ceiling_error, floor_error), config)
-    adjusted = adjust_layout(
-        cam, inliers, *adjusted[:4], labels, config.corner_weight, config.adjustment_steps, config.adjustment_tolerance
-    )
+    in_subset = jnp.arange(observations.columns.shape[0]) % config.inlier_pass_stride == 0
+
+    def adjustment_pass(walls, first):
+        ceiling_error, floor_error = _row_errors(cam, observations, walls)
+        rows = _using(
+            observations,
+            observations.ceiling_used & jnp.where(first, in_subset, jnp.abs(ceiling_error) < threshold),
+            observations.floor_used & jnp.where(first, in_subset, jnp.abs(floor_error) < threshold),
+        )
+        rows = _noise_weighted(cam, rows, (ceiling_error, floor_error), config)
+        adjusted = adjust_layout(
+            cam, rows, *walls, labels, config.corner_weight, config.adjustment_steps, config.adjustment_tolerance
+        )
+        return adjusted[:4], (adjusted[4], rows)
+
+    walls, (improved, rows) = jax.lax.scan(adjustment_pass, (directions, distances, h_c, h_f), jnp.array([True, False]))
+    adjusted = (*walls, improved[1])
+    inliers = jax.tree.map(lambda x: x[1], rows)
     if config.covariance:
         max_lag = max(1, round(scaled(CORRELATION_COLUMNS, cam.width, 1024) / config.adjustment_stride))
         uncertainty = layout_uncertainty(
