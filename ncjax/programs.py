@@ -6,7 +6,11 @@ process, even when XLA's persistent compilation cache
 (:func:`ncjax.cli.compilation.enable_compilation_cache`) holds the compiled
 program. :func:`call_saved` exports a function's traced program (StableHLO)
 once into a folder; a later process deserializes it in well under a second,
-and the compilation cache spares it the compiler as well.
+and the compilation cache spares it the compiler as well. The package ships
+the program of ``ncjax reconstruct``'s default settings for a 1024 x 512
+panorama (:data:`SHIPPED_DIRECTORY`, written by
+``experiments/export_default_program.py``), so that even a first run skips
+its tracing.
 
 A saved program is named by the caller's key, the arguments' shapes, dtypes
 and tree, the versions of jax and jaxlib, the backend and a digest of
@@ -22,6 +26,7 @@ import hashlib
 import os
 import pathlib
 import pickle
+import zlib
 from collections.abc import Callable
 from typing import Any
 
@@ -30,6 +35,10 @@ import jax
 from .io.files import write_atomic
 
 SUFFIX = ".jaxexport"
+# the programs the package carries; a name not found there is traced as usual
+SHIPPED_DIRECTORY = pathlib.Path(__file__).parent / "data" / "programs"
+# what the shipped programs were exported from: jax's version and source_digest()
+SHIPPED_MANIFEST = SHIPPED_DIRECTORY / "manifest.json"
 
 
 @functools.cache
@@ -55,9 +64,10 @@ def program_path(directory: str | os.PathLike, key: str, args: tuple) -> pathlib
 def call_saved(directory: str | os.PathLike, key: str, function: Callable[..., Any], *args: Any) -> Any:
     """``function(*args)``, run through its traced program saved in ``directory``.
 
-    The program is loaded when a process saved it before (:func:`program_path`),
-    else traced, exported and saved (a folder that cannot be written only
-    costs the next process the tracing again). The result is the same
+    The program is loaded when a process saved it before (:func:`program_path`)
+    or the package ships it (:data:`SHIPPED_DIRECTORY`), else traced, exported
+    and saved (a folder that cannot be written only costs the next process the
+    tracing again). The result is the same
     pytree ``function`` returns.
 
     Args:
@@ -75,6 +85,8 @@ def call_saved(directory: str | os.PathLike, key: str, function: Callable[..., A
     leaves, in_tree = jax.tree.flatten(args)
     if path not in _CALLABLE:
         saved = _load(path)
+        if saved is None:
+            saved = _load(SHIPPED_DIRECTORY / path.name)
         if saved is None:
             saved = _export(function, in_tree, leaves)
             _save(path, *saved)
@@ -111,7 +123,7 @@ def _save(path: pathlib.Path, exported: jax.export.Exported, out_tree: Any) -> N
     """Write a program for :func:`_load`; a folder that cannot be written is left as it is."""
     try:
         os.makedirs(path.parent, exist_ok=True)
-        write_atomic(str(path), pickle.dumps((bytes(exported.serialize()), out_tree)))
+        write_atomic(str(path), zlib.compress(pickle.dumps((bytes(exported.serialize()), out_tree))))
     except OSError:
         pass
 
@@ -120,7 +132,7 @@ def _load(path: pathlib.Path) -> tuple[jax.export.Exported, Any] | None:
     """The saved program at ``path``, or None when there is none or it cannot be read."""
     try:
         with open(path, "rb") as file:
-            serialized, out_tree = pickle.load(file)
+            serialized, out_tree = pickle.loads(zlib.decompress(file.read()))
         return jax.export.deserialize(bytearray(serialized)), out_tree
     except Exception:  # a missing, truncated or foreign file is traced again, whatever broke
         return None

@@ -1,5 +1,7 @@
 """Traced programs saved with jax.export and called again without tracing."""
 
+import json
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -63,3 +65,24 @@ class Box(eqx.Module):
 def test_a_result_that_would_not_survive_pickling_is_refused(tmp_path):
     with pytest.raises(TypeError, match="Python containers"):
         programs.call_saved(tmp_path, "k", lambda x: Box(x), jnp.ones(2))
+
+
+def test_a_shipped_program_is_used_without_tracing(tmp_path, monkeypatch):
+    function, calls = _traced_calls()
+    x, pair = jnp.arange(3.0), (jnp.ones(3), jnp.float32(2.0))
+    programs.call_saved(tmp_path / "package", "k", function, x, pair)
+    programs._CALLABLE.clear()
+    monkeypatch.setattr(programs, "SHIPPED_DIRECTORY", tmp_path / "package")
+    result = programs.call_saved(tmp_path / "user", "k", function, x, pair)
+    assert len(calls) == 1  # the user's folder is empty: the package's program was loaded, not traced
+    np.testing.assert_array_equal(result["product"], np.arange(3.0) * 2)
+
+
+def test_the_shipped_program_is_exported_from_these_sources():
+    manifest = json.loads(programs.SHIPPED_MANIFEST.read_text())
+    stale = "the shipped program is stale: run `uv run python experiments/export_default_program.py`"
+    assert manifest["source_digest"] == programs.source_digest(), stale
+    assert manifest["jax"] == jax.__version__, stale
+    assert sorted(path.name for path in programs.SHIPPED_DIRECTORY.glob(f"*{programs.SUFFIX}")) == [
+        manifest["program"]
+    ]

@@ -367,19 +367,24 @@ def refine_walls(
         The refined ``(t, h_c, h_f, d_1..d_K)``.
     """
     geometry = _used_geometry(rays, row_wall)
-    cost = squared_error(geometry, base_directions, row_wall, is_floor, row_weights)
 
-    def linearise(p):
-        return gauss_newton_step(p, geometry, base_directions, row_wall, is_floor, refine_yaw, row_weights)
-
-    current, delta = linearise(params)
-    for step in range(steps):
+    def step(_, state):
+        params, current, delta = state
         candidate = params + delta
         # the candidate's linearisation gives its cost and, if it is accepted, the next step
-        candidate_cost, candidate_delta = linearise(candidate) if step + 1 < steps else (cost(candidate), delta)
+        candidate_cost, candidate_delta = gauss_newton_step(
+            candidate, geometry, base_directions, row_wall, is_floor, refine_yaw, row_weights
+        )
         # a step that does not decrease the cost (far from the optimum, degenerate data) is refused
         better = candidate_cost <= current
-        params = jnp.where(better, candidate, params)
-        current = jnp.where(better, candidate_cost, current)
-        delta = jnp.where(better, candidate_delta, delta)
+        return (
+            jnp.where(better, candidate, params),
+            jnp.where(better, candidate_cost, current),
+            jnp.where(better, candidate_delta, delta),
+        )
+
+    # the first iteration linearises at ``params`` itself (a zero step, accepted unless its cost is not
+    # finite), so that the program holds one linearisation: a loop, not ``steps`` unrolled copies
+    start = (params, jnp.array(jnp.inf, params.dtype), jnp.zeros_like(params))
+    params, _, _ = jax.lax.fori_loop(0, steps + 1, step, start)
     return params
