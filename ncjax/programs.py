@@ -1,7 +1,7 @@
 """Traced programs kept on disk with ``jax.export``, so that a later process skips tracing.
 
 Tracing the reconstruction (the network and both worlds' geometry, tens of
-thousands of operations) takes about half a minute on 2 CPU cores in every new
+thousands of operations) takes about 10 s on 2 CPU cores in every new
 process, even when XLA's persistent compilation cache
 (:func:`ncjax.cli.compilation.enable_compilation_cache`) holds the compiled
 program. :func:`call_saved` exports a function's traced program (StableHLO)

@@ -254,8 +254,8 @@ def reconstruct_batch(
             central panoramas (``rc = 0``), and of the non-central ones whose geometry
             fails with one of :data:`SCALE_FAILURES`. None: metric scale from the geometry only.
         program_cache: a folder where the traced program is kept (:mod:`ncjax.programs`): a later
-            process with the same settings and shapes skips the tracing (about half a minute on 2
-            CPU cores; with XLA's persistent compilation cache the compiler too). None: traced in
+            process with the same settings and shapes skips the tracing (about 10 s on 2 CPU
+            cores; with XLA's persistent compilation cache the compiler too). None: traced in
             each process, as any jitted function.
 
     Returns:
