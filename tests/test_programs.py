@@ -83,6 +83,4 @@ def test_the_shipped_program_is_exported_from_these_sources():
     stale = "the shipped program is stale: run `uv run python experiments/export_default_program.py`"
     assert manifest["source_digest"] == programs.source_digest(), stale
     assert manifest["jax"] == jax.__version__, stale
-    assert sorted(path.name for path in programs.SHIPPED_DIRECTORY.glob(f"*{programs.SUFFIX}")) == [
-        manifest["program"]
-    ]
+    assert sorted(path.name for path in programs.SHIPPED_DIRECTORY.glob(f"*{programs.SUFFIX}")) == [manifest["program"]]
