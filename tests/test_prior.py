@@ -148,3 +148,24 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it():
         chosen = from_prior if expected == PRIOR_FALLBACK else measured
         np.testing.assert_array_equal(result.layout.floor_corners, chosen.floor_corners)
         np.testing.assert_array_equal(result.layout.status, chosen.status)
+
+
+@pytest.mark.slow
+def test_the_size_limits_apply_at_the_scale_of_the_prior():
+    """``prior_room_height`` (set by the prior's route, whose virtual rig solves at an arbitrary scale): the room
+    height and corner distance limits judge the layout scaled to it, not at its own scale."""
+    batch, labels = rooms("manhattan", (0.3, 1.0))
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=batch.rc)
+    rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
+    lowest = float(np.min(np.asarray(batch.ceiling_height - batch.floor_height)))
+
+    def statuses(prior_room_height, max_room_height=1e6):
+        config = ncjax.PipelineConfig(max_room_height=max_room_height, prior_room_height=prior_room_height)
+        return np.asarray(ncjax.layout_from_boundaries(*rows, cam, "manhattan", config).status)
+
+    # at its own scale every room is too tall for this limit; at half the lowest one's height none is
+    assert np.all(statuses(0.0, 0.6 * lowest) == ncjax.LayoutStatus.DEGENERATE_LAYOUT)
+    assert np.all(statuses(0.5 * lowest, 0.6 * lowest) == ncjax.LayoutStatus.OK)
+    # within max_corner_distance (50 m) at its own scale, a thousand times beyond it at the prior's
+    assert np.all(statuses(0.0) == ncjax.LayoutStatus.OK)
+    assert np.all(statuses(1000.0 * lowest) == ncjax.LayoutStatus.DEGENERATE_LAYOUT)

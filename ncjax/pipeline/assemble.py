@@ -36,7 +36,11 @@ def assemble_layout(
     directions, distances = canonical_orientation(directions, distances)
     finite = jnp.all(jnp.isfinite(points)) & jnp.isfinite(ceiling_height) & jnp.isfinite(floor_height)
     farthest = jnp.max(jnp.where(mask, jnp.linalg.norm(jnp.where(mask[:, None], points, 0.0), axis=-1), 0.0))
-    plausible = (ceiling_height - floor_height <= config.max_room_height) & (farthest <= config.max_corner_distance)
+    room_height = ceiling_height - floor_height
+    # a prior's virtual rig solves the room at an arbitrary scale: judge its size at the prior's
+    to_metric = jnp.where(config.prior_room_height > 0, config.prior_room_height / room_height, 1.0)
+    plausible = to_metric * room_height <= config.max_room_height
+    plausible &= to_metric * farthest <= config.max_corner_distance
     height_sigma = room_height_sigma(uncertainty.height_covariance)
     scale_unknown = height_sigma > config.max_height_uncertainty * (ceiling_height - floor_height)
     failed = jnp.stack(

@@ -143,6 +143,11 @@ class PipelineConfig:
             whose scale ran away.
         max_corner_distance: a layout with a corner farther than this from
             the camera (metres) is implausible (DEGENERATE_LAYOUT).
+        prior_room_height: set by the height-prior route
+            (:func:`~ncjax.pipeline.run.layout_from_prior`), not by hand: the
+            room height (metres) its prior gives. The virtual rig's layout has
+            an arbitrary scale, so the two limits above apply to it scaled to
+            this height. 0 (the default): the layout's own scale.
         min_explained_fraction: an otherwise ok layout that reprojects fewer
             than this fraction of the usable boundary rows within
             ``inlier_threshold`` (:attr:`Layout.explained_fraction`) is flagged
@@ -190,6 +195,7 @@ class PipelineConfig:
     max_height_uncertainty: float = math.inf
     max_room_height: float = 10.0
     max_corner_distance: float = 50.0
+    prior_room_height: float = 0.0
     floor_consistency_threshold: float = math.inf
     min_explained_fraction: float = 0.0
 
@@ -230,6 +236,7 @@ class PipelineConfig:
             "wall_offset_ratio",
             "wall_offset_noise",
             "corner_column_noise",
+            "prior_room_height",
         ):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -291,6 +298,7 @@ TRACED_FIELDS = (
     "max_height_uncertainty",
     "max_room_height",
     "max_corner_distance",
+    "prior_room_height",
     "floor_consistency_threshold",
     "min_explained_fraction",
 )

@@ -133,11 +133,12 @@ def virtual_rows(
 
 def prior_rows(
     cam: NonCentralPanorama, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"], prior: HeightPrior
-) -> tuple[NonCentralPanorama, Float[Array, " W"], Float[Array, " W"]]:
-    """Steps 1-3: the virtual rig and its rows for a panorama whose scale ``prior`` fixes."""
+) -> tuple[NonCentralPanorama, Float[Array, " W"], Float[Array, " W"], Float[Array, ""]]:
+    """Steps 1-3: the virtual rig and its rows for a panorama whose scale ``prior`` fixes, and the room height
+    ``h_c - h_f`` the prior gives."""
     ratio = ceiling_floor_ratio(cam, ceiling_v, floor_v)
     ceiling_height, floor_height = prior_heights(ratio, prior)
-    return virtual_rows(cam, ceiling_v, floor_v, ceiling_height, floor_height)
+    return *virtual_rows(cam, ceiling_v, floor_v, ceiling_height, floor_height), ceiling_height - floor_height
 
 
 def rescale_to_prior(layout: Layout, prior: HeightPrior) -> Layout:

@@ -130,10 +130,12 @@ def layout_from_prior(
     """The traceable pipeline for one panorama whose scale a height prior fixes (:mod:`ncjax.pipeline.prior`).
 
     Any ``rc``, 0 included. The height-uncertainty test (``max_height_uncertainty``) is off: the prior, not
-    the rows' parallax, fixes the scale.
+    the rows' parallax, fixes the scale; the size limits (``max_room_height``, ``max_corner_distance``) apply
+    at the prior's scale (``prior_room_height``), not at the virtual rig's.
     """
-    virtual, ceiling_virtual, floor_virtual = prior_rows(cam, ceiling_v, floor_v, prior)
-    config = with_traced(config, {"max_height_uncertainty": jnp.asarray(jnp.inf)})
+    virtual, ceiling_virtual, floor_virtual, room_height = prior_rows(cam, ceiling_v, floor_v, prior)
+    scale_from_prior = {"max_height_uncertainty": jnp.asarray(jnp.inf), "prior_room_height": room_height}
+    config = with_traced(config, scale_from_prior)
     layout = layout_from_evidence(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config)
     return rescale_to_prior(layout, prior)
 

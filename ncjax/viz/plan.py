@@ -9,7 +9,7 @@ from jaxtyping import ArrayLike, Float, UInt8
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Ellipse
-from matplotlib.ticker import MultipleLocator
+from matplotlib.ticker import MaxNLocator
 
 from ..io.export import failure_label, has_geometry, layout_height_sigma, signed_area, valid_corners, wall_lengths
 from ..pipeline.types import Layout
@@ -116,13 +116,18 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         angle = np.linspace(0.0, 2 * np.pi, 90)
         axes.plot(rc * np.cos(angle), rc * np.sin(angle), color="black", linewidth=1, label=f"camera (rc = {rc:.2f} m)")
     handles, labels = axes.get_legend_handles_labels()
-    axes.autoscale_view()
     unique = dict(zip(labels, handles, strict=True))  # one legend entry per kind of line
     axes.legend(unique.values(), unique.keys(), loc="best", fontsize=8)
 
+    # framed on the room and the camera: an ellipse far larger than the room is cut, not shrinking the room
+    shown = np.concatenate([plan, np.full((1, 2), -(rc or 0.0)), np.full((1, 2), rc or 0.0)])
+    low, high = shown.min(0), shown.max(0)
+    margin = 0.1 * float(np.max(high - low)) + 0.3
+    axes.set_xlim(low[0] - margin, high[0] + margin)
+    axes.set_ylim(low[1] - margin, high[1] + margin)
     axes.set_aspect("equal", adjustable="datalim")
-    axes.xaxis.set_major_locator(MultipleLocator(1.0))
-    axes.yaxis.set_major_locator(MultipleLocator(1.0))
+    for axis in (axes.xaxis, axes.yaxis):  # whole metres, about 12 grid lines at most
+        axis.set_major_locator(MaxNLocator(nbins=12, steps=[1, 2, 5, 10], integer=True))
     axes.grid(True, color="0.8", linewidth=0.5)
     axes.set_xlabel("x (m)")
     axes.set_ylabel("y (m)")
