@@ -1,22 +1,24 @@
-"""Export the traced program of ``ncjax reconstruct``'s default settings into the package.
+"""Export the traced programs of ``ncjax reconstruct``'s default settings into the package.
 
 A first ``ncjax reconstruct`` traces the network and both worlds' geometry
 (about 10 s on 2 CPU cores) before XLA compiles them. The package carries the
-traced program (``jax.export``, :data:`ncjax.programs.SHIPPED_DIRECTORY`) of
-the default settings (shipped model, world auto, 4 views, edge snap, no
-height prior) for one 1024 x 512 panorama, so that a user's first run only
-compiles. Other sizes and settings are traced on their first run, as before.
+traced programs (``jax.export``, :data:`ncjax.programs.SHIPPED_DIRECTORY`: the
+network's and the geometry's two halves) of the default settings (shipped model, world
+auto, 4 views, edge snap, no height prior) for one 1024 x 512 panorama, so
+that a user's first run only compiles. Other sizes and settings are traced on
+their first run, as before (the network's program serves every world and
+pipeline setting).
 
-The program's name holds the digest of ncjax's sources and jax's version: a
+A program's name holds the digest of ncjax's sources and jax's version: a
 program exported from other sources is never used, it only stops sparing the
-tracing. ``tests/test_programs.py`` fails while the shipped program is stale;
+tracing. ``tests/test_programs.py`` fails while the shipped programs are stale;
 run this script after every change of ncjax's sources:
 
     uv run python experiments/export_default_program.py
 
 It runs the command a user would (``ncjax reconstruct`` on the demo panorama,
-``--rc auto``) with an empty cache, moves the program it saved into the
-package in place of the old one and writes the manifest.
+``--rc auto``) with an empty cache, copies the three programs it saved into
+the package in place of the old ones and writes the manifest.
 """
 
 from __future__ import annotations
@@ -44,19 +46,22 @@ def main() -> int:
         if code != 0:
             raise SystemExit(f"ncjax reconstruct failed with exit code {code}")
         exported = sorted(pathlib.Path(work, "cache", "programs").glob(f"*{programs.SUFFIX}"))
-        if len(exported) != 1:
-            raise SystemExit(f"expected one saved program, found {[path.name for path in exported]}")
+        if len(exported) != 3:
+            raise SystemExit(f"expected three saved programs (network, walls, layouts), found {exported}")
         programs.SHIPPED_DIRECTORY.mkdir(parents=True, exist_ok=True)
-        shipped = programs.SHIPPED_DIRECTORY / exported[0].name
-        shutil.copyfile(exported[0], shipped)
+        shipped = [programs.SHIPPED_DIRECTORY / path.name for path in exported]
+        for source, destination in zip(exported, shipped, strict=True):
+            shutil.copyfile(source, destination)
     manifest = {
-        "program": shipped.name,
-        "settings": "ncjax reconstruct defaults (--rc > 0, no prior), one 1024 x 512 panorama",
+        "programs": [path.name for path in shipped],
+        "settings": "ncjax reconstruct defaults (--rc > 0, no prior), one 1024 x 512 panorama: network, walls, layouts",
         "jax": jax.__version__,
         "source_digest": programs.source_digest(),
     }
     programs.SHIPPED_MANIFEST.write_text(json.dumps(manifest, indent=1) + "\n")
-    print(f"{shipped}: {shipped.stat().st_size / 1e3:.0f} kB; manifest written")
+    for path in shipped:
+        print(f"{path}: {path.stat().st_size / 1e3:.0f} kB")
+    print("manifest written")
     return 0
 
 

@@ -7,10 +7,12 @@ process, even when XLA's persistent compilation cache
 program. :func:`call_saved` exports a function's traced program (StableHLO)
 once into a folder; a later process deserializes it in well under a second,
 and the compilation cache spares it the compiler as well. The package ships
-the program of ``ncjax reconstruct``'s default settings for a 1024 x 512
+the programs of ``ncjax reconstruct``'s default settings for a 1024 x 512
 panorama (:data:`SHIPPED_DIRECTORY`, written by
 ``experiments/export_default_program.py``), so that even a first run skips
-its tracing.
+their tracing. :func:`load_saved` compiles (or loads) a program before its
+call, so that programs can be loaded in threads at once: XLA loads each on
+one core.
 
 A saved program is named by the caller's key, the arguments' shapes, dtypes
 and tree, the versions of jax and jaxlib, the backend and a digest of
@@ -62,13 +64,22 @@ def program_path(directory: str | os.PathLike, key: str, args: tuple) -> pathlib
 
 
 def call_saved(directory: str | os.PathLike, key: str, function: Callable[..., Any], *args: Any) -> Any:
-    """``function(*args)``, run through its traced program saved in ``directory``.
+    """``function(*args)``, run through its traced program saved in ``directory``: :func:`load_saved`, then the call.
+
+    Raises:
+        TypeError: ``function``'s result is not made of Python's own containers.
+    """
+    return load_saved(directory, key, function, *args)(*args)
+
+
+def load_saved(directory: str | os.PathLike, key: str, function: Callable[..., Any], *args: Any) -> Callable[..., Any]:
+    """``function`` for arguments like ``args``, compiled from its traced program saved in ``directory``.
 
     The program is loaded when a process saved it before (:func:`program_path`)
     or the package ships it (:data:`SHIPPED_DIRECTORY`), else traced, exported
     and saved (a folder that cannot be written only costs the next process the
-    tracing again). The result is the same
-    pytree ``function`` returns.
+    tracing again), and compiled (or loaded from XLA's cache) here, before any
+    call: another thread may load a program while this one runs another one.
 
     Args:
         directory: the folder of the saved programs.
@@ -76,29 +87,55 @@ def call_saved(directory: str | os.PathLike, key: str, function: Callable[..., A
         function: a function of pytrees of arrays, traceable by ``jax.jit``, that returns Python's own
             containers (tuples, lists, dicts, None) of arrays: the result's tree is pickled, and a custom
             pytree node (an ``equinox.Module``, say) may not come back the same.
-        *args: its arguments: pytrees whose leaves are arrays.
+        *args: its arguments: pytrees whose leaves are arrays or ``jax.ShapeDtypeStruct``.
+
+    Returns:
+        A function of arguments of the same trees, shapes and dtypes as ``args`` that returns what
+        ``function`` returns.
 
     Raises:
         TypeError: ``function``'s result is not made of Python's own containers.
     """
     path = program_path(directory, key, args)
-    leaves, in_tree = jax.tree.flatten(args)
-    if path not in _CALLABLE:
+    if path not in _COMPILED:
+        exported, out_tree = _exported_program(path, function, args)
+        _COMPILED[path] = jax.jit(exported.call).lower(*exported.in_avals).compile(), out_tree
+    compiled, out_tree = _COMPILED[path]
+
+    def call(*arguments: Any) -> Any:
+        return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(arguments)))
+
+    return call
+
+
+def result_like(directory: str | os.PathLike, key: str, function: Callable[..., Any], *args: Any) -> Any:
+    """The shapes and dtypes of what :func:`load_saved`'s program returns, as ``jax.ShapeDtypeStruct`` leaves.
+
+    Read from the saved program without compiling it (traced and saved first if there is none): the next
+    program's arguments can be loaded before this one runs.
+    """
+    exported, out_tree = _exported_program(program_path(directory, key, args), function, args)
+    return jax.tree.unflatten(out_tree, [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in exported.out_avals])
+
+
+def _exported_program(path: pathlib.Path, function: Callable[..., Any], args: tuple) -> tuple[Any, Any]:
+    """The program at ``path``: this process's, the user's, the package's, or traced and saved now."""
+    if path not in _EXPORTED:
         saved = _load(path)
         if saved is None:
             saved = _load(SHIPPED_DIRECTORY / path.name)
         if saved is None:
+            leaves, in_tree = jax.tree.flatten(args)
             saved = _export(function, in_tree, leaves)
             _save(path, *saved)
-        exported, out_tree = saved
-        # one jitted caller per program and process: Exported.call alone lowers the program anew each call
-        _CALLABLE[path] = jax.jit(exported.call), out_tree
-    call, out_tree = _CALLABLE[path]
-    return jax.tree.unflatten(out_tree, call(*leaves))
+        _EXPORTED[path] = saved
+    return _EXPORTED[path]
 
 
-# the programs this process has loaded or exported: path -> (jitted call, result tree)
-_CALLABLE: dict[pathlib.Path, tuple[Callable, Any]] = {}
+# the programs this process has loaded or exported: path -> (jax.export.Exported, result tree)
+_EXPORTED: dict[pathlib.Path, tuple[Any, Any]] = {}
+# the programs this process has compiled: path -> (compiled program, result tree)
+_COMPILED: dict[pathlib.Path, tuple[Any, Any]] = {}
 
 
 def _export(function, in_tree, leaves) -> tuple[jax.export.Exported, Any]:

@@ -6,7 +6,9 @@ brought back to the image's columns and rows (:func:`~ncjax.network.model.predic
 and snapped to the full image's edges (:func:`~ncjax.network.edges.snap_to_edges`), and the
 geometric pipeline (:func:`~ncjax.pipeline.run.layout_from_evidence`)
 runs on them with each image's own camera radius. Nothing leaves the device
-between the two blocks, and a batch of images is one call.
+between the two blocks, and a batch of images is one call. With a
+``program_cache`` the same computation runs as three saved programs (the
+network, the geometry's steps 0-4 and 5-6) that a later process loads at once.
 
 With a height prior (:class:`~ncjax.pipeline.prior.HeightPrior`) the scale of a
 central panorama (``rc = 0``) comes from it; a non-central one keeps the scale
@@ -17,6 +19,7 @@ cannot fix it (:data:`SCALE_FAILURES`); :class:`Reconstruction` says which
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import os
 from typing import NamedTuple
@@ -35,9 +38,9 @@ from .network.model import HorizonNet, check_views
 from .network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, image_boundaries
 from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
 from .pipeline.prior import HeightPrior
-from .pipeline.run import layout_for, layout_from_boundaries, panorama_keys
+from .pipeline.run import WallsToAdjust, layout_from_boundaries, layout_of_walls, panorama_keys, walls_for
 from .pipeline.types import Layout, LayoutStatus
-from .programs import call_saved
+from .programs import call_saved, load_saved, result_like
 
 # The pipeline's defaults suit exact and white-noise rows. The network's corner probability has lobes several
 # columns wide, in which NMS over +-2 columns leaves spurious second peaks: +-4 columns and a 0.4 threshold keep one
@@ -105,6 +108,40 @@ class Reconstruction(NamedTuple):
     geometry: Layout | None = None
 
 
+def _walls_of_rows(
+    ceiling_v: Float[Array, "B W"],
+    floor_v: Float[Array, "B W"],
+    corner_prob: Float[Array, "B W"],
+    image_height: int,
+    rc: Float[Array, " B"],
+    keys: Key[Array, " B"],
+    thresholds: dict[str, Float[Array, ""]],
+    prior: HeightPrior | None,
+    world: str,
+    config: PipelineConfig,
+) -> WallsToAdjust:
+    """Steps 0-4 of the geometric pipeline on each panorama's rows, with its own radius, key and prior."""
+    config = with_traced(config, thresholds)
+
+    def one(ceiling, floor, probability, radius, one_prior, key):
+        cam = NonCentralPanorama(ceiling_v.shape[-1], image_height, rc=radius)
+        return walls_for(ceiling, floor, probability, cam, one_prior, key, world, config)
+
+    return jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, prior, keys)
+
+
+def _layouts_of_walls(
+    walls: WallsToAdjust,
+    thresholds: dict[str, Float[Array, ""]],
+    prior: HeightPrior | None,
+    world: str,
+    config: PipelineConfig,
+) -> Layout:
+    """Steps 5-6 of :func:`_walls_of_rows`' walls."""
+    config = with_traced(config, thresholds)
+    return jax.vmap(lambda w, p: layout_of_walls(w, p, world, config))(walls, prior)
+
+
 def _reconstruct_body(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
@@ -117,17 +154,11 @@ def _reconstruct_body(
     views: int,
     edge_snap: EdgeSnap | None,
 ) -> Reconstruction:
-    height, width = images.shape[1:3]
-    config = with_traced(config, thresholds)
-    ceiling_v, floor_v, corner_prob = image_boundaries(model, images, views, edge_snap)
-
-    def one(ceiling, floor, probability, radius, one_prior, key):
-        cam = NonCentralPanorama(width, height, rc=radius)
-        return layout_for(ceiling, floor, probability, cam, one_prior, key, world, config)
-
-    layouts = jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, prior, keys)
+    rows = image_boundaries(model, images, views, edge_snap)
+    walls = _walls_of_rows(*rows, images.shape[1], rc, keys, thresholds, prior, world, config)
+    layouts = _layouts_of_walls(walls, thresholds, prior, world, config)
     source = jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR)
-    return Reconstruction(layouts, ceiling_v, floor_v, corner_prob, source)
+    return Reconstruction(layouts, *rows, source)
 
 
 _reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "config", "views", "edge_snap"))
@@ -136,30 +167,49 @@ _reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "config", "v
 def _reconstruct_saved(
     directory, weights: ModelWeights, images, rc, keys, thresholds, prior, world, config, views, edge_snap
 ):
-    """:func:`_reconstruct` through its program saved in ``directory`` (:func:`ncjax.programs.call_saved`):
-    a later process skips the tracing, and building the network too. The weights are arguments, the
-    architecture part of the key."""
+    """:func:`_reconstruct` through three programs saved in ``directory`` (:mod:`ncjax.programs`): the
+    network's, the geometry's steps 0-4 and its steps 5-6. A later process skips the tracing, and building
+    the network too.
 
-    def run(tensors, images, rc, key_data, thresholds, prior):
-        result = _reconstruct_body(
-            model_from_weights(weights._replace(tensors=tensors)),
-            images,
-            rc,
-            jax.random.wrap_key_data(key_data),
-            thresholds,
-            prior,
-            world,
-            config,
-            views,
-            edge_snap,
+    XLA loads a compiled program on one core, and the geometry's halves are most of the loading: they are
+    loaded in two threads while the network's loads and runs. The weights are arguments, the architecture
+    part of the key; the network's program serves every world and pipeline setting.
+    """
+    walls_structure = []
+
+    def network(tensors, images):
+        return image_boundaries(model_from_weights(weights._replace(tensors=tensors)), images, views, edge_snap)
+
+    def walls(rows, rc, key_data, thresholds, prior):
+        key = jax.random.wrap_key_data(key_data)
+        leaves, structure = jax.tree.flatten(
+            _walls_of_rows(*rows, images.shape[1], rc, key, thresholds, prior, world, config)
         )
-        # plain containers: a saved program's result tree must survive pickling (Layout's does not)
-        return {field.name: getattr(result.layout, field.name) for field in dataclasses.fields(Layout)}, result[1:5]
+        walls_structure.append(structure)
+        return leaves  # a saved program returns plain containers (a pickled result tree)
 
-    key = repr(("reconstruct", weights.config, world, config, views, edge_snap))
-    arguments = (weights.tensors, images, rc, jax.random.key_data(keys), thresholds, prior)
-    layout, rest = call_saved(directory, key, run, *arguments)
-    return Reconstruction(Layout(**layout), *rest)
+    def layouts(walls_leaves, thresholds, prior):
+        if not walls_structure:  # the walls' program was loaded, not traced: trace its shapes alone
+            jax.eval_shape(walls, rows_like, *walls_arguments)
+        layout = _layouts_of_walls(
+            jax.tree.unflatten(walls_structure[0], walls_leaves), thresholds, prior, world, config
+        )
+        return {field.name: getattr(layout, field.name) for field in dataclasses.fields(Layout)}
+
+    rows_like = (jax.ShapeDtypeStruct(images.shape[:1] + images.shape[2:3], jnp.float32),) * 3
+    walls_arguments = (rc, jax.random.key_data(keys), thresholds, prior)
+    settings = (images.shape[1], world, config)
+    walls_key, layouts_key = repr(("walls", *settings)), repr(("layouts", *settings))
+    walls_like = result_like(directory, walls_key, walls, rows_like, *walls_arguments)
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        walls_program = pool.submit(load_saved, directory, walls_key, walls, rows_like, *walls_arguments)
+        layouts_program = pool.submit(load_saved, directory, layouts_key, layouts, walls_like, thresholds, prior)
+        network_key = repr(("network", weights.config, views, edge_snap))
+        rows = call_saved(directory, network_key, network, weights.tensors, images)
+        walls_leaves = walls_program.result()(rows, *walls_arguments)
+        layout = layouts_program.result()(walls_leaves, thresholds, prior)
+    source = jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR)
+    return Reconstruction(Layout(**layout), *rows, source)
 
 
 def _with_prior_fallback(
@@ -253,7 +303,7 @@ def reconstruct_batch(
         prior: a :class:`~ncjax.HeightPrior` (value scalar or (B,)): the scale of the
             central panoramas (``rc = 0``), and of the non-central ones whose geometry
             fails with one of :data:`SCALE_FAILURES`. None: metric scale from the geometry only.
-        program_cache: a folder where the traced program is kept (:mod:`ncjax.programs`): a later
+        program_cache: a folder where the traced programs are kept (:mod:`ncjax.programs`): a later
             process with the same settings and shapes skips the tracing (about 10 s on 2 CPU
             cores; with XLA's persistent compilation cache the compiler too). None: traced in
             each process, as any jitted function.
@@ -323,7 +373,7 @@ def reconstruct(
         edge_snap: rows snapped to the image's edges (None: the network's rows).
         prior: a :class:`~ncjax.HeightPrior` for the scale (needed when ``cam.rc`` is 0; see
             :func:`reconstruct_batch`).
-        program_cache: a folder that keeps the traced program for later processes (see
+        program_cache: a folder that keeps the traced programs for later processes (see
             :func:`reconstruct_batch`).
 
     Returns:

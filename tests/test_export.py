@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -163,6 +164,19 @@ def test_flagged_layout_keeps_its_geometry_marked_not_ok(tmp_path, status):
     marked = ncjax.viz.overlay.draw_overlay(image, uncertain, cam)
     assert (drawn != image).any() and (marked[:30] != drawn[:30]).any()  # the layout, then the label above it
     assert not np.array_equal(ncjax.viz.plan.draw_plan(uncertain), ncjax.viz.plan.draw_plan(make_layout(RECTANGLE)))
+
+
+def test_the_plan_is_framed_on_the_room_not_on_its_corner_ellipses():
+    """A corner region far larger than the room (a flagged layout's) is cut at the frame: the walls stay in place."""
+    layout = make_layout(L_SHAPE)
+    vague = dataclasses.replace(layout, corner_covariance=1e4 * jnp.eye(2) * layout.mask[:, None, None])
+    blue = np.array([31, 119, 180])  # the walls' colour, drawn above the ellipses
+
+    def walls(plan):
+        return np.all(plan == blue, axis=-1)
+
+    sharp_plan, vague_plan = ncjax.viz.plan.draw_plan(layout), ncjax.viz.plan.draw_plan(vague)
+    assert walls(sharp_plan).sum() > 500 and np.array_equal(walls(sharp_plan), walls(vague_plan))
 
 
 def test_record_rejects_bad_arguments():

@@ -40,12 +40,13 @@ from ncjax.pipeline.adjust import (
     observation_directions,
     problem_residuals,
 )
-from ncjax.pipeline.atlanta import atlanta_layout, corner_offsets
+from ncjax.pipeline.assemble import finish_layout
+from ncjax.pipeline.atlanta import atlanta_walls, corner_offsets
 from ncjax.pipeline.config import static_part, traced_part
 from ncjax.pipeline.corners import column_walls, find_corners, full_window_spread, is_peak, side_extrapolation
 from ncjax.pipeline.evidence import gather_evidence
 from ncjax.pipeline.floor_check import ceiling_consistent_floor
-from ncjax.pipeline.manhattan import _segment_directions, cyclic_binary_labels, manhattan_frame, manhattan_layout
+from ncjax.pipeline.manhattan import _segment_directions, cyclic_binary_labels, manhattan_frame, manhattan_walls
 from ncjax.pipeline.run import _batched_layout_jit, _layout_jit, choose_manhattan
 from ncjax.pipeline.sparse_normal import normal_matrix, probe_jacobian
 from ncjax.pipeline.uncertainty import correlation_time, layout_uncertainty, room_height_sigma
@@ -850,10 +851,17 @@ def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     assert float(support[at_peak]) > 0
     others = slots[slots != at_peak]
     np.testing.assert_array_equal(np.asarray(directions)[others], np.asarray(evidence.walls.direction)[others])
-    layout = manhattan_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
+    layout = branch_layout(manhattan_walls, evidence, label.ceiling_v, label.floor_v, cam, config)
     assert bool(layout.ok) and int(jnp.sum(layout.inserted)) == 1
     result = metrics.evaluate_layout(layout, room)
     assert result["ce"] < 0.1 and result["iou3d"] > 0.95, result
+
+
+def branch_layout(branch_walls, evidence, ceiling_v, floor_v, cam, config):
+    """One branch's layout (step 4, then steps 5-6) from given evidence."""
+    return finish_layout(
+        cam, evidence, branch_walls(evidence, ceiling_v, floor_v, cam, config), ceiling_v, floor_v, config
+    )
 
 
 @pytest.mark.slow
@@ -896,7 +904,7 @@ def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
         evidence = eqx.tree_at(lambda e: e.occluded, evidence, jnp.zeros_like(evidence.occluded))
         if row_noise is not None:
             evidence = eqx.tree_at(lambda e: e.row_noise, evidence, jnp.asarray(row_noise, evidence.row_noise.dtype))
-        return atlanta_layout(evidence, label.ceiling_v, label.floor_v, cam, config)
+        return branch_layout(atlanta_walls, evidence, label.ceiling_v, label.floor_v, cam, config)
 
     count = int(np.sum(np.asarray(label.corner_mask)))
     found = layout(ncjax.PipelineConfig())

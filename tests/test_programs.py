@@ -11,6 +11,12 @@ import pytest
 from ncjax import programs
 
 
+def forget():
+    """Forget this process's programs, as a new process would."""
+    programs._COMPILED.clear()
+    programs._EXPORTED.clear()
+
+
 def _traced_calls():
     calls = []
 
@@ -26,7 +32,7 @@ def test_a_saved_program_is_called_without_tracing_again(tmp_path):
     x, pair = jnp.arange(3.0), (jnp.ones(3), jnp.float32(2.0))
     first = programs.call_saved(tmp_path, "k", function, x, pair)
     assert len(calls) == 1 and len(list(tmp_path.glob(f"*{programs.SUFFIX}"))) == 1
-    programs._CALLABLE.clear()  # as a new process: only the file is left
+    forget()  # as a new process: only the file is left
     second = programs.call_saved(tmp_path, "k", function, x, pair)
     assert len(calls) == 1
     assert second["none"] is None
@@ -43,7 +49,7 @@ def test_other_shapes_keys_or_a_broken_file_are_traced_anew(tmp_path):
     assert len(calls) == 3 and len(list(tmp_path.glob(f"*{programs.SUFFIX}"))) == 3
     path = programs.program_path(tmp_path, "k", (jnp.zeros(3), pair))
     path.write_bytes(b"not a program")
-    programs._CALLABLE.clear()
+    forget()
     result = programs.call_saved(tmp_path, "k", function, jnp.full(3, 1.0), pair)
     assert len(calls) == 4
     np.testing.assert_array_equal(result["sum"], np.full(3, 2.0))
@@ -56,6 +62,17 @@ def test_an_unwritable_folder_still_gives_the_result(tmp_path):
     result = programs.call_saved(blocked / "programs", "k", function, jnp.ones(2), (jnp.ones(2), jnp.float32(3.0)))
     np.testing.assert_array_equal(result["product"], np.full(2, 3.0))
     assert jax.tree.structure(result) == jax.tree.structure({"sum": 0, "product": 0, "none": None})
+
+
+def test_result_like_gives_the_result_shapes_without_running_it(tmp_path):
+    function, calls = _traced_calls()
+    x, pair = jax.ShapeDtypeStruct((3,), jnp.float32), (jnp.ones(3), jnp.float32(2.0))
+    like = programs.result_like(tmp_path, "k", function, x, pair)
+    assert like["sum"].shape == (3,) and like["product"].dtype == jnp.float32 and like["none"] is None
+    forget()
+    assert programs.result_like(tmp_path, "k", function, x, pair)["sum"].shape == (3,) and len(calls) == 1
+    result = programs.load_saved(tmp_path, "k", function, x, pair)(jnp.arange(3.0), pair)
+    np.testing.assert_array_equal(result["product"], np.arange(3.0) * 2)
 
 
 class Box(eqx.Module):
@@ -71,7 +88,7 @@ def test_a_shipped_program_is_used_without_tracing(tmp_path, monkeypatch):
     function, calls = _traced_calls()
     x, pair = jnp.arange(3.0), (jnp.ones(3), jnp.float32(2.0))
     programs.call_saved(tmp_path / "package", "k", function, x, pair)
-    programs._CALLABLE.clear()
+    forget()
     monkeypatch.setattr(programs, "SHIPPED_DIRECTORY", tmp_path / "package")
     result = programs.call_saved(tmp_path / "user", "k", function, x, pair)
     assert len(calls) == 1  # the user's folder is empty: the package's program was loaded, not traced
@@ -83,4 +100,5 @@ def test_the_shipped_program_is_exported_from_these_sources():
     stale = "the shipped program is stale: run `uv run python experiments/export_default_program.py`"
     assert manifest["source_digest"] == programs.source_digest(), stale
     assert manifest["jax"] == jax.__version__, stale
-    assert sorted(path.name for path in programs.SHIPPED_DIRECTORY.glob(f"*{programs.SUFFIX}")) == [manifest["program"]]
+    shipped = sorted(path.name for path in programs.SHIPPED_DIRECTORY.glob(f"*{programs.SUFFIX}"))
+    assert shipped == sorted(manifest["programs"]) and len(shipped) == 3

@@ -1,10 +1,10 @@
 """XLA's persistent compilation cache for the CLI, and telling the user when a run will compile.
 
-The first ``ncjax reconstruct`` with a given image size, batch and settings traces and compiles one
-program for the network and the geometry: on 2 CPU cores half a minute to a minute (the package
-ships the traced program of the default settings for 1024 x 512 panoramas, so those only compile),
-more than all the rest of the run. Later runs load the traced program (:mod:`ncjax.programs`) and
-the compiled one from the cache. :class:`CompileLedger` remembers, beside the
+The first ``ncjax reconstruct`` with a given image size, batch and settings traces and compiles its
+programs (the network's and the geometry's two halves): on 2 CPU cores half a minute to a minute (the
+package ships the traced programs of the default settings for 1024 x 512 panoramas, so those only
+compile), more than all the rest of the run. Later runs load the traced programs (:mod:`ncjax.programs`)
+and the compiled ones from the cache. :class:`CompileLedger` remembers, beside the
 cache, which settings this machine has compiled and how long the first call took, so that a run
 which is about to compile says so and for about how long, instead of a progress bar at 0%.
 """

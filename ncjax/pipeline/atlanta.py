@@ -11,10 +11,9 @@ from ..geometry.plucker import cross_2d
 from ..geometry.polygon import previous_in_loop
 from ..geometry.reprojection import column_directions
 from .adjust import FREE_ANGLE, corner_column_offset
-from .assemble import finish_layout
 from .config import scaled
 from .evidence import previous_of
-from .types import BranchWalls, FinalWalls, Layout
+from .types import BranchWalls, FinalWalls
 from .walls import (
     boundary_gap,
     final_walls,
@@ -124,9 +123,3 @@ def atlanta_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
     final, ok, directions, distances, h_c, h_f = jax.tree.map(lambda x: x[1], passes)
     labels = jnp.full(capacity, FREE_ANGLE)
     return BranchWalls(final, ok, directions, distances, h_c, h_f, labels)
-
-
-def atlanta_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
-    """Atlanta branch (step 4 of the module docstring) and steps 5-6."""
-    walls = atlanta_walls(evidence, ceiling_v, floor_v, cam, config)
-    return finish_layout(cam, evidence, walls, ceiling_v, floor_v, config)

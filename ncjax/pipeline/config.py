@@ -63,7 +63,7 @@ class PipelineConfig:
         merge_angle: Atlanta: such walls are merged only if their directions
             differ by less than this (degrees): a shallow corner between two
             walls seen far away passes the pixel test (Manhattan merges
-            walls of one class, see :func:`manhattan_layout`).
+            walls of one class, see :func:`~ncjax.pipeline.manhattan.manhattan_walls`).
         max_corner_offset: Atlanta: where two observed walls meet farther than
             this (columns) from their corner's column, or not at all, the
             corner's peak holds two corners (the network's lobes merge close

@@ -10,10 +10,9 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry.camera import NonCentralPanorama
 from .adjust import manhattan_directions, manhattan_yaw
-from .assemble import finish_layout
 from .config import PipelineConfig
 from .evidence import previous_of
-from .types import BranchWalls, FinalWalls, Layout, WallEvidence
+from .types import BranchWalls, FinalWalls, WallEvidence
 from .walls import final_walls, plan_lines, point_on_wall, several_corners, signed_distance, solve_final_walls
 
 
@@ -169,9 +168,3 @@ def manhattan_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
     distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
     heights = (solved.ceiling_height, solved.floor_height)
     return BranchWalls(final, ok, solved.directions, distances, *heights, wall_labels)
-
-
-def manhattan_layout(evidence, ceiling_v, floor_v, cam, config) -> Layout:
-    """Manhattan branch (step 4 of the module docstring) and steps 5-6."""
-    walls = manhattan_walls(evidence, ceiling_v, floor_v, cam, config)
-    return finish_layout(cam, evidence, walls, ceiling_v, floor_v, config)

@@ -55,6 +55,9 @@ status values (:class:`LayoutStatus`), never exceptions, inside traced code.
 Repeated stages are traced once, so that the program compiles and loads
 faster: the solver passes of step 4 are one ``lax.scan``, and with
 ``world="auto"`` steps 5-6 run on both branches' walls as one ``vmap``.
+Steps 0-4 (:func:`walls_to_adjust`) and 5-6 (:func:`adjusted_layout`) are two
+functions, joined by :class:`WallsToAdjust`, so that a program can be saved
+in two halves that load at once (:mod:`ncjax.reconstruction`).
 """
 
 from __future__ import annotations
@@ -71,13 +74,86 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Key, PRNGKeyArray, UInt32
 
 from ..geometry.camera import NonCentralPanorama
 from .assemble import finish_layout
-from .atlanta import atlanta_layout, atlanta_walls
+from .atlanta import atlanta_walls
 from .config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
 from .evidence import gather_evidence
 from .floor_check import ceiling_consistent_floor
-from .manhattan import manhattan_frame, manhattan_layout, manhattan_walls
+from .manhattan import manhattan_frame, manhattan_walls
 from .prior import HeightPrior, prior_rows, rescale_to_prior
-from .types import Layout, LayoutStatus, pad_layout
+from .types import BranchWalls, Layout, LayoutStatus, WallEvidence, pad_layout
+
+
+class WallsToAdjust(eqx.Module):
+    """One panorama after steps 0-4, before steps 5-6 (internal; traced): what :func:`adjusted_layout` takes.
+
+    The reconstruction's saved programs end and start here (:mod:`ncjax.reconstruction`): XLA loads the
+    two halves' compiled programs at once, on two cores.
+
+    Attributes:
+        cam: the camera (a height prior's virtual rig).
+        evidence: steps 1-3 (:func:`~ncjax.pipeline.evidence.gather_evidence`).
+        branches: step 4's walls: one branch's, or with ``world="auto"`` the Manhattan and Atlanta
+            branches' stacked on a leading axis.
+        ceiling_v: the rows the walls were fitted to.
+        floor_v: likewise, after step 0.
+        in_frame: every RANSAC wall lies within ``manhattan_tolerance`` of a Manhattan frame (``auto``'s tie).
+        prior_room_height: the room height a height prior gives (0: no prior), ``config.prior_room_height``.
+    """
+
+    cam: NonCentralPanorama
+    evidence: WallEvidence
+    branches: BranchWalls
+    ceiling_v: Float[Array, " W"]
+    floor_v: Float[Array, " W"]
+    in_frame: Bool[Array, ""]
+    prior_room_height: Float[Array, ""]
+
+
+def walls_to_adjust(
+    ceiling_v: Float[Array, " W"],
+    floor_v: Float[Array, " W"],
+    corner_prob: Float[Array, " W"],
+    cam: NonCentralPanorama,
+    key: PRNGKeyArray,
+    world: str,
+    config: PipelineConfig,
+) -> WallsToAdjust:
+    """Steps 0-4 of one panorama (no input checks; see :func:`layout_from_boundaries`)."""
+    # step 0 always runs: at the default threshold (inf) it replaces no row
+    floor_v, replaced = ceiling_consistent_floor(cam, ceiling_v, floor_v, config.floor_consistency_threshold)
+    evidence = gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config)
+    evidence = eqx.tree_at(lambda e: e.floor_measured, evidence, ~replaced)
+    in_frame = jnp.asarray(False)
+    if world == "manhattan":
+        branches = manhattan_walls(evidence, ceiling_v, floor_v, cam, config)
+    elif world == "atlanta":
+        branches = atlanta_walls(evidence, ceiling_v, floor_v, cam, config)
+    else:
+        _, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
+        counted = evidence.corner_mask & evidence.walls.ok
+        in_frame = jnp.all(jnp.where(counted, deviation, 0.0) < jnp.radians(config.manhattan_tolerance))
+        branches = jax.tree.map(
+            lambda m, a: jnp.stack([m, a]),
+            manhattan_walls(evidence, ceiling_v, floor_v, cam, config),
+            atlanta_walls(evidence, ceiling_v, floor_v, cam, config),
+        )
+    return WallsToAdjust(cam, evidence, branches, ceiling_v, floor_v, in_frame, jnp.asarray(config.prior_room_height))
+
+
+def adjusted_layout(walls: WallsToAdjust, world: str, config: PipelineConfig) -> Layout:
+    """Steps 5-6 of :func:`walls_to_adjust`'s walls, and ``world="auto"``'s choice of a branch."""
+    cam, evidence, ceiling_v, floor_v = walls.cam, walls.evidence, walls.ceiling_v, walls.floor_v
+    if world != "auto":
+        return finish_layout(cam, evidence, walls.branches, ceiling_v, floor_v, config)
+    # both branches' walls adjusted as one batch: the program holds steps 5-6 once
+    layouts = jax.vmap(finish_layout, in_axes=(None, None, 0, None, None, None))(
+        cam, evidence, walls.branches, ceiling_v, floor_v, config
+    )
+    manhattan, atlanta = (jax.tree.map(lambda x, i=i: x[i], layouts) for i in range(2))
+    use_manhattan = choose_manhattan(
+        manhattan.ok, atlanta.ok, manhattan.explained_fraction, atlanta.explained_fraction, walls.in_frame
+    )
+    return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
 
 
 def layout_from_evidence(
@@ -90,31 +166,31 @@ def layout_from_evidence(
     config: PipelineConfig,
 ) -> Layout:
     """The traceable pipeline for one panorama (no input checks; see :func:`layout_from_boundaries`)."""
-    # step 0 always runs: at the default threshold (inf) it replaces no row
-    floor_v, replaced = ceiling_consistent_floor(cam, ceiling_v, floor_v, config.floor_consistency_threshold)
-    evidence = gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config)
-    evidence = eqx.tree_at(lambda e: e.floor_measured, evidence, ~replaced)
-    if world == "manhattan":
-        return manhattan_layout(evidence, ceiling_v, floor_v, cam, config)
-    if world == "atlanta":
-        return atlanta_layout(evidence, ceiling_v, floor_v, cam, config)
-    _, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
-    counted = evidence.corner_mask & evidence.walls.ok
-    in_frame = jnp.all(jnp.where(counted, deviation, 0.0) < jnp.radians(config.manhattan_tolerance))
-    # both branches' walls adjusted as one batch: the program holds steps 5-6 once
-    branches = jax.tree.map(
-        lambda m, a: jnp.stack([m, a]),
-        manhattan_walls(evidence, ceiling_v, floor_v, cam, config),
-        atlanta_walls(evidence, ceiling_v, floor_v, cam, config),
-    )
-    layouts = jax.vmap(finish_layout, in_axes=(None, None, 0, None, None, None))(
-        cam, evidence, branches, ceiling_v, floor_v, config
-    )
-    manhattan, atlanta = (jax.tree.map(lambda x, i=i: x[i], layouts) for i in range(2))
-    use_manhattan = choose_manhattan(
-        manhattan.ok, atlanta.ok, manhattan.explained_fraction, atlanta.explained_fraction, in_frame
-    )
-    return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
+    return layout_for(ceiling_v, floor_v, corner_prob, cam, None, key, world, config)
+
+
+def prior_config(config: PipelineConfig, prior_room_height: Float[ArrayLike, ""]) -> PipelineConfig:
+    """``config`` for a height prior's virtual rig: the height-uncertainty test (``max_height_uncertainty``) off,
+    since the prior, not the rows' parallax, fixes the scale, and the size limits (``max_room_height``,
+    ``max_corner_distance``) at the prior's scale (``prior_room_height``), not at the virtual rig's."""
+    return with_traced(config, {"max_height_uncertainty": jnp.asarray(jnp.inf), "prior_room_height": prior_room_height})
+
+
+def walls_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> WallsToAdjust:
+    """:func:`walls_to_adjust`, on a height prior's virtual rig when ``prior`` is not None
+    (:mod:`ncjax.pipeline.prior`)."""
+    if prior is None:
+        return walls_to_adjust(ceiling_v, floor_v, corner_prob, cam, key, world, config)
+    virtual, ceiling_virtual, floor_virtual, room_height = prior_rows(cam, ceiling_v, floor_v, prior)
+    config = prior_config(config, room_height)
+    return walls_to_adjust(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config)
+
+
+def layout_of_walls(walls: WallsToAdjust, prior: HeightPrior | None, world: str, config: PipelineConfig) -> Layout:
+    """:func:`adjusted_layout` of :func:`walls_for`'s walls, scaled to the height ``prior`` states if not None."""
+    if prior is None:
+        return adjusted_layout(walls, world, config)
+    return rescale_to_prior(adjusted_layout(walls, world, prior_config(config, walls.prior_room_height)), prior)
 
 
 def layout_from_prior(
@@ -129,22 +205,15 @@ def layout_from_prior(
 ) -> Layout:
     """The traceable pipeline for one panorama whose scale a height prior fixes (:mod:`ncjax.pipeline.prior`).
 
-    Any ``rc``, 0 included. The height-uncertainty test (``max_height_uncertainty``) is off: the prior, not
-    the rows' parallax, fixes the scale; the size limits (``max_room_height``, ``max_corner_distance``) apply
-    at the prior's scale (``prior_room_height``), not at the virtual rig's.
+    Any ``rc``, 0 included; configured by :func:`prior_config`.
     """
-    virtual, ceiling_virtual, floor_virtual, room_height = prior_rows(cam, ceiling_v, floor_v, prior)
-    scale_from_prior = {"max_height_uncertainty": jnp.asarray(jnp.inf), "prior_room_height": room_height}
-    config = with_traced(config, scale_from_prior)
-    layout = layout_from_evidence(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config)
-    return rescale_to_prior(layout, prior)
+    return layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config)
 
 
 def layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> Layout:
-    """:func:`layout_from_evidence`, or :func:`layout_from_prior` when ``prior`` is not None."""
-    if prior is None:
-        return layout_from_evidence(ceiling_v, floor_v, corner_prob, cam, key, world, config)
-    return layout_from_prior(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config)
+    """Steps 0-6 of one panorama: :func:`walls_for`, then :func:`layout_of_walls` (``prior`` may be None)."""
+    walls = walls_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config)
+    return layout_of_walls(walls, prior, world, config)
 
 
 def choose_manhattan(

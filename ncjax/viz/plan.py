@@ -122,10 +122,10 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     # framed on the room and the camera: an ellipse far larger than the room is cut, not shrinking the room
     shown = np.concatenate([plan, np.full((1, 2), -(rc or 0.0)), np.full((1, 2), rc or 0.0)])
     low, high = shown.min(0), shown.max(0)
-    margin = 0.1 * float(np.max(high - low)) + 0.3
-    axes.set_xlim(low[0] - margin, high[0] + margin)
-    axes.set_ylim(low[1] - margin, high[1] + margin)
-    axes.set_aspect("equal", adjustable="datalim")
+    centre, half = (low + high) / 2, 0.6 * float(np.max(high - low)) + 0.3  # one span for both axes: equal scales
+    axes.set_xlim(centre[0] - half, centre[0] + half)
+    axes.set_ylim(centre[1] - half, centre[1] + half)
+    axes.set_aspect("equal")
     for axis in (axes.xaxis, axes.yaxis):  # whole metres, about 12 grid lines at most
         axis.set_major_locator(MaxNLocator(nbins=12, steps=[1, 2, 5, 10], integer=True))
     axes.grid(True, color="0.8", linewidth=0.5)
