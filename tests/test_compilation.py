@@ -16,6 +16,9 @@ def test_a_first_run_says_it_compiles_and_a_later_one_does_not(tmp_path):
     assert again.notice("a", "the network") is None
     assert again.notice("b", "the network").endswith("; about 95 s here)")
     assert json.loads((tmp_path / LEDGER_FILE).read_text()) == {"a": 95.0}
+    again.record("b", 30.0)
+    again.record("c", 41.0)
+    assert again.notice("d", "the network").endswith("; about 41 s here)")  # the median, not the longest
 
 
 def test_an_unreadable_or_unwritable_ledger_only_repeats_the_notice(tmp_path):

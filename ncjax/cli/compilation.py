@@ -15,6 +15,7 @@ import contextlib
 import hashlib
 import json
 import os
+import statistics
 import time
 from collections.abc import Callable, Iterator
 
@@ -80,7 +81,8 @@ class CompileLedger:
         """The line to print before a call that compiles ``what`` (None when this machine compiled it before)."""
         if key in self.seconds:
             return None
-        estimate = f"about {max(self.seconds.values()):.0f} s here" if self.seconds else FIRST_RUN_GUESS
+        # the median first call: one long outlier (a large batch, say) does not make every estimate long
+        estimate = f"about {statistics.median(self.seconds.values()):.0f} s here" if self.seconds else FIRST_RUN_GUESS
         return f"compiling {what} (first run with these settings only; {estimate})"
 
     @contextlib.contextmanager
