@@ -72,7 +72,13 @@ def call_saved(directory: str | os.PathLike, key: str, function: Callable[..., A
     return load_saved(directory, key, function, *args)(*args)
 
 
-def load_saved(directory: str | os.PathLike, key: str, function: Callable[..., Any], *args: Any) -> Callable[..., Any]:
+def load_saved(
+    directory: str | os.PathLike,
+    key: str,
+    function: Callable[..., Any],
+    *args: Any,
+    compiler_options: dict[str, Any] | None = None,
+) -> Callable[..., Any]:
     """``function`` for arguments like ``args``, compiled from its traced program saved in ``directory``.
 
     The program is loaded when a process saved it before (:func:`program_path`)
@@ -88,6 +94,8 @@ def load_saved(directory: str | os.PathLike, key: str, function: Callable[..., A
             containers (tuples, lists, dicts, None) of arrays: the result's tree is pickled, and a custom
             pytree node (an ``equinox.Module``, say) may not come back the same.
         *args: its arguments: pytrees whose leaves are arrays or ``jax.ShapeDtypeStruct``.
+        compiler_options: XLA's options for this compilation (``jax.stages.Lowered.compile``'s), part of
+            the compilation cache's key.
 
     Returns:
         A function of arguments of the same trees, shapes and dtypes as ``args`` that returns what
@@ -97,10 +105,12 @@ def load_saved(directory: str | os.PathLike, key: str, function: Callable[..., A
         TypeError: ``function``'s result is not made of Python's own containers.
     """
     path = program_path(directory, key, args)
-    if path not in _COMPILED:
+    options = tuple(sorted((compiler_options or {}).items()))
+    if (path, options) not in _COMPILED:
         exported, out_tree = _exported_program(path, function, args)
-        _COMPILED[path] = jax.jit(exported.call).lower(*exported.in_avals).compile(), out_tree
-    compiled, out_tree = _COMPILED[path]
+        lowered = jax.jit(exported.call).lower(*exported.in_avals)
+        _COMPILED[path, options] = lowered.compile(compiler_options=compiler_options), out_tree
+    compiled, out_tree = _COMPILED[path, options]
 
     def call(*arguments: Any) -> Any:
         return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(arguments)))
@@ -134,8 +144,8 @@ def _exported_program(path: pathlib.Path, function: Callable[..., Any], args: tu
 
 # the programs this process has loaded or exported: path -> (jax.export.Exported, result tree)
 _EXPORTED: dict[pathlib.Path, tuple[Any, Any]] = {}
-# the programs this process has compiled: path -> (compiled program, result tree)
-_COMPILED: dict[pathlib.Path, tuple[Any, Any]] = {}
+# the programs this process has compiled: (path, compiler options) -> (compiled program, result tree)
+_COMPILED: dict[tuple[pathlib.Path, tuple], tuple[Any, Any]] = {}
 
 
 def _export(function, in_tree, leaves) -> tuple[jax.export.Exported, Any]:

@@ -73,6 +73,13 @@ NETWORK_PIPELINE_CONFIG = PipelineConfig(
 )
 
 
+# The saved geometry programs (ncjax.programs, the CLI's) compile with XLA's cheaper backend settings: 21 instead of 37
+# CPU seconds of compilation on 2 cores (a first run 28-34 -> 20-24 s, benchmarks/bench_startup.py), for a geometry
+# that runs in tens of milliseconds a panorama either way (the same layouts to 1e-5). The network keeps the full
+# optimisation: it is most of a run's time.
+GEOMETRY_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
+
+
 # Where a layout's scale came from (Reconstruction.scale_source): the rows' non-central parallax, the height
 # prior (a central panorama, or no prior asked for... then NO_SCALE), or the prior because the geometry failed.
 SCALE_SOURCES = ("non-central geometry", "height prior", "height prior (the geometry could not fix the scale)")
@@ -202,8 +209,11 @@ def _reconstruct_saved(
     walls_key, layouts_key = repr(("walls", *settings)), repr(("layouts", *settings))
     walls_like = result_like(directory, walls_key, walls, rows_like, *walls_arguments)
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
-        walls_program = pool.submit(load_saved, directory, walls_key, walls, rows_like, *walls_arguments)
-        layouts_program = pool.submit(load_saved, directory, layouts_key, layouts, walls_like, thresholds, prior)
+        cheap = {"compiler_options": GEOMETRY_COMPILER_OPTIONS}
+        walls_program = pool.submit(load_saved, directory, walls_key, walls, rows_like, *walls_arguments, **cheap)
+        layouts_program = pool.submit(
+            load_saved, directory, layouts_key, layouts, walls_like, thresholds, prior, **cheap
+        )
         network_key = repr(("network", weights.config, views, edge_snap))
         rows = call_saved(directory, network_key, network, weights.tensors, images)
         walls_leaves = walls_program.result()(rows, *walls_arguments)

@@ -75,6 +75,17 @@ def test_result_like_gives_the_result_shapes_without_running_it(tmp_path):
     np.testing.assert_array_equal(result["product"], np.arange(3.0) * 2)
 
 
+def test_compiler_options_give_another_compilation_of_the_same_program(tmp_path):
+    function, calls = _traced_calls()
+    x, pair = jnp.arange(3.0), (jnp.ones(3), jnp.float32(2.0))
+    plain = programs.load_saved(tmp_path, "k", function, x, pair)
+    cheap = programs.load_saved(
+        tmp_path, "k", function, x, pair, compiler_options={"xla_backend_optimization_level": 0}
+    )
+    assert len(calls) == 1 and len(programs._COMPILED) >= 2  # one trace, two compilations
+    np.testing.assert_array_equal(cheap(x, pair)["product"], plain(x, pair)["product"])
+
+
 class Box(eqx.Module):
     value: jax.Array
 
