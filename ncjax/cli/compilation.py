@@ -1,7 +1,7 @@
 """XLA's persistent compilation cache for the CLI, and telling the user when a run will compile.
 
 The first ``ncjax reconstruct`` with a given image size, batch and settings traces and compiles its
-programs (the network's and the geometry's two halves): on 2 CPU cores half a minute to a minute (the
+programs (the network's and the geometry's two halves): on 2 CPU cores 20 s to a minute (the
 package ships the traced programs of the default settings for 1024 x 512 panoramas, so those only
 compile), more than all the rest of the run. Later runs load the traced programs (:mod:`ncjax.programs`)
 and the compiled ones from the cache. :class:`CompileLedger` remembers, beside the
@@ -23,7 +23,7 @@ from ..io.files import write_atomic
 
 LEDGER_FILE = "ncjax-compiled.json"
 # what a first run takes when this machine has no record yet: the default program on 2 CPU cores
-FIRST_RUN_GUESS = "half a minute to a minute on 2 CPU cores"
+FIRST_RUN_GUESS = "20 s to a minute on 2 CPU cores"
 
 
 def cache_directory() -> str:
