@@ -344,3 +344,23 @@ def test_failure_messages_say_whether_a_layout_was_written():
     assert failure_message({"status": "NO_CORNERS", "floor_corners": []}).startswith(
         "no layout found (NO_CORNERS: no corner"
     )
+
+
+@pytest.mark.slow
+def test_a_lost_saved_program_of_the_geometry_is_traced_again_alone(tmp_path):
+    """With a program cache the reconstruction is three saved programs; when the one of steps 5-6 is gone
+    and the others are loaded, not traced, it is traced again from the shapes of steps 0-4: same layouts."""
+    from ncjax import programs
+
+    images = demo_image(SMALL)[None]
+    first = ncjax.reconstruct_batch(images, np.array([0.6825], np.float32), program_cache=tmp_path)
+    saved = {path: programs._load(path)[1] for path in tmp_path.glob(f"*{programs.SUFFIX}")}
+    assert len(saved) == 3
+    (adjustment,) = [path for path, tree in saved.items() if isinstance(tree.unflatten([0] * tree.num_leaves), dict)]
+    adjustment.unlink()
+    programs._EXPORTED.clear()  # as a new process: the other two programs are loaded from their files
+    programs._COMPILED.clear()
+    again = ncjax.reconstruct_batch(images, np.array([0.6825], np.float32), program_cache=tmp_path)
+    assert adjustment.exists()
+    np.testing.assert_array_equal(again.layout.status, first.layout.status)
+    np.testing.assert_allclose(again.layout.floor_corners, first.layout.floor_corners, atol=1e-5)
