@@ -4,7 +4,7 @@ The two blocks of the paper's Fig. pipeline in ONE jitted function: the image
 is resized to the network's input size, the network's per-column outputs are
 brought back to the image's columns and rows (:func:`~ncjax.network.model.prediction_to_rows`)
 and snapped to the full image's edges (:func:`~ncjax.network.edges.snap_to_edges`), and the
-geometric pipeline (:func:`~ncjax.pipeline.run.layout_from_evidence`)
+geometric pipeline (:func:`~ncjax.pipeline.run.layout_for`)
 runs on them with each image's own camera radius. Nothing leaves the device
 between the two blocks, and a batch of images is one call. With a
 ``program_cache`` the same computation runs as three saved programs (the
@@ -187,8 +187,10 @@ def _reconstruct_saved(
     def network(tensors, images):
         return image_boundaries(model_from_weights(weights._replace(tensors=tensors)), images, views, edge_snap)
 
+    impl = jax.random.key_impl(keys)
+
     def walls(rows, rc, key_data, thresholds, prior):
-        key = jax.random.wrap_key_data(key_data)
+        key = jax.random.wrap_key_data(key_data, impl=impl)
         leaves, structure = jax.tree.flatten(
             _walls_of_rows(*rows, images.shape[1], rc, key, thresholds, prior, world, config)
         )
@@ -205,7 +207,7 @@ def _reconstruct_saved(
 
     rows_like = (jax.ShapeDtypeStruct(images.shape[:1] + images.shape[2:3], jnp.float32),) * 3
     walls_arguments = (rc, jax.random.key_data(keys), thresholds, prior)
-    settings = (images.shape[1], world, config)
+    settings = (images.shape[1], str(impl), world, config)
     walls_key, layouts_key = repr(("walls", *settings)), repr(("layouts", *settings))
     walls_like = result_like(directory, walls_key, walls, rows_like, *walls_arguments)
     with concurrent.futures.ThreadPoolExecutor(2) as pool:
@@ -215,7 +217,9 @@ def _reconstruct_saved(
             load_saved, directory, layouts_key, layouts, walls_like, thresholds, prior, **cheap
         )
         network_key = repr(("network", weights.config, views, edge_snap))
-        rows = call_saved(directory, network_key, network, weights.tensors, images)
+        rows = tuple(
+            row.astype(jnp.float32) for row in call_saved(directory, network_key, network, weights.tensors, images)
+        )
         walls_leaves = walls_program.result()(rows, *walls_arguments)
         layout = layouts_program.result()(walls_leaves, thresholds, prior)
     source = jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR)

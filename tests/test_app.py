@@ -358,9 +358,10 @@ def test_a_lost_saved_program_of_the_geometry_is_traced_again_alone(tmp_path):
     assert len(saved) == 3
     (adjustment,) = [path for path, tree in saved.items() if isinstance(tree.unflatten([0] * tree.num_leaves), dict)]
     adjustment.unlink()
+    others = {path: path.stat().st_mtime_ns for path in saved if path != adjustment}
     programs._EXPORTED.clear()  # as a new process: the other two programs are loaded from their files
     programs._COMPILED.clear()
     again = ncjax.reconstruct_batch(images, np.array([0.6825], np.float32), program_cache=tmp_path)
-    assert adjustment.exists()
+    assert adjustment.exists() and {path: path.stat().st_mtime_ns for path in others} == others  # not traced
     np.testing.assert_array_equal(again.layout.status, first.layout.status)
     np.testing.assert_allclose(again.layout.floor_corners, first.layout.floor_corners, atol=1e-5)

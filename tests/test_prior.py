@@ -169,3 +169,21 @@ def test_the_size_limits_apply_at_the_scale_of_the_prior():
     # within max_corner_distance (50 m) at its own scale, a thousand times beyond it at the prior's
     assert np.all(statuses(0.0) == ncjax.LayoutStatus.OK)
     assert np.all(statuses(1000.0 * lowest) == ncjax.LayoutStatus.DEGENERATE_LAYOUT)
+
+
+@pytest.mark.slow
+def test_the_prior_route_judges_the_size_limits_at_the_prior_scale():
+    """rc 2-5 cm with a camera-height prior: a room height limit just under the rooms' fails every layout,
+    just over the tallest passes them (the layout scaled to the prior: exact rows, the true heights)."""
+    batch, labels = rooms("manhattan", (0.02, 0.05))
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=batch.rc)
+    prior = HeightPrior("camera_height", -batch.floor_height)
+    room_height = np.asarray(batch.ceiling_height - batch.floor_height)
+    rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
+
+    def statuses(max_room_height):
+        config = ncjax.PipelineConfig(max_room_height=max_room_height)
+        return np.asarray(ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, prior=prior).status)
+
+    assert np.all(statuses(0.99 * float(np.min(room_height))) == ncjax.LayoutStatus.DEGENERATE_LAYOUT)
+    assert np.all(statuses(1.01 * float(np.max(room_height))) == ncjax.LayoutStatus.OK)

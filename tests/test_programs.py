@@ -69,6 +69,8 @@ def test_result_like_gives_the_result_shapes_without_running_it(tmp_path):
     x, pair = jax.ShapeDtypeStruct((3,), jnp.float32), (jnp.ones(3), jnp.float32(2.0))
     like = programs.result_like(tmp_path, "k", function, x, pair)
     assert like["sum"].shape == (3,) and like["product"].dtype == jnp.float32 and like["none"] is None
+    path = programs.program_path(tmp_path, "k", (x, pair))
+    assert not any(at == path for at, _ in programs._COMPILED)  # read from the program, not compiled
     forget()
     assert programs.result_like(tmp_path, "k", function, x, pair)["sum"].shape == (3,) and len(calls) == 1
     result = programs.load_saved(tmp_path, "k", function, x, pair)(jnp.arange(3.0), pair)
@@ -82,7 +84,9 @@ def test_compiler_options_give_another_compilation_of_the_same_program(tmp_path)
     cheap = programs.load_saved(
         tmp_path, "k", function, x, pair, compiler_options={"xla_backend_optimization_level": 0}
     )
-    assert len(calls) == 1 and len(programs._COMPILED) >= 2  # one trace, two compilations
+    path = programs.program_path(tmp_path, "k", (x, pair))
+    compilations = [options for at, options in programs._COMPILED if at == path]
+    assert len(calls) == 1 and sorted(compilations) == [(), (("xla_backend_optimization_level", 0),)]
     np.testing.assert_array_equal(cheap(x, pair)["product"], plain(x, pair)["product"])
 
 

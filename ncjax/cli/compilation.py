@@ -22,7 +22,7 @@ from collections.abc import Callable, Iterator
 from ..io.files import write_atomic
 
 LEDGER_FILE = "ncjax-compiled.json"
-# what a first run takes when this machine has no record yet: the default program on 2 CPU cores
+# what a first run takes when this machine has no record yet: the default programs on 2 CPU cores
 FIRST_RUN_GUESS = "20 s to a minute on 2 CPU cores"
 
 

@@ -144,7 +144,7 @@ class PipelineConfig:
         max_corner_distance: a layout with a corner farther than this from
             the camera (metres) is implausible (DEGENERATE_LAYOUT).
         prior_room_height: set by the height-prior route
-            (:func:`~ncjax.pipeline.run.layout_from_prior`), not by hand: the
+            (:func:`~ncjax.pipeline.run.prior_config`), not by hand: the
             room height (metres) its prior gives. The virtual rig's layout has
             an arbitrary scale, so the two limits above apply to it scaled to
             this height. 0 (the default): the layout's own scale.

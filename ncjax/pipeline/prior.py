@@ -19,7 +19,7 @@ take of those points:
    parallax) sees those points at the rows of :func:`virtual_rows`; the
    geometric pipeline (both worlds, occlusions, the adjustment) runs on them,
    and its layout is scaled so that the prior's height holds exactly
-   (:func:`ncjax.pipeline.run.layout_from_prior`). The image's own central rays cannot tell a room
+   (:func:`ncjax.pipeline.run.layout_for`). The image's own central rays cannot tell a room
    from a scaled copy, so the scaling changes no reprojection.
 
 Exact on exact rows (the tests reproduce rendered rooms). The covariances are

@@ -193,25 +193,10 @@ def layout_of_walls(walls: WallsToAdjust, prior: HeightPrior | None, world: str,
     return rescale_to_prior(adjusted_layout(walls, world, prior_config(config, walls.prior_room_height)), prior)
 
 
-def layout_from_prior(
-    ceiling_v: Float[Array, " W"],
-    floor_v: Float[Array, " W"],
-    corner_prob: Float[Array, " W"],
-    cam: NonCentralPanorama,
-    prior: HeightPrior,
-    key: PRNGKeyArray,
-    world: str,
-    config: PipelineConfig,
-) -> Layout:
-    """The traceable pipeline for one panorama whose scale a height prior fixes (:mod:`ncjax.pipeline.prior`).
-
-    Any ``rc``, 0 included; configured by :func:`prior_config`.
-    """
-    return layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config)
-
-
 def layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> Layout:
-    """Steps 0-6 of one panorama: :func:`walls_for`, then :func:`layout_of_walls` (``prior`` may be None)."""
+    """Steps 0-6 of one panorama: :func:`walls_for`, then :func:`layout_of_walls`. With a height ``prior``
+    (not None) the scale comes from it (:mod:`ncjax.pipeline.prior`, any ``rc``, 0 included; configured by
+    :func:`prior_config`)."""
     walls = walls_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config)
     return layout_of_walls(walls, prior, world, config)
 
@@ -275,7 +260,7 @@ def layout_from_boundaries(
             over the batch, or one key per panorama (the batch's shape): a panorama's RANSAC samples then do
             not depend on the batch it is in.
         prior: a :class:`~ncjax.pipeline.prior.HeightPrior` (a scalar value or one per panorama): the scale
-            comes from it instead of the rows' parallax (:func:`layout_from_prior`; needed for ``rc = 0``).
+            comes from it instead of the rows' parallax (:func:`layout_for`; needed for ``rc = 0``).
 
     Returns:
         A :class:`Layout`; check ``ok`` / ``status``.

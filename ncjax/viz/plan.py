@@ -132,6 +132,7 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     Returns:
         An RGB uint8 image (600 x 600 pixels).
     """
+    rc = max(float(rc), 0.0) if rc is not None and math.isfinite(rc) else None
     if not has_geometry(layout):
         canvas = _Canvas(np.zeros(2), 1.0)
         canvas.text((SIZE / 2, SIZE / 2), failure_label(layout), 22)
@@ -143,10 +144,20 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     inserted = np.asarray(layout.inserted, bool)[np.asarray(layout.mask, bool)]
     plan = floor[:, :2]
     n = len(plan)
-    # framed on the room and the camera: an ellipse far larger than the room is cut, not shrinking the room
+    covariance = np.asarray(layout.corner_covariance, np.float64)[np.asarray(layout.mask, bool)]
+    ellipses = [(c, e) for c, e in zip(plan, corner_ellipses(covariance), strict=True) if np.isfinite(e[0])]
+    entries = _legend_entries(any(~inserted), any(inserted), bool(ellipses), rc)
+    along = np.linspace(0.0, 1.0, 25)[:, None, None]
+    wall_points = (1 - along) * plan + along * np.roll(plan, -1, axis=0)  # where the room is drawn
+    # framed on the room and the camera (an ellipse far larger than the room is cut, not shrinking the room),
+    # with room for the legend in a corner of the plot
     shown = np.concatenate([plan, np.full((1, 2), -(rc or 0.0)), np.full((1, 2), rc or 0.0)])
     low, high = shown.min(0), shown.max(0)
-    canvas = _Canvas((low + high) / 2, 0.6 * float(np.max(high - low)) + 0.3)
+    for widening in (1.0, 1.15, 1.3, 1.5):
+        canvas = _Canvas((low + high) / 2, widening * (0.6 * float(np.max(high - low)) + 0.3))
+        place, covered = _legend_place(canvas, entries, np.asarray(canvas.pixels(wall_points)))
+        if not covered:
+            break
     left, top, right, bottom = (SUPERSAMPLE * x for x in PLOT_BOX)
 
     step = _grid_step(2 * canvas.half)
@@ -158,8 +169,6 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         canvas.line([(lower[0], y), (upper[0], y)], GRID, 1)
     canvas.draw.polygon(canvas.pixels(plan), fill=FLOOR)
 
-    covariance = np.asarray(layout.corner_covariance, np.float64)[np.asarray(layout.mask, bool)]
-    ellipses = [(c, e) for c, e in zip(plan, corner_ellipses(covariance), strict=True) if np.isfinite(e[0])]
     if ellipses:
         shade = Image.new("RGBA", canvas.image.size, (0, 0, 0, 0))
         shade_draw = ImageDraw.Draw(shade)
@@ -179,7 +188,7 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     arm = 7 * SUPERSAMPLE
     canvas.draw.line([(origin[0] - arm, origin[1]), (origin[0] + arm, origin[1])], fill="black", width=SUPERSAMPLE)
     canvas.draw.line([(origin[0], origin[1] - arm), (origin[0], origin[1] + arm)], fill="black", width=SUPERSAMPLE)
-    if rc is not None:
+    if rc:
         radius = rc * canvas.scale
         canvas.draw.ellipse(
             (origin[0] - radius, origin[1] - radius, origin[0] + radius, origin[1] + radius),
@@ -203,7 +212,7 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     ImageDraw.Draw(label).text((0, 0), "y (m)", font=canvas.font(12), fill="black")
     label = label.rotate(90, expand=True)
     canvas.image.paste(label, (6 * SUPERSAMPLE, (top + bottom - label.height) // 2))
-    _legend(canvas, any(~inserted), any(inserted), bool(ellipses), rc)
+    _draw_legend(canvas, entries, place)
 
     ceiling_height = float(np.asarray(layout.ceiling_height))
     floor_height = float(np.asarray(layout.floor_height))
@@ -218,23 +227,52 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         summary = f"{failure_label(layout)}: {summary}"
     lines = [title, summary] if title else [summary]
     for row, line in enumerate(lines):
-        canvas.text((SIZE / 2, 14 + 18 * row - 9 * (len(lines) - 1) + 9), line, 12 if row or not title else 13)
+        size = 12 if row or not title else 13
+        while len(line) > 1 and canvas.draw.textlength(line, font=canvas.font(size)) > (SIZE - 20) * SUPERSAMPLE:
+            line = line[:-2] + "…"  # a long name is cut, not run off the image
+        canvas.text((SIZE / 2, 14 + 18 * row - 9 * (len(lines) - 1) + 9), line, size)
     return canvas.finished()
 
 
-def _legend(canvas: _Canvas, walls: bool, inserted: bool, ellipses: bool, rc: float | None) -> None:
-    """One entry per kind of mark drawn, in a box at the plot's top right."""
+def _legend_entries(walls: bool, inserted: bool, ellipses: bool, rc: float | None) -> list[tuple[str, str]]:
+    """``(text, mark)`` of each kind of mark drawn."""
     entries = [("wall", "line")] * walls + [("inserted wall", "dashed")] * inserted
     entries += [("95% corner region", "patch")] * ellipses + [("origin", "plus")]
     if rc is not None:
         entries.append((f"camera (rc = {rc:.2f} m)", "circle"))
-    s = SUPERSAMPLE
+    return entries
+
+
+def _legend_size(canvas: _Canvas, entries: list[tuple[str, str]]) -> tuple[float, float]:
     font = canvas.font(10)
-    width = max(canvas.draw.textlength(text, font=font) for text, _ in entries) / s + 40
-    right, top = PLOT_BOX[2] - 8, PLOT_BOX[1] + 8
-    left = right - width
+    return max(font.getlength(text) for text, _ in entries) / SUPERSAMPLE + 40, 16 * len(entries) + 6
+
+
+def _legend_place(canvas: _Canvas, entries, avoid: np.ndarray) -> tuple[tuple[float, float], int]:
+    """The legend's top left corner in the plot's corner that covers fewest of the pixels ``avoid`` (top right
+    first), and how many it covers."""
+    width, height = _legend_size(canvas, entries)
+    places = [
+        (PLOT_BOX[2] - 8 - width, PLOT_BOX[1] + 8),
+        (PLOT_BOX[0] + 8, PLOT_BOX[1] + 8),
+        (PLOT_BOX[2] - 8 - width, PLOT_BOX[3] - 8 - height),
+        (PLOT_BOX[0] + 8, PLOT_BOX[3] - 8 - height),
+    ]
+
+    def covered(place):
+        x, y = avoid[:, 0] / SUPERSAMPLE - place[0], avoid[:, 1] / SUPERSAMPLE - place[1]
+        return int(np.sum((x >= 0) & (x <= width) & (y >= 0) & (y <= height)))
+
+    place = min(places, key=covered)
+    return place, covered(place)
+
+
+def _draw_legend(canvas: _Canvas, entries, place: tuple[float, float]) -> None:
+    s = SUPERSAMPLE
+    width, height = _legend_size(canvas, entries)
+    left, top = place
     canvas.draw.rectangle(
-        (left * s, top * s, right * s, (top + 16 * len(entries) + 6) * s), fill="white", outline=FRAME, width=1
+        (left * s, top * s, (left + width) * s, (top + height) * s), fill="white", outline=FRAME, width=1
     )
     for row, (text, mark) in enumerate(entries):
         y = (top + 11 + 16 * row) * s
@@ -252,4 +290,4 @@ def _legend(canvas: _Canvas, walls: bool, inserted: bool, ellipses: bool, rc: fl
             canvas.draw.line([(middle, y - 6 * s), (middle, y + 6 * s)], fill="black", width=s)
         else:
             canvas.draw.line([(x0, y), (x1, y)], fill="black", width=s)
-        canvas.draw.text((x1 + 6 * s, y), text, font=font, fill="black", anchor="lm")
+        canvas.draw.text((x1 + 6 * s, y), text, font=canvas.font(10), fill="black", anchor="lm")
