@@ -149,6 +149,11 @@ def _layouts_of_walls(
     return jax.vmap(lambda w, p: layout_of_walls(w, p, world, config))(walls, prior)
 
 
+def _reconstruction(layouts: Layout, rows, rc: Float[Array, " B"], prior: HeightPrior | None) -> Reconstruction:
+    """A batch's layouts and rows, each scale from the geometry or, with a prior, from the prior."""
+    return Reconstruction(layouts, *rows, jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR))
+
+
 def _reconstruct_body(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
@@ -164,8 +169,7 @@ def _reconstruct_body(
     rows = image_boundaries(model, images, views, edge_snap)
     walls = _walls_of_rows(*rows, images.shape[1], rc, keys, thresholds, prior, world, config)
     layouts = _layouts_of_walls(walls, thresholds, prior, world, config)
-    source = jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR)
-    return Reconstruction(layouts, *rows, source)
+    return _reconstruction(layouts, rows, rc, prior)
 
 
 _reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "config", "views", "edge_snap"))
@@ -222,8 +226,7 @@ def _reconstruct_saved(
         )
         walls_leaves = walls_program.result()(rows, *walls_arguments)
         layout = layouts_program.result()(walls_leaves, thresholds, prior)
-    source = jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR)
-    return Reconstruction(Layout(**layout), *rows, source)
+    return _reconstruction(Layout(**layout), rows, rc, prior)
 
 
 def _with_prior_fallback(

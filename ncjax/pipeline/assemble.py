@@ -42,7 +42,7 @@ def assemble_layout(
     plausible = to_metric * room_height <= config.max_room_height
     plausible &= to_metric * farthest <= config.max_corner_distance
     height_sigma = room_height_sigma(uncertainty.height_covariance)
-    scale_unknown = height_sigma > config.max_height_uncertainty * (ceiling_height - floor_height)
+    scale_unknown = height_sigma > config.max_height_uncertainty * room_height
     failed = jnp.stack(
         [
             ~(cam.rc > 1e-6),

@@ -79,7 +79,12 @@ class _Canvas:
         self.draw.text(xy, text, font=font, fill="black", anchor=anchor)
 
     def line(self, points, colour, width: float, dashed: bool = False) -> None:
-        start, end = np.asarray(self.pixels(points))
+        """A line between two points in metres (:meth:`segment`)."""
+        self.segment(*self.pixels(points), colour, width, dashed)
+
+    def segment(self, start, end, colour, width: float, dashed: bool = False) -> None:
+        """A line between two pixels of the supersampled image, ``width`` pixels of the final one wide."""
+        start, end = np.asarray(start, np.float64), np.asarray(end, np.float64)
         if not dashed:
             self.draw.line([tuple(start), tuple(end)], fill=colour, width=round(width * SUPERSAMPLE))
             return
@@ -89,6 +94,13 @@ class _Canvas:
             a = start + (end - start) * offset / max(length, 1e-9)
             b = start + (end - start) * min(offset + dash, length) / max(length, 1e-9)
             self.draw.line([tuple(a), tuple(b)], fill=colour, width=round(width * SUPERSAMPLE))
+
+    def plus(self, at, arm: float) -> None:
+        """A black ``+`` at a pixel of the supersampled image, arms ``arm`` pixels of the final one long."""
+        x, y = at
+        arm *= SUPERSAMPLE
+        self.draw.line([(x - arm, y), (x + arm, y)], fill="black", width=SUPERSAMPLE)
+        self.draw.line([(x, y - arm), (x, y + arm)], fill="black", width=SUPERSAMPLE)
 
     def finished(self) -> UInt8[np.ndarray, "H W 3"]:
         return np.asarray(self.image.reduce(SUPERSAMPLE))
@@ -185,9 +197,7 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         middle = np.asarray(canvas.pixels((plan[k] + plan[(k + 1) % n]) / 2))[0] / SUPERSAMPLE
         canvas.text(tuple(middle), f"{lengths[k]:.2f} m", 10, box=True)
     (origin,) = canvas.pixels(np.zeros(2))
-    arm = 7 * SUPERSAMPLE
-    canvas.draw.line([(origin[0] - arm, origin[1]), (origin[0] + arm, origin[1])], fill="black", width=SUPERSAMPLE)
-    canvas.draw.line([(origin[0], origin[1] - arm), (origin[0], origin[1] + arm)], fill="black", width=SUPERSAMPLE)
+    canvas.plus(origin, 7)
     if rc:
         radius = rc * canvas.scale
         canvas.draw.ellipse(
@@ -278,16 +288,11 @@ def _draw_legend(canvas: _Canvas, entries, place: tuple[float, float]) -> None:
         y = (top + 11 + 16 * row) * s
         x0, x1 = (left + 6) * s, (left + 28) * s
         if mark in ("line", "dashed"):
-            colour = WALL if mark == "line" else INSERTED
-            pieces = [(x0, x1)] if mark == "line" else [(x0, x0 + 8 * s), (x0 + 13 * s, x1)]
-            for a, b in pieces:
-                canvas.draw.line([(a, y), (b, y)], fill=colour, width=2 * s)
+            canvas.segment((x0, y), (x1, y), WALL if mark == "line" else INSERTED, 2, dashed=mark == "dashed")
         elif mark == "patch":
             canvas.draw.rectangle((x0, y - 5 * s, x1, y + 5 * s), fill=(255, 210, 170), outline=ORANGE)
         elif mark == "plus":
-            middle = (x0 + x1) / 2
-            canvas.draw.line([(middle - 6 * s, y), (middle + 6 * s, y)], fill="black", width=s)
-            canvas.draw.line([(middle, y - 6 * s), (middle, y + 6 * s)], fill="black", width=s)
+            canvas.plus(((x0 + x1) / 2, y), 6)
         else:
-            canvas.draw.line([(x0, y), (x1, y)], fill="black", width=s)
+            canvas.segment((x0, y), (x1, y), "black", 1)
         canvas.draw.text((x1 + 6 * s, y), text, font=canvas.font(10), fill="black", anchor="lm")
