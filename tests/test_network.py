@@ -410,6 +410,26 @@ def test_model_weights_are_the_files_tensors_and_rebuild_the_same_network(tmp_pa
         model_from_weights(broken)
 
 
+def test_a_half_precision_model_file_is_half_the_size_and_reads_back_as_float32(tmp_path):
+    from ncjax.network.checkpoint import model_weights, read_metadata
+
+    model = tiny_model()
+    ncjax.save_model(model, tmp_path / "full.safetensors")
+    ncjax.save_model(model, tmp_path / "half.safetensors", dtype="float16")
+    full, half = ((tmp_path / name).stat().st_size for name in ("full.safetensors", "half.safetensors"))
+    assert half < 0.55 * full
+    assert read_metadata(tmp_path / "half.safetensors")["weights_dtype"] == "float16"
+    original, restored = params_of(model), params_of(ncjax.load_model(tmp_path / "half.safetensors"))
+    assert original.keys() == restored.keys()
+    for name, value in original.items():
+        assert restored[name].dtype == value.dtype == np.float32, name
+        np.testing.assert_array_equal(restored[name], value.astype(np.float16).astype(np.float32), err_msg=name)
+    assert all(v.dtype == np.float32 for v in model_weights(tmp_path / "half.safetensors").tensors.values())
+    with pytest.raises(ValueError, match="weights_dtype must be one of float32, float16"):
+        ncjax.save_model(model, tmp_path / "bad.safetensors", dtype="int8")
+    assert not (tmp_path / "bad.safetensors").exists()
+
+
 def test_shipped_models_load_by_name_and_an_unknown_name_says_what_ships():
     from ncjax.network.checkpoint import shipped_models
 

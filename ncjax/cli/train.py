@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from ..network.checkpoint import check_warm_start
+from ..network.checkpoint import WEIGHTS_DTYPES, check_warm_start
 from ..network.model import PRESETS, HorizonNetConfig
 from ..training.data import evaluate_arrays, folder_batches, painted_batches, training_data
 from ..training.loop import TrainConfig, train
@@ -68,6 +68,12 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--history", help="write the loss and validation history to this json file (default: none)")
     parser.add_argument(
         "--export", help="also save the final weights (model only) to this .safetensors file (default: none)"
+    )
+    parser.add_argument(
+        "--export-dtype",
+        default="float32",
+        choices=WEIGHTS_DTYPES,
+        help="precision of the --export file; float16 halves it, read back as float32 (default: float32)",
     )
     parser.set_defaults(format_train_help=parser.format_help)
     add_config_options(
@@ -137,8 +143,8 @@ def run_train(args: argparse.Namespace) -> int:
     if args.export:
         from ..network.checkpoint import save_model
 
-        save_model(result.model, args.export)
-        print(f"saved the model to {args.export}")
+        save_model(result.model, args.export, dtype=args.export_dtype)
+        print(f"saved the model to {args.export} ({args.export_dtype})")
     return 0
 
 

@@ -7,7 +7,8 @@ statistics) and ``optimizer/`` (the optax state and step of an
 ``nnx.Optimizer``, training checkpoints only). Metadata: ``format``
 (``"ncjax-horizonnet"``), ``format_version``, ``config`` (the
 :class:`HorizonNetConfig` as JSON), ``step`` and, for training checkpoints,
-``train_config`` (JSON).
+``train_config`` (JSON). A model file may hold its floating-point tensors in float16 (:func:`save_model`'s
+``dtype``, metadata ``weights_dtype``): half the size, read back as float32.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from .model import HorizonNet, HorizonNetConfig, abstract_model
 
 FORMAT = "ncjax-horizonnet"
 FORMAT_VERSION = "1"
+WEIGHTS_DTYPES = ("float32", "float16")
 _MODEL_STATE = nnx.Any(nnx.Param, nnx.BatchStat)
 _OPTIMIZER_STATE = nnx.OptState
 
@@ -70,11 +72,21 @@ def save_checkpoint(
     *,
     step: int = 0,
     train_config_json: str | None = None,
+    weights_dtype: str = "float32",
 ) -> None:
-    """Write ``model`` (and ``optimizer``) to ``path`` atomically (temporary file, then rename)."""
+    """Write ``model`` (and ``optimizer``) to ``path`` atomically (temporary file, then rename).
+
+    ``weights_dtype``: ``"float16"`` stores the model's floating-point tensors at half precision (half the size).
+    """
+    if weights_dtype not in WEIGHTS_DTYPES:
+        raise ValueError(f"weights_dtype must be one of {', '.join(WEIGHTS_DTYPES)}, got {weights_dtype!r}")
     path = pathlib.Path(path)
-    tensors = _flat_arrays(nnx.state(model, _MODEL_STATE), "model/")
+    tensors = {
+        name: value.astype(weights_dtype) if np.issubdtype(value.dtype, np.floating) else value
+        for name, value in _flat_arrays(nnx.state(model, _MODEL_STATE), "model/").items()
+    }
     metadata = {"format": FORMAT, "format_version": FORMAT_VERSION, "config": model.config.to_json(), "step": str(step)}
+    metadata["weights_dtype"] = weights_dtype
     if optimizer is not None:
         tensors |= _flat_arrays(nnx.state(optimizer, _OPTIMIZER_STATE), "optimizer/")
     if train_config_json is not None:
@@ -196,16 +208,22 @@ def stored_config(path: str | os.PathLike, metadata: dict[str, str]) -> HorizonN
 
 
 def read_tensors(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """Every tensor of a ``.safetensors`` file (a one-line ValueError for a damaged file)."""
+    """Every tensor of a ``.safetensors`` file, float16 ones as float32 (a one-line ValueError for a damaged
+    file)."""
     try:
-        return load_file(path)
+        tensors = load_file(path)
     except SafetensorError as error:
         raise ValueError(f"{path} is not an ncjax .safetensors model: {error}") from None
+    return {name: value.astype(np.float32) if value.dtype == np.float16 else value for name, value in tensors.items()}
 
 
-def save_model(model: HorizonNet, path: str | os.PathLike) -> None:
-    """Save the weights and batch statistics of ``model`` (no optimizer) to a ``.safetensors`` file."""
-    save_checkpoint(path, model)
+def save_model(model: HorizonNet, path: str | os.PathLike, dtype: str = "float32") -> None:
+    """Save the weights and batch statistics of ``model`` (no optimizer) to a ``.safetensors`` file.
+
+    ``dtype="float16"`` halves the file (a preset ``lite0-1024`` model: 8.7 instead of 17.4 MB); it is read back
+    as float32, each value rounded to float16's 11 significant bits.
+    """
+    save_checkpoint(path, model, weights_dtype=dtype)
 
 
 SHIPPED_MODELS_DIR = pathlib.Path(__file__).parent.parent / "models"
