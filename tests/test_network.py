@@ -427,6 +427,11 @@ def test_a_half_precision_model_file_is_half_the_size_and_reads_back_as_float32(
     assert all(v.dtype == np.float32 for v in model_weights(tmp_path / "half.safetensors").tensors.values())
     with pytest.raises(ValueError, match="weights_dtype must be one of float32, float16"):
         ncjax.save_model(model, tmp_path / "bad.safetensors", dtype="int8")
+    too_large = ncjax.load_model(tmp_path / "full.safetensors")  # a copy: ``model`` is shared
+    _, variable = next(iter(nnx.to_flat_state(nnx.state(too_large, nnx.Param))))
+    variable.set_value(variable.get_value().at[...].set(1e6))  # beyond float16's largest, 65504
+    with pytest.raises(ValueError, match="beyond float16's range"):
+        ncjax.save_model(too_large, tmp_path / "bad.safetensors", dtype="float16")
     assert not (tmp_path / "bad.safetensors").exists()
 
 

@@ -81,10 +81,13 @@ def save_checkpoint(
     if weights_dtype not in WEIGHTS_DTYPES:
         raise ValueError(f"weights_dtype must be one of {', '.join(WEIGHTS_DTYPES)}, got {weights_dtype!r}")
     path = pathlib.Path(path)
-    tensors = {
-        name: value.astype(weights_dtype) if np.issubdtype(value.dtype, np.floating) else value
-        for name, value in _flat_arrays(nnx.state(model, _MODEL_STATE), "model/").items()
-    }
+    tensors = _flat_arrays(nnx.state(model, _MODEL_STATE), "model/")
+    for name, value in tensors.items():
+        if np.issubdtype(value.dtype, np.floating):
+            with np.errstate(over="ignore"):  # reported below, by name
+                tensors[name] = value.astype(weights_dtype)
+            if not np.all(np.isfinite(tensors[name]) | ~np.isfinite(value)):
+                raise ValueError(f"{name} holds values beyond {weights_dtype}'s range; save it as float32")
     metadata = {"format": FORMAT, "format_version": FORMAT_VERSION, "config": model.config.to_json(), "step": str(step)}
     metadata["weights_dtype"] = weights_dtype
     if optimizer is not None:
