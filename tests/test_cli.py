@@ -81,7 +81,7 @@ def test_every_setting_is_an_option_with_its_default_and_help():
     from ncjax.cli.train import add_train_arguments
 
     for defaults, add_arguments, skipped in (
-        (ncjax.NETWORK_PIPELINE_CONFIG, add_reconstruct_arguments, set()),
+        (ncjax.NETWORK_PIPELINE_CONFIG, add_reconstruct_arguments, {"prior_room_height"}),  # the prior's route sets it
         (ncjax.TrainConfig(), add_train_arguments, {"total_steps"}),  # set by --steps
     ):
         help_text = " ".join(_parser(add_arguments).format_help().split())
@@ -121,6 +121,8 @@ def test_options_replace_only_the_settings_given():
         }
     )
     assert config == expected
+    with pytest.raises(SystemExit):  # an internal setting of the height prior's route, not an option
+        parser.parse_args([*base, "--prior-room-height", "3"])
     train_args = _parser(add_train_arguments).parse_args(["--learning-rate", "3e-4", "--no-flip"])
     train_config = config_from_options(train_args, ncjax.TrainConfig(total_steps=10))
     assert (train_config.peak_learning_rate, train_config.flip, train_config.total_steps) == (3e-4, False, 10)

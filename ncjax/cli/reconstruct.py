@@ -489,7 +489,10 @@ def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
     from ..reconstruction import NETWORK_PIPELINE_CONFIG
 
     add_config_options(
-        parser, NETWORK_PIPELINE_CONFIG, title="pipeline settings (PipelineConfig; defaults: NETWORK_PIPELINE_CONFIG)"
+        parser,
+        NETWORK_PIPELINE_CONFIG,
+        title="pipeline settings (PipelineConfig; defaults: NETWORK_PIPELINE_CONFIG)",
+        skip=("prior_room_height",),  # the height prior's route sets it (--camera-height and kin)
     )
 
 
