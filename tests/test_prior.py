@@ -187,3 +187,29 @@ def test_the_prior_route_judges_the_size_limits_at_the_prior_scale():
 
     assert np.all(statuses(0.99 * float(np.min(room_height))) == ncjax.LayoutStatus.DEGENERATE_LAYOUT)
     assert np.all(statuses(1.01 * float(np.max(room_height))) == ncjax.LayoutStatus.OK)
+
+
+@pytest.mark.slow
+def test_a_prior_s_walls_reach_the_adjustment_at_its_room_height_with_their_shape():
+    """Noisy rows leave the virtual rig's solve at some scale; the walls the adjustment starts from are at the
+    prior's room height, their shape (directions, distance ratios, height ratio) kept."""
+    from ncjax.pipeline.prior import prior_rows
+    from ncjax.pipeline.run import prior_config, walls_for, walls_to_adjust
+
+    room, labels = (jax.tree.map(lambda x: x[0], tree) for tree in rooms("manhattan", (0.0, 0.0)))
+    cam = room.camera(WIDTH, HEIGHT)
+    key = jax.random.key(0)
+    noise = 2.0 * jax.random.normal(jax.random.key(1), (2, WIDTH))
+    ceiling_v, floor_v = labels.ceiling_v + noise[0], labels.floor_v + noise[1]
+    prior = HeightPrior("camera_height", 1.6)
+    config = ncjax.NETWORK_PIPELINE_CONFIG
+    virtual, ceiling_virtual, floor_virtual, room_height = prior_rows(cam, ceiling_v, floor_v, prior)
+    solved = walls_to_adjust(
+        ceiling_virtual, floor_virtual, labels.corner_target, virtual, key, "auto", prior_config(config, room_height)
+    ).branches
+    started = walls_for(ceiling_v, floor_v, labels.corner_target, cam, prior, key, "auto", config).branches
+    np.testing.assert_allclose(started.ceiling_height - started.floor_height, room_height, rtol=1e-5)
+    factor = (started.ceiling_height - started.floor_height) / (solved.ceiling_height - solved.floor_height)
+    np.testing.assert_allclose(started.distances, solved.distances * factor[:, None], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(started.floor_height, solved.floor_height * factor, rtol=1e-5)
+    np.testing.assert_array_equal(started.directions, solved.directions)

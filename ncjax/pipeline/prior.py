@@ -18,8 +18,10 @@ take of those points:
 3. A virtual rig of radius ``rc'`` (half the nearest points' range: strong
    parallax) sees those points at the rows of :func:`virtual_rows`; the
    geometric pipeline (both worlds, occlusions, the adjustment) runs on them,
-   and its layout is scaled so that the prior's height holds exactly
-   (:func:`ncjax.pipeline.run.layout_for`). The image's own central rays cannot tell a room
+   its walls brought to the prior's room height before the final adjustment
+   (:func:`ncjax.pipeline.run.at_room_height`: the virtual parallax of noisy
+   rows can put them far off), and its layout is scaled so that the prior's
+   height holds exactly (:func:`ncjax.pipeline.run.layout_for`). The image's own central rays cannot tell a room
    from a scaled copy, so the scaling changes no reprojection.
 
 Exact on exact rows (the tests reproduce rendered rooms). The covariances are

@@ -178,12 +178,32 @@ def prior_config(config: PipelineConfig, prior_room_height: Float[ArrayLike, ""]
 
 def walls_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> WallsToAdjust:
     """:func:`walls_to_adjust`, on a height prior's virtual rig when ``prior`` is not None
-    (:mod:`ncjax.pipeline.prior`)."""
+    (:mod:`ncjax.pipeline.prior`; its walls then at the prior's room height, :func:`at_room_height`)."""
     if prior is None:
         return walls_to_adjust(ceiling_v, floor_v, corner_prob, cam, key, world, config)
     virtual, ceiling_virtual, floor_virtual, room_height = prior_rows(cam, ceiling_v, floor_v, prior)
     config = prior_config(config, room_height)
-    return walls_to_adjust(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config)
+    walls = walls_to_adjust(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config)
+    return eqx.tree_at(lambda w: w.branches, walls, at_room_height(walls.branches, room_height))
+
+
+def at_room_height(branches: BranchWalls, room_height: Float[ArrayLike, ""]) -> BranchWalls:
+    """The branches' walls (one branch's, or ``world="auto"``'s two stacked) scaled about the axis so that their room
+    height is ``room_height`` (a prior's).
+
+    The virtual rig's joint solve takes the scale from the virtual rows' parallax, which noisy rows can leave
+    hundreds of times off, where the final adjustment stalls (a real panorama's Manhattan layout went from 63% to
+    1% of its rows explained under a 0.3 degree levelling). The virtual rows were made at the prior's heights, so
+    the adjustment starts from the same shape at that scale.
+    """
+    solved = branches.ceiling_height - branches.floor_height
+    usable = jnp.isfinite(solved) & (solved > 0)
+    factor = jnp.where(usable, room_height / jnp.where(usable, solved, 1.0), 1.0)
+    return eqx.tree_at(
+        lambda b: (b.distances, b.ceiling_height, b.floor_height),
+        branches,
+        (branches.distances * factor[..., None], branches.ceiling_height * factor, branches.floor_height * factor),
+    )
 
 
 def layout_of_walls(walls: WallsToAdjust, prior: HeightPrior | None, world: str, config: PipelineConfig) -> Layout:
