@@ -192,9 +192,9 @@ def at_room_height(branches: BranchWalls, room_height: Float[ArrayLike, ""]) -> 
     height is ``room_height`` (a prior's).
 
     The virtual rig's joint solve takes the scale from the virtual rows' parallax, which noisy rows can leave
-    hundreds of times off, where the final adjustment stalls (a real panorama's Manhattan layout went from 63% to
-    1% of its rows explained under a 0.3 degree levelling). The virtual rows were made at the prior's heights, so
-    the adjustment starts from the same shape at that scale.
+    hundreds of times off (a real panorama's: a ceiling 385 units above a camera 1.6 high), where the final
+    adjustment stalls. The virtual rows were made at the prior's heights, so the adjustment starts from the same
+    shape at that scale.
     """
     solved = branches.ceiling_height - branches.floor_height
     usable = jnp.isfinite(solved) & (solved > 0)
