@@ -80,7 +80,7 @@ def solvers_only(ceiling_v, floor_v, corner_prob, cam, world: str):
     columns = jnp.arange(WIDTH, dtype=ceiling_v.dtype)
     ceiling_rays = ncjax.pixel_to_ray(cam, columns, ceiling_v)
     floor_rays = ncjax.pixel_to_ray(cam, columns, floor_v)
-    corners, mask, _ = find_corners(
+    corners, mask, _, _ = find_corners(
         corner_prob, CAPACITY, 2, config.corner_threshold
     )  # the paper's peaks: no minimum count
     wall_index = column_walls(corners, mask, WIDTH)

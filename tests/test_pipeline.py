@@ -120,11 +120,38 @@ def test_find_corners_recovers_sub_column_positions(corners):
     corners = sorted(corners)
     if len(corners) > 1 and min(np.diff(corners + [corners[0] + WIDTH])) < 4:
         return  # closer than the suppression window
-    columns, mask, overflow = find_corners(jnp.asarray(target(WIDTH, corners), jnp.float32), 8, 2, 0.3)
+    columns, mask, _, overflow = find_corners(jnp.asarray(target(WIDTH, corners), jnp.float32), 8, 2, 0.3)
     found = np.sort(np.asarray(columns)[np.asarray(mask)] % WIDTH)
     assert not overflow and len(found) == len(corners)
     gap = np.abs(found - np.sort(np.asarray(corners) % WIDTH))
     np.testing.assert_array_less(np.minimum(gap, WIDTH - gap), 2e-3)
+
+
+@pytest.mark.slow
+@given(st.floats(0.0, 1023.0), st.floats(0.05, 2.0), st.sampled_from([1.0, 0.9, 0.7]), st.sampled_from([1.0, 1.3, 0.8]))
+def test_a_peak_of_the_exact_target_that_holds_two_corners_gives_both(first, apart, scale, power):
+    # Two corners closer than the suppression window give one peak; the exact 0.96**d target still tells each
+    # column's distance to the nearer, so both come back. A lobe that only looks like it (scaled or sharpened, as a
+    # network's) is one corner.
+    corners = np.array([first, first + apart, first + 300.0]) % WIDTH
+    exact = scale == 1.0 and power == 1.0
+    prob = jnp.asarray(scale * target(WIDTH, corners) ** power, jnp.float32)
+    columns, mask, is_exact, overflow = find_corners(prob, 8, 2, 0.3, 0, 0.0, 0.01)
+    found = np.sort(np.asarray(columns)[np.asarray(mask)] % WIDTH)
+    assert not overflow
+    assert bool(np.all(np.asarray(is_exact)[np.asarray(mask)])) == exact
+    if not exact:
+        assert len(found) == 2
+        return
+    assert len(found) == 3
+    gap = np.abs(found[:, None] - corners[None, :]) % WIDTH
+    np.testing.assert_array_less(np.min(np.minimum(gap, WIDTH - gap), axis=0), 2e-3)
+
+
+def test_exact_target_splitting_is_off_at_zero_tolerance():
+    prob = jnp.asarray(target(WIDTH, [100.0, 101.5]), jnp.float32)
+    columns, mask, exact, _ = find_corners(prob, 8, 2, 0.3)
+    assert int(mask.sum()) == 1 and not bool(exact.any())
 
 
 def test_plateau_gives_one_peak_and_wrap_around():
@@ -145,7 +172,7 @@ def test_weak_peaks_make_up_the_minimum_corner_count(heights, min_corners):
     offset = np.abs(np.arange(WIDTH)[:, None] + 0.5 - corners[None])
     nearest = np.argmin(np.minimum(offset, WIDTH - offset), axis=1)  # the lobe each column belongs to
     prob = jnp.asarray(lobes * np.asarray(heights)[nearest], jnp.float32)
-    columns, mask, _ = find_corners(prob, 8, 2, 0.4, min_corners, 0.1)
+    columns, mask, _, _ = find_corners(prob, 8, 2, 0.4, min_corners, 0.1)
     peaks = np.array([np.asarray(prob)[nearest == k].max() for k in range(6)])
     usable = np.sort(peaks[peaks >= 0.1])[::-1]
     strong = int(np.sum(peaks >= 0.4))
@@ -155,12 +182,12 @@ def test_weak_peaks_make_up_the_minimum_corner_count(heights, min_corners):
     kept = np.isin(np.arange(6), nearest[np.round(np.asarray(columns)[np.asarray(mask)]).astype(int) % WIDTH])
     if kept.any() and not kept.all():
         assert peaks[kept].min() >= peaks[~kept].max()  # the strongest peaks are the ones kept
-    _, plain, _ = find_corners(prob, 8, 2, 0.4)
+    _, plain, _, _ = find_corners(prob, 8, 2, 0.4)
     assert int(plain.sum()) == strong
 
 
 def test_capacity_overflow_is_reported():
-    _, mask, overflow = find_corners(jnp.asarray(target(WIDTH, np.arange(10) * 50.0), jnp.float32), 4, 2, 0.3)
+    _, mask, _, overflow = find_corners(jnp.asarray(target(WIDTH, np.arange(10) * 50.0), jnp.float32), 4, 2, 0.3)
     assert bool(overflow) and int(mask.sum()) == 4
 
 

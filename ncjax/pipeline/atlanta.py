@@ -53,7 +53,14 @@ def _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, confi
     """
     final = final_walls(evidence, merge, insert, False, config.sample_size)
     solved, ok = solve_final_walls(
-        cam, evidence, final, ceiling_v, floor_v, group_directions(evidence, merge, final), lambda plan: plan
+        cam,
+        evidence,
+        final,
+        ceiling_v,
+        floor_v,
+        group_directions(evidence, merge, final),
+        lambda plan: plan,
+        config.max_room_height,
     )
     directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
     return final, ok, directions, distances, solved.ceiling_height, solved.floor_height
@@ -84,7 +91,8 @@ def _stray_corners(cam, evidence, final, directions, distances, h_c, h_f, config
     The two walls meet more than ``max_corner_offset`` columns from the corner (or are parallel). Noisy
     directions of walls that turn a little move their meeting far along them, but not their boundaries
     apart at the corner: there the two walls' rows must also differ by more than ``stray_noise_factor``
-    times the rows' noise.
+    times the rows' noise. At a corner whose peak follows the exact label target (no corner hides in it),
+    the rows' jump there must stand out of its noise instead, where both sides' rows measure it.
     """
     previous = previous_in_loop(final.mask)
     both_observed = final.observed & final.observed[previous]
@@ -95,11 +103,16 @@ def _stray_corners(cam, evidence, final, directions, distances, h_c, h_f, config
         (directions[previous], distances[previous], h_c, h_f),
         final.corner_columns,
     )
-    return (
-        both_observed
-        & (offsets > scaled(config.max_corner_offset, cam.width, 1024))
-        & ~(gap <= config.stray_noise_factor * evidence.row_noise)
+    # at a corner of the exact label target only an occlusion can hide a wall: where the rows' own jump is
+    # measured, it must stand out of its noise (the occlusion test without its fixed threshold); fitted
+    # walls as narrow as the corner's neighbours often are part there under row noise
+    corner = final.start_wall
+    apart = jnp.where(
+        evidence.corner_exact[corner] & evidence.jump_seen[corner],
+        evidence.jump_stands_out[corner],
+        ~(gap <= config.stray_noise_factor * evidence.row_noise),
     )
+    return both_observed & (offsets > scaled(config.max_corner_offset, cam.width, 1024)) & apart
 
 
 def atlanta_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:

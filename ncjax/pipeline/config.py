@@ -45,6 +45,12 @@ class PipelineConfig:
         fallback_corner_threshold: the lowest peak probability ``min_corners``
             accepts (at or above ``corner_threshold``: no fallback).
         nms_radius: non-maximum-suppression half-width, columns.
+        exact_target_tolerance: a peak of the exact label target ``0.96**d``
+            that holds two corners closer than the suppression window (the
+            wall between them seen almost edge-on) gives both, where its columns
+            follow the encoding to within this many columns of distance
+            (:func:`~ncjax.pipeline.corners.exact_target_corners`; a network's
+            lobes never do; 0: off).
         corner_margin: columns this close to a corner are not used to fit walls.
         success_probability: RANSAC's P (paper: 0.9999).
         outlier_rate: RANSAC's epsilon (paper: 0.2).
@@ -166,6 +172,7 @@ class PipelineConfig:
     min_corners: int = 4
     fallback_corner_threshold: float = 0.1
     nms_radius: float = 2.0
+    exact_target_tolerance: float = 0.01
     corner_margin: float = 2.0
     success_probability: float = 0.9999
     outlier_rate: float = 0.2
@@ -231,6 +238,7 @@ class PipelineConfig:
         if math.isfinite(self.max_height_uncertainty) and not self.covariance:
             raise ValueError("max_height_uncertainty needs covariance=True (it tests the height's covariance)")
         for name in (
+            "exact_target_tolerance",
             "occlusion_noise_factor",
             "stray_noise_factor",
             "wall_offset_ratio",
@@ -279,6 +287,7 @@ def nms_radius(config: PipelineConfig, width: int) -> int:
 TRACED_FIELDS = (
     "corner_threshold",
     "fallback_corner_threshold",
+    "exact_target_tolerance",
     "corner_margin",
     "inlier_threshold",
     "occlusion_threshold",

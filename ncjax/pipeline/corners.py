@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from ..synth.rooms import CORNER_LABEL_BASE
+
 
 def is_peak(corner_prob: Float[Array, " W"], radius: int, threshold: Float[ArrayLike, ""]) -> Bool[Array, " W"]:
     """Local maxima over a wrap-around window of ``2 radius + 1`` columns (non-maximum suppression).
@@ -51,6 +53,52 @@ def refine_peak(corner_prob: Float[Array, " W"], column: Int[Array, ""]) -> Floa
     return column + jnp.clip(jnp.where(slope > 0, offset, 0.0), -0.5, 0.5)
 
 
+def exact_target_corners(
+    corner_prob: Float[Array, " W"], column: Int[Array, ""], radius: int, tolerance: Float[ArrayLike, ""]
+) -> tuple[Float[Array, ""], Float[Array, ""], Bool[Array, ""]]:
+    """The two corners of a peak of the exact label target that holds two (HorizonNet merges them).
+
+    The exact target ``0.96**d`` gives each column its distance ``d = log p / log 0.96``
+    (columns) to the nearest corner. Where two neighbouring columns' distances
+    differ by one column, both see the same corner on the same side, and the
+    farther one's distance places it. Within ``radius + 0.5`` columns of the
+    peak, the leftmost and the rightmost corners so placed are the peak's
+    corners: two where they are more than ``2 tolerance`` apart and every
+    column between them (and one beyond) has the distance those two give,
+    however close they are. A network's lobes never follow the encoding this
+    exactly, so its peaks are never split.
+
+    Args:
+        corner_prob: per-column corner probability.
+        column: the peak's column.
+        radius: static non-maximum-suppression half-width (columns).
+        tolerance: how exactly (columns of distance) the target must follow ``0.96**d``; 0: never split.
+
+    Returns:
+        ``(first, second, exact)``: the leftmost and rightmost corners' sub-column
+        positions (possibly outside ``[0, W)``; equal for one corner) and whether
+        the peak follows the encoding: then it holds those corners and no other.
+    """
+    width = corner_prob.shape[0]
+    reach = radius + 1
+    offsets = jnp.arange(-reach - 1, reach + 2)
+    tiny = jnp.finfo(corner_prob.dtype).tiny
+    distance = jnp.log(jnp.maximum(corner_prob[(column + offsets) % width], tiny)) / jnp.log(CORNER_LABEL_BASE)
+    positions = (column + offsets).astype(corner_prob.dtype)
+    left, right = distance[:-1], distance[1:]
+    # a corner right of both columns (distances falling by one), or left of both (rising by one)
+    falling, rising = jnp.abs(left - right - 1) <= tolerance, jnp.abs(right - left - 1) <= tolerance
+    placed = jnp.concatenate([positions[:-1] + left, positions[1:] - right])
+    # a corner farther than ``radius + 0.5`` from the peak's column is another peak's
+    found = jnp.concatenate([falling, rising]) & (jnp.abs(placed - column) < radius + 0.5)
+    first = jnp.min(jnp.where(found, placed, jnp.inf))
+    second = jnp.max(jnp.where(found, placed, -jnp.inf))
+    between = (positions >= first - 1) & (positions <= second + 1)
+    expected = jnp.minimum(jnp.abs(positions - first), jnp.abs(positions - second))
+    follows = jnp.all(~between | (jnp.abs(distance - expected) <= tolerance))
+    return first, second, (tolerance > 0) & jnp.any(found) & follows
+
+
 def find_corners(
     corner_prob: Float[Array, " W"],
     capacity: int,
@@ -58,13 +106,17 @@ def find_corners(
     threshold: Float[ArrayLike, ""],
     min_corners: int = 0,
     fallback_threshold: Float[ArrayLike, ""] = 0.0,
-) -> tuple[Float[Array, " C"], Bool[Array, " C"], Bool[Array, ""]]:
+    exact_tolerance: Float[ArrayLike, ""] = 0.0,
+) -> tuple[Float[Array, " C"], Bool[Array, " C"], Bool[Array, " C"], Bool[Array, ""]]:
     """Corner columns: the ``capacity`` strongest peaks, refined, sorted left to right.
 
     A room has at least ``min_corners`` corners. When fewer peaks reach
     ``threshold`` (a network unsure of a panorama unlike its training images
     gives flat lobes), the threshold drops to the ``min_corners``-th strongest
     peak, but not below ``fallback_threshold``; otherwise nothing changes.
+    A peak of the exact label target that holds two corners closer than the
+    suppression window gives both, more than ``2 exact_tolerance`` apart
+    (:func:`exact_target_corners`).
 
     Args:
         corner_prob: per-column corner probability.
@@ -73,11 +125,13 @@ def find_corners(
         threshold: minimum peak probability.
         min_corners: static; 0 keeps ``threshold`` whatever the count.
         fallback_threshold: the lowest the threshold may drop to.
+        exact_tolerance: :func:`exact_target_corners`' tolerance (0: peaks are never split).
 
     Returns:
-        ``(columns, mask, overflow)``: sub-column positions in ``[-0.5, W - 0.5)``
+        ``(columns, mask, exact, overflow)``: sub-column positions in ``[-0.5, W - 0.5)``
         (masked slots hold ``W``, after every real column), which slots are
-        corners, and whether more peaks than ``capacity`` were found.
+        corners, which corners' peaks follow the exact target (no corner hides
+        in them), and whether more corners than ``capacity`` were found.
     """
     width = corner_prob.shape[0]
     candidate = is_peak(corner_prob, radius, jnp.minimum(threshold, fallback_threshold) if min_corners else threshold)
@@ -88,11 +142,18 @@ def find_corners(
     peak = candidate & (corner_prob >= threshold)
     mask = peak[strongest]
     refined = jax.vmap(refine_peak, in_axes=(None, 0))(corner_prob, strongest)
-    refined = jnp.where(refined < -0.5, refined + width, refined)
-    refined = jnp.where(refined >= width - 0.5, refined - width, refined)
-    columns = jnp.where(mask, refined, float(width))
-    order = jnp.argsort(columns)
-    return columns[order], mask[order], jnp.sum(peak) > capacity
+    first, second, exact = jax.vmap(exact_target_corners, in_axes=(None, 0, None, None))(
+        corner_prob, strongest, radius, exact_tolerance
+    )
+    two = mask & exact & (second - first > 2 * exact_tolerance)
+    found = jnp.concatenate([jnp.where(two, first, refined), second])
+    found = jnp.where(found < -0.5, found + width, found)
+    found = jnp.where(found >= width - 0.5, found - width, found)
+    order = jnp.argsort(jnp.where(jnp.concatenate([mask, two]), found, float(width)))[:capacity]
+    count = jnp.sum(peak) + jnp.sum(two)
+    valid = jnp.arange(capacity) < count
+    columns = jnp.where(valid, found[order], float(width))
+    return columns, valid, valid & jnp.tile(exact, 2)[order], count > capacity
 
 
 def column_walls(corner_columns: Float[Array, " C"], corner_mask: Bool[Array, " C"], width: int) -> Int[Array, " W"]:

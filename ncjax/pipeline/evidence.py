@@ -39,13 +39,14 @@ def gather_evidence(
     floor_rays = pixel_to_ray(cam, columns, floor_v)
 
     corner_prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, 0.0)
-    corner_columns, corner_mask, overflow = find_corners(
+    corner_columns, corner_mask, corner_exact, overflow = find_corners(
         corner_prob,
         capacity,
         nms_radius(config, width),
         config.corner_threshold,
         config.min_corners,
         config.fallback_corner_threshold,
+        config.exact_target_tolerance,
     )
     column_wall = column_walls(corner_columns, corner_mask, width)
     away = distance_to_corners(corner_columns, corner_mask, width) >= scaled(config.corner_margin, width, 1024)
@@ -165,10 +166,11 @@ def gather_evidence(
     noise = jnp.where(jnp.isfinite(noise), noise, 0.0)
     full_window = full_window_spread(window, margin)
     relative_spread = jnp.maximum(jnp.hypot(spread_here, spread_before) / (math.sqrt(2) * full_window), 1.0)
-    jump_threshold = jnp.maximum(
-        config.occlusion_threshold * pixels, config.occlusion_noise_factor * noise * relative_spread
-    )
-    occluded = corner_mask & seen_here & seen_before & (jump > jump_threshold)
+    jump_seen = corner_mask & seen_here & seen_before
+    jump_stands_out = jump_seen & (jump > config.occlusion_noise_factor * noise * relative_spread)
+    occluded = jump_stands_out & (jump > config.occlusion_threshold * pixels)
+    # where the fitted walls part at the corner, an occlusion the jump missed may hide a wall there
+    walls_part = both_fitted & both_seen & (wall_jump > config.occlusion_noise_factor * noise)
     previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
     return WallEvidence(
         ceiling_rays=ceiling_rays,
@@ -176,6 +178,7 @@ def gather_evidence(
         finite=finite,
         corner_columns=corner_columns,
         corner_mask=corner_mask,
+        corner_exact=corner_exact,
         corner_overflow=overflow,
         column_wall=column_wall,
         walls=walls,
@@ -189,6 +192,9 @@ def gather_evidence(
         both_fitted=both_fitted,
         same_plane=both_fitted & same_plane,
         occluded=occluded,
+        walls_part=walls_part,
+        jump_seen=jump_seen,
+        jump_stands_out=jump_stands_out,
         previous_nearer=previous_nearer,
         heights=heights,
         row_noise=noise,

@@ -89,14 +89,19 @@ def manhattan_labels(
     the best-supported wall 1) survives noisy single-wall directions, walls
     without a direction (zero support) and corners the detector missed (an odd
     number of turns: the corner that does not turn goes where the walls' own
-    directions agree).
+    directions agree). A corner whose peak follows the exact label target holds
+    no merged corners: not turning there costs as much as the best-supported wall's vote,
+    unless its walls part there.
     """
     mask = evidence.corner_mask
     by_direction, deviation = manhattan_frame(directions, support)
     confidence = support / jnp.maximum(jnp.max(support), 1.0) * (1 - deviation / (math.pi / 4))
     unary = confidence[:, None] * (by_direction[:, None] != jnp.arange(2)[None, :])
     turn_expected = ~evidence.occluded & ~evidence.same_plane
-    same_cost = jnp.where(turn_expected, turn_weight, 0.0)
+    # a corner of the exact label target is a true corner, not two merged or a spurious one: it turns,
+    # unless its walls part there (an occlusion the jump test missed)
+    sure_turn = evidence.corner_exact & ~evidence.walls_part
+    same_cost = jnp.where(turn_expected, jnp.where(sure_turn, 1.0, turn_weight), 0.0)
     turn_cost = jnp.where(turn_expected, 0.0, turn_weight)
     return cyclic_binary_labels(unary, same_cost, turn_cost, mask)
 
@@ -163,7 +168,7 @@ def manhattan_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
         return manhattan_directions(manhattan_yaw(plan, wall_labels, final.observed), wall_labels)
 
     solved, ok = solve_final_walls(
-        cam, evidence, final, ceiling_v, floor_v, manhattan_directions(yaw, wall_labels), snap
+        cam, evidence, final, ceiling_v, floor_v, manhattan_directions(yaw, wall_labels), snap, config.max_room_height
     )
     distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
     heights = (solved.ceiling_height, solved.floor_height)

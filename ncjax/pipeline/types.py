@@ -159,19 +159,23 @@ class WallEvidence(eqx.Module):
     """Steps 1-3, shared by both branches (internal; all fields traced, ``K`` slots).
 
     Corner ``j`` starts RANSAC wall ``j``; ``previous`` is wall ``j - 1`` (cyclic).
-    ``fitted``: RANSAC found wall ``j``; ``both_fitted``: walls ``j - 1`` and ``j``;
-    ``occluded``: the boundaries jump at the corner; ``same_plane``: each of walls ``j - 1`` and ``j`` explains most
-    inlier pixels of the other. ``ceiling_trusted`` / ``floor_trusted``: the column's row may enter the joint
-    fit: usable, and an inlier of its RANSAC wall when RANSAC fitted one (a segment that holds two planes
-    because a corner was missed keeps only the rows of the plane RANSAC found). ``row_weights``: the joint
-    solvers' factors of the ceiling and floor rows, from each boundary's noise about the RANSAC walls
+    ``corner_exact``: the corner's peak follows the exact label target, so no other corner hides in it
+    (:func:`ncjax.pipeline.corners.find_corners`).
+    ``fitted``: RANSAC found wall ``j``; ``both_fitted``: walls ``j - 1`` and ``j``; ``occluded``: the boundaries
+    jump at the corner; ``walls_part``: walls ``j - 1`` and ``j``, both fitted, reproject there more than
+    ``occlusion_noise_factor`` times the rows' noise apart; ``jump_seen``: the rows on both sides extrapolate to the
+    corner (3 columns each at least); ``jump_stands_out``: that jump exceeds ``occlusion_noise_factor`` times its
+    noise (``occluded`` also needs ``occlusion_threshold``); ``same_plane``: each of walls ``j - 1`` and ``j``
+    explains most inlier pixels of the other. ``ceiling_trusted`` / ``floor_trusted``: the column's row may enter
+    the joint fit: usable, and an inlier of its RANSAC wall when RANSAC fitted one (a segment that holds two planes
+    because a corner was missed keeps only the rows of the plane RANSAC found). ``row_weights``: the joint solvers'
+    factors of the ceiling and floor rows, from each boundary's noise about the RANSAC walls
     (:func:`ncjax.pipeline.adjust.boundary_weights` on the inlier rows of the fitted walls: cut at the inlier
-    threshold, so a boundary much noisier than half of it reads as less noisy than it is).
-    ``floor_measured``: the floor row is the input's, not one that step 0 put where the ceiling row says
-    (those help the walls' fits, but the final adjustment and its covariance use measured rows only).
-    ``heights``: the fitted walls' joint solve (:func:`ncjax.solvers.layout.solve_atlanta_layout` on their
-    RANSAC directions), for its ceiling and floor heights. ``row_noise``: the rows' noise about the
-    RANSAC walls (pixels; 1.4826 x their median absolute error).
+    threshold, so a boundary much noisier than half of it reads as less noisy than it is). ``floor_measured``: the
+    floor row is the input's, not one that step 0 put where the ceiling row says (those help the walls' fits, but
+    the final adjustment and its covariance use measured rows only). ``heights``: the fitted walls' joint solve
+    (:func:`ncjax.solvers.layout.solve_atlanta_layout` on their RANSAC directions), for its ceiling and floor
+    heights. ``row_noise``: the rows' noise about the RANSAC walls (pixels; 1.4826 x their median absolute error).
     """
 
     ceiling_rays: Float[Array, "W 6"]
@@ -179,6 +183,7 @@ class WallEvidence(eqx.Module):
     finite: Bool[Array, " W"]
     corner_columns: Float[Array, " K"]
     corner_mask: Bool[Array, " K"]
+    corner_exact: Bool[Array, " K"]
     corner_overflow: Bool[Array, ""]
     column_wall: Int[Array, " W"]
     walls: Wall
@@ -192,6 +197,9 @@ class WallEvidence(eqx.Module):
     both_fitted: Bool[Array, " K"]
     same_plane: Bool[Array, " K"]
     occluded: Bool[Array, " K"]
+    walls_part: Bool[Array, " K"]
+    jump_seen: Bool[Array, " K"]
+    jump_stands_out: Bool[Array, " K"]
     previous_nearer: Bool[Array, " K"]
     heights: WallLayout
     row_noise: Float[Array, ""]

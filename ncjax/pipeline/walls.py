@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
@@ -159,6 +160,7 @@ def solve_final_walls(
     floor_v: Float[Array, " W"],
     directions: Float[Array, "K 2"],
     snap: Callable[[Float[Array, "K 2"]], Float[Array, "K 2"]],
+    max_room_height: Float[ArrayLike, ""],
 ) -> tuple[WallLayout, Bool[Array, ""]]:
     """The final walls' joint solve in two passes (:func:`~ncjax.solvers.layout.solve_atlanta_layout`).
 
@@ -166,7 +168,8 @@ def solve_final_walls(
     those heights every observed wall's direction is its boundary points' plan line (:func:`plan_lines`),
     made a branch's by ``snap`` (the Manhattan branch keeps one yaw); the second pass solves the observed
     walls with those directions. The two passes are one traced pass run twice (``lax.scan``), so that the
-    program compiles it once.
+    program compiles it once. Where the second pass's room is taller than ``max_room_height`` (metres) and
+    the first pass's is not, the second pass's walls are scaled to the first pass's room height.
 
     Returns:
         The second pass's walls, and whether both passes succeeded.
@@ -190,4 +193,26 @@ def solve_final_walls(
 
     fitted = final.observed & evidence.fitted[final.start_wall]
     _, passes = jax.lax.scan(one_pass, (fitted, directions), length=2)
-    return jax.tree.map(lambda x: x[1], passes), jnp.all(passes.ok)
+    first, second = (jax.tree.map(lambda x, i=i: x[i], passes) for i in range(2))
+    # the plan lines of narrow walls' few noisy rows can send the second pass's scale far off (rooms hundreds of
+    # times too large under 1-2 px of row noise, where the rows barely tell scales apart): an implausibly tall
+    # room takes the first pass's room height
+    plausible = (room_height(first) > 0) & (room_height(first) <= max_room_height)
+    use_first = first.ok & plausible & ~(room_height(second) <= max_room_height)
+    at_first = scaled_walls(second, room_height(first) / room_height(second))
+    chosen = jax.tree.map(lambda a, b: jnp.where(use_first, a, b), at_first, second)
+    return chosen, jnp.all(passes.ok)
+
+
+def room_height(walls: WallLayout) -> Float[Array, ""]:
+    return walls.ceiling_height - walls.floor_height
+
+
+def scaled_walls(walls: WallLayout, factor: Float[Array, ""]) -> WallLayout:
+    """``walls`` scaled about the camera's axis by ``factor`` (distances and heights; the same directions)."""
+    factor = jnp.where(jnp.isfinite(factor) & (factor > 0), factor, 1.0)
+    return eqx.tree_at(
+        lambda w: (w.distances, w.ceiling_height, w.floor_height),
+        walls,
+        (walls.distances * factor, walls.ceiling_height * factor, walls.floor_height * factor),
+    )
