@@ -43,7 +43,14 @@ from ncjax.pipeline.adjust import (
 from ncjax.pipeline.assemble import finish_layout
 from ncjax.pipeline.atlanta import atlanta_walls, corner_offsets
 from ncjax.pipeline.config import static_part, traced_part
-from ncjax.pipeline.corners import column_walls, find_corners, full_window_spread, is_peak, side_extrapolation
+from ncjax.pipeline.corners import (
+    column_walls,
+    find_corners,
+    full_window_spread,
+    is_peak,
+    side_extrapolation,
+    straight_wall_value,
+)
 from ncjax.pipeline.evidence import gather_evidence
 from ncjax.pipeline.floor_check import ceiling_consistent_floor
 from ncjax.pipeline.manhattan import _segment_directions, cyclic_binary_labels, manhattan_frame, manhattan_walls
@@ -963,6 +970,25 @@ def test_side_extrapolation_follows_a_near_walls_curved_boundary(rc):
     truth = height / (rc + range_along(cam, direction, distance, column_directions(cam, jnp.asarray(corner))))
     assert bool(ok) and abs(float(value) - float(truth)) < 1e-5 * float(truth)
     assert float(spread) == pytest.approx(float(full_window_spread(8, 2.0)), rel=0.1)  # the corner is 0.4 off
+
+
+@given(st.floats(0.0, 1.0), st.floats(0.0, 2 * np.pi), st.floats(0.2, 1.2), st.integers(1, 6), st.floats(0.0, 1.0))
+def test_straight_wall_value_follows_a_wall_between_two_of_its_columns(rc, normal, beyond, span, where):
+    """``h / R`` of a wall's boundary at two columns a few apart gives it at any column between (``a cos + b sin``
+    of the azimuth, exact for the non-central rig, whose columns are radial half-planes)."""
+    cam = ncjax.NonCentralPanorama(rc=rc, width=1024, height=512)
+    direction = jnp.array([np.cos(normal + np.pi / 2), np.sin(normal + np.pi / 2)], jnp.float32)
+    distance = -(rc + beyond)
+    all_columns = jnp.arange(1024.0)
+    reach = range_along(cam, direction, distance, column_directions(cam, all_columns))
+    facing = int(jnp.argmin(jnp.where(jnp.isfinite(reach) & (reach > 0), reach, jnp.inf)))  # nearest the normal
+    first = jnp.float32(facing + 40.0 * (2 * where - 1))
+    columns = first + jnp.array([0.0, span * where, span], jnp.float32)
+    radial = rc + range_along(cam, direction, distance, column_directions(cam, columns))
+    value = 1.3 / radial
+    angle = 2 * np.pi / 1024
+    between = straight_wall_value(value[0], value[2], angle * span, angle * span * where)
+    assert abs(float(between) - float(value[1])) < 1e-4 * float(value[1])
 
 
 @pytest.mark.extended

@@ -228,6 +228,19 @@ def side_extrapolation(
     return mean_y - slope * mean_x, count >= 3, _intercept_spread(count, mean_x, spread)
 
 
+def straight_wall_value(
+    start: Float[ArrayLike, "*#n"],
+    end: Float[ArrayLike, "*#n"],
+    span: Float[ArrayLike, "*#n"],
+    offset: Float[ArrayLike, "*#n"],
+) -> Float[Array, "*n"]:
+    """A boundary's ``h / R`` ``offset`` radians along a straight wall on which it is ``start`` at offset 0 and
+    ``end`` at ``span`` (``a cos + b sin`` of the offset, :func:`side_extrapolation`)."""
+    sin_span = jnp.sin(span)
+    slope = (end - start * jnp.cos(span)) / jnp.where(sin_span != 0, sin_span, 1.0)
+    return start * jnp.cos(offset) + slope * jnp.sin(offset)
+
+
 def window_offsets(window: int, margin: Float[ArrayLike, ""]) -> Float[Array, " window"]:
     """Distances (columns) from a corner of the columns :func:`side_extrapolation` fits on one side."""
     return jnp.ceil(margin) + 1 + jnp.arange(window)

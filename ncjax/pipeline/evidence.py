@@ -15,7 +15,14 @@ from ..solvers.layout import solve_atlanta_layout
 from ..solvers.ransac import boundary_errors, ransac_wall, wall_columns
 from .adjust import boundary_weights
 from .config import PipelineConfig, min_noise, nms_radius, scaled
-from .corners import column_walls, distance_to_corners, find_corners, full_window_spread, side_extrapolation
+from .corners import (
+    column_walls,
+    distance_to_corners,
+    find_corners,
+    full_window_spread,
+    side_extrapolation,
+    straight_wall_value,
+)
 from .types import WallEvidence
 from .walls import boundary_gap
 
@@ -114,33 +121,44 @@ def gather_evidence(
     window = max(3, round(scaled(8.0, width, 1024)))
     column_angle = cam.fov_horizontal / width
 
-    def extrapolate(rows, height, wall, side):
-        """Rows of the walls ``wall`` at their corners ``corner_columns`` from the given side, and their spread.
+    def height_over_range(rows, height):
+        """Per column, a boundary's ``h / R`` at height ``h``.
 
         A pixel's ray leaves the circle at ``rc`` and rises at elevation ``phi``: it
         meets height ``h`` at radial distance ``R = rc + h / tan(phi)``, so
         ``h / R = tan(phi) / (1 + (rc / h) tan(phi))``, which
         :func:`~ncjax.pipeline.corners.side_extrapolation` extrapolates.
         """
-        rc_over_height = jnp.where(heights.ok & (height != 0), cam.rc / height, 0.0)
-        own = finite[None, :] & (column_wall[None, :] == wall[:, None])
         tan_elevation = jnp.tan(pixel_to_angles(cam, columns, rows)[1])
-        at_corner, seen, spread = jax.vmap(side_extrapolation, in_axes=(None, 0, 0, None, None, None, None))(
-            tan_elevation / (1 + rc_over_height * tan_elevation),
-            own,
-            corner_columns,
-            side,
-            window,
-            margin,
-            column_angle,
-        )
-        tan_at_corner = at_corner / jnp.maximum(1 - rc_over_height * at_corner, jnp.finfo(at_corner.dtype).tiny)
-        return angles_to_pixel(cam, 0.0, jnp.arctan(tan_at_corner))[1], seen, spread
+        return tan_elevation / (1 + rc_over(height) * tan_elevation)
 
-    ceiling_here, seen_here, spread_here = extrapolate(ceiling_v, heights.ceiling_height, jnp.arange(capacity), 1)
-    floor_here, _, _ = extrapolate(floor_v, heights.floor_height, jnp.arange(capacity), 1)
-    ceiling_before, seen_before, spread_before = extrapolate(ceiling_v, heights.ceiling_height, previous, -1)
-    floor_before, _, _ = extrapolate(floor_v, heights.floor_height, previous, -1)
+    def rc_over(height):
+        return jnp.where(heights.ok & (height != 0), cam.rc / height, 0.0)
+
+    def rows_of(value, height):
+        """The rows of ``h / R`` values at height ``h`` (the inverse of :func:`height_over_range`)."""
+        tan_elevation = value / jnp.maximum(1 - rc_over(height) * value, jnp.finfo(value.dtype).tiny)
+        return angles_to_pixel(cam, 0.0, jnp.arctan(tan_elevation))[1]
+
+    def extrapolate(value, wall, side):
+        """``h / R`` of the walls ``wall`` at their corners ``corner_columns`` from the given side, and its spread."""
+        own = finite[None, :] & (column_wall[None, :] == wall[:, None])
+        return jax.vmap(side_extrapolation, in_axes=(None, 0, 0, None, None, None, None))(
+            value, own, corner_columns, side, window, margin, column_angle
+        )
+
+    ceiling_value = height_over_range(ceiling_v, heights.ceiling_height)
+    floor_value = height_over_range(floor_v, heights.floor_height)
+    ceiling_value_here, seen_here, spread_here = extrapolate(ceiling_value, jnp.arange(capacity), 1)
+    floor_value_here, _, _ = extrapolate(floor_value, jnp.arange(capacity), 1)
+    ceiling_value_before, seen_before, spread_before = extrapolate(ceiling_value, previous, -1)
+    floor_value_before, _, _ = extrapolate(floor_value, previous, -1)
+    ceiling_here, floor_here = (
+        rows_of(ceiling_value_here, heights.ceiling_height),
+        rows_of(floor_value_here, heights.floor_height),
+    )
+    ceiling_before = rows_of(ceiling_value_before, heights.ceiling_height)
+    floor_before = rows_of(floor_value_before, heights.floor_height)
     jump = jnp.maximum(jnp.abs(ceiling_here - ceiling_before), jnp.abs(floor_here - floor_before))
     both_fitted = fitted & fitted[previous]
 
@@ -165,13 +183,53 @@ def gather_evidence(
     noise = 1.4826 * jnp.nanmedian(residuals)
     noise = jnp.where(jnp.isfinite(noise), noise, 0.0)
     full_window = full_window_spread(window, margin)
-    relative_spread = jnp.maximum(jnp.hypot(spread_here, spread_before) / (math.sqrt(2) * full_window), 1.0)
+
+    def relative_spread(first, second):
+        """How much less surely two extrapolations give a jump than two full windows (at least 1)."""
+        return jnp.maximum(jnp.hypot(first, second) / (math.sqrt(2) * full_window), 1.0)
+
     jump_seen = corner_mask & seen_here & seen_before
-    jump_stands_out = jump_seen & (jump > config.occlusion_noise_factor * noise * relative_spread)
+    jump_stands_out = jump_seen & (
+        jump > config.occlusion_noise_factor * noise * relative_spread(spread_here, spread_before)
+    )
     occluded = jump_stands_out & (jump > config.occlusion_threshold * pixels)
+    previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
+
+    # A wall too narrow to extrapolate (its corners closer than the window) between two that extrapolate: along a
+    # straight wall from the previous wall's boundary at its first corner to the next wall's at its second
+    # (``h / R`` is ``a cos + b sin`` of the azimuth), its own rows lie on it unless an occlusion hides a wall at
+    # one of its corners: the one where the nearer of the two neighbours ends.
+    narrow = corner_mask & ~seen_here & seen_before & seen_here[following]
+    span = column_angle * ((corner_columns[following] - corner_columns) % width)
+    offset = column_angle * ((columns - corner_columns[wall]) % width)
+
+    def chord_deviation(rows, value_before, value_here, height):
+        chord = straight_wall_value(value_before[wall], value_here[following][wall], span[wall], offset)
+        return jnp.abs(rows_of(chord, height) - rows)
+
+    deviation = jnp.maximum(
+        chord_deviation(ceiling_v, ceiling_value_before, ceiling_value_here, heights.ceiling_height),
+        chord_deviation(floor_v, floor_value_before, floor_value_here, heights.floor_height),
+    )
+    on_narrow = finite & (column_wall >= 0) & narrow[wall] & jnp.isfinite(deviation)
+    deviation = jax.ops.segment_max(jnp.where(on_narrow, deviation, 0.0), wall_of, capacity + 1)[:capacity]
+    hidden = narrow & (
+        deviation
+        > jnp.maximum(
+            config.occlusion_threshold * pixels,
+            config.occlusion_noise_factor * noise * relative_spread(spread_before, spread_here[following]),
+        )
+    )
+    span_before = floor_before - ceiling_before
+    before_nearer = span_before > (floor_here - ceiling_here)[following]
+    at_start = hidden & before_nearer
+    at_end = (
+        jnp.zeros(capacity, bool).at[jnp.where(hidden & ~before_nearer, following, capacity)].set(True, mode="drop")
+    )
+    occluded = occluded | at_start | at_end
+    previous_nearer = jnp.where(at_start, True, jnp.where(at_end, False, previous_nearer))
     # where the fitted walls part at the corner, an occlusion the jump missed may hide a wall there
     walls_part = both_fitted & both_seen & (wall_jump > config.occlusion_noise_factor * noise)
-    previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
     return WallEvidence(
         ceiling_rays=ceiling_rays,
         floor_rays=floor_rays,
