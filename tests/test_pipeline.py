@@ -991,6 +991,29 @@ def test_straight_wall_value_follows_a_wall_between_two_of_its_columns(rc, norma
     assert abs(float(between) - float(value[1])) < 1e-4 * float(value[1])
 
 
+@pytest.mark.slow
+def test_an_occlusion_beside_a_narrow_wall_is_found():
+    """A room of experiments/pipeline_table.py whose labels put an occlusion at column 43.4, 1.5 columns from the
+    next corner: the wall between is too narrow to extrapolate, and its one column's rows, off the straight wall
+    between its neighbours' boundaries, show the occlusion at the corner of the nearer neighbour."""
+    config = ncjax.RoomConfig(world="atlanta", occlusion="required", capacity=32, room_tries=4, camera_tries=128)
+    room = pick(jax.vmap(lambda k: ncjax.random_room(k, config))(jax.random.split(jax.random.key(8), 30)), 17)
+    cam = room.camera(1024, 512)
+    label = ncjax.room_labels(room, cam)
+    corners = np.asarray(label.corner_u)[np.asarray(label.corner_mask & label.corner_is_occlusion)]
+    assert np.allclose(corners, 43.4, atol=0.1)  # the occlusion's near and far points
+    evidence = jax.jit(gather_evidence, static_argnums=5)(
+        label.ceiling_v, label.floor_v, label.corner_target, cam, jax.random.key(0), ncjax.PipelineConfig()
+    )
+    columns = np.asarray(evidence.corner_columns)[np.asarray(evidence.corner_mask)]
+    occluded = np.asarray(evidence.occluded)[np.asarray(evidence.corner_mask)]
+    narrow = np.abs(columns - 43.4) < 0.1
+    assert narrow.sum() == 1 and np.any(np.abs(columns - 44.9) < 0.1)  # both corners of the peak
+    assert occluded[narrow].all() and not bool(
+        evidence.jump_seen[np.flatnonzero(np.asarray(evidence.corner_mask))[narrow]].any()
+    )
+
+
 @pytest.mark.extended
 def test_noisy_rows_do_not_fake_occlusions():
     """2 px of white noise on the rows of rooms without occlusions: a fixed 4 px jump threshold sees
