@@ -81,6 +81,8 @@ from .floor_check import ceiling_consistent_floor
 from .manhattan import manhattan_frame, manhattan_walls
 from .prior import HeightPrior, prior_rows, rescale_to_prior
 from .types import BranchWalls, Layout, LayoutStatus, WallEvidence, pad_layout
+from .walls import room_height as solved_room_height
+from .walls import scaled_walls
 
 
 class WallsToAdjust(eqx.Module):
@@ -196,14 +198,7 @@ def at_room_height(branches: BranchWalls, room_height: Float[ArrayLike, ""]) -> 
     adjustment stalls. The virtual rows were made at the prior's heights, so the adjustment starts from the same
     shape at that scale.
     """
-    solved = branches.ceiling_height - branches.floor_height
-    usable = jnp.isfinite(solved) & (solved > 0)
-    factor = jnp.where(usable, room_height / jnp.where(usable, solved, 1.0), 1.0)
-    return eqx.tree_at(
-        lambda b: (b.distances, b.ceiling_height, b.floor_height),
-        branches,
-        (branches.distances * factor[..., None], branches.ceiling_height * factor, branches.floor_height * factor),
-    )
+    return scaled_walls(branches, room_height / solved_room_height(branches))
 
 
 def layout_of_walls(walls: WallsToAdjust, prior: HeightPrior | None, world: str, config: PipelineConfig) -> Layout:

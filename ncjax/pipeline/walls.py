@@ -13,7 +13,7 @@ from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
 from ..geometry.reprojection import boundary_points, column_directions, fit_plan_lines, range_along, wall_boundary_rows
 from ..solvers.layout import WallLayout, solve_atlanta_layout
-from .types import FinalWalls, WallEvidence
+from .types import BranchWalls, FinalWalls, WallEvidence
 
 
 def wall_groups(corner_mask: Bool[Array, " K"], merge: Bool[Array, " K"]) -> tuple[Int[Array, " K"], Int[Array, ""]]:
@@ -204,15 +204,16 @@ def solve_final_walls(
     return chosen, jnp.all(passes.ok)
 
 
-def room_height(walls: WallLayout) -> Float[Array, ""]:
+def room_height(walls: WallLayout | BranchWalls) -> Float[Array, "*batch"]:
     return walls.ceiling_height - walls.floor_height
 
 
-def scaled_walls(walls: WallLayout, factor: Float[Array, ""]) -> WallLayout:
-    """``walls`` scaled about the camera's axis by ``factor`` (distances and heights; the same directions)."""
+def scaled_walls(walls: WallLayout | BranchWalls, factor: Float[Array, "*batch"]) -> WallLayout | BranchWalls:
+    """``walls`` (one layout's, or a batch's with one factor each) scaled about the camera's axis by ``factor``:
+    distances and heights, the same directions; a factor that is not finite and positive leaves them as they are."""
     factor = jnp.where(jnp.isfinite(factor) & (factor > 0), factor, 1.0)
     return eqx.tree_at(
         lambda w: (w.distances, w.ceiling_height, w.floor_height),
         walls,
-        (walls.distances * factor, walls.ceiling_height * factor, walls.floor_height * factor),
+        (walls.distances * factor[..., None], walls.ceiling_height * factor, walls.floor_height * factor),
     )
