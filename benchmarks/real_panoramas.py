@@ -374,13 +374,14 @@ def predicted_corners(corner_prob: np.ndarray) -> np.ndarray:
     """Corner columns: the peaks the network pipeline would take (:data:`ncjax.NETWORK_PIPELINE_CONFIG`)."""
     config = ncjax.NETWORK_PIPELINE_CONFIG
     probability = jnp.asarray(np.where(np.isfinite(corner_prob), corner_prob, 0.0), jnp.float32)
-    columns, mask, _ = peak_finder()(
+    columns, mask, _, _ = peak_finder()(
         probability,
         capacity=config.capacity,
         radius=nms_radius(config, len(corner_prob)),
         threshold=config.corner_threshold,
         min_corners=config.min_corners,
         fallback_threshold=config.fallback_corner_threshold,
+        exact_tolerance=config.exact_target_tolerance,
     )
     return np.asarray(columns, np.float64)[np.asarray(mask)]
 

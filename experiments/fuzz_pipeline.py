@@ -11,7 +11,11 @@ A case FAILS when a call raises, when any field of any result is NaN (failed lay
 values; only the covariances may be infinite, for what the rows leave free), or when an ok layout has a
 non-finite corner or height. The script prints the counts and the statuses, and exits 1 on a failure.
 
-    uv run python experiments/fuzz_pipeline.py [--cases 10000] [--seed 0]
+    uv run python experiments/fuzz_pipeline.py [--cases 10000] [--seed 0] [--time-budget SECONDS]
+
+Different ``--seed`` values draw different cases, so a long run can be split into parts (in parallel
+on several cores, or in slots); ``--time-budget`` stops drawing once that much time has passed (the
+summary counts the cases run).
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import jax
 import jax.numpy as jnp
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import given, seed, settings
 from hypothesis import strategies as st
 
 import ncjax
@@ -127,6 +131,10 @@ def main(argv: list[str] | None = None) -> int:
         default=1,
         help="cases per hypothesis example, one batched call (a batch of 100 compiles for over 17 min on 2 cores)",
     )
+    parser.add_argument("--seed", type=int, default=0, help="hypothesis's seed: which cases are drawn")
+    parser.add_argument(
+        "--time-budget", type=float, default=None, help="stop running cases after this many seconds (default: none)"
+    )
     args = parser.parse_args(argv)
     batch, labels = rendered_rooms()
     config = NETWORK_PIPELINE_CONFIG
@@ -142,9 +150,12 @@ def main(argv: list[str] | None = None) -> int:
                 counts[f"{what} with NaN or inf"] += 1
                 failures.append(f"{case}: {what}: {', '.join(found)}")
 
+    @seed(args.seed)
     @settings(max_examples=max(1, args.cases // (2 * args.batch)), database=None, deadline=None)
     @given(st.lists(cases(), min_size=args.batch, max_size=args.batch))
     def one(drawn):
+        if args.time_budget is not None and time.perf_counter() - start > args.time_budget:
+            return
         inputs = [corrupted_input(case, labels) for case in drawn]
         ceiling, floor, probability = (np.stack(part) for part in zip(*inputs, strict=True))
         rc = np.array([radius_of(case, float(batch.rc[case["room"]])) for case in drawn], np.float32)
@@ -184,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     elapsed = time.perf_counter() - start
     print(
         f"{counts['cases'] + counts['raised']} layouts and {counts['walls']} walls in {elapsed:.0f} s "
-        f"({WIDTH} x {HEIGHT}, world auto, batches of {args.batch})"
+        f"({WIDTH} x {HEIGHT}, world auto, batches of {args.batch}, seed {args.seed})"
     )
     print(f"  raised: {counts['raised']}")
     print(f"  layouts with a NaN (or a non-finite corner or height): {counts['layout with NaN or inf']}")

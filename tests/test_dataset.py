@@ -265,6 +265,7 @@ def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
         ("synth-decor-central:5:7", (5, 7)),
         ("synth-decor-small:8:9", (8, 9)),
         ("synth-decor-home:4:2", (4, 2)),
+        ("synth-decor-open:6:3", (6, 3)),
         ("data/synth1024", None),
         ("painted", None),
     ],

@@ -322,3 +322,32 @@ def test_neutral_paint_gives_pale_walls_and_leaves_the_rest_of_the_scene_as_it_w
     for field in (f.name for f in dataclasses.fields(plain) if f.name != "walls"):
         for a, b in zip(jax.tree.leaves(getattr(plain, field)), jax.tree.leaves(getattr(neutral, field)), strict=True):
             np.testing.assert_array_equal(a, b, err_msg=field)
+
+
+@pytest.mark.slow
+def test_passages_are_wide_open_leafless_and_keep_the_edges_on_the_labels():
+    config = ncjax.SceneConfig(decor=True, door_probability=1.0, passage_probability=1.0)
+    scenes_batch, _, labels = batch(0)
+    keys = jax.random.split(jax.random.key(7), BATCH)
+    generate = jax.jit(jax.vmap(lambda k, r: ncjax.random_scene(k, r, config)))
+    scenes = jax.device_get(generate(keys, scenes_batch.room))
+    openings, doorways = scenes.openings, scenes.decor.doorways
+    filled = np.asarray(openings.mask)
+    assert filled.sum() >= BATCH
+    np.testing.assert_array_equal(np.asarray(doorways.is_passage)[filled], True)
+    np.testing.assert_array_equal(np.asarray(doorways.is_open)[filled], True)
+    width = np.diff(np.asarray(openings.span), axis=-1)[..., 0][filled]
+    assert np.all((width >= 1.2 - 1e-5) & (width <= 3.0 + 1e-5))
+    below_ceiling = (np.asarray(scenes.room.ceiling_height)[:, None] - np.asarray(openings.z_range)[..., 1])[filled]
+    assert np.all((below_ceiling >= 0.05 - 1e-5) & (below_ceiling <= 0.4 + 1e-5))
+    furniture = config.furniture_slots * ncjax.synth.furniture.PARTS_PER_PIECE
+    leaves = np.asarray(scenes.boxes.mask)[:, furniture + config.lamp_slots * LAMP_PARTS :]
+    assert not leaves.any()
+    # Through a passage the next room shows, yet the edges stay on the wall plane's label rows.
+    renderings = render_scenes(scenes)
+    for i in range(BATCH):
+        label = jax.tree.map(lambda x: x[i], labels)
+        for errors in _edge_errors(np.asarray(renderings.semantic[i]), label):
+            seen = ~np.isnan(errors)
+            assert (errors[seen] <= 1.0).sum() >= 0.99 * seen.sum()
+    assert np.sum(np.asarray(renderings.semantic) == ncjax.Semantic.OPENING) > 0.02 * renderings.semantic.size

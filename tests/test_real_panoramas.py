@@ -144,7 +144,7 @@ def rendered_folder(tmp_path_factory):
     return folder, names
 
 
-@pytest.mark.extended
+@pytest.mark.slow
 def test_benchmark_on_renders(rendered_folder, tmp_path):
     folder, names = rendered_folder
     out = tmp_path / "out"

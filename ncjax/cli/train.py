@@ -28,8 +28,9 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         help="required: dataset folders (ncjax synth or the authors') or synth:SEED:N (the N rooms `ncjax synth "
         "--seed SEED` writes, rendered in memory), synth-decor:SEED:N (the same with --decor), "
         "synth-decor-central:SEED:N (such rooms with a central camera, rc 0), synth-decor-home:SEED:N (the same, "
-        "70%% of them with white or pale walls, as most homes) or synth-decor-small:SEED:N "
-        "(closets, bathrooms and corridors, sides 1.2-4 m, rc 0); their splits are "
+        "70%% of them with white or pale walls, as most homes), synth-decor-small:SEED:N "
+        "(closets, bathrooms and corridors, sides 1.2-4 m, rc 0) or synth-decor-open:SEED:N (rc 0, more doors, "
+        "half of them wide passages to the next room, as in open plans); their splits are "
         "pooled, validation takes the first --validation-limit images of the pool. Or 'painted' (flat-coloured "
         "random rooms, a smoke test)",
     )

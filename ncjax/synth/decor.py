@@ -305,7 +305,7 @@ def sun_patches(key, room: Room, openings: Openings, config) -> SunPatches:
 
 def door_leaves(key, room: Room, openings: Openings, doorways: Doorways, config) -> Boxes:
     """The leaves of open doors (one box per opening slot, chance
-    ``config.door_leaf_probability``): hinged at one side of the doorway and
+    ``config.door_leaf_probability``; passages have none): hinged at one side of the doorway and
     swung 30-90 degrees into the room, inside the keep-out area in front of the
     door, clear of the camera and of the leaves before them."""
     d = openings.mask.shape[0]
@@ -327,6 +327,7 @@ def door_leaves(key, room: Room, openings: Openings, doorways: Doorways, config)
     valid = (
         openings.mask
         & doorways.is_open
+        & ~doorways.is_passage
         & (u[:, 2] < config.door_leaf_probability)
         & jax.vmap(rectangle_in_room, in_axes=(0, 0, 0, None))(centre, half, leaf_axis, room)
         & (

@@ -70,11 +70,14 @@ class Doorways(eqx.Module):
 
     Attributes:
         is_open: (D,) an open door (never a window).
+        is_passage: (D,) a wide passage (open, with no leaf; see
+            :attr:`~ncjax.SceneConfig.passage_probability`).
         wall_thickness, room_depth, room_ceiling, room_light: (D,) the room behind an open door.
         room_sides: (D, 2) how far the room behind reaches beyond the door's start and end.
     """
 
     is_open: Bool[Array, " D"]
+    is_passage: Bool[Array, " D"]
     wall_thickness: Float[Array, " D"]
     room_depth: Float[Array, " D"]
     room_sides: Float[Array, "D 2"]

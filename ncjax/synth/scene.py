@@ -62,6 +62,7 @@ from .rooms import Room, distance_to_walls, point_in_polygon
 
 # fold_in data of the decor's random key (far above any split count of the basic draws).
 _DECOR_STREAM = 0xDEC0
+_PASSAGE_STREAM = 0xDA55
 # fold_in data of the neutral-paint draw: its own stream, so the other draws stay those of earlier scenes.
 _NEUTRAL_PAINT_STREAM = 0x9A17
 
@@ -89,6 +90,10 @@ class SceneConfig:
         door_probability: chance that an opening is a door rather than a window.
         open_door_probability: chance that a door is open, showing the room behind it.
         door_leaf_probability: chance that an open door's leaf stands swung into the room.
+        passage_probability: chance that a door is instead a wide passage to the next room
+            (decor only): an opening 1.2-3.0 m wide, up to 0.05-0.4 m below the ceiling,
+            with no leaf, as between the rooms of an open plan; the label's boundary
+            stays in the wall plane across it, as labellers of real panoramas draw it.
         decal_probability: chance that each decal slot is wanted.
         panel_probability: chance that a room is lit by flush light panels
             rather than lamps.
@@ -114,6 +119,7 @@ class SceneConfig:
     door_probability: float = 0.35
     open_door_probability: float = 0.6
     door_leaf_probability: float = 0.7
+    passage_probability: float = 0.0
     decal_probability: float = 0.6
     panel_probability: float = 0.25
     pendant_probability: float = 0.25
@@ -141,6 +147,7 @@ class SceneConfig:
             "door_probability",
             "open_door_probability",
             "door_leaf_probability",
+            "passage_probability",
             "decal_probability",
             "panel_probability",
             "pendant_probability",
@@ -288,6 +295,12 @@ def _opening_candidate(key, room: Room, config: SceneConfig):
     window = jnp.stack([between(u[1], 0.6, 2.2), between(u[2], 0.5, 1.1), between(u[3], 0.8, 1.6)])
     width, bottom, height = jnp.where(is_window, window, door)
     height = jnp.minimum(height, room.ceiling_height - room.floor_height - 0.15 - bottom)
+    # Its own stream, so that rooms drawn without passages stay the same.
+    p = jax.random.uniform(jax.random.fold_in(key, _PASSAGE_STREAM), (3,))
+    is_passage = config.decor & ~is_window & (p[0] < config.passage_probability)
+    room_height = room.ceiling_height - room.floor_height
+    passage = jnp.stack([between(p[1], 1.2, 3.0), 0.0, room_height - between(p[2], 0.05, 0.4)])
+    width, bottom, height = jnp.where(is_passage, passage, jnp.stack([width, bottom, height]))
     wall, along, fits, start, direction, normal = wall_position(u[4:6], room, width, 0.15)
     centre = start + (along + width / 2) * direction + 0.05 * normal
     colour = jnp.where(
@@ -308,16 +321,17 @@ def _opening_candidate(key, room: Room, config: SceneConfig):
         keep_out = Footprints(centre + 0.45 * normal, jnp.stack([width / 2, 0.45]), direction, ~is_window)
         return fields, None, footprint, keep_out
     w = jax.random.uniform(jax.random.fold_in(key, _DECOR_STREAM), (7,))
-    is_open = ~is_window & (w[0] < config.open_door_probability)
+    is_open = is_passage | (~is_window & (w[0] < config.open_door_probability))
     doorway = dict(
         is_open=is_open,
+        is_passage=is_passage,
         wall_thickness=between(w[1], 0.1, 0.25),
         room_depth=between(w[2], 1.2, 4.0),
         room_sides=between(w[3:5], 0.3, 2.5),
         room_ceiling=jnp.maximum(room.ceiling_height + between(w[5], -0.3, 0.3), fields["z_range"][1] + 0.1),
         room_light=between(w[6], 0.35, 1.8),
     )
-    depth = jnp.where(is_open, jnp.maximum(0.45, width / 2 + 0.05), 0.45)
+    depth = jnp.where(is_open & ~is_passage, jnp.maximum(0.45, width / 2 + 0.05), 0.45)
     keep_out = Footprints(centre + depth * normal, jnp.stack([width / 2 + 0.05, depth]), direction, ~is_window)
     return fields, doorway, footprint, keep_out
 

@@ -151,13 +151,20 @@ SYNTH_SOURCES = {
         room=RoomConfig(world="mix", size_range=(1.2, 4.0), max_walls=6, rc_range=(0.0, 0.0)),
         scene=SceneConfig(decor=True),
     ),
+    "synth-decor-open": dataclasses.replace(
+        SYNTH_COMMAND_CONFIG,
+        room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
+        scene=SceneConfig(decor=True, door_probability=0.6, passage_probability=0.5),
+    ),
 }
 """The configuration of each kind of rendered data source, ``KIND:SEED:N``
 (``synth-decor``: what ``ncjax synth --decor`` renders; ``synth-decor-central``: such
 rooms seen by a central camera, rc = 0, as most real panoramas are; ``synth-decor-home``: the
 same with white, off-white or pale walls in 70% of them, as in most homes; ``synth-decor-small``:
 closets, bathrooms and corridors, sides of 1.2-4 m and at most 6 walls, seen by a central
-camera, whose walls fill the panorama as no room of the other kinds does)."""
+camera, whose walls fill the panorama as no room of the other kinds does; ``synth-decor-open``:
+realistic rooms seen by a central camera with more doors, half of them wide passages to the next
+room, as in open plans, across which the boundary stays in the wall plane)."""
 
 
 def rendered_splits(
