@@ -10,25 +10,32 @@ residuals cannot show; ``PipelineConfig.wall_offset_ratio`` and
 also absorbs (:func:`ncjax.pipeline.uncertainty.layout_uncertainty`).
 
 The three are chosen on the tuning renders of ``tune_network_pipeline.py``
-(seeds 71 and 72) with the scale test off (``max_height_uncertainty``
-fails layouts by this same sigma; it is chosen afterwards, by
-``tune_network_pipeline.py``), then the coverage is measured on the test
-renders of ``network_table.py`` (seeds 99 and 98), which choose nothing. The shipped
+(seeds 71 and 72; 256 per world here, twice the rooms that script uses, so that
+the choice rests on about 2,000 corners) with ``NETWORK_PIPELINE_CONFIG``'s
+scale test on, as ``ncjax reconstruct`` runs it (``max_height_uncertainty``
+fails layouts by this same sigma, and the coverage that matters is that of
+the layouts a user gets), then the coverage is measured on the test renders
+of ``network_table.py`` (seeds 99 and 98) and on check renders of the same
+generator (seeds 97 and 96, used nowhere else), which choose nothing. The shipped
 model's snapped rows (4 views) go through ``ncjax.layout_from_boundaries``
 with ``world="auto"`` and ``NETWORK_PIPELINE_CONFIG`` as ``ncjax reconstruct``
 runs them. Per setting, over the ok layouts with the true corner count (the
 covariance describes the rows' noise, not a missed corner): the share of the
 true corners inside their 95% ellipse and of the true room heights within
 1.96 sigma of the layout's (95% when calibrated), and the median corner sigma.
-The setting chosen is the sharpest calibrated one on the tuning renders:
-of those with both coverages within 92-97% (the goal's 90-97% with a
-margin for other rooms), the one with the smallest median corner sigma. The test renders are scored without the
-offsets, with the chosen setting (scale test off), and with
-``NETWORK_PIPELINE_CONFIG`` as it is (its scale test on).
+The setting chosen is the one whose two coverages on the tuning renders
+lie nearest the middle of the goal's 90-97% (the larger of their distances
+from 93.5% the smallest; on a tie, the smaller median corner sigma): on
+other rooms a coverage moves by a few points (a room's corners err
+together), and the middle leaves the most room either way; the sharpest
+setting within 92-95% sat at the band's lower edge in heights and covered
+89.5% of the test renders' heights. The test and check renders are scored
+without the offsets (scale test off), with the chosen setting and with
+``NETWORK_PIPELINE_CONFIG`` as it is (both with the scale test on).
 
-    uv run python experiments/calibrate_uncertainty.py                # 128 tuning and 128 test renders per world
+    uv run python experiments/calibrate_uncertainty.py               # 256 tuning, 128 test, 128 check renders per world
     uv run python experiments/calibrate_uncertainty.py --tune-rooms 16 --test-rooms 16
-    uv run python experiments/calibrate_uncertainty.py --skip-grid    # the test renders only
+    uv run python experiments/calibrate_uncertainty.py --skip-grid    # the test and check renders only
 """
 
 from __future__ import annotations
@@ -58,8 +65,9 @@ from tune_network_pipeline import model_suffix, rendered_boundaries, tuning_boun
 WORLDS = ("manhattan", "atlanta")
 RATIOS = (0.0, 1.0, 2.0)
 NOISES = (0.0, 1.0, 2.0)  # pixels of a 512-row panorama
-CORNER_NOISES = (0.0, 2.0, 4.0, 8.0)  # columns of a 1024-column panorama
-CALIBRATED = (92.0, 97.0)  # coverages (%) a chosen setting has on the tuning renders
+CORNER_NOISES = (0.0, 1.0, 2.0, 3.0, 4.0, 8.0)  # columns of a 1024-column panorama
+TARGET = 93.5  # the middle of the goal's 90-97% coverage: what the chosen setting aims at on the tuning renders
+CHECK_SEEDS = {"manhattan": 97, "atlanta": 96}  # renders used by nothing but this script's last check
 
 
 def coverage(data: dict, config: ncjax.PipelineConfig) -> dict:
@@ -149,8 +157,9 @@ HEADER = [
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tune-rooms", type=int, default=128, help="tuning renders per world")
+    parser.add_argument("--tune-rooms", type=int, default=256, help="tuning renders per world")
     parser.add_argument("--test-rooms", type=int, default=128, help="test renders per world")
+    parser.add_argument("--check-rooms", type=int, default=128, help="check renders per world")
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument(
         "--skip-grid", action="store_true", help="score NETWORK_PIPELINE_CONFIG on the test renders only"
@@ -168,34 +177,39 @@ def main(argv=None):
         )
         for w in WORLDS
     }
+    check = {
+        w: rendered_boundaries(
+            test_renders(w, args.check_rooms, args.out, CHECK_SEEDS, "check"),
+            w,
+            args.out / f"check_{w}_{args.check_rooms}_views{DEFAULT_VIEWS}{model_suffix(None)}.npz",
+            DEFAULT_VIEWS,
+        )
+        for w in WORLDS
+    }
     lines = [
         f"Tuning renders ({args.tune_rooms} per world), world auto, the shipped model's snapped rows:",
         "",
         *HEADER,
     ]
-    best, best_sigma = None, np.inf
+    best, best_rank = None, (np.inf, np.inf)
     for setting in [] if args.skip_grid else itertools.product(RATIOS, NOISES, CORNER_NOISES):
-        result = pooled(tuning, with_setting(setting, scale_test=False))
-        lines.append(line(setting_name(setting, scale_test=False), result))
+        result = pooled(tuning, with_setting(setting, scale_test=True))
+        lines.append(line(setting_name(setting, scale_test=True), result))
         print(lines[-1], flush=True)
-        calibrated = all(
-            CALIBRATED[0] <= result[name] <= CALIBRATED[1] for name in ("corner_coverage", "height_coverage")
-        )
-        if calibrated and result["sigma_median"] < best_sigma:
-            best, best_sigma = setting, result["sigma_median"]
+        off_target = max(abs(result[name] - TARGET) for name in ("corner_coverage", "height_coverage"))
+        if (off_target, result["sigma_median"]) < best_rank:
+            best, best_rank = setting, (off_target, result["sigma_median"])
     current = tuple(getattr(NETWORK_PIPELINE_CONFIG, name) for name in SETTING)
     lines += [
         "",
-        f"Chosen on the tuning renders: {setting_name(best, False) if best else 'none'}; "
+        f"Chosen on the tuning renders: {setting_name(best, True) if best else 'none'}; "
         f"NETWORK_PIPELINE_CONFIG: {setting_name(current, True)}.",
-        "",
-        f"Test renders ({args.test_rooms} per world), the same pipeline:",
-        "",
-        *HEADER,
     ]
-    scored = [(current, True), ((0.0, 0.0, 0.0), False), (best, False), (current, False)]
-    for setting, scale_test in dict.fromkeys(scored if best else scored[:2]):
-        lines.append(line(setting_name(setting, scale_test), pooled(test, with_setting(setting, scale_test))))
+    scored = [(current, True), ((0.0, 0.0, 0.0), False), (best, True)]
+    for name, data, rooms in (("Test", test, args.test_rooms), ("Check", check, args.check_rooms)):
+        lines += ["", f"{name} renders ({rooms} per world), the same pipeline:", "", *HEADER]
+        for setting, scale_test in dict.fromkeys(scored if best else scored[:2]):
+            lines.append(line(setting_name(setting, scale_test), pooled(data, with_setting(setting, scale_test))))
     table = "\n".join(lines)
     print(table)
     print(f"total time {time.time() - start:.0f} s")

@@ -85,14 +85,15 @@ PAPER = {
 }
 
 
-def test_renders(world: str, count: int, out: Path) -> Path:
-    """The folder of ``count`` test renders of ``world`` (rendered on first use)."""
-    folder = out / f"test_renders_{world}_{count}"
+def test_renders(world: str, count: int, out: Path, seeds: dict[str, int] = SEEDS, name: str = "test") -> Path:
+    """The folder of ``count`` test renders of ``world`` (rendered on first use); other ``seeds`` give
+    another set of the same generator, named ``name``."""
+    folder = out / f"{name}_renders_{world}_{count}"
     if folder.is_dir() and len(list_samples(str(folder))) == count:
         return folder
     config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
-    with tqdm(total=count, desc=f"render {world} test set") as bar:
-        write_dataset(str(folder), count, SEEDS[world], config, batch_size=BATCH, overwrite=True, progress=bar.update)
+    with tqdm(total=count, desc=f"render {world} {name} set") as bar:
+        write_dataset(str(folder), count, seeds[world], config, batch_size=BATCH, overwrite=True, progress=bar.update)
     return folder
 
 
