@@ -62,6 +62,7 @@ from .rooms import Room, distance_to_walls, point_in_polygon
 
 # fold_in data of the decor's random key (far above any split count of the basic draws).
 _DECOR_STREAM = 0xDEC0
+# fold_in data of the passage draw: its own stream, so that rooms drawn without passages stay those of earlier scenes.
 _PASSAGE_STREAM = 0xDA55
 # fold_in data of the neutral-paint draw: its own stream, so the other draws stay those of earlier scenes.
 _NEUTRAL_PAINT_STREAM = 0x9A17
