@@ -40,7 +40,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import functools
 import io
 import json
 import math
@@ -64,8 +63,7 @@ from ncjax.io.images import PanoramaError, panorama_size_error, read_rgb
 from ncjax.network.model import check_views
 from ncjax.network.predict import default_model
 from ncjax.network.scores import REFERENCE_WIDTH
-from ncjax.pipeline.config import nms_radius
-from ncjax.pipeline.corners import find_corners
+from ncjax.pipeline.corners import configured_corners
 
 DEFAULT_OUT = pathlib.Path(__file__).resolve().parent / "out" / "real_panoramas"
 CSV_NAME = "real_panoramas.csv"
@@ -362,27 +360,13 @@ def load_network(path: pathlib.Path | None) -> ncjax.HorizonNet:
 # ----------------------------------------------------------------------------- scores
 
 
-@functools.cache
-def peak_finder():
-    """The pipeline's corner peak finder, jitted with its settings static."""
-    return jax.jit(
-        find_corners, static_argnames=("capacity", "radius", "threshold", "min_corners", "fallback_threshold")
-    )
+# the pipeline's corner peak finder, its settings static
+peak_finder = jax.jit(configured_corners, static_argnames="config")
 
 
 def predicted_corners(corner_prob: np.ndarray) -> np.ndarray:
     """Corner columns: the peaks the network pipeline would take (:data:`ncjax.NETWORK_PIPELINE_CONFIG`)."""
-    config = ncjax.NETWORK_PIPELINE_CONFIG
-    probability = jnp.asarray(np.where(np.isfinite(corner_prob), corner_prob, 0.0), jnp.float32)
-    columns, mask, _, _ = peak_finder()(
-        probability,
-        capacity=config.capacity,
-        radius=nms_radius(config, len(corner_prob)),
-        threshold=config.corner_threshold,
-        min_corners=config.min_corners,
-        fallback_threshold=config.fallback_corner_threshold,
-        exact_tolerance=config.exact_target_tolerance,
-    )
+    columns, mask, _, _ = peak_finder(jnp.asarray(corner_prob, jnp.float32), ncjax.NETWORK_PIPELINE_CONFIG)
     return np.asarray(columns, np.float64)[np.asarray(mask)]
 
 

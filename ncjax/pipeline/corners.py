@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..synth.rooms import CORNER_LABEL_BASE
+from .config import PipelineConfig, nms_radius
 
 
 def is_peak(corner_prob: Float[Array, " W"], radius: int, threshold: Float[ArrayLike, ""]) -> Bool[Array, " W"]:
@@ -154,6 +155,23 @@ def find_corners(
     valid = jnp.arange(capacity) < count
     columns = jnp.where(valid, found[order], float(width))
     return columns, valid, valid & jnp.tile(exact, 2)[order], count > capacity
+
+
+def configured_corners(
+    corner_prob: Float[Array, " W"], config: PipelineConfig
+) -> tuple[Float[Array, " C"], Bool[Array, " C"], Bool[Array, " C"], Bool[Array, ""]]:
+    """The corners the pipeline takes: :func:`find_corners` with ``config``'s settings (``C`` =
+    ``config.capacity``), non-finite probabilities read as 0."""
+    corner_prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, 0.0)
+    return find_corners(
+        corner_prob,
+        config.capacity,
+        nms_radius(config, corner_prob.shape[0]),
+        config.corner_threshold,
+        config.min_corners,
+        config.fallback_corner_threshold,
+        config.exact_target_tolerance,
+    )
 
 
 def column_walls(corner_columns: Float[Array, " C"], corner_mask: Bool[Array, " C"], width: int) -> Int[Array, " W"]:

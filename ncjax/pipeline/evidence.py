@@ -14,11 +14,11 @@ from ..geometry.reprojection import column_directions
 from ..solvers.layout import solve_atlanta_layout
 from ..solvers.ransac import boundary_errors, ransac_wall, wall_columns
 from .adjust import boundary_weights
-from .config import PipelineConfig, min_noise, nms_radius, scaled
+from .config import PipelineConfig, min_noise, scaled
 from .corners import (
     column_walls,
+    configured_corners,
     distance_to_corners,
-    find_corners,
     full_window_spread,
     side_extrapolation,
     straight_wall_value,
@@ -45,16 +45,7 @@ def gather_evidence(
     ceiling_rays = pixel_to_ray(cam, columns, ceiling_v)
     floor_rays = pixel_to_ray(cam, columns, floor_v)
 
-    corner_prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, 0.0)
-    corner_columns, corner_mask, corner_exact, overflow = find_corners(
-        corner_prob,
-        capacity,
-        nms_radius(config, width),
-        config.corner_threshold,
-        config.min_corners,
-        config.fallback_corner_threshold,
-        config.exact_target_tolerance,
-    )
+    corner_columns, corner_mask, corner_exact, overflow = configured_corners(corner_prob, config)
     column_wall = column_walls(corner_columns, corner_mask, width)
     away = distance_to_corners(corner_columns, corner_mask, width) >= scaled(config.corner_margin, width, 1024)
     wall_of = jnp.where(column_wall >= 0, column_wall, capacity)  # segment ids, capacity: none
