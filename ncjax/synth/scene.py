@@ -295,11 +295,10 @@ def _opening_candidate(key, room: Room, config: SceneConfig):
     door = jnp.stack([between(u[1], 0.75, 1.0), 0.0, between(u[2], 1.95, 2.15)])
     window = jnp.stack([between(u[1], 0.6, 2.2), between(u[2], 0.5, 1.1), between(u[3], 0.8, 1.6)])
     width, bottom, height = jnp.where(is_window, window, door)
-    height = jnp.minimum(height, room.ceiling_height - room.floor_height - 0.15 - bottom)
-    # Its own stream, so that rooms drawn without passages stay the same.
+    room_height = room.ceiling_height - room.floor_height
+    height = jnp.minimum(height, room_height - 0.15 - bottom)
     p = jax.random.uniform(jax.random.fold_in(key, _PASSAGE_STREAM), (3,))
     is_passage = config.decor & ~is_window & (p[0] < config.passage_probability)
-    room_height = room.ceiling_height - room.floor_height
     passage = jnp.stack([between(p[1], 1.2, 3.0), 0.0, room_height - between(p[2], 0.05, 0.4)])
     width, bottom, height = jnp.where(is_passage, passage, jnp.stack([width, bottom, height]))
     wall, along, fits, start, direction, normal = wall_position(u[4:6], room, width, 0.15)
