@@ -1,18 +1,19 @@
 """Central mode on real, labelled panoramas: ``ncjax reconstruct --rc 0`` against each image's label_cor.
 
     uv run python benchmarks/central_layouts.py --data DIR [--out DIR] [--model FILE] [--limit N] [--no-align]
+        [any option of ncjax reconstruct: --world manhattan, --camera-height 1.5, --inlier-threshold 4, ...]
 
 Input: a folder of central panoramas (``*.jpg``, ``*.jpeg``, ``*.png``), each with its label ``<stem>.txt``
 (label_cor: one ``x y`` line per point, ceiling then floor of each corner, pixels of that image) beside it.
 
-It runs the command a user would (``ncjax reconstruct IMAGES --rc 0 --export label_cor``: the default
-camera height prior of 1.6 m, gravity alignment, the shipped model, 4 views), reads back each written
-``<stem>.label_cor.txt`` and scores it against the label with :mod:`ncjax.metrics_central`, both
-back-projected at camera height 1 (HorizonNet's and LGT-Net's convention: the metrics are up to scale).
-It prints per image and on average the 2D and 3D IoU, the corner error (% of the image diagonal), the
-pixel error, depth RMSE (camera heights) and delta-1, and the number of images with a layout. The mean
-3D IoU is given twice: over the images with a layout, and over all images with 0 for those without,
-then per status of the written layouts (``OK``, or flagged ``LOW_CONFIDENCE``: does the flag pick the
+It runs the command a user would (``ncjax reconstruct IMAGES --rc 0 --export label_cor``: the default camera
+height prior of 1.6 m, gravity alignment, the shipped model, 4 views; any other option is passed to the
+command as it is), reads back each written ``<stem>.label_cor.txt`` and scores it against the label with
+:mod:`ncjax.metrics_central`, both back-projected at camera height 1 (HorizonNet's and LGT-Net's convention:
+the metrics are up to scale). It prints per image and on average the 2D and 3D IoU, the corner error (% of the
+image diagonal), the pixel error, depth RMSE (camera heights) and delta-1, and the number of images with a
+layout. The mean 3D IoU is given twice: over the images with a layout, and over all images with 0 for those
+without, then per status of the written layouts (``OK``, or flagged ``LOW_CONFIDENCE``: does the flag pick the
 worse layouts?). Each image's status and explained fraction come from its JSON record.
 """
 
@@ -59,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", help="network weights (default: the shipped model)")
     parser.add_argument("--limit", type=int, help="the first N images only")
     parser.add_argument("--no-align", action="store_true", help="do not level the panoramas")
-    args = parser.parse_args(argv)
+    args, reconstruct_options = parser.parse_known_args(argv)
     try:
         pairs = labelled_images(args.data)[: args.limit]
     except (ValueError, OSError) as error:
@@ -67,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     command = ["reconstruct", *(str(image) for image, _ in pairs), "--rc", "0", "--out", str(args.out)]
     command += ["--export", "label_cor"] + (["--model", args.model] if args.model else [])
-    command += ["--no-align"] if args.no_align else []
+    command += (["--no-align"] if args.no_align else []) + reconstruct_options
     start = time.perf_counter()
     messages = io.StringIO()
     with contextlib.redirect_stderr(messages):

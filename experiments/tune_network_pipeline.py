@@ -8,7 +8,8 @@ Tuning set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` with seeds 7
 the test renders are never used to choose the configuration. The shipped model's
 boundaries (snapped, ``--views`` views) are computed once and cached in
 ``experiments/out/tune_<world>_<rooms>_views<V>_<model>_<hash>.npz``; each configuration then runs the
-pipeline alone (``layout_from_evidence``, each room with its own world). ``--model``
+pipeline alone (``layout_from_evidence``, each room with its own world, or with ``--world auto``
+every room with world auto, as ``ncjax reconstruct`` runs: to choose ``manhattan_margin``). ``--model``
 runs another model's boundaries through the same configurations (cached under its
 file's name and content hash), to compare a new model with the shipped one before it replaces it.
 
@@ -27,6 +28,7 @@ and how far off they were (a failure rate cannot choose it: it only adds failure
     uv run python experiments/tune_network_pipeline.py                  # 256 rooms per world
     uv run python experiments/tune_network_pipeline.py --rooms 16 --configs current
     uv run python experiments/tune_network_pipeline.py --configs current --model my_model.safetensors
+    uv run python experiments/tune_network_pipeline.py --world auto --configs current "margin 0.1" "margin 0.2"
 """
 
 from __future__ import annotations
@@ -91,6 +93,16 @@ CONFIGS = {
             "max_corner_offset": offset,
         }
         for offset in (16.0, 64.0, 1e6)
+    },
+    # world auto (--world auto): the Atlanta layout kept only where it explains this much more of the rows
+    **{
+        f"margin {margin:g}": {
+            "corner_threshold": 0.4,
+            "nms_radius": 4.0,
+            "occlusion_threshold": 8.0,
+            "manhattan_margin": margin,
+        }
+        for margin in (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
     },
     # no layout fails for an uncertain scale: the scale test's thresholds are compared on its layouts
     NO_SCALE_TEST: {
@@ -272,6 +284,9 @@ def main(argv=None):
     )
     parser.add_argument("--model", type=Path, help="weights (.safetensors) to run instead of the shipped model")
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument(
+        "--world", choices=("own", "auto"), default="own", help="each room's own world (default), or auto for all"
+    )
     args = parser.parse_args(argv)
     if args.model is not None and not args.model.is_file():
         parser.error(f"--model: no such file: {args.model}")
@@ -281,7 +296,8 @@ def main(argv=None):
     model = "the shipped model" if args.model is None else f"model {args.model.name}"
     suffix = model_suffix(args.model)  # names this run's table and plot
     lines = [
-        f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {model}, {args.views} view(s), snapped rows.",
+        f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {model}, {args.views} view(s), snapped rows, "
+        f"world: {'each room its own' if args.world == 'own' else 'auto'}.",
         "",
         *(f"- rows, {world}: {row_errors(data[world])}" for world in SEEDS),
         "",
@@ -300,7 +316,7 @@ def main(argv=None):
         )
         config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **kwargs)
         for world in SEEDS:
-            per_room = pipeline_scores(data[world], world, config)
+            per_room = pipeline_scores(data[world], world if args.world == "own" else "auto", config)
             clear = [r for r, keep in zip(per_room, data[world]["clear"], strict=False) if keep]
             s_clear, s_all = summary(clear), summary(per_room)
             median = np.median([r["ce"] for r in clear if not r["failed"]] or [np.nan])
@@ -319,7 +335,8 @@ def main(argv=None):
         plot_scale_test(unscaled, args.out / f"scale_test{suffix}.png", NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
-    (args.out / f"tune_network_pipeline_{args.rooms}{suffix}.md").write_text(table + "\n")
+    mode = "" if args.world == "own" else "_auto"
+    (args.out / f"tune_network_pipeline_{args.rooms}{mode}{suffix}.md").write_text(table + "\n")
     return record
 
 

@@ -1169,25 +1169,57 @@ def test_plan_line_without_spread_has_finite_gradients(weights):
     assert bool(jnp.all(jnp.isfinite(gradient)))
 
 
+OK, LOW, SCALE, FAILED = (ncjax.LayoutStatus[s] for s in ("OK", "LOW_CONFIDENCE", "UNCERTAIN_SCALE", "NO_CORNERS"))
+
+
 @pytest.mark.parametrize(
-    "manhattan_ok, atlanta_ok, manhattan_explained, atlanta_explained, in_frame, expected",
+    "manhattan_status, atlanta_status, manhattan_explained, atlanta_explained, in_frame, expected",
     [
-        (True, True, 0.9, 0.8, False, True),  # explains more
-        (True, True, 0.8, 0.9, True, False),  # explains less, even in a Manhattan frame
-        (True, True, 1.0, 1.0, True, True),  # tie: the frame decides
-        (True, True, 1.0, 1.0, False, False),
-        (True, False, 0.1, 0.9, False, True),  # the other branch failed
-        (False, True, 0.9, 0.1, True, False),
-        (False, False, 0.9, 0.1, True, False),
+        (OK, OK, 0.9, 0.8, False, True),  # explains more
+        (OK, OK, 0.8, 0.9, True, False),  # explains less, even in a Manhattan frame
+        (OK, OK, 1.0, 1.0, True, True),  # tie: the frame decides
+        (OK, OK, 1.0, 1.0, False, False),
+        (OK, FAILED, 0.1, 0.9, False, True),  # the other branch failed
+        (FAILED, OK, 0.9, 0.1, True, False),
+        (OK, LOW, 0.1, 0.9, False, True),  # a layout that is ok beats a flagged one
+        (SCALE, OK, 0.9, 0.1, True, False),
+        (LOW, FAILED, 0.1, 0.9, False, True),  # a flagged layout is still written: it beats a failure
+        (FAILED, SCALE, 0.9, 0.1, True, False),
+        (LOW, LOW, 0.5, 0.1, False, True),  # two flagged layouts compare as two ok ones
+        (LOW, SCALE, 0.1, 0.5, True, False),
+        (FAILED, FAILED, 0.9, 0.1, True, True),
     ],
 )
-def test_auto_world_choice(manhattan_ok, atlanta_ok, manhattan_explained, atlanta_explained, in_frame, expected):
+def test_auto_world_choice(
+    manhattan_status, atlanta_status, manhattan_explained, atlanta_explained, in_frame, expected
+):
     chosen = choose_manhattan(
-        jnp.array(manhattan_ok),
-        jnp.array(atlanta_ok),
+        jnp.int32(manhattan_status),
+        jnp.int32(atlanta_status),
         jnp.float32(manhattan_explained),
         jnp.float32(atlanta_explained),
         jnp.array(in_frame),
+    )
+    assert bool(chosen) is expected
+
+
+@pytest.mark.parametrize(
+    "manhattan_explained, atlanta_explained, margin, expected",
+    [
+        (0.85, 0.9, 0.1, True),  # within the margin: the simpler model
+        (0.7, 0.9, 0.1, False),  # the Atlanta layout explains clearly more
+        (1.0, 1.0, 0.1, True),
+        (0.85, 0.9, 0.0, False),
+    ],
+)
+def test_auto_world_choice_margin(manhattan_explained, atlanta_explained, margin, expected):
+    chosen = choose_manhattan(
+        jnp.int32(OK),
+        jnp.int32(OK),
+        jnp.float32(manhattan_explained),
+        jnp.float32(atlanta_explained),
+        jnp.array(False),
+        margin,
     )
     assert bool(chosen) is expected
 

@@ -87,6 +87,11 @@ class PipelineConfig:
         manhattan_tolerance: ``world="auto"``: largest deviation (degrees) of a
             RANSAC wall from the Manhattan frame for the Manhattan branch to win
             a tie (:func:`choose_manhattan`).
+        manhattan_margin: ``world="auto"``: the Manhattan layout is kept
+            unless the Atlanta one explains more than this fraction of the
+            usable boundary rows more (:func:`choose_manhattan`). The Atlanta
+            branch's free angle per wall lets it follow the rows' noise, which
+            a margin of 0 rewards on noisy rows.
         turn_weight: Manhattan labelling: cost of a corner whose walls do not
             turn as its type says, relative to the best-supported wall's
             direction vote (:func:`manhattan_labels`). Small: the walls'
@@ -186,6 +191,7 @@ class PipelineConfig:
     max_corner_offset: float = 32.0
     stray_noise_factor: float = 2.0
     manhattan_tolerance: float = 5.0
+    manhattan_margin: float = 0.0
     turn_weight: float = 0.02
     corner_weight: float = 1.0
     min_boundary_noise: float = 0.5
@@ -256,6 +262,8 @@ class PipelineConfig:
             raise ValueError(
                 f"min_corners must be in [0, {slots}] (capacity and compact_capacity), got {self.min_corners}"
             )
+        if not 0 <= self.manhattan_margin <= 1:
+            raise ValueError(f"manhattan_margin must be in [0, 1], got {self.manhattan_margin}")
         if not 0 <= self.min_explained_fraction <= 1:
             raise ValueError(f"min_explained_fraction must be in [0, 1], got {self.min_explained_fraction}")
         if not self.fallback_corner_threshold >= 0:
@@ -297,6 +305,7 @@ TRACED_FIELDS = (
     "max_corner_offset",
     "stray_noise_factor",
     "manhattan_tolerance",
+    "manhattan_margin",
     "turn_weight",
     "corner_weight",
     "min_boundary_noise",

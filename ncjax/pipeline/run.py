@@ -45,7 +45,8 @@
 6. Corners where consecutive walls meet.
 
 ``world="auto"`` (not in the paper) runs both branches and keeps the one that
-succeeds, or, when both do, the Manhattan layout if it reprojects more of the
+succeeds (or, when neither does, the one whose layout is written with a flag),
+or, when both do as well, the Manhattan layout if it reprojects more of the
 boundary rows within the inlier threshold than the Atlanta one; on a tie
 (exact rows), if every RANSAC wall lies within ``manhattan_tolerance`` degrees
 of the two perpendicular directions that fit them best (:func:`choose_manhattan`).
@@ -70,7 +71,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Key, PRNGKeyArray, UInt32
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Key, PRNGKeyArray, UInt32
 
 from ..geometry.camera import NonCentralPanorama
 from .assemble import finish_layout
@@ -80,7 +81,7 @@ from .evidence import gather_evidence
 from .floor_check import ceiling_consistent_floor
 from .manhattan import manhattan_frame, manhattan_walls
 from .prior import HeightPrior, prior_rows, rescale_to_prior
-from .types import BranchWalls, Layout, LayoutStatus, WallEvidence, pad_layout
+from .types import FLAGGED_STATUSES, BranchWalls, Layout, LayoutStatus, WallEvidence, pad_layout
 from .walls import room_height as solved_room_height
 from .walls import scaled_walls
 
@@ -153,7 +154,12 @@ def adjusted_layout(walls: WallsToAdjust, world: str, config: PipelineConfig) ->
     )
     manhattan, atlanta = (jax.tree.map(lambda x, i=i: x[i], layouts) for i in range(2))
     use_manhattan = choose_manhattan(
-        manhattan.ok, atlanta.ok, manhattan.explained_fraction, atlanta.explained_fraction, walls.in_frame
+        manhattan.status,
+        atlanta.status,
+        manhattan.explained_fraction,
+        atlanta.explained_fraction,
+        walls.in_frame,
+        config.manhattan_margin,
     )
     return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
 
@@ -216,23 +222,35 @@ def layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) 
     return layout_of_walls(walls, prior, world, config)
 
 
+def status_rank(status: Int[Array, ""]) -> Int[Array, ""]:
+    """How usable a layout of this :class:`LayoutStatus` is: 2 ``OK``, 1 flagged (written with its geometry,
+    :data:`~ncjax.pipeline.types.FLAGGED_STATUSES`), 0 failed."""
+    flagged = jnp.isin(status, jnp.array([int(code) for code in FLAGGED_STATUSES]))
+    return jnp.where(status == LayoutStatus.OK, 2, jnp.where(flagged, 1, 0))
+
+
 def choose_manhattan(
-    manhattan_ok: Bool[Array, ""],
-    atlanta_ok: Bool[Array, ""],
+    manhattan_status: Int[Array, ""],
+    atlanta_status: Int[Array, ""],
     manhattan_explained: Float[Array, ""],
     atlanta_explained: Float[Array, ""],
     in_frame: Bool[Array, ""],
+    margin: Float[ArrayLike, ""] = 0.0,
 ) -> Bool[Array, ""]:
     """``world="auto"``: whether to keep the Manhattan branch's layout rather than the Atlanta one.
 
-    A branch that failed loses to one that did not. Otherwise the Manhattan layout is kept when it
-    reprojects more of the usable boundary rows within the inlier threshold than the Atlanta one
-    (which has a free angle per wall, so it rarely loses unless the room is Manhattan), and on a
-    tie (exact rows: both explain everything) when every RANSAC wall lies within
-    ``manhattan_tolerance`` of a Manhattan frame.
+    The branch whose status is more usable wins (:func:`status_rank`: ``OK``, then flagged, then
+    failed): a flagged layout is still written, so two flagged branches are compared like two ``OK``
+    ones. Between equals the Manhattan layout is kept when it reprojects more of the usable boundary
+    rows within the inlier threshold than the Atlanta one less ``margin`` (``manhattan_margin``: the
+    Atlanta branch has a free angle per wall, so it rarely loses unless the room is Manhattan, and on
+    noisy rows it explains more by following the noise), and on a tie (exact rows: both explain
+    everything) when every RANSAC wall lies within ``manhattan_tolerance`` of a Manhattan frame.
     """
-    better = (manhattan_explained > atlanta_explained) | ((manhattan_explained == atlanta_explained) & in_frame)
-    return manhattan_ok & (~atlanta_ok | better)
+    manhattan_rank, atlanta_rank = status_rank(manhattan_status), status_rank(atlanta_status)
+    lead = manhattan_explained + margin - atlanta_explained
+    better = (lead > 0) | ((lead == 0) & in_frame)
+    return (manhattan_rank > atlanta_rank) | ((manhattan_rank == atlanta_rank) & better)
 
 
 def _padded_layout(ceiling_v, floor_v, corner_prob, cam, prior, key, thresholds, world, config, slots):
