@@ -69,16 +69,31 @@ def main(argv: list[str] | None = None) -> int:
     command = ["reconstruct", *(str(image) for image, _ in pairs), "--rc", "0", "--out", str(args.out)]
     command += ["--export", "label_cor"] + (["--model", args.model] if args.model else [])
     command += (["--no-align"] if args.no_align else []) + reconstruct_options
+    for image, _ in pairs:  # an earlier run's records are never scored as this run's
+        for stale in (args.out / f"{image.stem}.json", format_path(args.out / image.stem, "label_cor")):
+            stale.unlink(missing_ok=True)
     start = time.perf_counter()
     messages = io.StringIO()
-    with contextlib.redirect_stderr(messages):
-        ncjax_main(command)
+    try:
+        with contextlib.redirect_stderr(messages):
+            code = ncjax_main(command)
+    except SystemExit as refused:  # an option ncjax reconstruct does not know
+        code = refused.code
     seconds = time.perf_counter() - start
+    if code not in (0, 1):  # 1: some images gave no layout, which is scored
+        print(messages.getvalue().strip(), file=sys.stderr)
+        print(f"central_layouts: error: ncjax reconstruct exited with code {code}", file=sys.stderr)
+        return 2
     print(f"| image | status | explained | {' | '.join(COLUMNS)} |")
     print("|---" * (len(COLUMNS) + 3) + "|")
     rows = []
     for image, label in pairs:
-        record = json.loads((args.out / f"{image.stem}.json").read_text())
+        record_path = args.out / f"{image.stem}.json"
+        if not record_path.exists():  # the image could not be read: reported by ncjax reconstruct
+            print(f"| {image.stem} | unreadable | |")
+            rows.append(None)
+            continue
+        record = json.loads(record_path.read_text())
         explained = record.get("explained_fraction")
         flags = f"| {record['status']} | {'-' if explained is None else f'{explained:.2f}'} |"
         written = format_path(args.out / image.stem, "label_cor")

@@ -4,7 +4,9 @@ Saves the model with ``ncjax.save_model(..., dtype="float16")`` (half the bytes:
 repository's size) and scores both files on the first ``--rooms`` test renders per world of
 ``network_table.py`` (Table netcorExp's metrics, the default views).
 
-    uv run python experiments/half_precision.py [--model NAME] [--rooms 64]
+    uv run python experiments/half_precision.py --model FILE [--rooms 64]
+
+``FILE`` holds float32 weights (the shipped ``lite0-1024`` is itself a float16 export, so it is refused).
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ncjax.network.checkpoint import load_model, model_file, save_model
+from ncjax.network.checkpoint import load_model, model_file, read_metadata, save_model
 from ncjax.network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS
 from ncjax.training.data import evaluate_arrays, load_split
 
@@ -26,9 +28,11 @@ from network_table import OUT, SEEDS, test_renders  # the test renders, shared
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH), help="model file or shipped name")
+    parser.add_argument("--model", default=str(DEFAULT_MODEL_PATH), help="float32 model file or shipped name")
     parser.add_argument("--rooms", type=int, default=64, help="test renders per world (of network_table's 128)")
     args = parser.parse_args(argv)
+    if read_metadata(model_file(args.model)).get("weights_dtype") == "float16":
+        parser.error(f"{args.model} holds float16 weights already: give a float32 model file with --model")
     full = load_model(args.model)
     with tempfile.TemporaryDirectory() as folder:
         half_path = Path(folder) / "half.safetensors"

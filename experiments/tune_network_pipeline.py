@@ -28,7 +28,7 @@ and how far off they were (a failure rate cannot choose it: it only adds failure
     uv run python experiments/tune_network_pipeline.py                  # 256 rooms per world
     uv run python experiments/tune_network_pipeline.py --rooms 16 --configs current
     uv run python experiments/tune_network_pipeline.py --configs current --model my_model.safetensors
-    uv run python experiments/tune_network_pipeline.py --world auto --configs current "margin 0.1" "margin 0.2"
+    uv run python experiments/tune_network_pipeline.py --world auto                     # the margins
 """
 
 from __future__ import annotations
@@ -94,16 +94,6 @@ CONFIGS = {
         }
         for offset in (16.0, 64.0, 1e6)
     },
-    # world auto (--world auto): the Atlanta layout kept only where it explains this much more of the rows
-    **{
-        f"margin {margin:g}": {
-            "corner_threshold": 0.4,
-            "nms_radius": 4.0,
-            "occlusion_threshold": 8.0,
-            "manhattan_margin": margin,
-        }
-        for margin in (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
-    },
     # no layout fails for an uncertain scale: the scale test's thresholds are compared on its layouts
     NO_SCALE_TEST: {
         "corner_threshold": 0.4,
@@ -111,6 +101,17 @@ CONFIGS = {
         "occlusion_threshold": 8.0,
         "max_height_uncertainty": math.inf,
     },
+}
+# world auto (--world auto, where they are the default configurations): the Atlanta layout kept only where it
+# explains this much more of the rows (PipelineConfig.manhattan_margin)
+MARGIN_CONFIGS = {
+    f"margin {margin:g}": {
+        "corner_threshold": 0.4,
+        "nms_radius": 4.0,
+        "occlusion_threshold": 8.0,
+        "manhattan_margin": margin,
+    }
+    for margin in (0.0, 0.05, 0.1, 0.15, 0.2, 0.3)
 }
 # relative standard deviations of the room height compared as PipelineConfig.max_height_uncertainty
 SCALE_TEST_THRESHOLDS = (0.04, 0.06, 0.08, 0.1, 0.15, 0.2, math.inf)
@@ -278,9 +279,9 @@ def main(argv=None):
     parser.add_argument(
         "--configs",
         nargs="+",
-        choices=[*CONFIGS, "current"],
-        default=[*CONFIGS, "current"],
-        help="configurations to compare ('current': NETWORK_PIPELINE_CONFIG)",
+        choices=[*CONFIGS, *MARGIN_CONFIGS, "current"],
+        help="configurations to compare ('current': NETWORK_PIPELINE_CONFIG; default: all, or with --world auto the "
+        "margins)",
     )
     parser.add_argument("--model", type=Path, help="weights (.safetensors) to run instead of the shipped model")
     parser.add_argument("--out", type=Path, default=OUT)
@@ -288,6 +289,8 @@ def main(argv=None):
         "--world", choices=("own", "auto"), default="own", help="each room's own world (default), or auto for all"
     )
     args = parser.parse_args(argv)
+    if args.configs is None:
+        args.configs = [*(CONFIGS if args.world == "own" else MARGIN_CONFIGS), "current"]
     if args.model is not None and not args.model.is_file():
         parser.error(f"--model: no such file: {args.model}")
     args.out.mkdir(parents=True, exist_ok=True)
@@ -312,7 +315,7 @@ def main(argv=None):
         kwargs = (
             {key: getattr(NETWORK_PIPELINE_CONFIG, key) for key in CONFIGS["pipeline defaults"]}
             if name == "current"
-            else CONFIGS[name]
+            else (CONFIGS | MARGIN_CONFIGS)[name]
         )
         config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **kwargs)
         for world in SEEDS:
@@ -331,11 +334,12 @@ def main(argv=None):
             if name == NO_SCALE_TEST:
                 unscaled[world] = per_room
     table = "\n".join(lines + causes + (scale_test_table(unscaled) if unscaled else []))
+    mode = "" if args.world == "own" else "_auto"
     if unscaled:
-        plot_scale_test(unscaled, args.out / f"scale_test{suffix}.png", NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
+        path = args.out / f"scale_test{mode}{suffix}.png"
+        plot_scale_test(unscaled, path, NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
-    mode = "" if args.world == "own" else "_auto"
     (args.out / f"tune_network_pipeline_{args.rooms}{mode}{suffix}.md").write_text(table + "\n")
     return record
 

@@ -44,10 +44,11 @@
    keeps one yaw.
 6. Corners where consecutive walls meet.
 
-``world="auto"`` (not in the paper) runs both branches and keeps the one that
-succeeds (or, when neither does, the one whose layout is written with a flag),
-or, when both do as well, the Manhattan layout if it reprojects more of the
-boundary rows within the inlier threshold than the Atlanta one; on a tie
+``world="auto"`` (not in the paper) runs both branches and keeps the one whose
+status is more usable (``OK``, then flagged: written with its geometry, then
+failed); between equals, the Manhattan layout if it reprojects more of the
+boundary rows within the inlier threshold than the Atlanta one less
+``manhattan_margin`` (default 0); on a tie
 (exact rows), if every RANSAC wall lies within ``manhattan_tolerance`` degrees
 of the two perpendicular directions that fit them best (:func:`choose_manhattan`).
 
@@ -249,7 +250,7 @@ def choose_manhattan(
     """
     manhattan_rank, atlanta_rank = status_rank(manhattan_status), status_rank(atlanta_status)
     lead = manhattan_explained + margin - atlanta_explained
-    better = (lead > 0) | ((lead == 0) & in_frame)
+    better = jnp.where(manhattan_explained == atlanta_explained, in_frame, lead > 0)
     return (manhattan_rank > atlanta_rank) | ((manhattan_rank == atlanta_rank) & better)
 
 

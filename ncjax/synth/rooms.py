@@ -209,7 +209,9 @@ def ray_hits(
     safe = jnp.where(hit, denominator, 1.0)
     t = _cross2(a - origin, e) / safe
     s = _cross2(a - origin, direction) / safe
-    tolerance = 1e-9
+    # a ray through a corner meets both of its walls at s = 1 and s = 0, which rounding can put just outside [0, 1]:
+    # a few ulps of slack, so that it never misses both (a column that sees no wall)
+    tolerance = 64 * jnp.finfo(s.dtype).eps
     hit = hit & mask & (t > 0) & (s >= -tolerance) & (s <= 1 + tolerance)
     return jnp.where(hit, t, jnp.inf)
 
