@@ -60,6 +60,7 @@ from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 sys.path.insert(0, str(Path(__file__).parent))
 from error_sources import corner_calibration
 from network_table import OUT, test_renders
+from network_table import SEEDS as TEST_SEEDS
 from tune_network_pipeline import model_suffix, rendered_boundaries, tuning_boundaries
 
 WORLDS = ("manhattan", "atlanta")
@@ -155,6 +156,20 @@ HEADER = [
 ]
 
 
+def held_out_boundaries(name: str, seeds: dict[str, int], rooms: int, out: Path) -> dict:
+    """Per world, the shipped model's outputs on ``rooms`` renders of ``seeds`` (``network_table``'s test renders,
+    or another set of that generator named ``name``), cached per model."""
+    return {
+        w: rendered_boundaries(
+            test_renders(w, rooms, out, seeds, name),
+            w,
+            out / f"{name}_{w}_{rooms}_views{DEFAULT_VIEWS}{model_suffix(None)}.npz",
+            DEFAULT_VIEWS,
+        )
+        for w in WORLDS
+    }
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tune-rooms", type=int, default=256, help="tuning renders per world")
@@ -168,24 +183,8 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.time()
     tuning = {w: tuning_boundaries(w, args.tune_rooms, DEFAULT_VIEWS, args.out) for w in WORLDS}
-    test = {
-        w: rendered_boundaries(
-            test_renders(w, args.test_rooms, args.out),
-            w,
-            args.out / f"test_{w}_{args.test_rooms}_views{DEFAULT_VIEWS}{model_suffix(None)}.npz",
-            DEFAULT_VIEWS,
-        )
-        for w in WORLDS
-    }
-    check = {
-        w: rendered_boundaries(
-            test_renders(w, args.check_rooms, args.out, CHECK_SEEDS, "check"),
-            w,
-            args.out / f"check_{w}_{args.check_rooms}_views{DEFAULT_VIEWS}{model_suffix(None)}.npz",
-            DEFAULT_VIEWS,
-        )
-        for w in WORLDS
-    }
+    test = held_out_boundaries("test", TEST_SEEDS, args.test_rooms, args.out)
+    check = held_out_boundaries("check", CHECK_SEEDS, args.check_rooms, args.out)
     lines = [
         f"Tuning renders ({args.tune_rooms} per world), world auto, the shipped model's snapped rows:",
         "",

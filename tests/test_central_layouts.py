@@ -1,24 +1,14 @@
 """benchmarks/central_layouts.py: options it passes on to ``ncjax reconstruct`` and their refusal."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from _scripts import script_module
 from PIL import Image
 
 
 def benchmark_module():
     """The module of ``benchmarks/central_layouts.py``."""
-    name = "central_layouts"
-    if name not in sys.modules:
-        path = Path(__file__).parents[1] / "benchmarks" / f"{name}.py"
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
+    return script_module("benchmarks", "central_layouts")
 
 
 @pytest.mark.parametrize("options", [["--manhattan-margin", "2"], ["--wrold", "auto"]])

@@ -1,14 +1,13 @@
 """benchmarks/real_panoramas.py: label rows from label_cor, corner matching, bad input, and a run on renders."""
 
 import csv
-import importlib.util
-import sys
 from pathlib import Path
 
 import cv2
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _scripts import script_module
 
 import ncjax
 from ncjax.synth.dataset import label_cor_rows
@@ -17,15 +16,8 @@ WIDTH, HEIGHT = 1024, 512
 
 
 def benchmark_module():
-    """The module of ``benchmarks/real_panoramas.py`` (registered, so that its dataclasses resolve)."""
-    name = "real_panoramas"
-    if name not in sys.modules:
-        path = Path(__file__).parents[1] / "benchmarks" / f"{name}.py"
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
+    """The module of ``benchmarks/real_panoramas.py``."""
+    return script_module("benchmarks", "real_panoramas")
 
 
 def central_room(corners, ceiling_height=1.5, floor_height=-1.4) -> ncjax.Room:
