@@ -6,16 +6,16 @@
 Input: a folder of central panoramas (``*.jpg``, ``*.jpeg``, ``*.png``), each with its label ``<stem>.txt``
 (label_cor: one ``x y`` line per point, ceiling then floor of each corner, pixels of that image) beside it.
 
-It runs the command a user would (``ncjax reconstruct IMAGES --rc 0 --export label_cor``: the default camera
-height prior of 1.6 m, gravity alignment, the shipped model, 4 views; any other option is passed to the
-command as it is), reads back each written ``<stem>.label_cor.txt`` and scores it against the label with
-:mod:`ncjax.metrics_central`, both back-projected at camera height 1 (HorizonNet's and LGT-Net's convention:
-the metrics are up to scale). It prints per image and on average the 2D and 3D IoU, the corner error (% of the
-image diagonal), the pixel error, depth RMSE (camera heights) and delta-1, and the number of images with a
-layout. The mean 3D IoU is given twice: over the images with a layout, and over all images with 0 for those
-without, then per status of the written layouts (``OK``, or flagged ``LOW_CONFIDENCE``: does the flag pick the
-worse layouts?). Each image's status and explained fraction come from its JSON record.
-"""
+It runs the command a user would (``ncjax reconstruct IMAGES --rc 0 --export label_cor``: the default camera height
+prior of 1.6 m, gravity alignment, the shipped model, 4 views; any other option is passed to the command as it is),
+reads back each written ``<stem>.label_cor.txt`` and scores it against the label with :mod:`ncjax.metrics_central`, both
+back-projected at camera height 1 (HorizonNet's and LGT-Net's convention: the metrics are up to scale). It prints per
+image and on average the 2D and 3D IoU, the corner error (% of the image diagonal), the pixel error, depth RMSE (camera
+heights) and delta-1, and the number of images with a layout. A written layout the metrics cannot back-project (a corner
+at or across the horizon, which fixes no point at camera height 1) counts as no layout, and the count of such layouts is
+printed. The mean 3D IoU is given twice: over the images with a layout, and over all images with 0 for those without,
+then per status of the written layouts (``OK``, or flagged ``LOW_CONFIDENCE``: does the flag pick the worse layouts?).
+Each image's status and explained fraction come from its JSON record."""
 
 from __future__ import annotations
 
@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"| image | status | explained | {' | '.join(COLUMNS)} |")
     print("|---" * (len(COLUMNS) + 3) + "|")
-    rows = []
+    rows, unscored = [], 0
     for image, label in pairs:
         record_path = args.out / f"{image.stem}.json"
         if not record_path.exists():  # the image could not be read: reported by ncjax reconstruct
@@ -102,7 +102,13 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(None)
             continue
         truth = read_layout(label)
-        scores = evaluate_corners(read_layout(written, truth.width, truth.height), truth)
+        try:
+            scores = evaluate_corners(read_layout(written, truth.width, truth.height), truth)
+        except ValueError as error:  # a corner at the horizon is no point at camera height 1
+            print(f"| {image.stem} {flags} not scored: {error} |")
+            rows.append(None)
+            unscored += 1
+            continue
         rows.append(scores | {"status": record["status"]})
         print(f"| {image.stem} {flags} " + " | ".join(f"{scores[c]:.3f}" for c in COLUMNS) + " |")
     found = [row for row in rows if row is not None]
@@ -113,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{len(found)} of {len(rows)} images gave a layout; mean 3D IoU {means['iou3d']:.3f} over them, "
         f"{all_iou:.3f} over all {len(rows)} (no layout as 0); {seconds:.0f} s for ncjax reconstruct"
     )
+    if unscored:
+        print(f"  {unscored} written layouts could not be scored (counted as no layout)")
     for status in sorted({row["status"] for row in found}):
         ious = [row["iou3d"] for row in found if row["status"] == status]
         print(f"  {status}: {len(ious)} layouts, mean 3D IoU {np.mean(ious):.3f}")

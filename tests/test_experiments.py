@@ -178,3 +178,40 @@ def test_tuning_caches_are_named_by_the_model_file_and_its_content(tmp_path):
     assert first.startswith("_mine_") and module.model_suffix(model) != first
     # the shipped model too: its rows cached before new weights replaced it are not reused
     assert module.model_suffix(None).startswith(f"_{module.DEFAULT_MODEL_PATH.stem}_")
+
+
+def test_central_renders_refuses_a_missing_model_or_setting_before_any_work(tmp_path):
+    module = experiment("central_renders")
+    for options in (["--model", str(tmp_path / "missing.safetensors")], ["--settings", "auto,sideways"]):
+        with pytest.raises(SystemExit) as raised:
+            module.main(options)
+        assert raised.value.code == 2
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_central_renders_scores_exact_rows_as_the_true_room():
+    """Exact rows of central rooms (what the cache holds for a perfect network): every setting returns the true room,
+    and the raw polygon of exact rows is the room up to its per-column sampling."""
+    import jax
+
+    module = experiment("central_renders")
+    width = 256
+    config = ncjax.RoomConfig(world="manhattan", occlusion="none", rc_range=(0.0, 0.0), max_walls=6)
+    rooms = jax.vmap(lambda k: ncjax.random_room(k, config))(jax.random.split(jax.random.key(5), 3))
+    labels = jax.vmap(lambda room: ncjax.room_labels(room, ncjax.NonCentralPanorama(width, width // 2, rc=0.0)))(rooms)
+    data = {
+        "ceiling_v": np.asarray(labels.ceiling_v),
+        "floor_v": np.asarray(labels.floor_v),
+        "corner_prob": np.asarray(labels.corner_target),
+        "ceiling_corners": np.asarray(labels.ceiling_corners),
+        "floor_corners": np.asarray(labels.floor_corners),
+        "corner_count": np.asarray(labels.corner_mask).sum(1),
+    }
+    scores = module.setting_scores(data, *module.SETTINGS["auto"])
+    assert scores["returned"].all()
+    np.testing.assert_allclose(scores["iou"], 1.0, atol=1e-3)
+    np.testing.assert_allclose(scores["ce"], 0.0, atol=2e-3)
+    assert np.all(module.raw_ious(data) > 0.9)
+    line = module.table_line("auto", scores, module.raw_ious(data))
+    assert line.startswith("| auto | 100.0% | 100.0% / 100.0% |") and line.endswith("| 3 of 3 |")

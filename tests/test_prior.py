@@ -190,6 +190,25 @@ def test_the_prior_route_judges_the_size_limits_at_the_prior_scale():
 
 
 @pytest.mark.slow
+def test_a_ceiling_or_floor_at_the_camera_is_implausible():
+    """Exact rows: a clearance just over each room's nearer surface (ceiling or floor, as a fraction of its height)
+    fails it with DEGENERATE_LAYOUT, just under it passes (a run-away adjustment's ceiling at the camera)."""
+    batch, labels = rooms("manhattan", (0.0, 0.0))
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=batch.rc)
+    prior = HeightPrior("camera_height", -batch.floor_height)
+    room_height = batch.ceiling_height - batch.floor_height
+    nearer = np.asarray(jnp.minimum(batch.ceiling_height, -batch.floor_height) / room_height)
+    rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
+
+    def statuses(fraction):
+        config = ncjax.PipelineConfig(min_height_fraction=fraction)
+        return np.asarray(ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, prior=prior).status)
+
+    assert np.all(statuses(1.01 * float(np.max(nearer))) == ncjax.LayoutStatus.DEGENERATE_LAYOUT)
+    assert np.all(statuses(0.99 * float(np.min(nearer))) == ncjax.LayoutStatus.OK)
+
+
+@pytest.mark.slow
 def test_a_prior_s_walls_reach_the_adjustment_at_its_room_height_with_their_shape():
     """Noisy rows leave the virtual rig's solve at some scale; the walls the adjustment starts from are at the
     prior's room height, their shape (directions, distance ratios, height ratio) kept."""
@@ -203,9 +222,17 @@ def test_a_prior_s_walls_reach_the_adjustment_at_its_room_height_with_their_shap
     ceiling_v, floor_v = labels.ceiling_v + noise[0], labels.floor_v + noise[1]
     prior = HeightPrior("camera_height", 1.6)
     config = ncjax.NETWORK_PIPELINE_CONFIG
-    virtual, ceiling_virtual, floor_virtual, room_height = prior_rows(cam, ceiling_v, floor_v, prior)
+    virtual, ceiling_virtual, floor_virtual, heights = prior_rows(cam, ceiling_v, floor_v, prior)
+    room_height = heights[0] - heights[1]
     solved = walls_to_adjust(
-        ceiling_virtual, floor_virtual, labels.corner_target, virtual, key, "auto", prior_config(config, room_height)
+        ceiling_virtual,
+        floor_virtual,
+        labels.corner_target,
+        virtual,
+        key,
+        "auto",
+        prior_config(config, room_height),
+        heights,
     ).branches
     started = walls_for(ceiling_v, floor_v, labels.corner_target, cam, prior, key, "auto", config).branches
     np.testing.assert_allclose(started.ceiling_height - started.floor_height, room_height, rtol=1e-5)

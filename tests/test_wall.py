@@ -479,3 +479,102 @@ def test_batched_baseline_gradient(x64):
     )
     assert np.all(np.isfinite(np.asarray(derivative)))
     np.testing.assert_allclose(derivative, central, rtol=1e-3, atol=1e-6)
+
+
+def _walls_at_heights(room):
+    ceiling_rays, floor_rays = rays(room)
+    masks = room["wall_index"][None, :] == jnp.arange(CAPACITY)[:, None]
+    return jax.vmap(
+        lambda m: ncjax.solvers.wall.solve_wall_at_heights(ceiling_rays, floor_rays, m, m, room["h_c"], room["h_f"])
+    )(masks)
+
+
+@pytest.mark.parametrize("rc", [0.0, 0.3])
+def test_walls_at_known_heights_are_exact(rc):
+    """Exact rows of a box room (central and non-central) at the true heights give the true walls."""
+    room = box_room([[-2.0, -1.5], [3.0, -1.5], [3.0, 2.5], [-2.0, 2.5]], rc=rc)
+    walls = _walls_at_heights(room)
+    mask = room["mask"]
+    assert bool(jnp.all(walls.ok[mask]))
+    assert float(jnp.max(direction_error_deg(walls.direction, room["directions"])[mask])) < 0.01
+    np.testing.assert_allclose(walls.distance[mask], room["distances"][mask], atol=2e-4)
+    np.testing.assert_array_equal(walls.ceiling_height[mask], room["h_c"])
+
+
+def test_boundary_points_at_a_height_lie_on_their_rays():
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
+    columns = jnp.arange(0.0, WIDTH, 7.0)
+    ray = ncjax.pixel_to_ray(cam, columns, jnp.full_like(columns, 20.0))  # above the horizon
+    points, ahead = ncjax.solvers.wall.boundary_points_at(ray, jnp.asarray(1.3))
+    assert bool(jnp.all(ahead))
+    on_ray = ncjax.side(
+        ray, ncjax.line_from_point_direction(jnp.pad(points, ((0, 0), (0, 1)), constant_values=1.3), ray[:, :3])
+    )
+    np.testing.assert_allclose(on_ray, 0.0, atol=1e-5)
+    _, behind = ncjax.solvers.wall.boundary_points_at(ray, jnp.asarray(-1.3))  # rays going up never reach the floor
+    assert not bool(jnp.any(behind))
+
+
+def test_wall_at_heights_is_the_weighted_principal_axis():
+    """Noisy points: the fit is numpy's weighted total least squares line (eigenvector of the weighted scatter)."""
+    rng = np.random.default_rng(3)
+    room = box_room([[-2.0, -1.5], [3.0, -1.5], [3.0, 2.5], [-2.0, 2.5]], rc=0.0)
+    ceiling_v = room["ceiling_v"] + jnp.asarray(rng.normal(0, 1.0, WIDTH), room["ceiling_v"].dtype)
+    ceiling_rays, floor_rays = boundary_rays(room["cam"], ceiling_v, room["floor_v"])
+    mask = room["wall_index"] == 1
+    wall = ncjax.solvers.wall.solve_wall_at_heights(ceiling_rays, floor_rays, mask, mask, room["h_c"], room["h_f"])
+    points = np.concatenate(
+        [
+            np.asarray(ncjax.solvers.wall.boundary_points_at(r, h)[0])[np.asarray(mask)]
+            for r, h in ((ceiling_rays, room["h_c"]), (floor_rays, room["h_f"]))
+        ]
+    )
+    heights = np.repeat([float(room["h_c"]), float(room["h_f"])], int(mask.sum()))
+    weight = (np.abs(heights) / (np.sum(points**2, 1) + heights**2)) ** 2
+    mean = weight @ points / weight.sum()
+    scatter = (weight[:, None] * (points - mean)).T @ (points - mean)
+    axis = np.linalg.eigh(scatter)[1][:, -1]
+    assert (
+        float(direction_error_deg(jnp.asarray(axis), wall.direction)) < 1e-3
+        or float(direction_error_deg(jnp.asarray(-axis), wall.direction)) < 1e-3
+    )
+    np.testing.assert_allclose(abs(float(wall.distance)), abs(axis[0] * mean[1] - axis[1] * mean[0]), rtol=1e-4)
+
+
+def test_a_wall_at_heights_needs_two_points_and_a_camera_between_them():
+    room = box_room([[-2.0, -1.5], [3.0, -1.5], [3.0, 2.5], [-2.0, 2.5]], rc=0.0)
+    ceiling_rays, floor_rays = rays(room)
+    one, two = jnp.arange(WIDTH) == 10, jnp.isin(jnp.arange(WIDTH), jnp.array([10, 20]))
+    none = jnp.zeros(WIDTH, bool)
+    solve = ncjax.solvers.wall.solve_wall_at_heights
+    assert not bool(solve(ceiling_rays, floor_rays, one, none, room["h_c"], room["h_f"]).ok)
+    assert bool(solve(ceiling_rays, floor_rays, two, none, room["h_c"], room["h_f"]).ok)
+    assert not bool(solve(ceiling_rays, floor_rays, two, two, -room["h_c"], room["h_f"]).ok)
+
+
+def test_ransac_at_known_heights_ignores_outlier_rows():
+    """A third of a wall's rows 40 px off (furniture, a doorway): RANSAC at the known heights keeps the true wall."""
+    from ncjax.geometry.reprojection import column_directions
+    from ncjax.solvers.ransac import ransac_wall
+
+    room = box_room([[-2.0, -1.5], [3.0, -1.5], [3.0, 2.5], [-2.0, 2.5]], rc=0.0)
+    cam, columns = room["cam"], jnp.flatnonzero(room["wall_index"] == 1, size=40)
+    outlier = jnp.arange(columns.size) % 3 == 0
+    floor_v = room["floor_v"][columns] - jnp.where(outlier, 40.0, 0.0)
+    ceiling_rays = ncjax.pixel_to_ray(cam, columns.astype(float), room["ceiling_v"][columns])
+    floor_rays = ncjax.pixel_to_ray(cam, columns.astype(float), floor_v)
+    wall = ransac_wall(
+        jax.random.key(0),
+        cam,
+        column_directions(cam, columns.astype(float)),
+        ceiling_rays,
+        floor_rays,
+        jnp.ones(columns.size, bool),
+        13,
+        3,
+        2.0,
+        heights=(room["h_c"], room["h_f"]),
+    )
+    assert bool(wall.ok)
+    assert float(direction_error_deg(wall.direction, room["directions"][1])) < 0.01
+    np.testing.assert_allclose(wall.distance, room["distances"][1], atol=1e-3)

@@ -41,6 +41,9 @@ def assemble_layout(
     to_metric = jnp.where(config.prior_room_height > 0, config.prior_room_height / room_height, 1.0)
     plausible = to_metric * room_height <= config.max_room_height
     plausible &= to_metric * farthest <= config.max_corner_distance
+    # the ceiling above and the floor below the camera, neither of them at it
+    clearance = config.min_height_fraction * room_height
+    plausible &= (ceiling_height > clearance) & (-floor_height > clearance) & (room_height > 0)
     height_sigma = room_height_sigma(uncertainty.height_covariance)
     scale_unknown = height_sigma > config.max_height_uncertainty * room_height
     failed = jnp.stack(
@@ -52,7 +55,7 @@ def assemble_layout(
             jnp.sum(mask) < jnp.where(manhattan, 4, 3),
             jnp.sum(final.observed) < 2,
             ~solver_ok,
-            ~(jnp.all(meet) & finite & (ceiling_height > 0) & (floor_height < 0) & plausible),
+            ~(jnp.all(meet) & finite & plausible),
             scale_unknown,
             explained_fraction < config.min_explained_fraction,
         ]

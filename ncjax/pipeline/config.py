@@ -154,6 +154,11 @@ class PipelineConfig:
             whose scale ran away.
         max_corner_distance: a layout with a corner farther than this from
             the camera (metres) is implausible (DEGENERATE_LAYOUT).
+        min_height_fraction: a layout whose ceiling or floor is nearer the
+            camera than this fraction of the room height is implausible
+            (DEGENERATE_LAYOUT): no camera touches its ceiling or floor, but
+            an adjustment that ran away can leave one of them there (0: only
+            ceiling above and floor below the camera).
         prior_room_height: set by the height-prior route
             (:func:`~ncjax.pipeline.run.prior_config`), not by hand: the
             room height (metres) its prior gives. The virtual rig's layout has
@@ -208,6 +213,7 @@ class PipelineConfig:
     max_height_uncertainty: float = math.inf
     max_room_height: float = 10.0
     max_corner_distance: float = 50.0
+    min_height_fraction: float = 0.05
     prior_room_height: float = 0.0
     floor_consistency_threshold: float = math.inf
     min_explained_fraction: float = 0.0
@@ -264,6 +270,8 @@ class PipelineConfig:
             )
         if not 0 <= self.manhattan_margin <= 1:
             raise ValueError(f"manhattan_margin must be in [0, 1], got {self.manhattan_margin}")
+        if not 0 <= self.min_height_fraction < 0.5:
+            raise ValueError(f"min_height_fraction must be in [0, 0.5), got {self.min_height_fraction}")
         if not 0 <= self.min_explained_fraction <= 1:
             raise ValueError(f"min_explained_fraction must be in [0, 1], got {self.min_explained_fraction}")
         if not self.fallback_corner_threshold >= 0:
@@ -316,6 +324,7 @@ TRACED_FIELDS = (
     "max_height_uncertainty",
     "max_room_height",
     "max_corner_distance",
+    "min_height_fraction",
     "prior_room_height",
     "floor_consistency_threshold",
     "min_explained_fraction",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -34,8 +35,12 @@ def gather_evidence(
     cam: NonCentralPanorama,
     key: PRNGKeyArray,
     config: PipelineConfig,
+    heights: tuple[Float[Array, ""], Float[Array, ""]] | None = None,
 ) -> WallEvidence:
-    """Steps 1-3: corners, one RANSAC wall between each pair, and the boundary jump at each corner."""
+    """Steps 1-3: corners, one RANSAC wall between each pair, and the boundary jump at each corner.
+
+    ``heights``: a height prior's known ``(h_c, h_f)``, which RANSAC's walls then keep (:func:`ransac_wall`).
+    """
     width, capacity = cam.width, config.capacity
     finite = jnp.isfinite(ceiling_v) & jnp.isfinite(floor_v)
     ceiling_v = jnp.where(finite, ceiling_v, cam.height / 4)
@@ -57,7 +62,7 @@ def gather_evidence(
     pixels = scaled(1.0, cam.height, 512)
     threshold = config.inlier_threshold * pixels
     sampled, sampled_valid = wall_columns(column_wall, usable, corner_columns, config.ransac_columns)
-    walls = jax.vmap(ransac_wall, in_axes=(0, None, 0, 0, 0, 0, None, None, None))(
+    walls = jax.vmap(functools.partial(ransac_wall, heights=heights), in_axes=(0, None, 0, 0, 0, 0, None, None, None))(
         jax.random.split(key, capacity),
         cam,
         azimuth[sampled],

@@ -18,11 +18,15 @@ take of those points:
 3. A virtual rig of radius ``rc'`` (half the nearest points' range: strong
    parallax) sees those points at the rows of :func:`virtual_rows`; the
    geometric pipeline (both worlds, occlusions, the adjustment) runs on them,
-   its walls brought to the prior's room height before the final adjustment
+   its RANSAC walls at the prior's two heights (plan lines through the
+   boundary points, :func:`ncjax.solvers.wall.solve_wall_at_heights`: a
+   wall's few noisy rows fix two unknowns far better than four), its walls
+   brought to the prior's room height before the final adjustment
    (:func:`ncjax.pipeline.run.at_room_height`: the virtual parallax of noisy
    rows can put them far off), and its layout is scaled so that the prior's
-   height holds exactly (:func:`ncjax.pipeline.run.layout_for`). The image's own central rays cannot tell a room
-   from a scaled copy, so the scaling changes no reprojection.
+   height holds exactly (:func:`ncjax.pipeline.run.layout_for`). The image's
+   own central rays cannot tell a room from a scaled copy, so the scaling
+   changes no reprojection.
 
 Exact on exact rows (the tests reproduce rendered rooms). The covariances are
 those of the fit on the virtual rows with the heights it found, given that the
@@ -135,12 +139,12 @@ def virtual_rows(
 
 def prior_rows(
     cam: NonCentralPanorama, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"], prior: HeightPrior
-) -> tuple[NonCentralPanorama, Float[Array, " W"], Float[Array, " W"], Float[Array, ""]]:
-    """Steps 1-3: the virtual rig and its rows for a panorama whose scale ``prior`` fixes, and the room height
-    ``h_c - h_f`` the prior gives."""
+) -> tuple[NonCentralPanorama, Float[Array, " W"], Float[Array, " W"], tuple[Float[Array, ""], Float[Array, ""]]]:
+    """Steps 1-3: the virtual rig and its rows for a panorama whose scale ``prior`` fixes, and the heights
+    ``(h_c, h_f)`` the prior gives (the virtual rows' own)."""
     ratio = ceiling_floor_ratio(cam, ceiling_v, floor_v)
     ceiling_height, floor_height = prior_heights(ratio, prior)
-    return *virtual_rows(cam, ceiling_v, floor_v, ceiling_height, floor_height), ceiling_height - floor_height
+    return *virtual_rows(cam, ceiling_v, floor_v, ceiling_height, floor_height), (ceiling_height, floor_height)
 
 
 def rescale_to_prior(layout: Layout, prior: HeightPrior) -> Layout:

@@ -121,11 +121,13 @@ def walls_to_adjust(
     key: PRNGKeyArray,
     world: str,
     config: PipelineConfig,
+    heights: tuple[Float[Array, ""], Float[Array, ""]] | None = None,
 ) -> WallsToAdjust:
-    """Steps 0-4 of one panorama (no input checks; see :func:`layout_from_boundaries`)."""
+    """Steps 0-4 of one panorama (no input checks; see :func:`layout_from_boundaries`); ``heights``: a height
+    prior's known ``(h_c, h_f)`` for RANSAC's walls (:func:`~ncjax.pipeline.evidence.gather_evidence`)."""
     # step 0 always runs: at the default threshold (inf) it replaces no row
     floor_v, replaced = ceiling_consistent_floor(cam, ceiling_v, floor_v, config.floor_consistency_threshold)
-    evidence = gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config)
+    evidence = gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config, heights)
     evidence = eqx.tree_at(lambda e: e.floor_measured, evidence, ~replaced)
     in_frame = jnp.asarray(False)
     if world == "manhattan":
@@ -190,9 +192,10 @@ def walls_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -
     (:mod:`ncjax.pipeline.prior`; its walls then at the prior's room height, :func:`at_room_height`)."""
     if prior is None:
         return walls_to_adjust(ceiling_v, floor_v, corner_prob, cam, key, world, config)
-    virtual, ceiling_virtual, floor_virtual, room_height = prior_rows(cam, ceiling_v, floor_v, prior)
+    virtual, ceiling_virtual, floor_virtual, heights = prior_rows(cam, ceiling_v, floor_v, prior)
+    room_height = heights[0] - heights[1]
     config = prior_config(config, room_height)
-    walls = walls_to_adjust(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config)
+    walls = walls_to_adjust(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config, heights)
     return eqx.tree_at(lambda w: w.branches, walls, at_room_height(walls.branches, room_height))
 
 

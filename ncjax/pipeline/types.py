@@ -44,8 +44,9 @@ _STATUS_REASONS = {
     LayoutStatus.WALL_FIT_FAILED: "RANSAC fitted fewer than 2 walls",
     LayoutStatus.SOLVER_FAILED: "the joint layout solver failed",
     LayoutStatus.DEGENERATE_LAYOUT: (
-        "implausible layout: consecutive walls parallel, ceiling not above or floor not below the camera, "
-        "room taller than max_room_height or corners farther than max_corner_distance"
+        "implausible layout: consecutive walls parallel, ceiling not above or floor not below the camera "
+        "by min_height_fraction of the room height, room taller than max_room_height or corners farther than "
+        "max_corner_distance"
     ),
     LayoutStatus.UNCERTAIN_SCALE: (
         "the boundaries do not fix the room's scale: the room height's standard deviation exceeds "

@@ -14,6 +14,7 @@ hypotheses are solved at once with ``jax.vmap``.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import equinox as eqx
@@ -23,7 +24,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.reprojection import boundary_rows_along, range_along
-from .wall import Wall, solve_wall
+from .wall import Wall, solve_wall, solve_wall_at_heights
 
 
 def num_hypotheses(success_probability: float, outlier_rate: float, sample_size: int) -> int:
@@ -172,6 +173,7 @@ def ransac_wall(
     sample_size: int,
     inlier_threshold: Float[ArrayLike, ""],
     min_height: float = 0.1,
+    heights: tuple[Float[Array, ""], Float[Array, ""]] | None = None,
 ) -> Wall:
     """The wall that best explains the boundaries of the candidate columns.
 
@@ -187,6 +189,9 @@ def ransac_wall(
         inlier_threshold: maximum row error of an inlier, pixels.
         min_height: static; walls whose ceiling or floor is closer than this
             to the camera's plane are rejected (:func:`plausible_wall`).
+        heights: the known ``(h_c, h_f)`` of a height prior, or None. Given, every hypothesis and the refit are
+            plan lines at those heights (:func:`ncjax.solvers.wall.solve_wall_at_heights`): two unknowns instead
+            of four, which rows a few pixels off fix far better than the scale of one wall's weak parallax.
 
     Returns:
         The wall refitted on the inliers of the best hypothesis; ``ok`` is
@@ -196,8 +201,12 @@ def ransac_wall(
     samples = jax.vmap(sample_columns, in_axes=(0, None, None))(
         jax.random.split(key, num_hypotheses), candidates, sample_size
     )
+    if heights is None:
+        solve = solve_wall
+    else:
+        solve = functools.partial(solve_wall_at_heights, ceiling_height=heights[0], floor_height=heights[1])
     sure = jnp.ones(sample_size, bool)
-    hypotheses = jax.vmap(lambda s: solve_wall(ceiling_rays[s], floor_rays[s], sure, sure))(samples)
+    hypotheses = jax.vmap(lambda s: solve(ceiling_rays[s], floor_rays[s], sure, sure))(samples)
     tolerance = inlier_threshold * cam.fov_vertical / cam.height
     bands = elevation_band(ceiling_rays, azimuth, tolerance), elevation_band(floor_rays, azimuth, tolerance)
     ceiling_in, floor_in = jax.vmap(inlier_rows, in_axes=(None, 0, None, None, None))(cam, hypotheses, azimuth, *bands)
@@ -205,7 +214,7 @@ def ransac_wall(
     valid = jax.vmap(plausible_wall, in_axes=(0, None))(hypotheses, min_height)
     score = jnp.where(valid, jnp.sum(ceiling_in, 1) + jnp.sum(floor_in, 1), -1)
     best = jnp.argmax(score)
-    refit = solve_wall(ceiling_rays, floor_rays, ceiling_in[best], floor_in[best])
+    refit = solve(ceiling_rays, floor_rays, ceiling_in[best], floor_in[best])
     # the algebraic refit can slide to the degenerate tiny wall; keep the hypothesis then
     wall = jax.tree.map(lambda r, h: jnp.where(plausible_wall(refit, min_height), r, h[best]), refit, hypotheses)
     enough = jnp.sum(candidates) >= sample_size

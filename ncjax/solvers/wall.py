@@ -523,3 +523,61 @@ def solve_wall_minimal(
     walls = jax.vmap(wall_at)(theta)
     valid = real & walls.ok
     return eqx.tree_at(lambda w: w.ok, walls, valid), valid
+
+
+def boundary_points_at(
+    rays: Float[Array, "n 6"], height: Float[Array, ""]
+) -> tuple[Float[Array, "n 2"], Bool[Array, " n"]]:
+    """Where each ray meets the horizontal plane ``z = height``: plan points, and which rays reach it going forward.
+
+    The ray's nearest point to the origin ``p0`` (:func:`ncjax.closest_point_to_origin`) moves along its
+    direction ``xi`` to ``p0 + s xi`` with ``s = (height - p0_z) / xi_z``; the ray leaves its optical centre
+    in the plane ``z = 0``, so it reaches the plane ahead of it when ``xi_z`` has the sign of ``height``.
+    """
+    direction = rays[:, :3]
+    nearest = jnp.cross(direction, rays[:, 3:]) / jnp.sum(direction**2, -1, keepdims=True)
+    ahead = direction[:, 2] * height > 0
+    step = (height - nearest[:, 2]) / jnp.where(ahead, direction[:, 2], 1.0)
+    return nearest[:, :2] + step[:, None] * direction[:, :2], ahead
+
+
+def solve_wall_at_heights(
+    ceiling_rays: Float[Array, "n 6"],
+    floor_rays: Float[Array, "n 6"],
+    ceiling_mask: Bool[Array, " n"],
+    floor_mask: Bool[Array, " n"],
+    ceiling_height: Float[Array, ""],
+    floor_height: Float[Array, ""],
+) -> Wall:
+    """One vertical wall at known ceiling and floor heights (a height prior's): the plan line through its rays'
+    points at those heights.
+
+    Not in the paper, whose walls carry their own heights. With the heights fixed, each used ceiling (floor) ray
+    is one plan point (:func:`boundary_points_at`), and the wall is the line of least weighted squared distances
+    to them: through their weighted mean, along the main axis of their scatter (closed form of a symmetric
+    2 x 2 eigenvector). A row error ``dphi`` moves a point at range ``t`` by ``(t^2 + h^2) / |h| dphi`` along its
+    ray, so each point is weighted by the inverse square of that factor: far points fix the wall less.
+
+    Returns:
+        The :class:`Wall` (canonical orientation); ``ok`` is False with fewer than 2 distinct used points, or
+        heights that do not put the camera between ceiling and floor.
+    """
+    ceiling_points, ceiling_ahead = boundary_points_at(ceiling_rays, ceiling_height)
+    floor_points, floor_ahead = boundary_points_at(floor_rays, floor_height)
+    points = jnp.concatenate([ceiling_points, floor_points])
+    used = jnp.concatenate([ceiling_mask & ceiling_ahead, floor_mask & floor_ahead])
+    heights = jnp.concatenate(
+        [jnp.full(ceiling_points.shape[0], ceiling_height), jnp.full(floor_points.shape[0], floor_height)]
+    )
+    spread = (jnp.sum(points**2, -1) + heights**2) / jnp.abs(heights)
+    weight = jnp.where(used & jnp.all(jnp.isfinite(points), -1), 1.0 / spread**2, 0.0)
+    points = jnp.where(weight[:, None] > 0, points, 0.0)
+    total = jnp.sum(weight)
+    mean = jnp.sum(weight[:, None] * points, 0) / jnp.where(total > 0, total, 1.0)
+    centred = points - mean
+    scatter = jnp.einsum("n,ni,nj->ij", weight, centred, centred)
+    angle = 0.5 * jnp.arctan2(2.0 * scatter[0, 1], scatter[0, 0] - scatter[1, 1])
+    direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+    distance = _cross2(direction, mean)
+    ok = (jnp.sum(weight > 0) >= 2) & (jnp.trace(scatter) > 0) & (ceiling_height > 0) & (floor_height < 0)
+    return make_wall(direction, distance, ceiling_height, floor_height, ok)
