@@ -102,8 +102,9 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(None)
             continue
         truth = read_layout(label)
+        predicted = read_layout(written, truth.width, truth.height)
         try:
-            scores = evaluate_corners(read_layout(written, truth.width, truth.height), truth)
+            scores = evaluate_corners(predicted, truth)
         except ValueError as error:  # a corner at the horizon is no point at camera height 1
             print(f"| {image.stem} {flags} not scored: {error} |")
             rows.append(None)

@@ -159,6 +159,11 @@ class PipelineConfig:
             (DEGENERATE_LAYOUT): no camera touches its ceiling or floor, but
             an adjustment that ran away can leave one of them there (0: only
             ceiling above and floor below the camera).
+        prior_wall_heights: with a height prior (:mod:`ncjax.pipeline.prior`),
+            RANSAC fits each wall at the prior's two heights
+            (:func:`~ncjax.solvers.wall.solve_wall_at_heights`: two unknowns
+            instead of four; experiments/RESULTS.md compares them); False:
+            the paper's single-wall solver, whose walls carry their own heights.
         prior_room_height: set by the height-prior route
             (:func:`~ncjax.pipeline.run.prior_config`), not by hand: the
             room height (metres) its prior gives. The virtual rig's layout has
@@ -214,6 +219,7 @@ class PipelineConfig:
     max_room_height: float = 10.0
     max_corner_distance: float = 50.0
     min_height_fraction: float = 0.05
+    prior_wall_heights: bool = True
     prior_room_height: float = 0.0
     floor_consistency_threshold: float = math.inf
     min_explained_fraction: float = 0.0

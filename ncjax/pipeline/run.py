@@ -195,7 +195,8 @@ def walls_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -
     virtual, ceiling_virtual, floor_virtual, heights = prior_rows(cam, ceiling_v, floor_v, prior)
     room_height = heights[0] - heights[1]
     config = prior_config(config, room_height)
-    walls = walls_to_adjust(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config, heights)
+    known = heights if config.prior_wall_heights else None
+    walls = walls_to_adjust(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config, known)
     return eqx.tree_at(lambda w: w.branches, walls, at_room_height(walls.branches, room_height))
 
 

@@ -1,15 +1,12 @@
 """Per-wall RANSAC with the single-wall solver (paper Section 4.4).
 
-Each hypothesis is :func:`ncjax.solve_wall` on ``k`` sampled columns (one
-ceiling and one floor ray each: the paper's ``k = 3``); it is scored by the
-number of boundary pixels it reprojects within a threshold (pixels, the
-closed form of :mod:`ncjax.geometry.reprojection`, tested as directions:
-:func:`inlier_rows`), and the best one is refitted on
-its inliers. Hypotheses are scored and refitted on at most ``G`` columns
-of the wall (:func:`wall_columns`), so the cost does not grow with the
-image width. The number of hypotheses is the paper's
-``n_hyp = log(1 - P) / log(1 - (1 - eps)^k)``, a static integer, so all
-hypotheses are solved at once with ``jax.vmap``.
+Each hypothesis is :func:`ncjax.solve_wall` on ``k`` sampled columns (one ceiling and one floor ray each: the paper's
+``k = 3``; with a height prior's known heights :func:`~ncjax.solvers.wall.solve_wall_at_heights`); it is scored by the
+number of boundary pixels it reprojects within a threshold (pixels, the closed form of
+:mod:`ncjax.geometry.reprojection`, tested as directions: :func:`inlier_rows`), and the best one is refitted on its
+inliers. Hypotheses are scored and refitted on at most ``G`` columns of the wall (:func:`wall_columns`), so the cost
+does not grow with the image width. The number of hypotheses is the paper's
+``n_hyp = log(1 - P) / log(1 - (1 - eps)^k)``, a static integer, so all hypotheses are solved at once with ``jax.vmap``.
 """
 
 from __future__ import annotations

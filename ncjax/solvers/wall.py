@@ -1,5 +1,5 @@
-"""Single-wall solvers (paper Section 4.1 "Vertical wall extraction") and the
-single-line baseline [bermudez2016line] of Section 5.3.
+"""Single-wall solvers (paper Section 4.1 "Vertical wall extraction"), the single-line baseline [bermudez2016line] of
+Section 5.3, and a wall at known heights (:func:`solve_wall_at_heights`, not in the paper: a height prior's).
 
 A wall (docs/design.md section 3) is the pair of horizontal lines
 ``L = (ux, uy, 0, -h_c uy, h_c ux, -d)`` (ceiling) and ``M`` (same with the
@@ -43,9 +43,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ..geometry.fastmath import arctan2
 from ..geometry.linalg import divide_if_significant, null_space, scaled_null_space, segment_scaled_null_spaces
+from ..geometry.plucker import closest_point_to_origin, horizontal_wall_line, safe_norm
 from ..geometry.plucker import cross_2d as _cross2
-from ..geometry.plucker import horizontal_wall_line, safe_norm
 from .wall_fit import heights_of, linear_walls, refine_walls, yaw_parameters
 
 
@@ -535,7 +536,7 @@ def boundary_points_at(
     in the plane ``z = 0``, so it reaches the plane ahead of it when ``xi_z`` has the sign of ``height``.
     """
     direction = rays[:, :3]
-    nearest = jnp.cross(direction, rays[:, 3:]) / jnp.sum(direction**2, -1, keepdims=True)
+    nearest = closest_point_to_origin(rays)
     ahead = direction[:, 2] * height > 0
     step = (height - nearest[:, 2]) / jnp.where(ahead, direction[:, 2], 1.0)
     return nearest[:, :2] + step[:, None] * direction[:, :2], ahead
@@ -555,29 +556,36 @@ def solve_wall_at_heights(
     Not in the paper, whose walls carry their own heights. With the heights fixed, each used ceiling (floor) ray
     is one plan point (:func:`boundary_points_at`), and the wall is the line of least weighted squared distances
     to them: through their weighted mean, along the main axis of their scatter (closed form of a symmetric
-    2 x 2 eigenvector). A row error ``dphi`` moves a point at range ``t`` by ``(t^2 + h^2) / |h| dphi`` along its
-    ray, so each point is weighted by the inverse square of that factor: far points fix the wall less.
+    2 x 2 eigenvector). Each point is weighted by the inverse square of ``(r^2 + h^2) / |h|``, how far a row
+    error of one radian moves a point at range ``r`` from the axis along a central ray (a height prior's
+    virtual rig sees the central panorama's points): far points fix the wall less. Two simplifications: the
+    whole move counts, not only its part across the wall, and ceiling and floor rows count alike (the joint
+    solvers and the adjustment weight them by their noise).
 
     Returns:
-        The :class:`Wall` (canonical orientation); ``ok`` is False with fewer than 2 distinct used points, or
-        heights that do not put the camera between ceiling and floor.
+        The :class:`Wall` (canonical orientation); ``ok`` is False when the used points lie in fewer than 2
+        columns (azimuths: a line through the axis), or the heights do not put the camera between ceiling and
+        floor.
     """
     ceiling_points, ceiling_ahead = boundary_points_at(ceiling_rays, ceiling_height)
     floor_points, floor_ahead = boundary_points_at(floor_rays, floor_height)
     points = jnp.concatenate([ceiling_points, floor_points])
     used = jnp.concatenate([ceiling_mask & ceiling_ahead, floor_mask & floor_ahead])
+    used &= jnp.all(jnp.isfinite(points), -1)
     heights = jnp.concatenate(
         [jnp.full(ceiling_points.shape[0], ceiling_height), jnp.full(floor_points.shape[0], floor_height)]
     )
     spread = (jnp.sum(points**2, -1) + heights**2) / jnp.abs(heights)
-    weight = jnp.where(used & jnp.all(jnp.isfinite(points), -1), 1.0 / spread**2, 0.0)
-    points = jnp.where(weight[:, None] > 0, points, 0.0)
+    weight = jnp.where(used, 1.0 / jnp.where(used, spread, 1.0) ** 2, 0.0)
+    points = jnp.where(used[:, None], points, 0.0)
     total = jnp.sum(weight)
     mean = jnp.sum(weight[:, None] * points, 0) / jnp.where(total > 0, total, 1.0)
     centred = points - mean
     scatter = jnp.einsum("n,ni,nj->ij", weight, centred, centred)
-    angle = 0.5 * jnp.arctan2(2.0 * scatter[0, 1], scatter[0, 0] - scatter[1, 1])
+    # the fast arctan2 has a zero gradient at (0, 0), where too few points leave the scatter
+    angle = 0.5 * arctan2(2.0 * scatter[0, 1], scatter[0, 0] - scatter[1, 1])
     direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
     distance = _cross2(direction, mean)
-    ok = (jnp.sum(weight > 0) >= 2) & (jnp.trace(scatter) > 0) & (ceiling_height > 0) & (floor_height < 0)
+    columns = distinct_azimuths(jnp.concatenate([ceiling_rays, floor_rays]), used)
+    ok = (columns >= 2) & (ceiling_height > 0) & (floor_height < 0)
     return make_wall(direction, distance, ceiling_height, floor_height, ok)
