@@ -41,9 +41,10 @@ def assemble_layout(
     to_metric = jnp.where(config.prior_room_height > 0, config.prior_room_height / room_height, 1.0)
     plausible = to_metric * room_height <= config.max_room_height
     plausible &= to_metric * farthest <= config.max_corner_distance
-    # the ceiling above and the floor below the camera, neither of them at it
+    # the ceiling above and the floor below the camera, neither of them at it (with a fraction below 0.5 the two
+    # clearances also make the room height positive)
     clearance = config.min_height_fraction * room_height
-    plausible &= (ceiling_height > clearance) & (-floor_height > clearance) & (room_height > 0)
+    plausible &= (ceiling_height > clearance) & (-floor_height > clearance)
     height_sigma = room_height_sigma(uncertainty.height_covariance)
     scale_unknown = height_sigma > config.max_height_uncertainty * room_height
     failed = jnp.stack(
