@@ -10,6 +10,14 @@ the share of layouts each candidate threshold would flag and their up-to-scale 3
 The real side is ``benchmarks/central_layouts.py --data DIR``, which prints each photograph's status
 and explained fraction and the mean 3D IoU per status.
 
+Then where ``SCALE_CONFLICT`` starts: a non-central layout whose geometry cannot fix its scale
+(``UNCERTAIN_SCALE``) takes it from the height prior (``ncjax reconstruct``'s default camera height, 1.6 m;
+the renders' cameras stand 1.0-1.8 m high), and is flagged where the height its parallax measured lies
+more than ``max_scale_conflict`` standard deviations from the prior's
+(:func:`ncjax.pipeline.prior.scale_conflict`). The script prints that distance's quantiles over every
+render whose geometry measured a height (how often rows of one room reach it), each candidate
+threshold's flags among the renders that fall back to the prior, and their layouts' 3D IoU.
+
     uv run python experiments/confidence.py [--rooms 64]
 """
 
@@ -24,7 +32,10 @@ import jax
 import numpy as np
 
 import ncjax
+from ncjax.io.export import status_has_geometry
+from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior, scale_conflict
 from ncjax.pipeline.run import layout_from_evidence
+from ncjax.pipeline.types import LayoutStatus
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -32,6 +43,7 @@ from network_table import scores
 from tune_network_pipeline import tuning_boundaries
 
 THRESHOLDS = (0.5, 0.6, 0.7, 0.75, 0.8)
+CONFLICT_THRESHOLDS = (2.0, 2.5, 3.0, 4.0)
 
 
 def explained_and_iou(data: dict, config: ncjax.PipelineConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -51,19 +63,68 @@ def explained_and_iou(data: dict, config: ncjax.PipelineConfig) -> tuple[np.ndar
     return np.asarray(layouts.explained_fraction), iou
 
 
+def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np.ndarray]:
+    """Per render: the geometry's status, its scale conflict with the default camera-height prior, and the
+    metric and up-to-scale 3D IoU of the prior's layout (NaN without one)."""
+    width = data["ceiling_v"].shape[1]
+    cam = ncjax.NonCentralPanorama(width, width // 2, rc=jax.numpy.asarray(data["rc"]))
+    rows = (data["ceiling_v"], data["floor_v"], data["corner_prob"])
+    prior = HeightPrior("camera_height", np.full(len(data["rc"]), DEFAULT_CAMERA_HEIGHT))
+    geometry = ncjax.layout_from_boundaries(*rows, cam, "auto", config)
+    from_prior = ncjax.layout_from_boundaries(*rows, cam, "auto", config, prior=prior)
+    conflict = np.asarray(jax.vmap(scale_conflict)(geometry, prior))
+    per_room = scores([jax.tree.map(lambda x, i=i: x[i], from_prior) for i in range(len(data["rc"]))], data["truth"])
+    return {
+        "status": np.asarray(geometry.status),
+        "measured": np.vectorize(status_has_geometry)(np.asarray(geometry.ok), np.asarray(geometry.status)),
+        "conflict": conflict,
+        "iou": np.array([room.get("iou3d", np.nan) for room in per_room]),
+        "iou_up_to_scale": np.array([room.get("iou3d_up_to_scale", np.nan) for room in per_room]),
+    }
+
+
+def print_conflicts(found: dict[str, np.ndarray], config: ncjax.PipelineConfig) -> None:
+    measured, conflict = found["measured"], found["conflict"]
+    quantiles = np.quantile(conflict[measured], [0.5, 0.9, 0.99, 1.0])
+    print(
+        f"renders whose geometry measured a height ({measured.sum()}), distance to the {DEFAULT_CAMERA_HEIGHT} m "
+        f"prior in sigmas: median {quantiles[0]:.2f}, 90% {quantiles[1]:.2f}, 99% {quantiles[2]:.2f}, "
+        f"max {quantiles[3]:.2f}"
+    )
+    fallback = found["status"] == LayoutStatus.UNCERTAIN_SCALE
+    print(f"UNCERTAIN_SCALE, written at the prior's scale: {fallback.sum()} renders, sigmas", end=" ")
+    print(", ".join(f"{z:.2f}" for z in np.sort(conflict[fallback])))
+    print("| max_scale_conflict | flagged of those | their 3D IoU, metric / up to scale | the others' | of all |")
+    print("| --- | --- | --- | --- | --- |")
+    for threshold in CONFLICT_THRESHOLDS:
+        flagged = fallback & (conflict > threshold)
+        kept = fallback & ~flagged
+
+        def ious(mask):
+            if not mask.any():
+                return "-"
+            return f"{np.nanmean(found['iou'][mask]):.3f} / {np.nanmean(found['iou_up_to_scale'][mask]):.3f}"
+
+        share = np.mean(conflict[measured] > threshold)
+        print(f"| {threshold} | {flagged.sum()} | {ious(flagged)} | {ious(kept)} | {100 * share:.1f}% |")
+    print(f"in use: max_scale_conflict = {config.max_scale_conflict}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rooms", type=int, default=64, help="tuning renders per world")
     parser.add_argument("--out", type=Path, default=Path("experiments/out"))
     args = parser.parse_args(argv)
     config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, min_explained_fraction=0.0)
-    explained, iou = [], []
+    explained, iou, found = [], [], []
     for world in ("manhattan", "atlanta"):
         data = tuning_boundaries(world, args.rooms, 4, args.out)
         e, i = explained_and_iou(data, config)
         explained.append(e)
         iou.append(i)
+        found.append(conflicts_and_ious(data, NETWORK_PIPELINE_CONFIG))
     explained, iou = np.concatenate(explained), np.concatenate(iou)
+    found = {key: np.concatenate([part[key] for part in found]) for key in found[0]}
     quantiles = np.quantile(explained, [0.0, 0.01, 0.05, 0.5])
     print(
         f"tuning renders ({len(explained)}), explained fraction: min {quantiles[0]:.3f}, 1% {quantiles[1]:.3f}, "
@@ -76,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         flagged = f"{np.nanmean(iou[low]):.3f}" if low.any() else "-"
         print(f"| {threshold} | {low.sum()} ({100 * low.mean():.1f}%) | {flagged} | {np.nanmean(iou[~low]):.3f} |")
     print(f"in use: min_explained_fraction = {NETWORK_PIPELINE_CONFIG.min_explained_fraction}")
+    print_conflicts(found, NETWORK_PIPELINE_CONFIG)
     return 0
 
 

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
 
 from .geometry.camera import NonCentralPanorama
 from .io.images import panorama_size_error
@@ -37,7 +37,7 @@ from .network.edges import EdgeSnap
 from .network.model import HorizonNet, check_views
 from .network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, image_boundaries
 from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
-from .pipeline.prior import HeightPrior
+from .pipeline.prior import HeightPrior, scale_conflict
 from .pipeline.run import WallsToAdjust, layout_from_boundaries, layout_of_walls, panorama_keys, walls_for
 from .pipeline.types import Layout, LayoutStatus
 from .programs import call_saved, load_saved, result_like
@@ -56,6 +56,11 @@ from .programs import call_saved, load_saved, result_like
 # A layout that reprojects fewer than 60% of the usable rows within 3 px is flagged LOW_CONFIDENCE: on the tuning
 # renders the fewest was 72% (none flagged), on real photographs 19-79%, and the layouts below 60% there had a mean
 # 3D IoU of 0.44 against 0.68 above (experiments/confidence.py; experiments/RESULTS.md).
+# A non-central layout whose geometry could not fix its scale (UNCERTAIN_SCALE) takes the height prior's; it is
+# flagged SCALE_CONFLICT where the height its parallax measured lies more than 3 standard deviations (the rows' and
+# the prior's) from the prior's: on the tuning renders such fallbacks were at most 1.0 sigma away (the rows of one
+# room leave the scale free, not wrong), the real capture L101, whose rows run along desks, 4.4 (a 0.25 m camera
+# against 1.6 m) (experiments/confidence.py; experiments/RESULTS.md).
 # The covariances count two errors of the network's rows that the fit absorbs and its residuals cannot show: an
 # offset per wall and boundary (2 times the rows' noise and 1 px, combined) and the corner columns' error (2 px):
 # the setting whose 95% ellipses and height intervals covered nearest 93.5% of the truth (the middle of the 90-97%
@@ -67,6 +72,7 @@ NETWORK_PIPELINE_CONFIG = PipelineConfig(
     max_height_uncertainty=0.15,
     floor_consistency_threshold=2.0,
     min_explained_fraction=0.6,
+    max_scale_conflict=3.0,
     wall_offset_ratio=2.0,
     wall_offset_noise=1.0,
     corner_column_noise=2.0,
@@ -255,8 +261,31 @@ def _with_prior_fallback(
     chosen = jax.tree.map(
         lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
     )
+    chosen = flag_scale_conflicts(chosen, result.layout, prior, rc > 0, config.max_scale_conflict)
     return Reconstruction(
         chosen, result.ceiling_v, result.floor_v, result.corner_prob, jnp.asarray(source), result.layout
+    )
+
+
+def flag_scale_conflicts(
+    layout: Layout,
+    geometry: Layout,
+    prior: HeightPrior,
+    non_central: Bool[ArrayLike, " B"],
+    max_scale_conflict: Float[ArrayLike, ""],
+) -> Layout:
+    """``layout`` (B leading) with ``SCALE_CONFLICT`` where an ``OK`` layout took its scale from ``prior`` because
+    its non-central ``geometry`` was ``UNCERTAIN_SCALE``, and that geometry's height lies more than
+    ``max_scale_conflict`` standard deviations from the prior's (:func:`~ncjax.pipeline.prior.scale_conflict`)."""
+    conflict = jax.vmap(scale_conflict)(geometry, prior)
+    flagged = (
+        jnp.asarray(non_central)
+        & (geometry.status == LayoutStatus.UNCERTAIN_SCALE)
+        & (layout.status == LayoutStatus.OK)
+        & (conflict > max_scale_conflict)
+    )
+    return dataclasses.replace(
+        layout, status=jnp.where(flagged, LayoutStatus.SCALE_CONFLICT, layout.status), ok=layout.ok & ~flagged
     )
 
 

@@ -1080,6 +1080,8 @@ def test_bad_arguments_raise():
         ncjax.PipelineConfig(max_height_uncertainty=0.0)
     with pytest.raises(ValueError, match="needs covariance"):
         ncjax.PipelineConfig(max_height_uncertainty=0.1, covariance=False)
+    with pytest.raises(ValueError, match="max_scale_conflict must be > 0"):
+        ncjax.PipelineConfig(max_scale_conflict=0.0)
     with pytest.raises(ValueError, match="min_corners"):
         ncjax.PipelineConfig(min_corners=33)
     with pytest.raises(ValueError, match="min_corners"):

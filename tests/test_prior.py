@@ -17,10 +17,12 @@ from ncjax import metrics
 from ncjax.pipeline.floor_check import ceiling_floor_ratio
 from ncjax.pipeline.prior import (
     PRIOR_KINDS,
+    PRIOR_RELATIVE_SIGMA,
     HeightPrior,
     prior_heights,
     prior_quantity,
     rescale_to_prior,
+    scale_conflict,
     scale_layout,
     virtual_rows,
 )
@@ -90,6 +92,82 @@ def test_scale_layout_scales_lengths_and_covariances():
     np.testing.assert_allclose(np.cross(corners, lines[:, :3]), lines[:, 3:], atol=1e-4)
     again = rescale_to_prior(scaled, HeightPrior("camera_height", float(-layout.floor_height)))
     np.testing.assert_allclose(again.floor_corners, layout.floor_corners, rtol=1e-5, atol=1e-6)
+
+
+def with_heights(layout, ceiling, floor, covariance, status=ncjax.LayoutStatus.OK):
+    return dataclasses.replace(
+        layout,
+        ceiling_height=jnp.float32(ceiling),
+        floor_height=jnp.float32(floor),
+        height_covariance=jnp.asarray(covariance, jnp.float32),
+        status=jnp.int32(status),
+        ok=jnp.asarray(status == ncjax.LayoutStatus.OK),
+    )
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.floats(0.3, 3.0),
+    st.floats(-2.5, -0.3),
+    st.sampled_from(PRIOR_KINDS),
+    st.floats(0.3, 5.0),
+    st.floats(0.001, 1.0),
+    st.floats(0.001, 1.0),
+    st.floats(-0.9, 0.9),
+)
+def test_scale_conflict_is_the_log_distance_over_both_spreads(ceiling, floor, kind, value, sigma_c, sigma_f, rho):
+    from test_export import L_SHAPE, make_layout
+
+    covariance = np.array([[sigma_c**2, rho * sigma_c * sigma_f], [rho * sigma_c * sigma_f, sigma_f**2]])
+    geometry = with_heights(make_layout(L_SHAPE), ceiling, floor, covariance)
+    measured = prior_quantity(kind, ceiling, floor)
+    step = 1e-6  # the quantity's gradient by central differences
+    gradient = np.array(
+        [
+            prior_quantity(kind, ceiling + step, floor) - prior_quantity(kind, ceiling - step, floor),
+            prior_quantity(kind, ceiling, floor + step) - prior_quantity(kind, ceiling, floor - step),
+        ]
+    ) / (2 * step)
+    spread = np.sqrt(gradient @ covariance @ gradient / measured**2 + PRIOR_RELATIVE_SIGMA**2)
+    expected = abs(np.log(measured / value)) / spread
+    np.testing.assert_allclose(scale_conflict(geometry, HeightPrior(kind, value)), expected, rtol=1e-4)
+
+
+def test_no_measured_height_is_no_conflict():
+    from test_export import L_SHAPE, make_layout
+
+    layout = make_layout(L_SHAPE)
+    free = with_heights(layout, 0.3, -0.25, np.full((2, 2), np.inf))
+    unknown = with_heights(layout, 0.3, -0.25, np.full((2, 2), np.nan))
+    below = with_heights(layout, -0.5, -1.0, np.eye(2) * 1e-4)  # a "ceiling" below the camera: no room height
+    assert float(scale_conflict(free, HeightPrior("camera_height", 1.6))) == 0.0
+    assert float(scale_conflict(unknown, HeightPrior("camera_height", 1.6))) == 0.0
+    assert float(scale_conflict(below, HeightPrior("ceiling_height", 1.0))) == 0.0
+
+
+def test_a_fallback_layout_is_flagged_where_the_geometry_confidently_measured_another_room():
+    """The prior's layout is flagged only where it replaced an UNCERTAIN_SCALE geometry of a non-central
+    panorama that measured a height many sigmas from the prior's (a 0.25 m camera against 1.6 m)."""
+    from test_export import L_SHAPE, make_layout
+
+    from ncjax.reconstruction import flag_scale_conflicts
+
+    layout = make_layout(L_SHAPE)
+    low = with_heights(layout, 0.3, -0.25, np.diag([0.01, 0.01]), ncjax.LayoutStatus.UNCERTAIN_SCALE)
+    near = with_heights(layout, 1.2, -1.4, np.diag([0.04, 0.04]), ncjax.LayoutStatus.UNCERTAIN_SCALE)
+    failed = dataclasses.replace(low, status=jnp.int32(ncjax.LayoutStatus.SOLVER_FAILED))
+    geometry = jax.tree.map(lambda *x: jnp.stack(x), low, near, failed, low)
+    written = jax.tree.map(lambda *x: jnp.stack(x), *[with_heights(layout, 1.9, -1.6, np.eye(2) * 0.01)] * 4)
+    prior = HeightPrior("camera_height", jnp.full(4, 1.6))
+    assert float(scale_conflict(low, HeightPrior("camera_height", 1.6))) > 4
+    assert float(scale_conflict(near, HeightPrior("camera_height", 1.6))) < 1
+    non_central = np.array([True, True, True, False])
+    flagged = flag_scale_conflicts(written, geometry, prior, non_central, 3.0)
+    np.testing.assert_array_equal(flagged.status, [ncjax.LayoutStatus.SCALE_CONFLICT, 0, 0, 0])
+    np.testing.assert_array_equal(flagged.ok, [False, True, True, True])
+    np.testing.assert_array_equal(flagged.floor_corners, written.floor_corners)
+    off = flag_scale_conflicts(written, geometry, prior, non_central, np.inf)
+    np.testing.assert_array_equal(off.status, written.status)
 
 
 @pytest.mark.extended  # the central mode's end to end run in the default tier is test_app.py's

@@ -12,8 +12,8 @@ a complete one and nothing is left half-written.
 
 JSON schema, version 1 (lengths in metres, camera frame of docs/design.md section 1,
 floats rounded to 6 decimals, covariances to 6 significant digits; quantities of a
-failed layout are ``null`` and its lists empty, except for an ``UNCERTAIN_SCALE`` or
-``LOW_CONFIDENCE`` layout, which keeps them with ``ok`` false: see :func:`has_geometry`)::
+failed layout are ``null`` and its lists empty, except for a flagged layout (``UNCERTAIN_SCALE``,
+``LOW_CONFIDENCE``, ``SCALE_CONFLICT``), which keeps them with ``ok`` false: see :func:`has_geometry`)::
 
     name, schema_version, ok, status (LayoutStatus name), status_code, world
     (requested: manhattan/atlanta/auto), branch (manhattan/atlanta),
@@ -87,7 +87,7 @@ def has_geometry(layout: Layout) -> bool:
     """Whether the layout's walls and corners are complete: it is ok, or only flagged.
 
     A layout with one of the :data:`~ncjax.pipeline.types.FLAGGED_STATUSES`
-    (``UNCERTAIN_SCALE``, ``LOW_CONFIDENCE``) keeps its geometry in every output
+    (``UNCERTAIN_SCALE``, ``LOW_CONFIDENCE``, ``SCALE_CONFLICT``) keeps its geometry in every output
     (record, mesh, overlay, plan), marked as such: it may serve with care.
     """
     return status_has_geometry(np.asarray(layout.ok), np.asarray(layout.status))

@@ -179,6 +179,15 @@ class PipelineConfig:
             from the one its column's ceiling row implies is replaced by it
             (step 0, :func:`ceiling_consistent_floor`). Off (inf) by default;
             the network's configuration sets it.
+        max_scale_conflict: a non-central panorama whose geometry cannot fix
+            its scale (``UNCERTAIN_SCALE``) takes it from a height prior when
+            one is given (:func:`ncjax.reconstruct_batch`); where the height
+            its parallax measured is more than this many standard deviations
+            from the prior's (:func:`ncjax.pipeline.prior.scale_conflict`),
+            the prior's layout is flagged ``SCALE_CONFLICT``: the rows are
+            unlikely to be this rig's view of one room. Off (inf) by default;
+            the network's configuration sets it. Without ``covariance`` no
+            height has a known spread and nothing is flagged.
     """
 
     capacity: int = 32
@@ -223,6 +232,7 @@ class PipelineConfig:
     prior_room_height: float = 0.0
     floor_consistency_threshold: float = math.inf
     min_explained_fraction: float = 0.0
+    max_scale_conflict: float = math.inf
 
     def __post_init__(self):
         if self.capacity < 4:
@@ -249,6 +259,7 @@ class PipelineConfig:
             "min_boundary_noise",
             "max_height_uncertainty",
             "floor_consistency_threshold",
+            "max_scale_conflict",
         )
         for name in positive:
             if not getattr(self, name) > 0:
@@ -334,6 +345,7 @@ TRACED_FIELDS = (
     "prior_room_height",
     "floor_consistency_threshold",
     "min_explained_fraction",
+    "max_scale_conflict",
 )
 
 

@@ -36,6 +36,7 @@ prior is right: the prior's own error scales every length and is not in them.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -55,6 +56,9 @@ DEFAULT_CAMERA_HEIGHT = 1.6
 # parallax, and every point stays outside the circle; rows nearer than VIRTUAL_MARGIN times the radius are dropped.
 VIRTUAL_RADIUS_FRACTION = 0.5
 VIRTUAL_MARGIN = 1.2
+# How far a prior's height may be from the truth, relative, at one standard deviation: the default camera height of
+# 1.6 m stands for hand-held and tripod cameras of about 1.35-1.85 m (:func:`scale_conflict`).
+PRIOR_RELATIVE_SIGMA = 0.15
 
 
 class HeightPrior(eqx.Module):
@@ -160,6 +164,31 @@ def prior_quantity(kind: str, ceiling_height: Float[ArrayLike, "*b"], floor_heig
     if kind == "ceiling_height":
         return ceiling_height
     return ceiling_height - floor_height
+
+
+def scale_conflict(geometry: Layout, prior: HeightPrior) -> Float[Array, ""]:
+    """How many standard deviations apart the height a non-central layout's own parallax measured and a prior are.
+
+    ``z = |log(q / p)| / sqrt((sigma_q / q)^2 + s^2)``: ``q`` the prior's quantity (:func:`prior_quantity`)
+    on the geometry's layout, ``sigma_q`` its first-order standard deviation from the layout's height
+    covariance, ``p`` the prior's value and ``s`` :data:`PRIOR_RELATIVE_SIGMA`, both errors relative (a
+    scale is wrong by a factor). Rows of one room seen by the rig give a ``q`` near the truth or a large
+    ``sigma_q`` (a radius small for the room: the scale is free); rows that are not one room, such as
+    boundaries through doorways or along desks, can give a confident ``q`` far from any real room. Where the
+    geometry measured no height (``q <= 0`` or a NaN or infinite covariance) ``z`` is 0: no evidence either way.
+
+    Args:
+        geometry: one layout with the scale the rows' parallax gave (any status; its heights and covariance).
+        prior: one height prior.
+    """
+    quantity = functools.partial(prior_quantity, prior.kind)
+    measured = quantity(geometry.ceiling_height, geometry.floor_height)
+    gradient = jnp.stack(jax.grad(quantity, argnums=(0, 1))(geometry.ceiling_height, geometry.floor_height))
+    variance = gradient @ geometry.height_covariance @ gradient
+    usable = (measured > 0) & jnp.isfinite(variance)
+    safe = jnp.where(usable, measured, 1.0)
+    spread = jnp.sqrt(jnp.where(usable, variance, 0.0) / safe**2 + PRIOR_RELATIVE_SIGMA**2)
+    return jnp.where(usable, jnp.abs(jnp.log(safe / prior.value)) / spread, 0.0)
 
 
 def scale_layout(layout: Layout, factor: Float[ArrayLike, ""]) -> Layout:

@@ -27,6 +27,7 @@ class LayoutStatus(enum.IntEnum):
     DEGENERATE_LAYOUT = 8
     UNCERTAIN_SCALE = 9
     LOW_CONFIDENCE = 10
+    SCALE_CONFLICT = 11
 
     @property
     def reason(self) -> str:
@@ -56,10 +57,19 @@ _STATUS_REASONS = {
         "the network is unsure of this panorama: the layout explains fewer of its boundary rows than "
         "min_explained_fraction (clutter, doorways or textures unlike its training images); check the overlay"
     ),
+    LayoutStatus.SCALE_CONFLICT: (
+        "the boundaries are unlikely to be one room seen by this rig: the height their parallax measured is "
+        "more than max_scale_conflict standard deviations from the height prior's, which gave the scale; "
+        "check the overlay"
+    ),
 }
 
 # Statuses whose layout is complete but flagged: every output keeps its geometry, marked with this label.
-FLAGGED_STATUSES = {LayoutStatus.UNCERTAIN_SCALE: "uncertain scale", LayoutStatus.LOW_CONFIDENCE: "low confidence"}
+FLAGGED_STATUSES = {
+    LayoutStatus.UNCERTAIN_SCALE: "uncertain scale",
+    LayoutStatus.LOW_CONFIDENCE: "low confidence",
+    LayoutStatus.SCALE_CONFLICT: "scale conflict",
+}
 
 
 class Layout(eqx.Module):

@@ -114,7 +114,7 @@ def draw_overlay(
     - a legend in the top right corner (:func:`legend_box`) naming the colours drawn.
 
     A failed layout draws only the network's outputs and a "no layout" label;
-    a flagged one (``UNCERTAIN_SCALE``, ``LOW_CONFIDENCE``) is drawn with its flag as a label.
+    a flagged one (``UNCERTAIN_SCALE``, ``LOW_CONFIDENCE``, ``SCALE_CONFLICT``) is drawn with its flag as a label.
 
     Args:
         image: the panorama, RGB uint8 (H, W, 3).
