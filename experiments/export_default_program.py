@@ -3,9 +3,11 @@
 A first ``ncjax reconstruct`` traces the network and both worlds' geometry
 (about 10 s on 2 CPU cores) before XLA compiles them. The package carries the
 traced programs (``jax.export``, :data:`ncjax.programs.SHIPPED_DIRECTORY`: the
-network's and the geometry's two halves) of the default settings (shipped model, world
-auto, 4 views, edge snap, no height prior) for one 1024 x 512 panorama, so
-that a user's first run only compiles. Other sizes and settings are traced on
+network's and the geometry's two halves, without a height prior and with the
+default camera-height prior) of the default settings (shipped model, world
+auto, 4 views, edge snap) for one 1024 x 512 panorama, so that a user's first
+run only compiles, non-central or central (``--rc 0``, and the prior's
+fallback of a non-central panorama whose geometry cannot fix its scale). Other sizes and settings are traced on
 their first run, as before (the network's program serves every world and
 pipeline setting).
 
@@ -16,9 +18,9 @@ run this script after every change of ncjax's sources:
 
     uv run python experiments/export_default_program.py
 
-It runs the command a user would (``ncjax reconstruct`` on the demo panorama,
-``--rc auto``) with an empty cache, copies the three programs it saved into
-the package in place of the old ones and writes the manifest.
+It runs the commands a user would (``ncjax reconstruct`` on the demo panorama,
+``--rc auto``, then ``--rc 0``) with an empty cache, copies the five programs
+they saved into the package in place of the old ones and writes the manifest.
 """
 
 from __future__ import annotations
@@ -42,19 +44,23 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as work:
         os.environ["NCJAX_CACHE"] = os.path.join(work, "cache")
         demo = next(DEMO_DIR.glob("*.png"))
-        code = ncjax_main(["reconstruct", str(demo), "--rc", "auto", "--out", os.path.join(work, "out")])
-        if code != 0:
-            raise SystemExit(f"ncjax reconstruct failed with exit code {code}")
+        for rc in ("auto", "0"):
+            code = ncjax_main(["reconstruct", str(demo), "--rc", rc, "--out", os.path.join(work, "out")])
+            if code != 0:
+                raise SystemExit(f"ncjax reconstruct --rc {rc} failed with exit code {code}")
         exported = sorted(pathlib.Path(work, "cache", "programs").glob(f"*{programs.SUFFIX}"))
-        if len(exported) != 3:
-            raise SystemExit(f"expected three saved programs (network, walls, layouts), found {exported}")
+        if len(exported) != 5:
+            raise SystemExit(f"expected five saved programs (network, walls and layouts twice), found {exported}")
         programs.SHIPPED_DIRECTORY.mkdir(parents=True, exist_ok=True)
         shipped = [programs.SHIPPED_DIRECTORY / path.name for path in exported]
         for source, destination in zip(exported, shipped, strict=True):
             shutil.copyfile(source, destination)
     manifest = {
         "programs": [path.name for path in shipped],
-        "settings": "ncjax reconstruct defaults (--rc > 0, no prior), one 1024 x 512 panorama: network, walls, layouts",
+        "settings": (
+            "ncjax reconstruct defaults, one 1024 x 512 panorama: the network; walls and layouts without a prior "
+            "(--rc > 0) and with the camera-height prior (--rc 0, and the fallback of --rc > 0)"
+        ),
         "jax": jax.__version__,
         "source_digest": programs.source_digest(),
     }

@@ -22,6 +22,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import os
+from collections.abc import Callable
 from typing import NamedTuple
 
 import jax
@@ -38,7 +39,7 @@ from .network.model import HorizonNet, check_views
 from .network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, image_boundaries
 from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
 from .pipeline.prior import HeightPrior, scale_conflict
-from .pipeline.run import WallsToAdjust, layout_from_boundaries, layout_of_walls, panorama_keys, walls_for
+from .pipeline.run import WallsToAdjust, layout_of_walls, panorama_keys, walls_for
 from .pipeline.types import Layout, LayoutStatus
 from .programs import call_saved, load_saved, result_like
 
@@ -160,6 +161,24 @@ def _reconstruction(layouts: Layout, rows, rc: Float[Array, " B"], prior: Height
     return Reconstruction(layouts, *rows, jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR))
 
 
+def _geometry_body(
+    rows: tuple[Float[Array, "B W"], Float[Array, "B W"], Float[Array, "B W"]],
+    image_height: int,
+    rc: Float[Array, " B"],
+    keys: Key[Array, " B"],
+    thresholds: dict[str, Float[Array, ""]],
+    prior: HeightPrior | None,
+    world: str,
+    config: PipelineConfig,
+) -> Layout:
+    """The geometric pipeline (steps 0-6) on a batch's rows: :func:`_walls_of_rows`, then :func:`_layouts_of_walls`."""
+    walls = _walls_of_rows(*rows, image_height, rc, keys, thresholds, prior, world, config)
+    return _layouts_of_walls(walls, thresholds, prior, world, config)
+
+
+_geometry = jax.jit(_geometry_body, static_argnames=("image_height", "world", "config"))
+
+
 def _reconstruct_body(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
@@ -173,36 +192,29 @@ def _reconstruct_body(
     edge_snap: EdgeSnap | None,
 ) -> Reconstruction:
     rows = image_boundaries(model, images, views, edge_snap)
-    walls = _walls_of_rows(*rows, images.shape[1], rc, keys, thresholds, prior, world, config)
-    layouts = _layouts_of_walls(walls, thresholds, prior, world, config)
+    layouts = _geometry_body(rows, images.shape[1], rc, keys, thresholds, prior, world, config)
     return _reconstruction(layouts, rows, rc, prior)
 
 
 _reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "config", "views", "edge_snap"))
 
 
-def _reconstruct_saved(
-    directory, weights: ModelWeights, images, rc, keys, thresholds, prior, world, config, views, edge_snap
-):
-    """:func:`_reconstruct` through three programs saved in ``directory`` (:mod:`ncjax.programs`): the
-    network's, the geometry's steps 0-4 and its steps 5-6. A later process skips the tracing, and building
-    the network too.
-
-    XLA loads a compiled program on one core, and the geometry's halves are most of the loading: they are
-    loaded in two threads while the network's loads and runs. The weights are arguments, the architecture
-    part of the key; the network's program serves every world and pipeline setting.
+def _saved_geometry(
+    directory, image_shape: tuple[int, int, int], rc, keys, thresholds, prior, world, config
+) -> Callable[[tuple[Array, Array, Array]], Layout]:
+    """:func:`_geometry_body` for a batch of ``image_shape`` (B, H, W) through two programs saved in ``directory``
+    (:mod:`ncjax.programs`): its steps 0-4 and 5-6, loaded in two threads from this call on, while the caller
+    goes on (XLA loads a compiled program on one core, and these are most of the loading). Returns the
+    function of the rows (ceiling, floor, corner probability; (B, W) each) that runs them.
     """
+    batch, image_height, width = image_shape
     walls_structure = []
-
-    def network(tensors, images):
-        return image_boundaries(model_from_weights(weights._replace(tensors=tensors)), images, views, edge_snap)
-
     impl = jax.random.key_impl(keys)
 
     def walls(rows, rc, key_data, thresholds, prior):
         key = jax.random.wrap_key_data(key_data, impl=impl)
         leaves, structure = jax.tree.flatten(
-            _walls_of_rows(*rows, images.shape[1], rc, key, thresholds, prior, world, config)
+            _walls_of_rows(*rows, image_height, rc, key, thresholds, prior, world, config)
         )
         walls_structure.append(structure)
         return leaves  # a saved program returns plain containers (a pickled result tree)
@@ -215,24 +227,42 @@ def _reconstruct_saved(
         )
         return {field.name: getattr(layout, field.name) for field in dataclasses.fields(Layout)}
 
-    rows_like = (jax.ShapeDtypeStruct(images.shape[:1] + images.shape[2:3], jnp.float32),) * 3
+    rows_like = (jax.ShapeDtypeStruct((batch, width), jnp.float32),) * 3
     walls_arguments = (rc, jax.random.key_data(keys), thresholds, prior)
-    settings = (images.shape[1], str(impl), world, config)
+    settings = (image_height, str(impl), world, config)
     walls_key, layouts_key = repr(("walls", *settings)), repr(("layouts", *settings))
     walls_like = result_like(directory, walls_key, walls, rows_like, *walls_arguments)
-    with concurrent.futures.ThreadPoolExecutor(2) as pool:
-        cheap = {"compiler_options": GEOMETRY_COMPILER_OPTIONS}
-        walls_program = pool.submit(load_saved, directory, walls_key, walls, rows_like, *walls_arguments, **cheap)
-        layouts_program = pool.submit(
-            load_saved, directory, layouts_key, layouts, walls_like, thresholds, prior, **cheap
-        )
-        network_key = repr(("network", weights.config, views, edge_snap))
-        rows = tuple(
-            row.astype(jnp.float32) for row in call_saved(directory, network_key, network, weights.tensors, images)
-        )
-        walls_leaves = walls_program.result()(rows, *walls_arguments)
-        layout = layouts_program.result()(walls_leaves, thresholds, prior)
-    return _reconstruction(Layout(**layout), rows, rc, prior)
+    cheap = {"compiler_options": GEOMETRY_COMPILER_OPTIONS}
+    pool = concurrent.futures.ThreadPoolExecutor(2)
+    walls_program = pool.submit(load_saved, directory, walls_key, walls, rows_like, *walls_arguments, **cheap)
+    layouts_program = pool.submit(load_saved, directory, layouts_key, layouts, walls_like, thresholds, prior, **cheap)
+    pool.shutdown(wait=False)  # the two loads go on; the pool takes no more
+
+    def run(rows):
+        walls_leaves = walls_program.result()(tuple(rows), *walls_arguments)
+        return Layout(**layouts_program.result()(walls_leaves, thresholds, prior))
+
+    return run
+
+
+def _reconstruct_saved(
+    directory, weights: ModelWeights, images, rc, keys, thresholds, prior, world, config, views, edge_snap
+):
+    """:func:`_reconstruct` through three programs saved in ``directory`` (:mod:`ncjax.programs`): the
+    network's and the geometry's two (:func:`_saved_geometry`, loading while the network's loads and runs).
+    A later process skips the tracing, and building the network too. The weights are arguments, the
+    architecture part of the key; the network's program serves every world and pipeline setting.
+    """
+    geometry = _saved_geometry(directory, images.shape[:3], rc, keys, thresholds, prior, world, config)
+
+    def network(tensors, images):
+        return image_boundaries(model_from_weights(weights._replace(tensors=tensors)), images, views, edge_snap)
+
+    network_key = repr(("network", weights.config, views, edge_snap))
+    rows = tuple(
+        row.astype(jnp.float32) for row in call_saved(directory, network_key, network, weights.tensors, images)
+    )
+    return _reconstruction(geometry(rows), rows, rc, prior)
 
 
 def _with_prior_fallback(
@@ -242,22 +272,27 @@ def _with_prior_fallback(
     keys: Key[Array, " B"],
     world: str,
     config: PipelineConfig,
+    program_cache: str | os.PathLike | None = None,
 ) -> Reconstruction:
     """``result`` (the geometry's) with the prior's layout where ``rc = 0`` or the status is a :data:`SCALE_FAILURES`.
 
     The prior's pipeline runs on the same rows and RANSAC keys, for the whole batch (one program per batch
-    size), and only when some panorama needs it.
+    size), and only when some panorama needs it: the central route's programs (saved in ``program_cache``
+    if given, as :func:`_saved_geometry`), flagged where the two scales conflict (:func:`flag_scale_conflicts`).
     """
     status = np.asarray(result.layout.status)
     needs = (rc == 0) | np.isin(status, np.asarray(SCALE_FAILURES))
     source = np.where(rc == 0, PRIOR, np.where(needs, PRIOR_FALLBACK, GEOMETRY))
     if not needs.any():
         return result._replace(scale_source=jnp.asarray(source), geometry=result.layout)
-    width = result.ceiling_v.shape[-1]
-    cam = NonCentralPanorama(width, width // 2, rc=jnp.asarray(rc))  # full panoramas: H = W / 2 (check_panorama)
-    from_prior = layout_from_boundaries(
-        result.ceiling_v, result.floor_v, result.corner_prob, cam, world, config, key=keys, prior=prior
-    )
+    rows = (result.ceiling_v, result.floor_v, result.corner_prob)
+    batch, width = result.ceiling_v.shape
+    height = width // 2  # full panoramas: H = W / 2 (check_panorama)
+    arguments = (jnp.asarray(rc), keys, traced_part(config), prior, world, static_part(config))
+    if program_cache is None:
+        from_prior = _geometry(rows, height, *arguments)
+    else:
+        from_prior = _saved_geometry(program_cache, (batch, height, width), *arguments)(rows)
     chosen = jax.tree.map(
         lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
     )
@@ -389,7 +424,7 @@ def reconstruct_batch(
         result = _reconstruct_saved(program_cache, weights, *arguments, *settings)
     if prior is None or central:
         return result
-    return _with_prior_fallback(result, rc, prior, keys, world, config)
+    return _with_prior_fallback(result, rc, prior, keys, world, config, program_cache)
 
 
 def reconstruct(

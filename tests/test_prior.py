@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_export import L_SHAPE, make_layout
 
 import ncjax
 from ncjax import metrics
@@ -77,8 +78,6 @@ def test_ratio_and_virtual_rows_are_exact_on_a_room(rc):
 
 
 def test_scale_layout_scales_lengths_and_covariances():
-    from test_export import L_SHAPE, make_layout
-
     layout = make_layout(L_SHAPE)
     layout = dataclasses.replace(layout, corner_covariance=jnp.ones_like(layout.corner_covariance))
     scaled = scale_layout(layout, 2.0)
@@ -116,8 +115,6 @@ def with_heights(layout, ceiling, floor, covariance, status=ncjax.LayoutStatus.O
     st.floats(-0.9, 0.9),
 )
 def test_scale_conflict_is_the_log_distance_over_both_spreads(ceiling, floor, kind, value, sigma_c, sigma_f, rho):
-    from test_export import L_SHAPE, make_layout
-
     covariance = np.array([[sigma_c**2, rho * sigma_c * sigma_f], [rho * sigma_c * sigma_f, sigma_f**2]])
     geometry = with_heights(make_layout(L_SHAPE), ceiling, floor, covariance)
     measured = prior_quantity(kind, ceiling, floor)
@@ -134,8 +131,6 @@ def test_scale_conflict_is_the_log_distance_over_both_spreads(ceiling, floor, ki
 
 
 def test_no_measured_height_is_no_conflict():
-    from test_export import L_SHAPE, make_layout
-
     layout = make_layout(L_SHAPE)
     free = with_heights(layout, 0.3, -0.25, np.full((2, 2), np.inf))
     unknown = with_heights(layout, 0.3, -0.25, np.full((2, 2), np.nan))
@@ -148,8 +143,6 @@ def test_no_measured_height_is_no_conflict():
 def test_a_fallback_layout_is_flagged_where_the_geometry_confidently_measured_another_room():
     """The prior's layout is flagged only where it replaced an UNCERTAIN_SCALE geometry of a non-central
     panorama that measured a height many sigmas from the prior's (a 0.25 m camera against 1.6 m)."""
-    from test_export import L_SHAPE, make_layout
-
     from ncjax.reconstruction import flag_scale_conflicts
 
     layout = make_layout(L_SHAPE)

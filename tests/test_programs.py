@@ -116,4 +116,4 @@ def test_the_shipped_program_is_exported_from_these_sources():
     assert manifest["source_digest"] == programs.source_digest(), stale
     assert manifest["jax"] == jax.__version__, stale
     shipped = sorted(path.name for path in programs.SHIPPED_DIRECTORY.glob(f"*{programs.SUFFIX}"))
-    assert shipped == sorted(manifest["programs"]) and len(shipped) == 3
+    assert shipped == sorted(manifest["programs"]) and len(shipped) == 5
