@@ -76,6 +76,7 @@ def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np
     per_room = scores([jax.tree.map(lambda x, i=i: x[i], from_prior) for i in range(len(data["rc"]))], data["truth"])
     return {
         "status": np.asarray(geometry.status),
+        "prior_ok": np.asarray(from_prior.ok),
         "measured": np.vectorize(status_has_geometry)(np.asarray(geometry.ok), np.asarray(geometry.status)),
         "conflict": conflict,
         "iou": np.array([room.get("iou3d", np.nan) for room in per_room]),
@@ -83,7 +84,15 @@ def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np
     }
 
 
+def mean_ious(found: dict[str, np.ndarray], mask: np.ndarray) -> str:
+    """The mean metric / up-to-scale 3D IoU of the renders in ``mask``, as text ("-" for none)."""
+    if not mask.any():
+        return "-"
+    return f"{np.nanmean(found['iou'][mask]):.3f} / {np.nanmean(found['iou_up_to_scale'][mask]):.3f}"
+
+
 def print_conflicts(found: dict[str, np.ndarray], config: ncjax.PipelineConfig) -> None:
+    """The scale conflict's quantiles, and per candidate ``max_scale_conflict`` the fallbacks it would flag."""
     measured, conflict = found["measured"], found["conflict"]
     quantiles = np.quantile(conflict[measured], [0.5, 0.9, 0.99, 1.0])
     print(
@@ -91,22 +100,19 @@ def print_conflicts(found: dict[str, np.ndarray], config: ncjax.PipelineConfig) 
         f"prior in sigmas: median {quantiles[0]:.2f}, 90% {quantiles[1]:.2f}, 99% {quantiles[2]:.2f}, "
         f"max {quantiles[3]:.2f}"
     )
-    fallback = found["status"] == LayoutStatus.UNCERTAIN_SCALE
-    print(f"UNCERTAIN_SCALE, written at the prior's scale: {fallback.sum()} renders, sigmas", end=" ")
+    # the layouts the flag can reach: an UNCERTAIN_SCALE geometry replaced by an OK layout at the prior's scale
+    fallback = (found["status"] == LayoutStatus.UNCERTAIN_SCALE) & found["prior_ok"]
+    print(f"UNCERTAIN_SCALE, written OK at the prior's scale: {fallback.sum()} renders, sigmas", end=" ")
     print(", ".join(f"{z:.2f}" for z in np.sort(conflict[fallback])))
     print("| max_scale_conflict | flagged of those | their 3D IoU, metric / up to scale | the others' | of all |")
     print("| --- | --- | --- | --- | --- |")
     for threshold in CONFLICT_THRESHOLDS:
         flagged = fallback & (conflict > threshold)
-        kept = fallback & ~flagged
-
-        def ious(mask):
-            if not mask.any():
-                return "-"
-            return f"{np.nanmean(found['iou'][mask]):.3f} / {np.nanmean(found['iou_up_to_scale'][mask]):.3f}"
-
         share = np.mean(conflict[measured] > threshold)
-        print(f"| {threshold} | {flagged.sum()} | {ious(flagged)} | {ious(kept)} | {100 * share:.1f}% |")
+        print(
+            f"| {threshold} | {flagged.sum()} | {mean_ious(found, flagged)} | {mean_ious(found, fallback & ~flagged)} "
+            f"| {100 * share:.1f}% |"
+        )
     print(f"in use: max_scale_conflict = {config.max_scale_conflict}")
 
 

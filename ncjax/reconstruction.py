@@ -278,7 +278,7 @@ def _with_prior_fallback(
 
     The prior's pipeline runs on the same rows and RANSAC keys, for the whole batch (one program per batch
     size), and only when some panorama needs it: the central route's programs (saved in ``program_cache``
-    if given, as :func:`_saved_geometry`), flagged where the two scales conflict (:func:`flag_scale_conflicts`).
+    if given, as :func:`_saved_geometry`), flagged where the two scales conflict (:func:`_flag_scale_conflicts`).
     """
     status = np.asarray(result.layout.status)
     needs = (rc == 0) | np.isin(status, np.asarray(SCALE_FAILURES))
@@ -296,25 +296,38 @@ def _with_prior_fallback(
     chosen = jax.tree.map(
         lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
     )
-    chosen = flag_scale_conflicts(chosen, result.layout, prior, rc > 0, config.max_scale_conflict)
+    chosen = _flag_scale_conflicts(chosen, result.layout, prior, rc > 0, config.max_scale_conflict)
     return Reconstruction(
         chosen, result.ceiling_v, result.floor_v, result.corner_prob, jnp.asarray(source), result.layout
     )
 
 
-def flag_scale_conflicts(
+def _flag_scale_conflicts(
     layout: Layout,
     geometry: Layout,
     prior: HeightPrior,
     non_central: Bool[ArrayLike, " B"],
     max_scale_conflict: Float[ArrayLike, ""],
 ) -> Layout:
-    """``layout`` (B leading) with ``SCALE_CONFLICT`` where an ``OK`` layout took its scale from ``prior`` because
-    its non-central ``geometry`` was ``UNCERTAIN_SCALE``, and that geometry's height lies more than
-    ``max_scale_conflict`` standard deviations from the prior's (:func:`~ncjax.pipeline.prior.scale_conflict`)."""
+    """``layout`` with ``SCALE_CONFLICT`` where an ``OK`` layout took its scale from ``prior`` because its
+    non-central ``geometry`` was ``UNCERTAIN_SCALE``, and that geometry's height lies more than
+    ``max_scale_conflict`` standard deviations from the prior's (:func:`~ncjax.pipeline.prior.scale_conflict`).
+
+    Args:
+        layout: the layouts written, B leading.
+        geometry: the layouts with the scale each panorama's geometry measured, B leading.
+        prior: the height prior (a scalar value or one per panorama).
+        non_central: (B,) whether each panorama's ``rc`` is positive.
+        max_scale_conflict: the flag's threshold (``PipelineConfig.max_scale_conflict``).
+
+    Returns:
+        ``layout`` with those panoramas' status ``SCALE_CONFLICT`` and ``ok`` false; the rest unchanged.
+    """
+    non_central = jnp.asarray(non_central)
+    prior = jax.tree.map(lambda x: jnp.broadcast_to(x, non_central.shape), prior)
     conflict = jax.vmap(scale_conflict)(geometry, prior)
     flagged = (
-        jnp.asarray(non_central)
+        non_central
         & (geometry.status == LayoutStatus.UNCERTAIN_SCALE)
         & (layout.status == LayoutStatus.OK)
         & (conflict > max_scale_conflict)

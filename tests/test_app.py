@@ -297,6 +297,7 @@ def test_summary_rows_of_each_result():
         unsure["result"] == "uncertain scale" and unsure["room_height_sigma_m"] == "inf" and unsure["message"] == "why"
     )
     assert summary_row("a.png", record | {"ok": False, "status": "LOW_CONFIDENCE"})["result"] == "low confidence"
+    assert summary_row("a.png", record | {"ok": False, "status": "SCALE_CONFLICT"})["result"] == "scale conflict"
     empty = {
         key: None
         for key in ("room_height", "room_height_sigma", "ceiling_height", "floor_height", "floor_area", "perimeter")

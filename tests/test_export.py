@@ -147,7 +147,7 @@ def test_failed_layout_record_is_strict_json(tmp_path):
     assert json.loads((tmp_path / "bad.json").read_text()) == record
 
 
-@pytest.mark.parametrize("status", [ncjax.LayoutStatus.UNCERTAIN_SCALE, ncjax.LayoutStatus.LOW_CONFIDENCE])
+@pytest.mark.parametrize("status", list(ncjax.pipeline.types.FLAGGED_STATUSES))
 def test_flagged_layout_keeps_its_geometry_marked_not_ok(tmp_path, status):
     """A flagged layout (scale or network unsure): record, mesh, overlay and plan keep it, marked."""
     uncertain = make_layout(RECTANGLE, status=int(status))

@@ -29,11 +29,10 @@ def scale_fields(result, prior) -> dict:
             "ceiling_height": round(ceiling, 4),
             "room_height": round(ceiling - floor, 4),
         }
-        if prior is not None:
-            from ..pipeline.prior import scale_conflict
+        # the geometry's own layout is kept only where a prior was given (Reconstruction.geometry)
+        from ..pipeline.prior import scale_conflict
 
-            conflict = float(scale_conflict(geometry, prior))
-            fields["geometry_measured"]["prior_conflict_sigmas"] = round(conflict, 2)
+        fields["geometry_measured"]["prior_conflict_sigmas"] = round(float(scale_conflict(geometry, prior)), 2)
     return fields
 
 

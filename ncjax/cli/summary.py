@@ -66,8 +66,8 @@ def summary_row(path: str, record: dict | None, message: str = "") -> dict:
         message: why the image has no ok layout ("" when it has one).
 
     Returns:
-        The row, keyed by ``SUMMARY_COLUMNS``. ``result`` is "ok", "uncertain scale" or "low confidence"
-        (geometry written, flagged: :data:`~ncjax.pipeline.types.FLAGGED_STATUSES`), "no layout" (the
+        The row, keyed by ``SUMMARY_COLUMNS``. ``result`` is "ok", "uncertain scale", "low confidence" or
+        "scale conflict" (geometry written, flagged: :data:`~ncjax.pipeline.types.FLAGGED_STATUSES`), "no layout" (the
         pipeline found none) or "error" (no record);
         :func:`skipped_row` makes the rows of "skipped" images.
         Figures have 4 decimals; a layout's room-height sigma that the fit leaves open (JSON null)

@@ -316,7 +316,8 @@ def nms_radius(config: PipelineConfig, width: int) -> int:
     return max(1, round(scaled(config.nms_radius, width, 1024)))
 
 
-# The fields the pipeline only compares with or multiplies by: jitted as traced scalars (see PipelineConfig).
+# The fields the pipeline only compares with or multiplies by: jitted as traced scalars (see PipelineConfig), so that
+# configurations differing in them share the compiled programs (max_scale_conflict is only read after them).
 TRACED_FIELDS = (
     "corner_threshold",
     "fallback_corner_threshold",

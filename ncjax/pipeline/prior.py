@@ -180,6 +180,9 @@ def scale_conflict(geometry: Layout, prior: HeightPrior) -> Float[Array, ""]:
     Args:
         geometry: one layout with the scale the rows' parallax gave (any status; its heights and covariance).
         prior: one height prior.
+
+    Returns:
+        ``z`` (>= 0), in standard deviations.
     """
     quantity = functools.partial(prior_quantity, prior.kind)
     measured = quantity(geometry.ceiling_height, geometry.floor_height)
