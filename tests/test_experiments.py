@@ -219,3 +219,21 @@ def test_central_renders_scores_exact_rows_as_the_true_room():
     assert np.all(module.raw_ious(data) > 0.9)
     line = module.table_line("auto", scores, module.raw_ious(data))
     assert line.startswith("| auto | 100.0% | 100.0% / 100.0% |") and line.endswith("| 3 of 3 |")
+
+
+def test_corners_or_rows_scores_a_layout_against_its_label_and_no_layout_as_zero(tmp_path):
+    from test_export import L_SHAPE, make_layout
+
+    from ncjax.io.formats import format_path, write_layout_formats
+    from ncjax.io.formats_read import read_layout
+
+    module = experiment("corners_or_rows")
+    cam = ncjax.NonCentralPanorama(1024, 512, rc=0.0)
+    layout = make_layout(L_SHAPE)
+    write_layout_formats(tmp_path / "label", layout, cam, "label_cor")
+    label = read_layout(format_path(tmp_path / "label", "label_cor"), 1024, 512)
+    assert module.layout_iou(layout, cam, label, tmp_path) == pytest.approx(1.0, abs=1e-3)
+    failed = make_layout(L_SHAPE, status=int(ncjax.LayoutStatus.SOLVER_FAILED))
+    assert module.layout_iou(failed, cam, label, tmp_path) == 0.0
+    stretched = make_layout([(1.3 * x, y) for x, y in L_SHAPE])
+    assert 0.5 < module.layout_iou(stretched, cam, label, tmp_path) < 0.95

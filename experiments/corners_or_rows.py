@@ -1,0 +1,85 @@
+"""What limits the central layouts of real photographs: the network's corners or its rows?
+
+For each labelled panorama of a folder (``*.jpg``/``*.png`` with its label_cor ``<stem>.txt``, as
+``benchmarks/central_layouts.py`` reads them) the shipped model gives the rows and corner probability (4 views,
+edge snap; no gravity alignment, so that both runs see the same rows), and the central pipeline
+(``NETWORK_PIPELINE_CONFIG``, world auto, camera height 1.6 m) runs twice on those rows: with the network's
+corner probability, and with the label's corner columns in its place (HorizonNet's ``0.96**d`` target of the
+label's floor corners: every corner found, none spurious). Each layout's label_cor is scored against the
+label as ``central_layouts.py`` scores it (:func:`ncjax.metrics_central.evaluate_corners`, both at camera
+height 1; no layout counts 0). If the labelled corners lift the mean 3D IoU little, the rows are what the
+network has to learn.
+
+    uv run python experiments/corners_or_rows.py --data DIR
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+import tempfile
+
+import jax
+import numpy as np
+
+import ncjax
+from ncjax.io.export import status_has_geometry
+from ncjax.io.formats import format_path, write_layout_formats
+from ncjax.io.formats_read import read_layout
+from ncjax.io.images import read_panorama
+from ncjax.metrics_central import evaluate_corners
+from ncjax.network.predict import default_model
+from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior
+from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
+from ncjax.synth.rooms import corner_target
+
+sys.path.insert(0, str(pathlib.Path(__file__).parents[1] / "benchmarks"))
+from central_layouts import labelled_images
+
+
+def layout_iou(layout: ncjax.Layout, cam: ncjax.NonCentralPanorama, label, folder: pathlib.Path) -> float:
+    """3D IoU of one layout's label_cor against the label (0 without a layout or a scorable one)."""
+    if not status_has_geometry(bool(layout.ok), int(layout.status)):
+        return 0.0
+    stem = folder / "layout"
+    write_layout_formats(stem, layout, cam, "label_cor")
+    try:
+        return evaluate_corners(read_layout(format_path(stem, "label_cor"), cam.width, cam.height), label)["iou3d"]
+    except ValueError:  # a corner at or across the horizon: no point at camera height 1
+        return 0.0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=pathlib.Path, required=True, help="folder of panoramas with label_cor .txt")
+    args = parser.parse_args(argv)
+    prior = HeightPrior("camera_height", DEFAULT_CAMERA_HEIGHT)
+    model = default_model()
+    ious = {"network corners": [], "labelled corners": []}
+    print("| image | network corners | labelled corners |")
+    print("| --- | --- | --- |")
+    with tempfile.TemporaryDirectory() as work:
+        for image_path, label_path in labelled_images(args.data):
+            image = read_panorama(image_path)
+            height, width = image.shape[:2]
+            cam = ncjax.NonCentralPanorama(width, height, rc=0.0)
+            label = read_layout(label_path, width, height)
+            ceiling_v, floor_v, corner_prob = ncjax.predict_boundaries(image, model)
+            columns = np.asarray(label.floor)[:, 0]
+            labelled = np.asarray(corner_target(columns, np.ones(len(columns), bool), width))
+            row = []
+            for name, probability in (("network corners", corner_prob), ("labelled corners", labelled)):
+                layout = ncjax.layout_from_boundaries(
+                    ceiling_v, floor_v, probability, cam, "auto", NETWORK_PIPELINE_CONFIG, prior=prior
+                )
+                ious[name].append(layout_iou(jax.device_get(layout), cam, label, pathlib.Path(work)))
+                row.append(f"{ious[name][-1]:.3f}")
+            print(f"| {image_path.stem} | {' | '.join(row)} |", flush=True)
+    means = {name: np.mean(values) for name, values in ious.items()}
+    print(f"| mean of {len(ious['network corners'])} | {' | '.join(f'{m:.3f}' for m in means.values())} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
