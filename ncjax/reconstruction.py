@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Bool, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
+from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
 
 from .geometry.camera import NonCentralPanorama
 from .io.images import panorama_size_error
@@ -296,7 +296,7 @@ def _with_prior_fallback(
     chosen = jax.tree.map(
         lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
     )
-    chosen = _flag_scale_conflicts(chosen, result.layout, prior, rc > 0, config.max_scale_conflict)
+    chosen = _flag_scale_conflicts(chosen, result.layout, prior, config.max_scale_conflict)
     return Reconstruction(
         chosen, result.ceiling_v, result.floor_v, result.corner_prob, jnp.asarray(source), result.layout
     )
@@ -306,29 +306,26 @@ def _flag_scale_conflicts(
     layout: Layout,
     geometry: Layout,
     prior: HeightPrior,
-    non_central: Bool[ArrayLike, " B"],
     max_scale_conflict: Float[ArrayLike, ""],
 ) -> Layout:
     """``layout`` with ``SCALE_CONFLICT`` where an ``OK`` layout took its scale from ``prior`` because its
-    non-central ``geometry`` was ``UNCERTAIN_SCALE``, and that geometry's height lies more than
-    ``max_scale_conflict`` standard deviations from the prior's (:func:`~ncjax.pipeline.prior.scale_conflict`).
+    ``geometry`` was ``UNCERTAIN_SCALE`` (only a non-central one can be: a central one is ``NO_SCALE``), and that
+    geometry's height lies more than ``max_scale_conflict`` standard deviations from the prior's
+    (:func:`~ncjax.pipeline.prior.scale_conflict`).
 
     Args:
         layout: the layouts written, B leading.
         geometry: the layouts with the scale each panorama's geometry measured, B leading.
         prior: the height prior (a scalar value or one per panorama).
-        non_central: (B,) whether each panorama's ``rc`` is positive.
         max_scale_conflict: the flag's threshold (``PipelineConfig.max_scale_conflict``).
 
     Returns:
         ``layout`` with those panoramas' status ``SCALE_CONFLICT`` and ``ok`` false; the rest unchanged.
     """
-    non_central = jnp.asarray(non_central)
-    prior = jax.tree.map(lambda x: jnp.broadcast_to(x, non_central.shape), prior)
+    prior = jax.tree.map(lambda x: jnp.broadcast_to(x, geometry.status.shape), prior)
     conflict = jax.vmap(scale_conflict)(geometry, prior)
     flagged = (
-        non_central
-        & (geometry.status == LayoutStatus.UNCERTAIN_SCALE)
+        (geometry.status == LayoutStatus.UNCERTAIN_SCALE)
         & (layout.status == LayoutStatus.OK)
         & (conflict > max_scale_conflict)
     )

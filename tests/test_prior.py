@@ -149,20 +149,20 @@ def test_a_fallback_layout_is_flagged_where_the_geometry_confidently_measured_an
     low = with_heights(layout, 0.3, -0.25, np.diag([0.01, 0.01]), ncjax.LayoutStatus.UNCERTAIN_SCALE)
     near = with_heights(layout, 1.2, -1.4, np.diag([0.04, 0.04]), ncjax.LayoutStatus.UNCERTAIN_SCALE)
     failed = dataclasses.replace(low, status=jnp.int32(ncjax.LayoutStatus.SOLVER_FAILED))
-    geometry = jax.tree.map(lambda *x: jnp.stack(x), low, near, failed, low, low)
+    central = dataclasses.replace(low, status=jnp.int32(ncjax.LayoutStatus.NO_SCALE))  # rc = 0: the prior's anyway
+    geometry = jax.tree.map(lambda *x: jnp.stack(x), low, near, failed, central, low)
     good = with_heights(layout, 1.9, -1.6, np.eye(2) * 0.01)
     unsure = with_heights(layout, 1.9, -1.6, np.eye(2) * 0.01, ncjax.LayoutStatus.LOW_CONFIDENCE)
     written = jax.tree.map(lambda *x: jnp.stack(x), good, good, good, good, unsure)
     prior = HeightPrior("camera_height", 1.6)  # one value for the batch
     assert float(scale_conflict(low, prior)) > 4
     assert float(scale_conflict(near, prior)) < 1
-    non_central = np.array([True, True, True, False, True])
-    flagged = _flag_scale_conflicts(written, geometry, prior, non_central, 3.0)
+    flagged = _flag_scale_conflicts(written, geometry, prior, 3.0)
     conflict, low_confidence = ncjax.LayoutStatus.SCALE_CONFLICT, ncjax.LayoutStatus.LOW_CONFIDENCE
     np.testing.assert_array_equal(flagged.status, [conflict, 0, 0, 0, low_confidence])
     np.testing.assert_array_equal(flagged.ok, [False, True, True, True, False])
     np.testing.assert_array_equal(flagged.floor_corners, written.floor_corners)
-    off = _flag_scale_conflicts(written, geometry, prior, non_central, np.inf)
+    off = _flag_scale_conflicts(written, geometry, prior, np.inf)
     np.testing.assert_array_equal(off.status, written.status)
 
 
