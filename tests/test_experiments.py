@@ -4,6 +4,8 @@ import importlib.util
 from pathlib import Path
 from types import SimpleNamespace
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -237,3 +239,53 @@ def test_corners_or_rows_scores_a_layout_against_its_label_and_no_layout_as_zero
     assert module.layout_iou(failed, cam, label, tmp_path) == 0.0
     stretched = make_layout([(1.3 * x, y) for x, y in L_SHAPE])
     assert 0.5 < module.layout_iou(stretched, cam, label, tmp_path) < 0.95
+
+
+def test_frozen_backbone_rolls_each_map_by_its_stride_and_the_labels_alike():
+    module = experiment("frozen_backbone")
+    width = module.WIDTH
+    maps = [
+        jnp.broadcast_to(
+            jnp.arange(width // stride, dtype=jnp.float32)[None, None, :, None], (1, 2, width // stride, 3)
+        )
+        for stride in module.STRIDES
+    ]
+    labels = [jnp.arange(width, dtype=jnp.float32)[None]]
+    rolled_maps, rolled_labels = module._rolled(maps, labels, jnp.asarray(3))
+    for rolled, stride in zip(rolled_maps, module.STRIDES, strict=True):
+        columns = width // stride
+        expected = (np.arange(columns) - 3 * 32 // stride) % columns
+        np.testing.assert_array_equal(rolled[0, 0, :, 0], expected)
+    np.testing.assert_array_equal(rolled_labels[0][0], (np.arange(width) - 96) % width)
+
+
+def test_frozen_backbone_refuses_a_source_it_cannot_render_before_any_work(tmp_path, capsys):
+    module = experiment("frozen_backbone")
+    assert module.main(["--data", str(tmp_path), "--export", str(tmp_path / "m.safetensors")]) == 2
+    assert "not a rendered source" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_frozen_backbone_trains_the_head_and_leaves_the_backbone_as_it_was():
+    from flax import nnx
+
+    module = experiment("frozen_backbone")
+    model = module.frozen_model("imagenet", "lite0-1024")
+    backbone = jax.tree.map(np.asarray, nnx.state(model.backbone))
+    head = jax.tree.map(np.asarray, nnx.state(model.head))
+    model.train()
+    model.backbone.eval()
+    optimizer = module.head_optimizer(model, 1e-3, total_steps=10, warmup=0)
+    rng = np.random.default_rng(0)
+    height, width = module.HEIGHT, module.WIDTH
+    channels = (24, 40, 112, 320)
+    maps = [
+        jnp.asarray(rng.normal(size=(2, height // s, width // s, c)), jnp.float16)
+        for s, c in zip(module.STRIDES, channels, strict=True)
+    ]
+    labels = [jnp.full((2, width), 150.0), jnp.full((2, width), 380.0), jnp.zeros((2, width))]
+    losses = [float(module.train_step(model, optimizer, maps, labels, jax.random.key(i))) for i in range(4)]
+    assert losses[-1] < losses[0]
+    assert jax.tree.all(jax.tree.map(np.array_equal, backbone, jax.tree.map(np.asarray, nnx.state(model.backbone))))
+    assert not jax.tree.all(jax.tree.map(np.array_equal, head, jax.tree.map(np.asarray, nnx.state(model.head))))

@@ -444,10 +444,15 @@ class HorizonNet(nnx.Module):
 
     def column_features(self, images: Float[Array, "B H W 3"]) -> Float[Array, "B S F"]:
         """Convolutional features per LSTM position, ``S = W / step_cols`` (roll-equivariant part)."""
-        sequence_length = images.shape[-2] // self.config.step_cols
+        return self.compressed_columns(self.backbone_features(images), images.shape[-2])
+
+    def compressed_columns(self, features: list[Array], width: int) -> Float[Array, "B S F"]:
+        """:meth:`column_features` of the backbone's feature maps of images ``width`` columns wide (a frozen
+        backbone's maps can be computed once and kept: ``experiments/frozen_backbone.py``)."""
+        sequence_length = width // self.config.step_cols
         columns = [
             resample_columns(compress(f), sequence_length)
-            for compress, f in zip(self.compressions, self.backbone_features(images), strict=True)
+            for compress, f in zip(self.compressions, features, strict=True)
         ]
         return jnp.concatenate(columns, axis=-1)
 
@@ -496,9 +501,15 @@ def init_model(config: HorizonNetConfig, seed: int = 0) -> HorizonNet:
     """
     model = _initialiser(config)(jax.random.key(seed, impl="rbg"))
     if config.backbone == "efficientnet_lite0":
-        pretrained = nnx.state(load_efficientnet_lite0(circular_width=True))
-        nnx.update(model.backbone, nnx.State({name: pretrained[name] for name in nnx.state(model.backbone)}))
+        use_imagenet_backbone(model)
     return model
+
+
+def use_imagenet_backbone(model: HorizonNet) -> None:
+    """Set an ``"efficientnet_lite0"`` model's backbone to the shipped ImageNet weights and batch-norm statistics
+    (:func:`~.efficientnet.load_efficientnet_lite0`, without its classifier), in place."""
+    pretrained = nnx.state(load_efficientnet_lite0(circular_width=True))
+    nnx.update(model.backbone, nnx.State({name: pretrained[name] for name in nnx.state(model.backbone)}))
 
 
 def abstract_model(config: HorizonNetConfig) -> HorizonNet:

@@ -1,0 +1,232 @@
+"""The layout network's head trained on a frozen backbone: training within reach of 2 CPU cores.
+
+A whole ``lite0-1024`` training step runs at 0.28 images/s on 2 CPU cores (experiments/RESULTS.md): the
+backbone's backward pass is most of it. A frozen backbone's feature maps do not change while the rest
+trains, so this script computes them once per rendered room, through one random camera of the training
+augmentation (roll, flip, exposure, white balance, blur, noise, seams, bands, JPEG: ``ncjax train``'s), keeps
+them in ``experiments/out/frozen_<backbone>_<kind>_<seed>_<n>.npz`` (float16), and trains the head (height
+compression, LSTM, linear head) on them, each epoch's maps rolled by a random multiple of 32 columns (the
+backbone's wrap-around padding makes that exact). About 10 images/s on 2 cores; the backbone's forward pass,
+once per room, costs 0.18 s and the rendering 0.4 s.
+
+``--backbone imagenet`` freezes the ImageNet weights as they ship (the shipped model's backbone was adapted to
+the renders at a tenth of the learning rate); ``--backbone shipped`` freezes the fine-tuned backbone of the
+model ``--init-head`` names. The head starts from ``--init-head``'s (the shipped model by default). Training
+checkpoints (weights and optimizer, ``--checkpoint``) are written after every epoch and when ``--time-budget``
+runs out; the same command resumes from the last one. Per epoch it prints the mean loss and, on the first
+``--validation-limit`` valid rooms, the boundary error (PE, px of the 1024-wide image) and corner P / R. The
+final weights go to ``--export`` (float16), a model file ``--model`` of ``benchmarks/real_panoramas.py``,
+``benchmarks/central_layouts.py`` and ``experiments/network_table.py`` takes.
+
+    uv run python experiments/frozen_backbone.py --data synth-decor-home:601:500 synth-decor-open:602:500 \\
+        --backbone imagenet --epochs 8 --export experiments/out/frozen_imagenet.safetensors
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import nnx
+from tqdm import tqdm
+
+from ncjax.network.checkpoint import load_checkpoint, load_model, save_checkpoint, save_model
+from ncjax.network.model import HorizonNet, prediction_to_rows, use_imagenet_backbone
+from ncjax.network.scores import network_table
+from ncjax.synth.rooms import CORNER_LABEL_BASE, reencode_corner_prob
+from ncjax.training.data import SYNTH_SOURCES, parse_synth_source, rendered_splits
+from ncjax.training.loop import LABEL_KEYS, TrainConfig, augment_batch, horizonnet_loss
+
+OUT = pathlib.Path(__file__).parent / "out"
+HEIGHT, WIDTH = 512, 1024
+COARSEST_STRIDE = 32  # the backbone's coarsest map: a roll by a multiple of it rolls every map by whole columns
+STRIDES = (4, 8, 16, 32)
+BATCH = 8
+HEAD = nnx.All(nnx.Param, nnx.Not(nnx.PathContains("backbone")))  # what trains
+
+
+def frozen_model(backbone: str, init_head: str) -> HorizonNet:
+    """``init_head``'s model, its backbone the ImageNet weights (``"imagenet"``) or its own (``"shipped"``)."""
+    model = load_model(init_head)
+    if backbone == "imagenet":
+        use_imagenet_backbone(model)
+    return model
+
+
+@nnx.jit
+def _features(model: HorizonNet, images: jax.Array) -> list[jax.Array]:
+    return [f.astype(jnp.float16) for f in model.backbone_features(images)]
+
+
+@jax.jit
+def _augmented(key: jax.Array, batch: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    return augment_batch(key, batch, TrainConfig())
+
+
+def cached_features(source: str, backbone: str, model: HorizonNet) -> dict[str, dict[str, np.ndarray]]:
+    """Per split (train, valid), the frozen backbone's maps (``map0``..``map3``, float16) of ``source``'s rooms
+    through one random training camera each, and their labels; computed once, then read from the cache."""
+    kind = source.split(":")[0]
+    seed, count = parse_synth_source(source)
+    path = OUT / f"frozen_{backbone}_{kind}_{seed}_{count}.npz"
+    if path.exists():
+        with np.load(path) as stored:
+            splits = {name.split("/")[0] for name in stored.files}
+            return {
+                split: {n.split("/")[1]: stored[n] for n in stored.files if n.startswith(split)} for split in splits
+            }
+    rendered = rendered_splits(seed, count, HEIGHT, WIDTH, config=SYNTH_SOURCES[kind])
+    result = {}
+    for split in ("train", "valid"):
+        arrays, parts = rendered[split], []
+        for start in tqdm(range(0, len(arrays["image"]), BATCH), desc=f"features {kind}:{seed} {split}"):
+            batch = {key: jnp.asarray(arrays[key][start : start + BATCH]) for key in LABEL_KEYS}
+            batch["image"] = jnp.asarray(arrays["image"][start : start + BATCH], jnp.float32) / 255.0
+            batch = _augmented(jax.random.fold_in(jax.random.key(seed), start), batch)
+            maps = _features(model, batch["image"])
+            parts.append(
+                {
+                    **{f"map{i}": np.asarray(m) for i, m in enumerate(maps)},
+                    **{k: np.asarray(batch[k]) for k in LABEL_KEYS},
+                }
+            )
+        result[split] = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    OUT.mkdir(exist_ok=True)
+    temporary = path.with_suffix(".tmp.npz")
+    np.savez(
+        temporary, **{f"{split}/{key}": value for split, arrays in result.items() for key, value in arrays.items()}
+    )
+    temporary.replace(path)
+    return result
+
+
+def head_optimizer(model: HorizonNet, peak: float, total_steps: int, warmup: int) -> nnx.Optimizer:
+    """AdamW (cosine to 1e-5 of ``peak`` after a linear warm-up, weight decay 1e-4, clipping at 1) on the head."""
+    schedule = optax.warmup_cosine_decay_schedule(0.0, peak, warmup, max(total_steps, warmup + 1), peak * 1e-2)
+    tx = optax.chain(optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=1e-4))
+    return nnx.Optimizer(model, tx, wrt=HEAD)
+
+
+def _rolled(maps: list[jax.Array], labels: list[jax.Array], shift: jax.Array):
+    """Maps and labels rolled by ``shift`` coarsest columns (``shift * 32`` image columns)."""
+    maps = [jnp.roll(m, shift * (COARSEST_STRIDE // s), axis=2) for m, s in zip(maps, STRIDES, strict=True)]
+    return maps, [jnp.roll(label, shift * COARSEST_STRIDE, axis=1) for label in labels]
+
+
+@nnx.jit
+def train_step(model, optimizer, maps, labels, key):
+    roll_key, dropout_key = jax.random.split(key)
+    maps, labels = _rolled(maps, labels, jax.random.randint(roll_key, (), 0, WIDTH // COARSEST_STRIDE))
+
+    def loss_fn(model):
+        features = model.compressed_columns([m.astype(jnp.float32) for m in maps], WIDTH)
+        prediction = model.sequence_head(features, dropout_key=dropout_key)
+        return horizonnet_loss(prediction, *labels, HEIGHT, model.config.corner_base)["loss"]
+
+    loss, grads = nnx.value_and_grad(loss_fn, argnums=nnx.DiffState(0, HEAD))(model)
+    optimizer.update(model, grads)
+    return loss
+
+
+@nnx.jit
+def _predict(model, maps):
+    return model.sequence_head(model.compressed_columns([m.astype(jnp.float32) for m in maps], WIDTH))
+
+
+def validate(model: HorizonNet, arrays: dict[str, np.ndarray]) -> dict[str, float]:
+    """Table netcorExp's PE and corner P / R of the head on cached valid maps (1 view)."""
+    model.eval()
+    rows = []
+    for start in range(0, len(arrays["ceiling_v"]), BATCH):
+        maps = [jnp.asarray(arrays[f"map{i}"][start : start + BATCH]) for i in range(4)]
+        rows.append([np.asarray(r) for r in prediction_to_rows(_predict(model, maps), HEIGHT, WIDTH)])
+    ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*rows, strict=True))
+    corner_prob = reencode_corner_prob(corner_prob, model.config.corner_base, CORNER_LABEL_BASE)
+    table = network_table(ceiling_v, floor_v, corner_prob, *(arrays[k] for k in LABEL_KEYS))
+    model.train()
+    model.backbone.eval()
+    return {key: float(value) for key, value in table.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", nargs="+", required=True, help="rendered sources KIND:SEED:N (ncjax train's)")
+    parser.add_argument("--backbone", choices=("imagenet", "shipped"), default="imagenet")
+    parser.add_argument("--init-head", default="lite0-1024", help="model whose head (and backbone: shipped) starts")
+    parser.add_argument("--epochs", type=int, default=8)
+    parser.add_argument("--peak-learning-rate", type=float, default=3e-4)
+    parser.add_argument("--warmup-steps", type=int, default=50)
+    parser.add_argument("--time-budget", type=float, default=float("inf"), help="seconds of training, then stop")
+    parser.add_argument("--validation-limit", type=int, default=64)
+    parser.add_argument("--checkpoint", type=pathlib.Path, help="default: next to --export")
+    parser.add_argument("--export", type=pathlib.Path, required=True, help="final weights (float16 model file)")
+    args = parser.parse_args(argv)
+    try:
+        for source in args.data:
+            if parse_synth_source(source) is None:
+                raise ValueError(f"{source!r} is not a rendered source KIND:SEED:N ({', '.join(SYNTH_SOURCES)})")
+        model = frozen_model(args.backbone, args.init_head)
+    except (ValueError, FileNotFoundError) as error:
+        print(f"frozen_backbone: error: {error}", file=sys.stderr)
+        return 2
+    checkpoint = args.checkpoint or args.export.with_suffix(".checkpoint.safetensors")
+
+    model.eval()
+    cached = [cached_features(source, args.backbone, model) for source in args.data]
+    train_arrays, valid = (
+        {k: np.concatenate([c[split][k] for c in cached]) for k in cached[0][split]} for split in ("train", "valid")
+    )
+    valid = {key: value[: args.validation_limit] for key, value in valid.items()}
+    del cached
+    count = len(train_arrays["ceiling_v"])
+    steps_per_epoch = count // BATCH
+    total = args.epochs * steps_per_epoch
+
+    def build(model, _=None):
+        return head_optimizer(model, args.peak_learning_rate, total, args.warmup_steps)
+
+    if checkpoint.exists():
+        model, optimizer, step = load_checkpoint(checkpoint, build)
+        print(f"resumed from {checkpoint} at step {step} of {total}")
+    else:
+        optimizer, step = build(model), 0
+        print(f"{count} training rooms, {total} steps of {BATCH}; before training: {validate(model, valid)}")
+    model.train()
+    model.backbone.eval()  # frozen: its batch statistics too
+    start = time.perf_counter()
+    history = []
+    while step < total:
+        epoch, losses = step // steps_per_epoch, []
+        order = np.random.default_rng((0, epoch)).permutation(count)
+        for index in tqdm(range(step % steps_per_epoch, steps_per_epoch), desc=f"epoch {epoch + 1}/{args.epochs}"):
+            chosen = np.sort(order[index * BATCH : (index + 1) * BATCH])
+            maps = [jnp.asarray(train_arrays[f"map{i}"][chosen]) for i in range(4)]
+            labels = [jnp.asarray(train_arrays[k][chosen]) for k in LABEL_KEYS]
+            losses.append(
+                float(train_step(model, optimizer, maps, labels, jax.random.fold_in(jax.random.key(1), step)))
+            )
+            step += 1
+            if time.perf_counter() - start > args.time_budget:
+                break
+        save_checkpoint(checkpoint, model, optimizer, step=step)
+        scores = validate(model, valid)
+        history.append({"step": step, "loss": float(np.mean(losses)), **scores})
+        print(json.dumps(history[-1]))
+        if time.perf_counter() - start > args.time_budget:
+            print(f"time budget spent at step {step} of {total}; the same command resumes from {checkpoint}")
+            return 0
+    model.eval()
+    save_model(model, args.export, "float16")
+    print(f"wrote {args.export}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
