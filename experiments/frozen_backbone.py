@@ -6,8 +6,8 @@ trains, so this script computes them once per rendered room, through one random 
 augmentation (roll, flip, exposure, white balance, blur, noise, seams, bands, JPEG: ``ncjax train``'s), keeps
 them in ``experiments/out/frozen_<backbone>_<kind>_<seed>_<n>.npz`` (float16), and trains the head (height
 compression, LSTM, linear head) on them, each epoch's maps rolled by a random multiple of 32 columns (the
-backbone's wrap-around padding makes that exact). About 10 images/s on 2 cores; the backbone's forward pass,
-once per room, costs 0.18 s and the rendering 0.4 s.
+backbone's wrap-around padding makes that exact). About 13 images/s on 2 cores; rendering runs about 6 rooms/s,
+the augmentation and the backbone's forward pass, once per room, 0.3 s.
 
 ``--backbone imagenet`` freezes the ImageNet weights as they ship (the shipped model's backbone was adapted to
 the renders at a tenth of the learning rate); ``--backbone shipped`` freezes the fine-tuned backbone of the
@@ -33,21 +33,28 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from flax import nnx
 from tqdm import tqdm
 
 from ncjax.network.checkpoint import load_checkpoint, load_model, save_checkpoint, save_model
+from ncjax.network.efficientnet import FEATURE_STRIDES
 from ncjax.network.model import HorizonNet, prediction_to_rows, use_imagenet_backbone
 from ncjax.network.scores import network_table
 from ncjax.synth.rooms import CORNER_LABEL_BASE, reencode_corner_prob
 from ncjax.training.data import SYNTH_SOURCES, parse_synth_source, rendered_splits
-from ncjax.training.loop import LABEL_KEYS, TrainConfig, augment_batch, horizonnet_loss
+from ncjax.training.loop import (
+    LABEL_KEYS,
+    TrainConfig,
+    adamw_transform,
+    augment_batch,
+    horizonnet_loss,
+    set_train_mode,
+)
 
 OUT = pathlib.Path(__file__).parent / "out"
 HEIGHT, WIDTH = 512, 1024
-COARSEST_STRIDE = 32  # the backbone's coarsest map: a roll by a multiple of it rolls every map by whole columns
-STRIDES = (4, 8, 16, 32)
+# the backbone's coarsest map: a roll by a multiple of its stride rolls every map by whole columns
+COARSEST_STRIDE = max(FEATURE_STRIDES)
 BATCH = 8
 HEAD = nnx.All(nnx.Param, nnx.Not(nnx.PathContains("backbone")))  # what trains
 
@@ -107,16 +114,21 @@ def cached_features(source: str, backbone: str, model: HorizonNet) -> dict[str, 
     return result
 
 
-def head_optimizer(model: HorizonNet, peak: float, total_steps: int, warmup: int) -> nnx.Optimizer:
-    """AdamW (cosine to 1e-5 of ``peak`` after a linear warm-up, weight decay 1e-4, clipping at 1) on the head."""
-    schedule = optax.warmup_cosine_decay_schedule(0.0, peak, warmup, max(total_steps, warmup + 1), peak * 1e-2)
-    tx = optax.chain(optax.clip_by_global_norm(1.0), optax.adamw(schedule, weight_decay=1e-4))
-    return nnx.Optimizer(model, tx, wrt=HEAD)
+def head_training(peak: float, total_steps: int, warmup: int) -> TrainConfig:
+    """``ncjax train``'s settings with the backbone frozen (learning-rate scale 0: eval mode, no updates)."""
+    return TrainConfig(
+        peak_learning_rate=peak, warmup_steps=warmup, total_steps=total_steps, backbone_learning_rate_scale=0.0
+    )
+
+
+def head_optimizer(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
+    """``ncjax train``'s AdamW (warm-up, cosine, weight decay, clipping) on the head's parameters alone."""
+    return nnx.Optimizer(model, adamw_transform(train_config), wrt=HEAD)
 
 
 def _rolled(maps: list[jax.Array], labels: list[jax.Array], shift: jax.Array):
     """Maps and labels rolled by ``shift`` coarsest columns (``shift * 32`` image columns)."""
-    maps = [jnp.roll(m, shift * (COARSEST_STRIDE // s), axis=2) for m, s in zip(maps, STRIDES, strict=True)]
+    maps = [jnp.roll(m, shift * (COARSEST_STRIDE // s), axis=2) for m, s in zip(maps, FEATURE_STRIDES, strict=True)]
     return maps, [jnp.roll(label, shift * COARSEST_STRIDE, axis=1) for label in labels]
 
 
@@ -140,8 +152,9 @@ def _predict(model, maps):
     return model.sequence_head(model.compressed_columns([m.astype(jnp.float32) for m in maps], WIDTH))
 
 
-def validate(model: HorizonNet, arrays: dict[str, np.ndarray]) -> dict[str, float]:
-    """Table netcorExp's PE and corner P / R of the head on cached valid maps (1 view)."""
+def validate(model: HorizonNet, arrays: dict[str, np.ndarray], train_config: TrainConfig) -> dict[str, float]:
+    """Table netcorExp's PE and corner P / R of the head on cached valid maps (1 view); the model is left in
+    ``train_config``'s train mode."""
     model.eval()
     rows = []
     for start in range(0, len(arrays["ceiling_v"]), BATCH):
@@ -150,8 +163,7 @@ def validate(model: HorizonNet, arrays: dict[str, np.ndarray]) -> dict[str, floa
     ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*rows, strict=True))
     corner_prob = reencode_corner_prob(corner_prob, model.config.corner_base, CORNER_LABEL_BASE)
     table = network_table(ceiling_v, floor_v, corner_prob, *(arrays[k] for k in LABEL_KEYS))
-    model.train()
-    model.backbone.eval()
+    set_train_mode(model, train_config)
     return {key: float(value) for key, value in table.items()}
 
 
@@ -189,19 +201,21 @@ def main(argv: list[str] | None = None) -> int:
     steps_per_epoch = count // BATCH
     total = args.epochs * steps_per_epoch
 
+    train_config = head_training(args.peak_learning_rate, total, args.warmup_steps)
+
     def build(model, _=None):
-        return head_optimizer(model, args.peak_learning_rate, total, args.warmup_steps)
+        return head_optimizer(model, train_config)
 
     if checkpoint.exists():
         model, optimizer, step = load_checkpoint(checkpoint, build)
         print(f"resumed from {checkpoint} at step {step} of {total}")
     else:
         optimizer, step = build(model), 0
-        print(f"{count} training rooms, {total} steps of {BATCH}; before training: {validate(model, valid)}")
-    model.train()
-    model.backbone.eval()  # frozen: its batch statistics too
+        print(
+            f"{count} training rooms, {total} steps of {BATCH}; before training: {validate(model, valid, train_config)}"
+        )
+    set_train_mode(model, train_config)  # the frozen backbone in eval mode: its batch statistics too
     start = time.perf_counter()
-    history = []
     while step < total:
         epoch, losses = step // steps_per_epoch, []
         order = np.random.default_rng((0, epoch)).permutation(count)
@@ -216,9 +230,7 @@ def main(argv: list[str] | None = None) -> int:
             if time.perf_counter() - start > args.time_budget:
                 break
         save_checkpoint(checkpoint, model, optimizer, step=step)
-        scores = validate(model, valid)
-        history.append({"step": step, "loss": float(np.mean(losses)), **scores})
-        print(json.dumps(history[-1]))
+        print(json.dumps({"step": step, "loss": float(np.mean(losses)), **validate(model, valid, train_config)}))
         if time.perf_counter() - start > args.time_budget:
             print(f"time budget spent at step {step} of {total}; the same command resumes from {checkpoint}")
             return 0

@@ -248,11 +248,11 @@ def test_frozen_backbone_rolls_each_map_by_its_stride_and_the_labels_alike():
         jnp.broadcast_to(
             jnp.arange(width // stride, dtype=jnp.float32)[None, None, :, None], (1, 2, width // stride, 3)
         )
-        for stride in module.STRIDES
+        for stride in module.FEATURE_STRIDES
     ]
     labels = [jnp.arange(width, dtype=jnp.float32)[None]]
     rolled_maps, rolled_labels = module._rolled(maps, labels, jnp.asarray(3))
-    for rolled, stride in zip(rolled_maps, module.STRIDES, strict=True):
+    for rolled, stride in zip(rolled_maps, module.FEATURE_STRIDES, strict=True):
         columns = width // stride
         expected = (np.arange(columns) - 3 * 32 // stride) % columns
         np.testing.assert_array_equal(rolled[0, 0, :, 0], expected)
@@ -270,19 +270,20 @@ def test_frozen_backbone_refuses_a_source_it_cannot_render_before_any_work(tmp_p
 def test_frozen_backbone_trains_the_head_and_leaves_the_backbone_as_it_was():
     from flax import nnx
 
+    from ncjax.network.model import stage_channels
+
     module = experiment("frozen_backbone")
     model = module.frozen_model("imagenet", "lite0-1024")
     backbone = jax.tree.map(np.asarray, nnx.state(model.backbone))
     head = jax.tree.map(np.asarray, nnx.state(model.head))
-    model.train()
-    model.backbone.eval()
-    optimizer = module.head_optimizer(model, 1e-3, total_steps=10, warmup=0)
+    train_config = module.head_training(1e-3, total_steps=10, warmup=0)
+    module.set_train_mode(model, train_config)
+    optimizer = module.head_optimizer(model, train_config)
     rng = np.random.default_rng(0)
     height, width = module.HEIGHT, module.WIDTH
-    channels = (24, 40, 112, 320)
     maps = [
         jnp.asarray(rng.normal(size=(2, height // s, width // s, c)), jnp.float16)
-        for s, c in zip(module.STRIDES, channels, strict=True)
+        for s, c in zip(module.FEATURE_STRIDES, stage_channels(model.config), strict=True)
     ]
     labels = [jnp.full((2, width), 150.0), jnp.full((2, width), 380.0), jnp.zeros((2, width))]
     losses = [float(module.train_step(model, optimizer, maps, labels, jax.random.key(i))) for i in range(4)]

@@ -122,6 +122,12 @@ def _optimizer_builder(train_config: TrainConfig):
 
 
 def _adamw(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
+    return nnx.Optimizer(model, adamw_transform(train_config), wrt=nnx.Param)
+
+
+def adamw_transform(train_config: TrainConfig) -> optax.GradientTransformation:
+    """:func:`make_optimizer`'s update rule, for an optimizer of any part of the network (the backbone's updates,
+    where its parameters are among those updated, scaled by ``backbone_learning_rate_scale``)."""
     schedule = optax.warmup_cosine_decay_schedule(
         init_value=0.0,
         peak_value=train_config.peak_learning_rate,
@@ -129,12 +135,11 @@ def _adamw(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
         decay_steps=max(train_config.total_steps, train_config.warmup_steps + 1),
         end_value=train_config.peak_learning_rate * train_config.final_learning_rate_fraction,
     )
-    tx = optax.chain(
+    return optax.chain(
         optax.clip_by_global_norm(train_config.gradient_clip),
         optax.adamw(schedule, weight_decay=train_config.weight_decay),
         optax.masked(optax.scale(train_config.backbone_learning_rate_scale), _backbone_mask),
     )
-    return nnx.Optimizer(model, tx, wrt=nnx.Param)
 
 
 def _backbone_mask(params):
