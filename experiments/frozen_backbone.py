@@ -11,12 +11,15 @@ the augmentation and the backbone's forward pass, once per room, 0.3 s.
 
 ``--backbone imagenet`` freezes the ImageNet weights as they ship (the shipped model's backbone was adapted to
 the renders at a tenth of the learning rate); ``--backbone shipped`` freezes the fine-tuned backbone of the
-model ``--init-head`` names. The head starts from ``--init-head``'s (the shipped model by default). Training
-checkpoints (weights and optimizer, ``--checkpoint``) are written after every epoch and when ``--time-budget``
-runs out; the same command resumes from the last one. Per epoch it prints the mean loss and, on the first
-``--validation-limit`` valid rooms, the boundary error (PE, px of the 1024-wide image) and corner P / R. The
-final weights go to ``--export`` (float16), a model file ``--model`` of ``benchmarks/real_panoramas.py``,
-``benchmarks/central_layouts.py`` and ``experiments/network_table.py`` takes.
+model ``--init-head`` names. The head starts from ``--init-head``'s (the shipped model by default). With
+``--deepest-stages-scale S`` (not 0) the backbone's stages after its stride-16 map (Lite0's last two, three
+quarters of its weights) train too, their updates scaled by ``S``, on the kept stride-16 maps: about 2-2.7
+images/s. Training checkpoints (weights and optimizer, ``--checkpoint``) are written after every epoch and
+when ``--time-budget`` runs out; the same command resumes from the last one. Per epoch it prints the mean loss
+and, on the first ``--validation-limit`` valid rooms, the boundary error (PE, px of the 1024-wide image) and
+corner P / R. The final weights go to ``--export`` (float16), a model file ``--model`` of
+``benchmarks/real_panoramas.py``, ``benchmarks/central_layouts.py`` and ``experiments/network_table.py``
+takes.
 
     uv run python experiments/frozen_backbone.py --data synth-decor-home:601:500 synth-decor-open:602:500 \\
         --backbone imagenet --epochs 8 --export experiments/out/frozen_imagenet.safetensors
@@ -25,6 +28,7 @@ final weights go to ``--export`` (float16), a model file ``--model`` of ``benchm
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import pathlib
 import sys
@@ -56,7 +60,38 @@ HEIGHT, WIDTH = 512, 1024
 # the backbone's coarsest map: a roll by a multiple of its stride rolls every map by whole columns
 COARSEST_STRIDE = max(FEATURE_STRIDES)
 BATCH = 8
-HEAD = nnx.All(nnx.Param, nnx.Not(nnx.PathContains("backbone")))  # what trains
+HEAD = nnx.All(nnx.Param, nnx.Not(nnx.PathContains("backbone")))  # what trains by default
+
+
+def deepest_stages(model: HorizonNet) -> range:
+    """Indices of the backbone's stages between its stride-16 and stride-32 maps (Lite0's 5 and 6)."""
+    previous, last = model.backbone.config.feature_stages()[-2:]
+    return range(previous + 1, last + 1)
+
+
+def trainable(model: HorizonNet, deepest: bool) -> nnx.filterlib.Filter:
+    """The head's parameters, and with ``deepest`` those of :func:`deepest_stages` too."""
+    if not deepest:
+        return HEAD
+    stages = deepest_stages(model)
+
+    def in_deepest_stages(path, _):
+        return path[:2] == ("backbone", "stages") and path[2] in stages
+
+    return nnx.All(nnx.Param, nnx.Any(nnx.Not(nnx.PathContains("backbone")), in_deepest_stages))
+
+
+def coarsest_map(model: HorizonNet, maps: list[jax.Array], deepest: bool) -> list[jax.Array]:
+    """The maps as float32; with ``deepest`` the stride-32 map recomputed from the stride-16 one by
+    :func:`deepest_stages` (the kept one is what the frozen backbone gave)."""
+    maps = [m.astype(jnp.float32) for m in maps]
+    if not deepest:
+        return maps
+    x = maps[-2]
+    for index in deepest_stages(model):
+        for block in model.backbone.stages[index]:
+            x = block(x)
+    return [*maps[:-1], x]
 
 
 def frozen_model(backbone: str, init_head: str) -> HorizonNet:
@@ -114,16 +149,22 @@ def cached_features(source: str, backbone: str, model: HorizonNet) -> dict[str, 
     return result
 
 
-def head_training(peak: float, total_steps: int, warmup: int) -> TrainConfig:
-    """``ncjax train``'s settings with the backbone frozen (learning-rate scale 0: eval mode, no updates)."""
+def head_training(peak: float, total_steps: int, warmup: int, backbone_scale: float = 0.0) -> TrainConfig:
+    """``ncjax train``'s settings; a backbone scale of 0 freezes the whole backbone (eval mode, no updates), any
+    other trains its deepest stages in train mode with updates scaled by it."""
     return TrainConfig(
-        peak_learning_rate=peak, warmup_steps=warmup, total_steps=total_steps, backbone_learning_rate_scale=0.0
+        peak_learning_rate=peak,
+        warmup_steps=warmup,
+        total_steps=total_steps,
+        backbone_learning_rate_scale=backbone_scale,
     )
 
 
 def head_optimizer(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
-    """``ncjax train``'s AdamW (warm-up, cosine, weight decay, clipping) on the head's parameters alone."""
-    return nnx.Optimizer(model, adamw_transform(train_config), wrt=HEAD)
+    """``ncjax train``'s AdamW (warm-up, cosine, weight decay, clipping) on the head's parameters (and the
+    deepest stages' where the backbone's scale is not 0)."""
+    deepest = train_config.backbone_learning_rate_scale > 0
+    return nnx.Optimizer(model, adamw_transform(train_config), wrt=trainable(model, deepest))
 
 
 def _rolled(maps: list[jax.Array], labels: list[jax.Array], shift: jax.Array):
@@ -132,24 +173,24 @@ def _rolled(maps: list[jax.Array], labels: list[jax.Array], shift: jax.Array):
     return maps, [jnp.roll(label, shift * COARSEST_STRIDE, axis=1) for label in labels]
 
 
-@nnx.jit
-def train_step(model, optimizer, maps, labels, key):
+@functools.partial(nnx.jit, static_argnames="deepest")
+def train_step(model, optimizer, maps, labels, key, deepest=False):
     roll_key, dropout_key = jax.random.split(key)
     maps, labels = _rolled(maps, labels, jax.random.randint(roll_key, (), 0, WIDTH // COARSEST_STRIDE))
 
     def loss_fn(model):
-        features = model.compressed_columns([m.astype(jnp.float32) for m in maps], WIDTH)
+        features = model.compressed_columns(coarsest_map(model, maps, deepest), WIDTH)
         prediction = model.sequence_head(features, dropout_key=dropout_key)
         return horizonnet_loss(prediction, *labels, HEIGHT, model.config.corner_base)["loss"]
 
-    loss, grads = nnx.value_and_grad(loss_fn, argnums=nnx.DiffState(0, HEAD))(model)
+    loss, grads = nnx.value_and_grad(loss_fn, argnums=nnx.DiffState(0, trainable(model, deepest)))(model)
     optimizer.update(model, grads)
     return loss
 
 
-@nnx.jit
-def _predict(model, maps):
-    return model.sequence_head(model.compressed_columns([m.astype(jnp.float32) for m in maps], WIDTH))
+@functools.partial(nnx.jit, static_argnames="deepest")
+def _predict(model, maps, deepest=False):
+    return model.sequence_head(model.compressed_columns(coarsest_map(model, maps, deepest), WIDTH))
 
 
 def validate(model: HorizonNet, arrays: dict[str, np.ndarray], train_config: TrainConfig) -> dict[str, float]:
@@ -159,7 +200,8 @@ def validate(model: HorizonNet, arrays: dict[str, np.ndarray], train_config: Tra
     rows = []
     for start in range(0, len(arrays["ceiling_v"]), BATCH):
         maps = [jnp.asarray(arrays[f"map{i}"][start : start + BATCH]) for i in range(4)]
-        rows.append([np.asarray(r) for r in prediction_to_rows(_predict(model, maps), HEIGHT, WIDTH)])
+        prediction = _predict(model, maps, train_config.backbone_learning_rate_scale > 0)
+        rows.append([np.asarray(r) for r in prediction_to_rows(prediction, HEIGHT, WIDTH)])
     ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*rows, strict=True))
     corner_prob = reencode_corner_prob(corner_prob, model.config.corner_base, CORNER_LABEL_BASE)
     table = network_table(ceiling_v, floor_v, corner_prob, *(arrays[k] for k in LABEL_KEYS))
@@ -175,6 +217,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--epochs", type=int, default=8)
     parser.add_argument("--peak-learning-rate", type=float, default=3e-4)
     parser.add_argument("--warmup-steps", type=int, default=50)
+    parser.add_argument(
+        "--deepest-stages-scale",
+        type=float,
+        default=0.0,
+        help="0: the whole backbone frozen; else its stages after the stride-16 map train too, from the kept "
+        "stride-16 maps, their updates scaled by this",
+    )
     parser.add_argument("--time-budget", type=float, default=float("inf"), help="seconds of training, then stop")
     parser.add_argument("--validation-limit", type=int, default=64)
     parser.add_argument("--checkpoint", type=pathlib.Path, help="default: next to --export")
@@ -201,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
     steps_per_epoch = count // BATCH
     total = args.epochs * steps_per_epoch
 
-    train_config = head_training(args.peak_learning_rate, total, args.warmup_steps)
+    train_config = head_training(args.peak_learning_rate, total, args.warmup_steps, args.deepest_stages_scale)
+    deepest = args.deepest_stages_scale > 0
 
     def build(model, _=None):
         return head_optimizer(model, train_config)
@@ -224,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
             maps = [jnp.asarray(train_arrays[f"map{i}"][chosen]) for i in range(4)]
             labels = [jnp.asarray(train_arrays[k][chosen]) for k in LABEL_KEYS]
             losses.append(
-                float(train_step(model, optimizer, maps, labels, jax.random.fold_in(jax.random.key(1), step)))
+                float(train_step(model, optimizer, maps, labels, jax.random.fold_in(jax.random.key(1), step), deepest))
             )
             step += 1
             if time.perf_counter() - start > args.time_budget:

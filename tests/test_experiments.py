@@ -290,3 +290,35 @@ def test_frozen_backbone_trains_the_head_and_leaves_the_backbone_as_it_was():
     assert losses[-1] < losses[0]
     assert jax.tree.all(jax.tree.map(np.array_equal, backbone, jax.tree.map(np.asarray, nnx.state(model.backbone))))
     assert not jax.tree.all(jax.tree.map(np.array_equal, head, jax.tree.map(np.asarray, nnx.state(model.head))))
+
+
+@pytest.mark.slow
+def test_frozen_backbone_deepest_stages_give_the_backbones_coarsest_map_and_train_alone():
+    from flax import nnx
+
+    module = experiment("frozen_backbone")
+    model = module.frozen_model("shipped", "lite0-1024")
+    model.eval()
+    images = jnp.asarray(np.random.default_rng(1).uniform(size=(2, module.HEIGHT, module.WIDTH, 3)), jnp.float32)
+    maps = model.backbone_features(images)
+    recomputed = module.coarsest_map(model, maps, deepest=True)
+    np.testing.assert_allclose(recomputed[-1], maps[-1], atol=1e-4)
+
+    deepest = set(module.deepest_stages(model))
+    assert deepest == {5, 6}  # Lite0: the stages after the stride-16 map
+
+    def stage_params():
+        flat = nnx.to_flat_state(nnx.state(model.backbone.stages, nnx.Param))
+        return {path: np.asarray(value.get_value()) for path, value in flat}
+
+    before = stage_params()
+    train_config = module.head_training(1e-3, total_steps=10, warmup=0, backbone_scale=0.3)
+    module.set_train_mode(model, train_config)
+    optimizer = module.head_optimizer(model, train_config)
+    labels = [jnp.full((2, module.WIDTH), 150.0), jnp.full((2, module.WIDTH), 380.0), jnp.zeros((2, module.WIDTH))]
+    half = [m.astype(jnp.float16) for m in maps]
+    for i in range(2):
+        module.train_step(model, optimizer, half, labels, jax.random.key(i), deepest=True)
+    after = stage_params()
+    changed = {path[0] for path in before if not np.array_equal(before[path], after[path])}
+    assert changed == deepest
