@@ -89,8 +89,7 @@ def coarsest_map(model: HorizonNet, maps: list[jax.Array], deepest: bool) -> lis
         return maps
     x = maps[-2]
     for index in deepest_stages(model):
-        for block in model.backbone.stages[index]:
-            x = block(x)
+        x = model.backbone.stage(index, x)
     return [*maps[:-1], x]
 
 

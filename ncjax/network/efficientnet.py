@@ -358,14 +358,19 @@ class EfficientNet(nnx.Module):
         else:
             self.head = self.classifier = None
 
+    def stage(self, index: int, x: Float[Array, "B H W C"]) -> Float[Array, "B h w D"]:
+        """Stage ``index``'s blocks on ``x``, the previous stage's output (the stem's for stage 0)."""
+        for block in self.stages[index]:
+            x = block(x)
+        return x
+
     def _stage_outputs(self, images: Float[Array, "B H W 3"], last: int) -> list[Array]:
         """Outputs of stages 0 to ``last``."""
         x = (images - jnp.asarray(INPUT_MEAN, images.dtype)) / jnp.asarray(INPUT_STD, images.dtype)
         x = self.stem(x)
         outputs = []
-        for blocks in self.stages[: last + 1]:
-            for block in blocks:
-                x = block(x)
+        for index in range(last + 1):
+            x = self.stage(index, x)
             outputs.append(x)
         return outputs
 
