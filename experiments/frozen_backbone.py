@@ -81,8 +81,8 @@ def trainable(model: HorizonNet, deepest: bool) -> nnx.filterlib.Filter:
     return nnx.All(nnx.Param, nnx.Any(nnx.Not(nnx.PathContains("backbone")), in_deepest_stages))
 
 
-def coarsest_map(model: HorizonNet, maps: list[jax.Array], deepest: bool) -> list[jax.Array]:
-    """The maps as float32; with ``deepest`` the stride-32 map recomputed from the stride-16 one by
+def head_inputs(model: HorizonNet, maps: list[jax.Array], deepest: bool) -> list[jax.Array]:
+    """The kept maps as float32 for the head; with ``deepest`` the stride-32 map recomputed from the stride-16 one by
     :func:`deepest_stages` (the kept one is what the frozen backbone gave)."""
     maps = [m.astype(jnp.float32) for m in maps]
     if not deepest:
@@ -148,6 +148,11 @@ def cached_features(source: str, backbone: str, model: HorizonNet) -> dict[str, 
     return result
 
 
+def trains_deepest_stages(train_config: TrainConfig) -> bool:
+    """Whether :func:`deepest_stages` train (a backbone learning-rate scale other than 0)."""
+    return train_config.backbone_learning_rate_scale > 0
+
+
 def head_training(peak: float, total_steps: int, warmup: int, backbone_scale: float = 0.0) -> TrainConfig:
     """``ncjax train``'s settings; a backbone scale of 0 freezes the whole backbone (eval mode, no updates), any
     other trains its deepest stages in train mode with updates scaled by it."""
@@ -162,8 +167,9 @@ def head_training(peak: float, total_steps: int, warmup: int, backbone_scale: fl
 def head_optimizer(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
     """``ncjax train``'s AdamW (warm-up, cosine, weight decay, clipping) on the head's parameters (and the
     deepest stages' where the backbone's scale is not 0)."""
-    deepest = train_config.backbone_learning_rate_scale > 0
-    return nnx.Optimizer(model, adamw_transform(train_config), wrt=trainable(model, deepest))
+    return nnx.Optimizer(
+        model, adamw_transform(train_config), wrt=trainable(model, trains_deepest_stages(train_config))
+    )
 
 
 def _rolled(maps: list[jax.Array], labels: list[jax.Array], shift: jax.Array):
@@ -178,7 +184,7 @@ def train_step(model, optimizer, maps, labels, key, deepest=False):
     maps, labels = _rolled(maps, labels, jax.random.randint(roll_key, (), 0, WIDTH // COARSEST_STRIDE))
 
     def loss_fn(model):
-        features = model.compressed_columns(coarsest_map(model, maps, deepest), WIDTH)
+        features = model.compressed_columns(head_inputs(model, maps, deepest), WIDTH)
         prediction = model.sequence_head(features, dropout_key=dropout_key)
         return horizonnet_loss(prediction, *labels, HEIGHT, model.config.corner_base)["loss"]
 
@@ -189,7 +195,7 @@ def train_step(model, optimizer, maps, labels, key, deepest=False):
 
 @functools.partial(nnx.jit, static_argnames="deepest")
 def _predict(model, maps, deepest=False):
-    return model.sequence_head(model.compressed_columns(coarsest_map(model, maps, deepest), WIDTH))
+    return model.sequence_head(model.compressed_columns(head_inputs(model, maps, deepest), WIDTH))
 
 
 def validate(model: HorizonNet, arrays: dict[str, np.ndarray], train_config: TrainConfig) -> dict[str, float]:
@@ -199,7 +205,7 @@ def validate(model: HorizonNet, arrays: dict[str, np.ndarray], train_config: Tra
     rows = []
     for start in range(0, len(arrays["ceiling_v"]), BATCH):
         maps = [jnp.asarray(arrays[f"map{i}"][start : start + BATCH]) for i in range(4)]
-        prediction = _predict(model, maps, train_config.backbone_learning_rate_scale > 0)
+        prediction = _predict(model, maps, trains_deepest_stages(train_config))
         rows.append([np.asarray(r) for r in prediction_to_rows(prediction, HEIGHT, WIDTH)])
     ceiling_v, floor_v, corner_prob = (np.concatenate(parts) for parts in zip(*rows, strict=True))
     corner_prob = reencode_corner_prob(corner_prob, model.config.corner_base, CORNER_LABEL_BASE)
@@ -250,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     total = args.epochs * steps_per_epoch
 
     train_config = head_training(args.peak_learning_rate, total, args.warmup_steps, args.deepest_stages_scale)
-    deepest = args.deepest_stages_scale > 0
+    deepest = trains_deepest_stages(train_config)
 
     def build(model, _=None):
         return head_optimizer(model, train_config)
@@ -263,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{count} training rooms, {total} steps of {BATCH}; before training: {validate(model, valid, train_config)}"
         )
-    set_train_mode(model, train_config)  # the frozen backbone in eval mode: its batch statistics too
+    set_train_mode(model, train_config)  # a frozen backbone stays in eval mode, its batch statistics too
     start = time.perf_counter()
     while step < total:
         epoch, losses = step // steps_per_epoch, []

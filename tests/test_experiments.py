@@ -301,7 +301,7 @@ def test_frozen_backbone_deepest_stages_give_the_backbones_coarsest_map_and_trai
     model.eval()
     images = jnp.asarray(np.random.default_rng(1).uniform(size=(2, module.HEIGHT, module.WIDTH, 3)), jnp.float32)
     maps = model.backbone_features(images)
-    recomputed = module.coarsest_map(model, maps, deepest=True)
+    recomputed = module.head_inputs(model, maps, deepest=True)
     np.testing.assert_allclose(recomputed[-1], maps[-1], atol=1e-4)
 
     deepest = set(module.deepest_stages(model))
