@@ -322,3 +322,28 @@ def test_frozen_backbone_deepest_stages_give_the_backbones_coarsest_map_and_trai
     after = stage_params()
     changed = {path[0] for path in before if not np.array_equal(before[path], after[path])}
     assert changed == deepest
+
+
+def test_plan_layouts_recovers_a_turned_manhattan_room_from_its_exact_rows(tmp_path):
+    from test_export import L_SHAPE, make_layout
+
+    from ncjax.io.formats import format_path, write_layout_formats
+    from ncjax.io.formats_read import read_layout
+    from ncjax.metrics_central import evaluate_corners, room_geometry, surface_classes
+    from ncjax.synth.rooms import corner_target
+
+    module = experiment("plan_layouts")
+    cam = ncjax.NonCentralPanorama(1024, 512, rc=0.0)
+    turn = np.radians(25.0)
+    rotation = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    write_layout_formats(tmp_path / "label", make_layout(np.asarray(L_SHAPE) @ rotation.T), cam, "label_cor")
+    label = read_layout(format_path(tmp_path / "label", "label_cor"), 1024, 512)
+    classes = surface_classes(room_geometry(label, metric=False), 1024, 512)
+    ceiling_v = np.sum(classes == 0, axis=0) - 0.5
+    floor_v = 512 - np.sum(classes == 2, axis=0) - 0.5
+    corner_prob = np.asarray(corner_target(label.floor[:, 0], np.ones(len(label.floor), bool), 1024))
+    corners = module.plan_layout(ceiling_v, floor_v, corner_prob, cam)
+    assert len(corners.floor) == len(L_SHAPE)
+    assert evaluate_corners(corners, label)["iou3d"] > 0.97
+    assert module.rows_explained(corners, ceiling_v, floor_v, 3.0) > 0.95
+    assert module.rows_explained(corners, ceiling_v + 20.0, floor_v, 3.0) < 0.55
