@@ -347,3 +347,22 @@ def test_plan_layouts_recovers_a_turned_manhattan_room_from_its_exact_rows(tmp_p
     assert evaluate_corners(corners, label)["iou3d"] > 0.97
     assert module.rows_explained(corners, ceiling_v, floor_v, 3.0) > 0.95
     assert module.rows_explained(corners, ceiling_v + 20.0, floor_v, 3.0) < 0.55
+
+
+def test_doorway_rows_classes_each_column_by_what_stands_just_above_its_floor_line():
+    from ncjax.synth.render import Semantic
+
+    module = experiment("doorway_rows")
+    semantic = np.full((8, 4), Semantic.WALL)
+    semantic[6:] = Semantic.FLOOR
+    semantic[2:6, 1] = Semantic.OPENING  # a doorway in column 1
+    semantic[4:6, 2] = Semantic.OBJECT  # a cabinet low in column 2
+    floor_v = np.array([6.0, 6.0, 6.0, 2.0])  # column 3: its line near the top, 3 rows above it is row 0
+    classes = module.column_classes(semantic, floor_v)
+    assert classes.tolist() == [Semantic.WALL, Semantic.OPENING, Semantic.WALL, Semantic.WALL]
+    semantic[3, 2] = Semantic.OBJECT
+    assert module.column_classes(semantic, floor_v)[2] == Semantic.OBJECT
+    errors = {"class": classes, "floor": np.array([1.0, 20.0, 3.0, 5.0]), "ceiling": np.zeros(4)}
+    lines = module.table_lines("renders", errors)
+    assert lines[0] == "| renders, doorway | 25.0% | 20.0 / 100.0% | 0.0 / 0.0% |"
+    assert lines[1] == "| renders, wall | 75.0% | 3.0 / 0.0% | 0.0 / 0.0% |"

@@ -1,0 +1,102 @@
+"""Do the network's rows cross doorways and furniture on its own photo-like renders, as they fail to on photographs?
+
+On the photographs the rows leave the wall where a doorway shows the next room (40-60 px over a tenth of the
+columns) and where furniture hides the floor line. This experiment asks whether the renders taught the network
+those cases: if its rows are as good there as elsewhere on renders, what is missing is renders whose doorways and
+furniture look like real ones, not more of the same.
+
+It renders rooms of ``synth-decor-open`` (doors, half of them wide passages to the next room) and
+``synth-decor-home`` (pale walls, furniture), seeds no model was trained on (those of
+``experiments/central_renders.py``), each through one random camera of the training augmentation, and gets the
+shipped model's rows (4 views, edge snap, as ``ncjax reconstruct``). Each column is put in one class by what the
+rendering shows just above its true floor line (3 rows up, on the wall plane): a door or what is seen through an
+open one (``Semantic.OPENING``), furniture in front of the wall (``OBJECT``), or the wall. Per class it prints the
+share of columns and the floor and ceiling rows' mean absolute error and share of columns more than 10 px off
+(rows of the 512-row image, as ``benchmarks/real_panoramas.py``).
+
+    uv run python experiments/doorway_rows.py [--rooms 64]
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm import tqdm
+
+import ncjax
+from ncjax.network.predict import default_model
+from ncjax.synth.augment import random_augment
+from ncjax.synth.dataset import rendered_samples, rendering_rgb8
+from ncjax.synth.render import Semantic
+from ncjax.training.data import SYNTH_SOURCES
+
+KINDS = ("synth-decor-open", "synth-decor-home")
+SEED = 401  # experiments/central_renders.py's: in no training stage
+ROWS_ABOVE = 3
+FAR = 10.0  # px
+CLASSES = {"doorway": Semantic.OPENING, "furniture": Semantic.OBJECT, "wall": Semantic.WALL}
+
+
+def column_classes(semantic: np.ndarray, floor_v: np.ndarray) -> np.ndarray:
+    """The :class:`Semantic` class of each column's pixel ``ROWS_ABOVE`` rows above its true floor line."""
+    rows = np.clip(np.floor(floor_v).astype(int) - ROWS_ABOVE, 0, semantic.shape[0] - 1)
+    return semantic[rows, np.arange(semantic.shape[1])]
+
+
+def kind_errors(kind: str, seed: int, rooms: int, model) -> dict[str, np.ndarray]:
+    """Per column of ``rooms`` renders of ``kind``: its class and the floor and ceiling rows' absolute errors."""
+    augment = jax.jit(random_augment)
+    classes, floor_error, ceiling_error = [], [], []
+    for index, _scene, rendering, labels in tqdm(
+        rendered_samples(rooms, seed, SYNTH_SOURCES[kind]), total=rooms, desc=kind
+    ):
+        rgb = jnp.asarray(rendering_rgb8(rendering).astype(np.float32) / 255.0)
+        photo = augment(jax.random.fold_in(jax.random.key(seed), index), rgb)
+        image = np.round(np.clip(np.asarray(photo), 0, 1) * 255).astype(np.uint8)
+        ceiling_v, floor_v, _ = ncjax.predict_boundaries(image, model)
+        scale = 512 / image.shape[0]
+        classes.append(column_classes(np.asarray(rendering.semantic), np.asarray(labels.floor_v)))
+        floor_error.append(np.abs(floor_v - np.asarray(labels.floor_v)) * scale)
+        ceiling_error.append(np.abs(ceiling_v - np.asarray(labels.ceiling_v)) * scale)
+    return {
+        "class": np.concatenate(classes),
+        "floor": np.concatenate(floor_error),
+        "ceiling": np.concatenate(ceiling_error),
+    }
+
+
+def table_lines(name: str, errors: dict[str, np.ndarray]) -> list[str]:
+    lines = []
+    for label, semantic in CLASSES.items():
+        picked = errors["class"] == semantic
+        if not picked.any():
+            continue
+        floor, ceiling = errors["floor"][picked], errors["ceiling"][picked]
+        lines.append(
+            f"| {name}, {label} | {np.mean(picked):.1%} | {np.mean(floor):.1f} / {np.mean(floor > FAR):.1%} "
+            f"| {np.mean(ceiling):.1f} / {np.mean(ceiling > FAR):.1%} |"
+        )
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rooms", type=int, default=64, help="rooms per kind")
+    args = parser.parse_args(argv)
+    if args.rooms < 1:
+        parser.error("--rooms must be at least 1")
+    model = default_model()
+    per_kind = {kind: kind_errors(kind, SEED + i, args.rooms, model) for i, kind in enumerate(KINDS)}
+    print(f"{args.rooms} rooms per kind, seeds {SEED} and {SEED + 1}; rows of a 512-row image")
+    print(f"| renders, column class | columns | floor: mean px / > {FAR:.0f} px | ceiling: mean px / > {FAR:.0f} px |")
+    print("| --- | --- | --- | --- |")
+    for kind, errors in per_kind.items():
+        print("\n".join(table_lines(kind, errors)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
