@@ -78,20 +78,27 @@ SETTINGS = {
 DEFAULT_SETTINGS = ("auto", "manhattan", "atlanta", "margin 0.1", "margin 0.2", "own heights")
 
 
+_augment = jax.jit(random_augment)
+
+
+def photo_like_image(seed: int, index: int, rendering) -> np.ndarray:
+    """Rendering ``index`` of ``seed``'s through its random camera of the training augmentation: an RGB uint8 image."""
+    rgb = rendering_rgb8(rendering).astype(np.float32) / 255.0
+    photo = _augment(jax.random.fold_in(jax.random.key(seed), index), jnp.asarray(rgb))
+    return np.round(np.clip(np.asarray(photo), 0, 1) * 255).astype(np.uint8)
+
+
 def photo_like_rows(kind: str, seed: int, rooms: int, model_path: Path) -> dict[str, np.ndarray]:
     """Render ``rooms`` rooms of ``kind``, pass each through a random camera and the network; cached."""
     cache = OUT / f"central_renders_{kind}_{seed}_{rooms}{model_suffix(model_path)}.npz"
     if cache.exists():
         return dict(np.load(cache))
     model = load_model(model_path)
-    augment = jax.jit(random_augment)
     images, truth = [], []
     for index, _scene, rendering, labels in tqdm(
         rendered_samples(rooms, seed, SYNTH_SOURCES[kind], BATCH), total=rooms, desc=f"render {kind}"
     ):
-        rgb = rendering_rgb8(rendering).astype(np.float32) / 255.0
-        photo = augment(jax.random.fold_in(jax.random.key(seed), index), jnp.asarray(rgb))
-        images.append(np.round(np.clip(np.asarray(photo), 0, 1) * 255).astype(np.uint8))
+        images.append(photo_like_image(seed, index, rendering))
         mask = np.asarray(labels.corner_mask)
         truth.append((np.asarray(labels.ceiling_corners)[mask], np.asarray(labels.floor_corners)[mask]))
     rows = {"ceiling_v": [], "floor_v": [], "corner_prob": []}

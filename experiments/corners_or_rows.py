@@ -19,13 +19,14 @@ import argparse
 import pathlib
 import sys
 import tempfile
+from collections.abc import Iterator
 
 import jax
 import numpy as np
 
 import ncjax
 from ncjax.io.export import status_has_geometry
-from ncjax.io.formats import format_path, write_layout_formats
+from ncjax.io.formats import LayoutCorners, format_path, write_layout_formats
 from ncjax.io.formats_read import read_layout
 from ncjax.io.images import read_panorama
 from ncjax.metrics_central import evaluate_corners
@@ -38,42 +39,67 @@ sys.path.insert(0, str(pathlib.Path(__file__).parents[1] / "benchmarks"))
 from central_layouts import labelled_images
 
 
-def layout_iou(layout: ncjax.Layout, cam: ncjax.NonCentralPanorama, label, folder: pathlib.Path) -> float:
-    """3D IoU of one layout's label_cor against the label (0 without a layout or a scorable one)."""
+def labelled_rows(
+    folder: pathlib.Path, model
+) -> Iterator[tuple[pathlib.Path, ncjax.NonCentralPanorama, LayoutCorners, tuple]]:
+    """Per labelled panorama of ``folder``: its path, its central camera, its label and ``model``'s
+    ``(ceiling_v, floor_v, corner_prob)`` (4 views, edge snap)."""
+    for image_path, label_path in labelled_images(folder):
+        image = read_panorama(image_path)
+        height, width = image.shape[:2]
+        cam = ncjax.NonCentralPanorama(width, height, rc=0.0)
+        yield image_path, cam, read_layout(label_path, width, height), ncjax.predict_boundaries(image, model)
+
+
+def central_layout(ceiling_v, floor_v, corner_prob, cam: ncjax.NonCentralPanorama) -> ncjax.Layout:
+    """The central pipeline's layout of these rows (``NETWORK_PIPELINE_CONFIG``, world auto, camera height 1.6 m)."""
+    prior = HeightPrior("camera_height", DEFAULT_CAMERA_HEIGHT)
+    layout = ncjax.layout_from_boundaries(
+        ceiling_v, floor_v, corner_prob, cam, "auto", NETWORK_PIPELINE_CONFIG, prior=prior
+    )
+    return jax.device_get(layout)
+
+
+def written_layout(layout: ncjax.Layout, cam: ncjax.NonCentralPanorama, folder: pathlib.Path) -> LayoutCorners | None:
+    """One layout as its label_cor in ``folder`` gives it back (None without a layout)."""
     if not status_has_geometry(bool(layout.ok), int(layout.status)):
-        return 0.0
+        return None
     stem = folder / "layout"
     write_layout_formats(stem, layout, cam, "label_cor")
+    return read_layout(format_path(stem, "label_cor"), cam.width, cam.height)
+
+
+def corners_iou(corners: LayoutCorners | None, label: LayoutCorners) -> float:
+    """3D IoU of written corners against the label (0 without a layout or a scorable one)."""
+    if corners is None:
+        return 0.0
     try:
-        return evaluate_corners(read_layout(format_path(stem, "label_cor"), cam.width, cam.height), label)["iou3d"]
+        return evaluate_corners(corners, label)["iou3d"]
     except ValueError:  # a corner at or across the horizon: no point at camera height 1
         return 0.0
+
+
+def layout_iou(layout: ncjax.Layout, cam: ncjax.NonCentralPanorama, label, folder: pathlib.Path) -> float:
+    """3D IoU of one layout's label_cor against the label (0 without a layout or a scorable one)."""
+    return corners_iou(written_layout(layout, cam, folder), label)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=pathlib.Path, required=True, help="folder of panoramas with label_cor .txt")
     args = parser.parse_args(argv)
-    prior = HeightPrior("camera_height", DEFAULT_CAMERA_HEIGHT)
     model = default_model()
     ious = {"network corners": [], "labelled corners": []}
     print("| image | network corners | labelled corners |")
     print("| --- | --- | --- |")
     with tempfile.TemporaryDirectory() as work:
-        for image_path, label_path in labelled_images(args.data):
-            image = read_panorama(image_path)
-            height, width = image.shape[:2]
-            cam = ncjax.NonCentralPanorama(width, height, rc=0.0)
-            label = read_layout(label_path, width, height)
-            ceiling_v, floor_v, corner_prob = ncjax.predict_boundaries(image, model)
+        for image_path, cam, label, (ceiling_v, floor_v, corner_prob) in labelled_rows(args.data, model):
             columns = np.asarray(label.floor)[:, 0]
-            labelled = np.asarray(corner_target(columns, np.ones(len(columns), bool), width))
+            labelled = np.asarray(corner_target(columns, np.ones(len(columns), bool), cam.width))
             row = []
             for name, probability in (("network corners", corner_prob), ("labelled corners", labelled)):
-                layout = ncjax.layout_from_boundaries(
-                    ceiling_v, floor_v, probability, cam, "auto", NETWORK_PIPELINE_CONFIG, prior=prior
-                )
-                ious[name].append(layout_iou(jax.device_get(layout), cam, label, pathlib.Path(work)))
+                layout = central_layout(ceiling_v, floor_v, probability, cam)
+                ious[name].append(layout_iou(layout, cam, label, pathlib.Path(work)))
                 row.append(f"{ious[name][-1]:.3f}")
             print(f"| {image_path.stem} | {' | '.join(row)} |", flush=True)
     means = {name: np.mean(values) for name, values in ious.items()}

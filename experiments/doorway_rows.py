@@ -20,21 +20,22 @@ share of columns and the floor and ceiling rows' mean absolute error and share o
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
 import ncjax
 from ncjax.network.predict import default_model
-from ncjax.synth.augment import random_augment
-from ncjax.synth.dataset import rendered_samples, rendering_rgb8
+from ncjax.synth.dataset import rendered_samples
 from ncjax.synth.render import Semantic
 from ncjax.training.data import SYNTH_SOURCES
 
+sys.path.insert(0, str(Path(__file__).parent))
+from central_renders import DEFAULT_SEED, photo_like_image
+
 KINDS = ("synth-decor-open", "synth-decor-home")
-SEED = 401  # experiments/central_renders.py's: in no training stage
 ROWS_ABOVE = 3
 FAR = 10.0  # px
 CLASSES = {"doorway": Semantic.OPENING, "furniture": Semantic.OBJECT, "wall": Semantic.WALL}
@@ -48,14 +49,11 @@ def column_classes(semantic: np.ndarray, floor_v: np.ndarray) -> np.ndarray:
 
 def kind_errors(kind: str, seed: int, rooms: int, model) -> dict[str, np.ndarray]:
     """Per column of ``rooms`` renders of ``kind``: its class and the floor and ceiling rows' absolute errors."""
-    augment = jax.jit(random_augment)
     classes, floor_error, ceiling_error = [], [], []
     for index, _scene, rendering, labels in tqdm(
         rendered_samples(rooms, seed, SYNTH_SOURCES[kind]), total=rooms, desc=kind
     ):
-        rgb = jnp.asarray(rendering_rgb8(rendering).astype(np.float32) / 255.0)
-        photo = augment(jax.random.fold_in(jax.random.key(seed), index), rgb)
-        image = np.round(np.clip(np.asarray(photo), 0, 1) * 255).astype(np.uint8)
+        image = photo_like_image(seed, index, rendering)
         ceiling_v, floor_v, _ = ncjax.predict_boundaries(image, model)
         scale = 512 / image.shape[0]
         classes.append(column_classes(np.asarray(rendering.semantic), np.asarray(labels.floor_v)))
@@ -89,8 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.rooms < 1:
         parser.error("--rooms must be at least 1")
     model = default_model()
-    per_kind = {kind: kind_errors(kind, SEED + i, args.rooms, model) for i, kind in enumerate(KINDS)}
-    print(f"{args.rooms} rooms per kind, seeds {SEED} and {SEED + 1}; rows of a 512-row image")
+    per_kind = {kind: kind_errors(kind, DEFAULT_SEED + i, args.rooms, model) for i, kind in enumerate(KINDS)}
+    print(f"{args.rooms} rooms per kind, seeds {DEFAULT_SEED} and {DEFAULT_SEED + 1}; rows of a 512-row image")
     print(f"| renders, column class | columns | floor: mean px / > {FAR:.0f} px | ceiling: mean px / > {FAR:.0f} px |")
     print("| --- | --- | --- | --- |")
     for kind, errors in per_kind.items():

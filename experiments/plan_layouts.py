@@ -31,24 +31,18 @@ import pathlib
 import sys
 import tempfile
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 import ncjax
 from ncjax.io.formats import LayoutCorners, corners_from_3d, pixel_angles
-from ncjax.io.formats_read import read_layout
-from ncjax.io.images import read_panorama
 from ncjax.metrics_central import evaluate_corners, room_geometry, surface_classes
 from ncjax.network.predict import default_model
 from ncjax.pipeline.corners import configured_corners
-from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-sys.path.insert(0, str(pathlib.Path(__file__).parents[1] / "benchmarks"))
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
-from central_layouts import labelled_images
-from corners_or_rows import layout_iou
+from corners_or_rows import central_layout, corners_iou, labelled_rows, written_layout
 
 YAWS = np.radians(np.arange(0.0, 90.0, 0.25))
 CORNER_MARGIN = 4  # columns next to a corner peak left out of its walls
@@ -163,27 +157,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=pathlib.Path, required=True, help="folder of panoramas with label_cor .txt")
     args = parser.parse_args(argv)
-    prior = HeightPrior("camera_height", DEFAULT_CAMERA_HEIGHT)
     model = default_model()
     threshold = NETWORK_PIPELINE_CONFIG.inlier_threshold
     scores = {"pipeline": [], "plan": [], "more rows explained": [], "better of the two": []}
     print("| image | pipeline (rows explained) | plan (rows explained) |")
     print("| --- | --- | --- |")
     with tempfile.TemporaryDirectory() as work:
-        for image_path, label_path in labelled_images(args.data):
-            image = read_panorama(image_path)
-            height, width = image.shape[:2]
-            cam = ncjax.NonCentralPanorama(width, height, rc=0.0)
-            label = read_layout(label_path, width, height)
-            ceiling_v, floor_v, corner_prob = ncjax.predict_boundaries(image, model)
-            layout = ncjax.layout_from_boundaries(
-                ceiling_v, floor_v, corner_prob, cam, "auto", NETWORK_PIPELINE_CONFIG, prior=prior
-            )
-            pipeline = layout_iou(jax.device_get(layout), cam, label, pathlib.Path(work))
-            pipeline_rows = 0.0
-            if pipeline > 0:
-                written = read_layout(pathlib.Path(work) / "layout.label_cor.txt", width, height)
-                pipeline_rows = rows_explained(written, ceiling_v, floor_v, threshold)
+        for image_path, cam, label, (ceiling_v, floor_v, corner_prob) in labelled_rows(args.data, model):
+            written = written_layout(central_layout(ceiling_v, floor_v, corner_prob, cam), cam, pathlib.Path(work))
+            pipeline = corners_iou(written, label)
+            pipeline_rows = rows_explained(written, ceiling_v, floor_v, threshold) if pipeline > 0 else 0.0
             corners = plan_layout(ceiling_v, floor_v, corner_prob, cam)
             plan = plan_rows = 0.0
             if corners is not None:
