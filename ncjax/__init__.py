@@ -67,7 +67,7 @@ from .network.scores import boundary_pixel_error, corner_confusion, corner_score
 from .pipeline.config import DEFAULT_WORLD, PipelineConfig
 from .pipeline.types import Layout, LayoutStatus
 from .pipeline.prior import HeightPrior
-from .pipeline.run import layout_from_boundaries
+from .pipeline.batch import layout_from_boundaries
 
 # The whole method: panorama -> network -> geometry (paper Fig. pipeline)
 from .reconstruction import NETWORK_PIPELINE_CONFIG, Reconstruction, reconstruct, reconstruct_batch

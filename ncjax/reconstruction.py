@@ -4,7 +4,7 @@ The two blocks of the paper's Fig. pipeline in ONE jitted function: the image
 is resized to the network's input size, the network's per-column outputs are
 brought back to the image's columns and rows (:func:`~ncjax.network.model.prediction_to_rows`)
 and snapped to the full image's edges (:func:`~ncjax.network.edges.snap_to_edges`), and the
-geometric pipeline (:func:`~ncjax.pipeline.run.layout_for`)
+geometric pipeline (:func:`~ncjax.pipeline.run.fit_walls`, then :func:`~ncjax.pipeline.run.finish`)
 runs on them with each image's own camera radius. Nothing leaves the device
 between the two blocks, and a batch of images is one call. With a
 ``program_cache`` the same computation runs as three saved programs (the
@@ -37,46 +37,36 @@ from .network.checkpoint import ModelWeights, load_model, model_from_weights, mo
 from .network.edges import EdgeSnap
 from .network.model import HorizonNet, check_views
 from .network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, image_boundaries
-from .pipeline.config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
-from .pipeline.prior import HeightPrior, scale_conflict
-from .pipeline.run import WallsToAdjust, layout_of_walls, panorama_keys, walls_for
-from .pipeline.types import Layout, LayoutStatus
+from .pipeline.batch import panorama_keys
+from .pipeline.config import (
+    DEFAULT_WORLD,
+    WORLDS,
+    ChecksConfig,
+    CornerConfig,
+    FloorCheckConfig,
+    OcclusionConfig,
+    PipelineConfig,
+    PriorConfig,
+    UncertaintyConfig,
+)
+from .pipeline.prior import HeightPrior, flag_scale_conflicts
+from .pipeline.run import FittedWalls, finish, fit_walls
+from .pipeline.types import Layout, LayoutStatus, Rows
 from .programs import call_saved, load_saved, result_like
 
-# The pipeline's defaults suit exact and white-noise rows. The network's corner probability has lobes several
-# columns wide, in which NMS over +-2 columns leaves spurious second peaks: +-4 columns and a 0.4 threshold keep one
-# peak per corner more often. Network rows snapped to the image's edges are exact to a fraction of a pixel in most
-# columns, so the noise-scaled part of the occlusion test falls to its floor, but not beside the corners, where two
-# walls' edges mix: a jump there must reach 8 px, not 4, to count as an occlusion. Chosen for the shipped model on
-# tuning renders, never the test renders (experiments/tune_network_pipeline.py; experiments/RESULTS.md).
-# A layout whose room height the rows fix no better than 15% (one sigma of the calibrated covariance below) fails
-# with UNCERTAIN_SCALE: on the tuning renders two thirds of the ok layouts this fails were more than 0.3 m off, and
-# 0.15 is the smallest threshold at which they were in both worlds (experiments/RESULTS.md).
-# Floor rows more than 2 px from the row their column's ceiling row implies are replaced by it for the walls' fits
-# (step 0, ncjax.pipeline.floor_check; 2 and 3 px compared on the tuning renders, experiments/RESULTS.md).
-# A layout that reprojects fewer than 60% of the usable rows within 3 px is flagged LOW_CONFIDENCE: on the tuning
-# renders the fewest was 72% (none flagged), on real photographs 19-79%, and the layouts below 60% there had a mean
-# 3D IoU of 0.44 against 0.68 above (experiments/confidence.py; experiments/RESULTS.md).
-# A non-central layout whose geometry could not fix its scale (UNCERTAIN_SCALE) takes the height prior's; it is
-# flagged SCALE_CONFLICT where the height its parallax measured lies more than 3 standard deviations (the rows' and
-# the prior's) from the prior's: on the tuning renders such fallbacks were at most 1.0 sigma away (the rows of one
-# room leave the scale free, not wrong), the real capture L101, whose rows run along desks, 4.4 (a 0.25 m camera
-# against 1.6 m) (experiments/confidence.py; experiments/RESULTS.md).
-# The covariances count two errors of the network's rows that the fit absorbs and its residuals cannot show: an
-# offset per wall and boundary (2 times the rows' noise and 1 px, combined) and the corner columns' error (2 px):
-# the setting whose 95% ellipses and height intervals covered nearest 93.5% of the truth (the middle of the 90-97%
-# goal) on 256 tuning renders per world (experiments/calibrate_uncertainty.py).
+# The pipeline's settings for the shipped network's rows, chosen on tuning renders, never the test renders (the
+# figures behind each value: experiments/RESULTS.md, "The network's pipeline settings"): one corner peak per lobe
+# (threshold 0.4, +-4 columns), occlusion jumps of 8 px beside corners where two walls' edges mix, floor rows more than
+# 2 px off their ceiling's replaced (step 0), UNCERTAIN_SCALE beyond 15% of the room height, LOW_CONFIDENCE below 60%
+# of the rows explained, SCALE_CONFLICT beyond 3 sigmas from a height prior, and the covariances' share of the errors
+# the fit absorbs (experiments/calibrate_uncertainty.py).
 NETWORK_PIPELINE_CONFIG = PipelineConfig(
-    corner_threshold=0.4,
-    nms_radius=4.0,
-    occlusion_threshold=8.0,
-    max_height_uncertainty=0.15,
-    floor_consistency_threshold=2.0,
-    min_explained_fraction=0.6,
-    max_scale_conflict=3.0,
-    wall_offset_ratio=2.0,
-    wall_offset_noise=1.0,
-    corner_column_noise=2.0,
+    floor_check=FloorCheckConfig(threshold=2.0),
+    corners=CornerConfig(threshold=0.4, nms_radius=4.0),
+    occlusion=OcclusionConfig(threshold=8.0),
+    uncertainty=UncertaintyConfig(wall_offset_ratio=2.0, wall_offset_noise=1.0, corner_column_noise=2.0),
+    checks=ChecksConfig(max_height_uncertainty=0.15, min_explained_fraction=0.6),
+    prior=PriorConfig(max_scale_conflict=3.0),
 )
 
 
@@ -122,219 +112,175 @@ class Reconstruction(NamedTuple):
     geometry: Layout | None = None
 
 
-def _walls_of_rows(
-    ceiling_v: Float[Array, "B W"],
-    floor_v: Float[Array, "B W"],
-    corner_prob: Float[Array, "B W"],
+def _fitted_walls(
+    rows: Rows,
     image_height: int,
     rc: Float[Array, " B"],
     keys: Key[Array, " B"],
-    thresholds: dict[str, Float[Array, ""]],
     prior: HeightPrior | None,
-    world: str,
     config: PipelineConfig,
-) -> WallsToAdjust:
-    """Steps 0-4 of the geometric pipeline on each panorama's rows, with its own radius, key and prior."""
-    config = with_traced(config, thresholds)
-
-    def one(ceiling, floor, probability, radius, one_prior, key):
-        cam = NonCentralPanorama(ceiling_v.shape[-1], image_height, rc=radius)
-        return walls_for(ceiling, floor, probability, cam, one_prior, key, world, config)
-
-    return jax.vmap(one)(ceiling_v, floor_v, corner_prob, rc, prior, keys)
-
-
-def _layouts_of_walls(
-    walls: WallsToAdjust,
-    thresholds: dict[str, Float[Array, ""]],
-    prior: HeightPrior | None,
     world: str,
-    config: PipelineConfig,
-) -> Layout:
-    """Steps 5-6 of :func:`_walls_of_rows`' walls."""
-    config = with_traced(config, thresholds)
-    return jax.vmap(lambda w, p: layout_of_walls(w, p, world, config))(walls, prior)
+) -> FittedWalls:
+    """Steps 0-4 of the geometric pipeline (:func:`~ncjax.pipeline.run.fit_walls`) on each panorama's rows
+    (B leading), with its own radius, key and prior."""
+
+    def one(panorama_rows, radius, one_prior, key):
+        cam = NonCentralPanorama(panorama_rows.ceiling.shape[-1], image_height, rc=radius)
+        return fit_walls(panorama_rows, cam, one_prior, key, config, world)
+
+    return jax.vmap(one)(rows, rc, prior, keys)
 
 
-def _reconstruction(layouts: Layout, rows, rc: Float[Array, " B"], prior: HeightPrior | None) -> Reconstruction:
+def _finished(walls: FittedWalls, prior: HeightPrior | None, config: PipelineConfig, world: str) -> Layout:
+    """Steps 5-6 (:func:`~ncjax.pipeline.run.finish`) of :func:`_fitted_walls`' walls."""
+    return jax.vmap(lambda w, p: finish(w, p, config, world))(walls, prior)
+
+
+def _reconstruction(layouts: Layout, rows: Rows, prior: HeightPrior | None) -> Reconstruction:
     """A batch's layouts and rows, each scale from the geometry or, with a prior, from the prior."""
-    return Reconstruction(layouts, *rows, jnp.full(rc.shape, GEOMETRY if prior is None else PRIOR))
+    source = jnp.full(rows.ceiling.shape[:1], GEOMETRY if prior is None else PRIOR)
+    return Reconstruction(layouts, rows.ceiling, rows.floor, rows.corner_prob, source)
 
 
 def _geometry_body(
-    rows: tuple[Float[Array, "B W"], Float[Array, "B W"], Float[Array, "B W"]],
+    rows: Rows,
     image_height: int,
     rc: Float[Array, " B"],
     keys: Key[Array, " B"],
-    thresholds: dict[str, Float[Array, ""]],
     prior: HeightPrior | None,
-    world: str,
     config: PipelineConfig,
+    world: str,
 ) -> Layout:
-    """The geometric pipeline (steps 0-6) on a batch's rows: :func:`_walls_of_rows`, then :func:`_layouts_of_walls`."""
-    walls = _walls_of_rows(*rows, image_height, rc, keys, thresholds, prior, world, config)
-    return _layouts_of_walls(walls, thresholds, prior, world, config)
+    """The geometric pipeline (steps 0-6) on a batch's rows: :func:`_fitted_walls`, then :func:`_finished`."""
+    return _finished(_fitted_walls(rows, image_height, rc, keys, prior, config, world), prior, config, world)
 
 
-_geometry = jax.jit(_geometry_body, static_argnames=("image_height", "world", "config"))
+_geometry = jax.jit(_geometry_body, static_argnames=("image_height", "world"))
+
+
+class _Network(NamedTuple):
+    """The network's static settings: how many views it averages, and how its rows are snapped to edges."""
+
+    views: int
+    edge_snap: EdgeSnap | None
 
 
 def _reconstruct_body(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
-    rc: Float[Array, " B"],
-    keys: Key[Array, " B"],
-    thresholds: dict[str, Float[Array, ""]],
-    prior: HeightPrior | None,
+    arguments: tuple[Float[Array, " B"], Key[Array, " B"], HeightPrior | None, PipelineConfig],
     world: str,
-    config: PipelineConfig,
-    views: int,
-    edge_snap: EdgeSnap | None,
+    network: _Network,
 ) -> Reconstruction:
-    rows = image_boundaries(model, images, views, edge_snap)
-    layouts = _geometry_body(rows, images.shape[1], rc, keys, thresholds, prior, world, config)
-    return _reconstruction(layouts, rows, rc, prior)
+    rc, keys, prior, config = arguments
+    rows = Rows(*image_boundaries(model, images, network.views, network.edge_snap))
+    layouts = _geometry_body(rows, images.shape[1], rc, keys, prior, config, world)
+    return _reconstruction(layouts, rows, prior)
 
 
-_reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "config", "views", "edge_snap"))
+_reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "network"))
 
 
 def _saved_geometry(
-    directory, image_shape: tuple[int, int, int], rc, keys, thresholds, prior, world, config
-) -> Callable[[tuple[Array, Array, Array]], Layout]:
+    directory: str | os.PathLike, image_shape: tuple[int, int, int], arguments, world: str
+) -> Callable[[Rows], Layout]:
     """:func:`_geometry_body` for a batch of ``image_shape`` (B, H, W) through two programs saved in ``directory``
     (:mod:`ncjax.programs`): its steps 0-4 and 5-6, loaded in two threads from this call on, while the caller
-    goes on (XLA loads a compiled program on one core, and these are most of the loading). Returns the
-    function of the rows (ceiling, floor, corner probability; (B, W) each) that runs them.
+    goes on (XLA loads a compiled program on one core, and these are most of the loading). ``arguments``:
+    ``(rc, keys, prior, config)``. Returns the function of the rows (B leading) that runs them.
     """
+    rc, keys, prior, config = arguments
     batch, image_height, width = image_shape
     walls_structure = []
     impl = jax.random.key_impl(keys)
 
-    def walls(rows, rc, key_data, thresholds, prior):
+    def walls(rows, rc, key_data, prior, config):
         key = jax.random.wrap_key_data(key_data, impl=impl)
-        leaves, structure = jax.tree.flatten(
-            _walls_of_rows(*rows, image_height, rc, key, thresholds, prior, world, config)
-        )
+        leaves, structure = jax.tree.flatten(_fitted_walls(rows, image_height, rc, key, prior, config, world))
         walls_structure.append(structure)
         return leaves  # a saved program returns plain containers (a pickled result tree)
 
-    def layouts(walls_leaves, thresholds, prior):
+    def layouts(walls_leaves, prior, config):
         if not walls_structure:  # the walls' program was loaded, not traced: trace its shapes alone
             jax.eval_shape(walls, rows_like, *walls_arguments)
-        layout = _layouts_of_walls(
-            jax.tree.unflatten(walls_structure[0], walls_leaves), thresholds, prior, world, config
-        )
+        layout = _finished(jax.tree.unflatten(walls_structure[0], walls_leaves), prior, config, world)
         return {field.name: getattr(layout, field.name) for field in dataclasses.fields(Layout)}
 
-    rows_like = (jax.ShapeDtypeStruct((batch, width), jnp.float32),) * 3
-    walls_arguments = (rc, jax.random.key_data(keys), thresholds, prior)
-    settings = (image_height, str(impl), world, config)
+    rows_like = Rows(*(jax.ShapeDtypeStruct((batch, width), jnp.float32),) * 3)
+    walls_arguments = (rc, jax.random.key_data(keys), prior, config)
+    settings = (image_height, str(impl), world)
     walls_key, layouts_key = repr(("walls", *settings)), repr(("layouts", *settings))
     walls_like = result_like(directory, walls_key, walls, rows_like, *walls_arguments)
     cheap = {"compiler_options": GEOMETRY_COMPILER_OPTIONS}
     pool = concurrent.futures.ThreadPoolExecutor(2)
     walls_program = pool.submit(load_saved, directory, walls_key, walls, rows_like, *walls_arguments, **cheap)
-    layouts_program = pool.submit(load_saved, directory, layouts_key, layouts, walls_like, thresholds, prior, **cheap)
+    layouts_program = pool.submit(load_saved, directory, layouts_key, layouts, walls_like, prior, config, **cheap)
     pool.shutdown(wait=False)  # the two loads go on; the pool takes no more
 
     def run(rows):
-        walls_leaves = walls_program.result()(tuple(rows), *walls_arguments)
-        return Layout(**layouts_program.result()(walls_leaves, thresholds, prior))
+        walls_leaves = walls_program.result()(rows, *walls_arguments)
+        return Layout(**layouts_program.result()(walls_leaves, prior, config))
 
     return run
 
 
 def _reconstruct_saved(
-    directory, weights: ModelWeights, images, rc, keys, thresholds, prior, world, config, views, edge_snap
-):
+    directory, weights: ModelWeights, images, arguments, world: str, network: _Network
+) -> Reconstruction:
     """:func:`_reconstruct` through three programs saved in ``directory`` (:mod:`ncjax.programs`): the
     network's and the geometry's two (:func:`_saved_geometry`, loading while the network's loads and runs).
     A later process skips the tracing, and building the network too. The weights are arguments, the
     architecture part of the key; the network's program serves every world and pipeline setting.
     """
-    geometry = _saved_geometry(directory, images.shape[:3], rc, keys, thresholds, prior, world, config)
+    geometry = _saved_geometry(directory, images.shape[:3], arguments, world)
+    views, edge_snap = network
 
-    def network(tensors, images):
+    def boundaries(tensors, images):
         return image_boundaries(model_from_weights(weights._replace(tensors=tensors)), images, views, edge_snap)
 
     network_key = repr(("network", weights.config, views, edge_snap))
-    rows = tuple(
-        row.astype(jnp.float32) for row in call_saved(directory, network_key, network, weights.tensors, images)
-    )
-    return _reconstruction(geometry(rows), rows, rc, prior)
+    saved_rows = call_saved(directory, network_key, boundaries, weights.tensors, images)
+    rows = Rows(*(row.astype(jnp.float32) for row in saved_rows))
+    return _reconstruction(geometry(rows), rows, arguments[2])
 
 
 def _with_prior_fallback(
     result: Reconstruction,
-    rc: np.ndarray,
-    prior: HeightPrior,
-    keys: Key[Array, " B"],
+    arguments: tuple[np.ndarray, Key[Array, " B"], HeightPrior, PipelineConfig],
     world: str,
-    config: PipelineConfig,
     program_cache: str | os.PathLike | None = None,
 ) -> Reconstruction:
     """``result`` (the geometry's) with the prior's layout where ``rc = 0`` or the status is a :data:`SCALE_FAILURES`.
 
-    The prior's pipeline runs on the same rows and RANSAC keys, for the whole batch (one program per batch
-    size), and only when some panorama needs it: the central route's programs (saved in ``program_cache``
-    if given, as :func:`_saved_geometry`), flagged where the two scales conflict (:func:`_flag_scale_conflicts`).
+    ``arguments``: ``(rc, keys, prior, config)``. The prior's pipeline runs on the same rows and RANSAC keys, for
+    the whole batch (one program per batch size), and only when some panorama needs it: the central route's
+    programs (saved in ``program_cache`` if given, as :func:`_saved_geometry`), flagged where the two scales
+    conflict (:func:`~ncjax.pipeline.prior.flag_scale_conflicts`).
     """
+    rc, keys, prior, config = arguments
     status = np.asarray(result.layout.status)
     needs = (rc == 0) | np.isin(status, np.asarray(SCALE_FAILURES))
     source = np.where(rc == 0, PRIOR, np.where(needs, PRIOR_FALLBACK, GEOMETRY))
     if not needs.any():
         return result._replace(scale_source=jnp.asarray(source), geometry=result.layout)
-    rows = (result.ceiling_v, result.floor_v, result.corner_prob)
+    rows = Rows(result.ceiling_v, result.floor_v, result.corner_prob)
     batch, width = result.ceiling_v.shape
     height = width // 2  # full panoramas: H = W / 2 (check_panorama)
-    arguments = (jnp.asarray(rc), keys, traced_part(config), prior, world, static_part(config))
     if program_cache is None:
-        from_prior = _geometry(rows, height, *arguments)
+        from_prior = _geometry(rows, height, jnp.asarray(rc), keys, prior, config, world)
     else:
-        from_prior = _saved_geometry(program_cache, (batch, height, width), *arguments)(rows)
+        saved = _saved_geometry(program_cache, (batch, height, width), (jnp.asarray(rc), keys, prior, config), world)
+        from_prior = saved(rows)
     chosen = jax.tree.map(
         lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
     )
-    chosen = _flag_scale_conflicts(chosen, result.layout, prior, config.max_scale_conflict)
+    chosen = flag_scale_conflicts(chosen, result.layout, prior, config.prior.max_scale_conflict)
     return Reconstruction(
         chosen, result.ceiling_v, result.floor_v, result.corner_prob, jnp.asarray(source), result.layout
     )
 
 
-def _flag_scale_conflicts(
-    layout: Layout,
-    geometry: Layout,
-    prior: HeightPrior,
-    max_scale_conflict: Float[ArrayLike, ""],
-) -> Layout:
-    """``layout`` with ``SCALE_CONFLICT`` where an ``OK`` layout took its scale from ``prior`` because its
-    ``geometry`` was ``UNCERTAIN_SCALE`` (only a non-central one can be: a central one is ``NO_SCALE``), and that
-    geometry's height lies more than ``max_scale_conflict`` standard deviations from the prior's
-    (:func:`~ncjax.pipeline.prior.scale_conflict`).
-
-    Args:
-        layout: the layouts written, B leading.
-        geometry: the layouts with the scale each panorama's geometry measured, B leading.
-        prior: the height prior (a scalar value or one per panorama).
-        max_scale_conflict: the flag's threshold (``PipelineConfig.max_scale_conflict``).
-
-    Returns:
-        ``layout`` with those panoramas' status ``SCALE_CONFLICT`` and ``ok`` false; the rest unchanged.
-    """
-    prior = jax.tree.map(lambda x: jnp.broadcast_to(x, geometry.status.shape), prior)
-    conflict = jax.vmap(scale_conflict)(geometry, prior)
-    flagged = (
-        (geometry.status == LayoutStatus.UNCERTAIN_SCALE)
-        & (layout.status == LayoutStatus.OK)
-        & (conflict > max_scale_conflict)
-    )
-    return dataclasses.replace(
-        layout, status=jnp.where(flagged, LayoutStatus.SCALE_CONFLICT, layout.status), ok=layout.ok & ~flagged
-    )
-
-
-def _network(model: HorizonNet | ModelWeights | str | os.PathLike | None) -> HorizonNet:
+def _model_of(model: HorizonNet | ModelWeights | str | os.PathLike | None) -> HorizonNet:
     """The :class:`~ncjax.HorizonNet` that ``model`` is, holds or names (None: the shipped one), in eval mode."""
     if model is None:
         model = default_model()
@@ -425,16 +371,16 @@ def reconstruct_batch(
         prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
     keys = panorama_keys(jax.random.key(0) if key is None else key, images.shape[:1])
     central = prior is not None and not np.any(rc > 0)
-    arguments = (jnp.asarray(images), jnp.asarray(rc), keys, traced_part(config), prior if central else None)
-    settings = (world, static_part(config), views, edge_snap)
+    arguments = (jnp.asarray(rc), keys, prior if central else None, config)
+    network = _Network(views, edge_snap)
     if program_cache is None:
-        result = _reconstruct(_network(model), *arguments, *settings)
+        result = _reconstruct(_model_of(model), jnp.asarray(images), arguments, world, network)
     else:
         weights = model_weights(DEFAULT_MODEL_PATH if model is None else model)
-        result = _reconstruct_saved(program_cache, weights, *arguments, *settings)
+        result = _reconstruct_saved(program_cache, weights, jnp.asarray(images), arguments, world, network)
     if prior is None or central:
         return result
-    return _with_prior_fallback(result, rc, prior, keys, world, config, program_cache)
+    return _with_prior_fallback(result, (rc, keys, prior, config), world, program_cache)
 
 
 def reconstruct(

@@ -81,18 +81,22 @@ def test_every_setting_is_an_option_with_its_default_and_help():
     from ncjax.cli.train import add_train_arguments
 
     for defaults, add_arguments, skipped in (
-        (ncjax.NETWORK_PIPELINE_CONFIG, add_reconstruct_arguments, {"prior_room_height"}),  # the prior's route sets it
-        (ncjax.TrainConfig(), add_train_arguments, {"total_steps"}),  # set by --steps
+        (
+            ncjax.NETWORK_PIPELINE_CONFIG,
+            add_reconstruct_arguments,
+            {"--prior-room-height"},
+        ),  # the prior's route sets it
+        (ncjax.TrainConfig(), add_train_arguments, {"--total-steps"}),  # set by --steps
     ):
         help_text = " ".join(_parser(add_arguments).format_help().split())
         configurations = [(defaults, "--")]
         for config, prefix in configurations:
             documented = attribute_help(type(config))
             for field in dataclasses.fields(config):
-                if field.name in skipped:
+                option = prefix + field.name.replace("_", "-")
+                if option in skipped:
                     continue
                 assert documented.get(field.name), f"{type(config).__name__}.{field.name} has no docstring line"
-                option = prefix + field.name.replace("_", "-")
                 value = getattr(config, field.name)
                 if dataclasses.is_dataclass(value):  # its fields are options --field-inner-field
                     configurations.append((value, option + "-"))
@@ -101,7 +105,7 @@ def test_every_setting_is_an_option_with_its_default_and_help():
                 assert f"(default: {value})" in help_text
 
 
-def test_options_replace_only_the_settings_given():
+def test_options_replace_only_the_settings_given(capsys):
     import ncjax
     from ncjax.cli.options import config_from_options
     from ncjax.cli.reconstruct import add_reconstruct_arguments
@@ -110,19 +114,23 @@ def test_options_replace_only_the_settings_given():
     base = ["room.png", "--rc", "0.5", "--out", "out"]
     parser = _parser(add_reconstruct_arguments)
     assert config_from_options(parser.parse_args(base), ncjax.NETWORK_PIPELINE_CONFIG) is ncjax.NETWORK_PIPELINE_CONFIG
-    args = parser.parse_args([*base, "--corner-threshold", "0.5", "--no-covariance", "--max-height-uncertainty", "inf"])
+    args = parser.parse_args(
+        [*base, "--corners-threshold", "0.5", "--no-uncertainty-covariance", "--checks-max-height-uncertainty", "inf"]
+    )
     config = config_from_options(args, ncjax.NETWORK_PIPELINE_CONFIG)
-    expected = ncjax.NETWORK_PIPELINE_CONFIG.__class__(
-        **{
-            **vars(ncjax.NETWORK_PIPELINE_CONFIG),
-            "corner_threshold": 0.5,
-            "covariance": False,
-            "max_height_uncertainty": float("inf"),
-        }
+    expected = ncjax.NETWORK_PIPELINE_CONFIG.replace(
+        corners={"threshold": 0.5}, uncertainty={"covariance": False}, checks={"max_height_uncertainty": float("inf")}
     )
     assert config == expected
     with pytest.raises(SystemExit):  # an internal setting of the height prior's route, not an option
         parser.parse_args([*base, "--prior-room-height", "3"])
+    for old, new in (
+        (["--corner-threshold", "0.5"], "--corners-threshold"),
+        (["--no-covariance"], "--no-uncertainty-covariance"),
+    ):
+        with pytest.raises(SystemExit):  # a setting's name before the settings were grouped by stage
+            parser.parse_args([*base, *old])
+        assert new in capsys.readouterr().err
     train_args = _parser(add_train_arguments).parse_args(["--learning-rate", "3e-4", "--no-flip"])
     train_config = config_from_options(train_args, ncjax.TrainConfig(total_steps=10))
     assert (train_config.peak_learning_rate, train_config.flip, train_config.total_steps) == (3e-4, False, 10)

@@ -42,7 +42,8 @@ from ncjax.pipeline.adjust import (
 )
 from ncjax.pipeline.assemble import finish_layout
 from ncjax.pipeline.atlanta import atlanta_walls, corner_offsets
-from ncjax.pipeline.config import static_part, traced_part
+from ncjax.pipeline.batch import _batched_layout_jit, _Inputs, _layout_jit
+from ncjax.pipeline.config import CornerConfig, UncertaintyConfig
 from ncjax.pipeline.corners import (
     column_walls,
     find_corners,
@@ -54,14 +55,28 @@ from ncjax.pipeline.corners import (
 from ncjax.pipeline.evidence import gather_evidence
 from ncjax.pipeline.floor_check import ceiling_consistent_floor
 from ncjax.pipeline.manhattan import _segment_directions, cyclic_binary_labels, manhattan_frame, manhattan_walls
-from ncjax.pipeline.run import _batched_layout_jit, _layout_jit, choose_manhattan
+from ncjax.pipeline.run import choose_manhattan
 from ncjax.pipeline.sparse_normal import normal_matrix, probe_jacobian
+from ncjax.pipeline.types import Rows, Walls
 from ncjax.pipeline.uncertainty import correlation_time, layout_uncertainty, room_height_sigma
 from ncjax.solvers.ransac import boundary_errors, elevation_band, inlier_rows, num_hypotheses, wall_columns
 from ncjax.solvers.wall import make_wall
 from ncjax.synth.rooms import corner_target
 
 WIDTH, HEIGHT = 512, 256
+
+
+def _corners(threshold, **settings):
+    """The corner settings of ``find_corners``' own defaults (no fallback, no exact-target split) but ``settings``."""
+    return CornerConfig(
+        **{
+            "threshold": threshold,
+            "min_corners": 0,
+            "fallback_threshold": 0.0,
+            "exact_target_tolerance": 0.0,
+            **settings,
+        }
+    )
 
 
 @functools.cache
@@ -127,7 +142,7 @@ def test_find_corners_recovers_sub_column_positions(corners):
     corners = sorted(corners)
     if len(corners) > 1 and min(np.diff(corners + [corners[0] + WIDTH])) < 4:
         return  # closer than the suppression window
-    columns, mask, _, overflow = find_corners(jnp.asarray(target(WIDTH, corners), jnp.float32), 8, 2, 0.3)
+    columns, mask, _, overflow = find_corners(jnp.asarray(target(WIDTH, corners), jnp.float32), 8, 2, _corners(0.3))
     found = np.sort(np.asarray(columns)[np.asarray(mask)] % WIDTH)
     assert not overflow and len(found) == len(corners)
     gap = np.abs(found - np.sort(np.asarray(corners) % WIDTH))
@@ -143,7 +158,7 @@ def test_a_peak_of_the_exact_target_that_holds_two_corners_gives_both(first, apa
     corners = np.array([first, first + apart, first + 300.0]) % WIDTH
     exact = scale == 1.0 and power == 1.0
     prob = jnp.asarray(scale * target(WIDTH, corners) ** power, jnp.float32)
-    columns, mask, is_exact, overflow = find_corners(prob, 8, 2, 0.3, 0, 0.0, 0.01)
+    columns, mask, is_exact, overflow = find_corners(prob, 8, 2, _corners(0.3, exact_target_tolerance=0.01))
     found = np.sort(np.asarray(columns)[np.asarray(mask)] % WIDTH)
     assert not overflow
     assert bool(np.all(np.asarray(is_exact)[np.asarray(mask)])) == exact
@@ -157,7 +172,7 @@ def test_a_peak_of_the_exact_target_that_holds_two_corners_gives_both(first, apa
 
 def test_exact_target_splitting_is_off_at_zero_tolerance():
     prob = jnp.asarray(target(WIDTH, [100.0, 101.5]), jnp.float32)
-    columns, mask, exact, _ = find_corners(prob, 8, 2, 0.3)
+    columns, mask, exact, _ = find_corners(prob, 8, 2, _corners(0.3))
     assert int(mask.sum()) == 1 and not bool(exact.any())
 
 
@@ -179,7 +194,7 @@ def test_weak_peaks_make_up_the_minimum_corner_count(heights, min_corners):
     offset = np.abs(np.arange(WIDTH)[:, None] + 0.5 - corners[None])
     nearest = np.argmin(np.minimum(offset, WIDTH - offset), axis=1)  # the lobe each column belongs to
     prob = jnp.asarray(lobes * np.asarray(heights)[nearest], jnp.float32)
-    columns, mask, _, _ = find_corners(prob, 8, 2, 0.4, min_corners, 0.1)
+    columns, mask, _, _ = find_corners(prob, 8, 2, _corners(0.4, min_corners=min_corners, fallback_threshold=0.1))
     peaks = np.array([np.asarray(prob)[nearest == k].max() for k in range(6)])
     usable = np.sort(peaks[peaks >= 0.1])[::-1]
     strong = int(np.sum(peaks >= 0.4))
@@ -189,12 +204,14 @@ def test_weak_peaks_make_up_the_minimum_corner_count(heights, min_corners):
     kept = np.isin(np.arange(6), nearest[np.round(np.asarray(columns)[np.asarray(mask)]).astype(int) % WIDTH])
     if kept.any() and not kept.all():
         assert peaks[kept].min() >= peaks[~kept].max()  # the strongest peaks are the ones kept
-    _, plain, _, _ = find_corners(prob, 8, 2, 0.4)
+    _, plain, _, _ = find_corners(prob, 8, 2, _corners(0.4))
     assert int(plain.sum()) == strong
 
 
 def test_capacity_overflow_is_reported():
-    _, mask, _, overflow = find_corners(jnp.asarray(target(WIDTH, np.arange(10) * 50.0), jnp.float32), 4, 2, 0.3)
+    _, mask, _, overflow = find_corners(
+        jnp.asarray(target(WIDTH, np.arange(10) * 50.0), jnp.float32), 4, 2, _corners(0.3)
+    )
     assert bool(overflow) and int(mask.sum()) == 4
 
 
@@ -359,7 +376,9 @@ def test_adjustment_structure_gives_the_dense_normal_matrix(world):
         row_weights=jnp.array([1.0, 0.25]),
     )
     assert not bool(jnp.all(room.mask)), "the room should leave empty slots"
-    problem = layout_problem(directions, 1.02 * distances, room.ceiling_height, room.floor_height, labels, room.mask)
+    problem = layout_problem(
+        Walls(directions, 1.02 * distances, room.ceiling_height, room.floor_height), labels, room.mask
+    )
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
 
     def residuals(f):
@@ -373,8 +392,8 @@ def test_adjustment_structure_gives_the_dense_normal_matrix(world):
     scale = np.abs(dense.T @ dense).max()
     np.testing.assert_allclose(probed / scale, dense.T @ dense / scale, atol=1e-6)
     # the fitted rows are the layout's residuals times each boundary's weight
-    start = (directions, 1.02 * distances, room.ceiling_height, room.floor_height)
-    plain = layout_residuals(*start, cam, observations, 1.0)[: 2 * WIDTH].reshape(2, WIDTH)
+    start = Walls(directions, 1.02 * distances, room.ceiling_height, room.floor_height)
+    plain = layout_residuals(start, cam, observations, 1.0)[: 2 * WIDTH].reshape(2, WIDTH)
     weighted = residuals(flat)[: 2 * WIDTH].reshape(2, WIDTH)
     assert np.abs(plain[1]).max() > 0.5  # the start is off the room
     np.testing.assert_allclose(weighted, plain * np.array([[1.0], [0.25]]), rtol=1e-4, atol=1e-3)
@@ -421,10 +440,10 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
     def one(noise):
         observations = _noisy_label_rows(room, label, noise[0], floor_noise * noise[1])
         walls = adjust_layout(
-            cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels
-        )[:4]
-        corners, _ = loop_corners(walls[0], walls[1], room.mask)
-        return corners, layout_uncertainty(cam, observations, *walls, wall_labels)
+            cam, observations, Walls(directions, distances, room.ceiling_height, room.floor_height), wall_labels
+        )[0]
+        corners, _ = loop_corners(walls.directions, walls.distances, room.mask)
+        return corners, layout_uncertainty(cam, observations, walls, wall_labels)
 
     corners, uncertainty = jax.jit(jax.vmap(one))(jnp.concatenate([white, smooth]))
     truth, _ = loop_corners(directions, distances, room.mask)
@@ -462,11 +481,13 @@ def test_layout_uncertainty_with_wall_offsets_matches_monte_carlo(manhattan):
     def one(noise):
         observations = _noisy_label_rows(room, label, noise[0], noise[1])
         walls = adjust_layout(
-            cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels
-        )[:4]
-        corners, _ = loop_corners(walls[0], walls[1], room.mask)
+            cam, observations, Walls(directions, distances, room.ceiling_height, room.floor_height), wall_labels
+        )[0]
+        corners, _ = loop_corners(walls.directions, walls.distances, room.mask)
         return corners, *(
-            layout_uncertainty(cam, observations, *walls, wall_labels, wall_offset_noise=size).corner_covariance
+            layout_uncertainty(
+                cam, observations, walls, wall_labels, config=UncertaintyConfig(wall_offset_noise=2 * size)
+            ).corner_covariance
             for size in (offset, 0.0)
         )
 
@@ -496,9 +517,9 @@ def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
         wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if manhattan else None
         observations = _noisy_label_rows(room, label, jax.random.normal(jax.random.key(7), (WIDTH,)), jnp.zeros(WIDTH))
         walls = adjust_layout(
-            cam, observations, directions, distances, room.ceiling_height, room.floor_height, wall_labels
-        )[:4]
-        uncertainty = layout_uncertainty(cam, observations, *walls, wall_labels)
+            cam, observations, Walls(directions, distances, room.ceiling_height, room.floor_height), wall_labels
+        )[0]
+        uncertainty = layout_uncertainty(cam, observations, walls, wall_labels)
         corners = np.asarray(uncertainty.corner_covariance)[np.asarray(room.mask)]
         if not np.all(np.isfinite(corners)):
             continue  # a wall that no column sees: its corners' covariance is infinite by design
@@ -524,8 +545,10 @@ def test_layout_uncertainty_of_a_wall_no_row_sees(manhattan):
     hidden = 1
     seen = label.wall_index != hidden
     blind = dataclasses.replace(every, ceiling_used=seen, floor_used=seen)
-    walls = adjust_layout(cam, every, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
-    full, partial = (layout_uncertainty(cam, o, *walls, wall_labels) for o in (every, blind))
+    walls = adjust_layout(
+        cam, every, Walls(directions, distances, room.ceiling_height, room.floor_height), wall_labels
+    )[0]
+    full, partial = (layout_uncertainty(cam, o, walls, wall_labels) for o in (every, blind))
     count = int(np.sum(room.mask))
     touching = np.isin(np.arange(count), [hidden, (hidden + 1) % count])  # wall k runs from corner k to k + 1
     corners = np.asarray(partial.corner_covariance)[:count]
@@ -560,8 +583,8 @@ def test_layout_uncertainty_of_a_wall_one_corner_pins():
         corner_columns=start_corner,
         corner_used=jnp.arange(len(room.mask)) == hidden,
     )
-    walls = adjust_layout(cam, every, directions, distances, room.ceiling_height, room.floor_height, None)[:4]
-    full, partial = (layout_uncertainty(cam, o, *walls, None) for o in (every, pinned))
+    walls = adjust_layout(cam, every, Walls(directions, distances, room.ceiling_height, room.floor_height), None)[0]
+    full, partial = (layout_uncertainty(cam, o, walls, None) for o in (every, pinned))
     spread = np.trace(np.asarray(partial.corner_covariance)[:count], axis1=1, axis2=2)
     far, elsewhere = hidden + 1, ~np.isin(np.arange(count), [hidden, hidden + 1])
     assert np.all(np.isfinite(spread)) and spread[far] > 1e3 * spread[elsewhere].max(), spread
@@ -579,11 +602,11 @@ def test_layout_uncertainty_of_a_height_no_row_sees():
     noise = jax.random.normal(jax.random.key(6), (2, WIDTH))
     every = _noisy_label_rows(room, label, noise[0], noise[1])
     floor_only = dataclasses.replace(every, ceiling_used=jnp.zeros(WIDTH, bool))
-    walls = adjust_layout(cam, every, directions, distances, room.ceiling_height, room.floor_height, wall_labels)[:4]
-    assert np.isfinite(float(room_height_sigma(layout_uncertainty(cam, every, *walls, wall_labels).height_covariance)))
-    assert np.isinf(
-        float(room_height_sigma(layout_uncertainty(cam, floor_only, *walls, wall_labels).height_covariance))
-    )
+    walls = adjust_layout(
+        cam, every, Walls(directions, distances, room.ceiling_height, room.floor_height), wall_labels
+    )[0]
+    assert np.isfinite(float(room_height_sigma(layout_uncertainty(cam, every, walls, wall_labels).height_covariance)))
+    assert np.isinf(float(room_height_sigma(layout_uncertainty(cam, floor_only, walls, wall_labels).height_covariance)))
 
 
 def test_correlation_time_matches_a_direct_sum():
@@ -734,7 +757,9 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(batch)
     rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
     # chunks of 4: the compact run of the six rooms is a loop over one chunk and a remainder of two
-    full = ncjax.PipelineConfig(capacity=16, compact_capacity=0, covariance=False, chunk_size=4)
+    full = ncjax.PipelineConfig(capacity=16, compact_capacity=0, chunk_size=4).replace(
+        uncertainty={"covariance": False}
+    )
     layout = ncjax.layout_from_boundaries(
         *rows, cams, config=dataclasses.replace(full, compact_capacity=8), world="manhattan"
     )
@@ -747,9 +772,8 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
     # four rooms, across the chunk and the remainder, with all the slots from the start in one vmap
     last = slice(2, 6)
     keys = jax.random.split(jax.random.key(0), 6)[last]
-    expected = _batched_layout_jit(
-        *(x[last] for x in rows), pick(cams, last), None, keys, traced_part(full), "manhattan", static_part(full), 16
-    )
+    inputs = _Inputs(Rows(*(x[last] for x in rows)), pick(cams, last), None, keys)
+    expected = _batched_layout_jit(inputs, full, "manhattan", 16)
     np.testing.assert_array_equal(layout.mask[last], expected.mask)
     np.testing.assert_array_equal(layout.status[last], expected.status)
     np.testing.assert_allclose(layout.ceiling_corners[last], expected.ceiling_corners, atol=1e-4)
@@ -787,7 +811,7 @@ def test_degenerate_inputs_fail_with_a_reason_and_no_nan():
     assert bool(
         ncjax.layout_from_boundaries(label.ceiling_v, label.floor_v, label.corner_target, cam, world="manhattan").ok
     )
-    strict = ncjax.PipelineConfig(max_room_height=1.0)
+    strict = ncjax.PipelineConfig().replace(checks={"max_room_height": 1.0})
     layout = ncjax.layout_from_boundaries(
         label.ceiling_v, label.floor_v, label.corner_target, cam, config=strict, world="manhattan"
     )
@@ -808,7 +832,7 @@ def test_scale_test_fails_layouts_whose_height_sigma_exceeds_the_threshold():
     relative = float(room_height_sigma(layout.height_covariance) / (layout.ceiling_height - layout.floor_height))
     assert 0.0 < relative < 0.1, relative
     compiled = _layout_jit._cache_size()
-    strict = ncjax.PipelineConfig(max_height_uncertainty=0.9 * relative)
+    strict = ncjax.PipelineConfig().replace(checks={"max_height_uncertainty": 0.9 * relative})
     uncertain = ncjax.layout_from_boundaries(*rows, cam, config=strict, world="manhattan")
     assert int(uncertain.status) == ncjax.LayoutStatus.UNCERTAIN_SCALE and not bool(uncertain.ok)
     np.testing.assert_allclose(uncertain.ceiling_corners, layout.ceiling_corners, atol=1e-5)  # only the status differs
@@ -819,12 +843,12 @@ def test_scale_test_fails_layouts_whose_height_sigma_exceeds_the_threshold():
     kept = ncjax.layout_from_boundaries(*spoilt, cam, world="manhattan")
     explained = float(kept.explained_fraction)
     assert bool(kept.ok) and 0.6 < explained < 0.95, explained
-    demanding = ncjax.PipelineConfig(min_explained_fraction=min(1.0, explained + 0.02))
+    demanding = ncjax.PipelineConfig().replace(checks={"min_explained_fraction": min(1.0, explained + 0.02)})
     flagged = ncjax.layout_from_boundaries(*spoilt, cam, config=demanding, world="manhattan")
     assert int(flagged.status) == ncjax.LayoutStatus.LOW_CONFIDENCE and not bool(flagged.ok)
     np.testing.assert_allclose(flagged.ceiling_corners, kept.ceiling_corners, atol=1e-5)
     # thresholds are traced: another value reuses the compiled pipeline, and acts
-    blind = ncjax.PipelineConfig(corner_threshold=1.5, fallback_corner_threshold=1.5)
+    blind = ncjax.PipelineConfig().replace(corners={"threshold": 1.5, "fallback_threshold": 1.5})
     assert (
         int(ncjax.layout_from_boundaries(*rows, cam, config=blind, world="manhattan").status)
         == ncjax.LayoutStatus.NO_CORNERS
@@ -856,7 +880,7 @@ def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     count = int(np.sum(np.asarray(label.corner_mask)))
     target, peak, narrow = _one_peak_for_the_narrowest_wall(label)
     config = ncjax.PipelineConfig()
-    evidence = gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
+    evidence = gather_evidence(Rows(label.ceiling_v, label.floor_v, target), cam, jax.random.key(0), config)
     slots = np.flatnonzero(np.asarray(evidence.corner_mask))
     assert len(slots) == count - 1
     at_peak = slots[
@@ -877,7 +901,7 @@ def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
             evidence.walls.direction.at[at_peak].set(wrong),
         ),
     )
-    directions, support = _segment_directions(cam, evidence, label.ceiling_v, label.floor_v, config)
+    directions, support = _segment_directions(evidence)
     after = np.asarray(label.ceiling_corners)[[(narrow + 1) % count, (narrow + 2) % count], :2]
     true_direction = (after[1] - after[0]) / np.linalg.norm(after[1] - after[0])
     estimate = np.asarray(directions[at_peak])
@@ -885,17 +909,16 @@ def test_merged_corner_pair_beside_an_unfitted_wall_gets_its_wall_back():
     assert float(support[at_peak]) > 0
     others = slots[slots != at_peak]
     np.testing.assert_array_equal(np.asarray(directions)[others], np.asarray(evidence.walls.direction)[others])
-    layout = branch_layout(manhattan_walls, evidence, label.ceiling_v, label.floor_v, cam, config)
+    layout = branch_layout(manhattan_walls, evidence, config)
     assert bool(layout.ok) and int(jnp.sum(layout.inserted)) == 1
     result = metrics.evaluate_layout(layout, room)
     assert result["ce"] < 0.1 and result["iou3d"] > 0.95, result
 
 
-def branch_layout(branch_walls, evidence, ceiling_v, floor_v, cam, config):
+def branch_layout(branch_walls, evidence, config):
     """One branch's layout (step 4, then steps 5-6) from given evidence."""
-    return finish_layout(
-        cam, evidence, branch_walls(evidence, ceiling_v, floor_v, cam, config), ceiling_v, floor_v, config
-    )
+    walls = branch_walls(evidence, config.branches, config.ransac.sample_size, config.checks.max_room_height)
+    return finish_layout(evidence, walls, config)
 
 
 @pytest.mark.slow
@@ -934,18 +957,18 @@ def test_atlanta_peak_whose_walls_meet_elsewhere_gets_a_wall_inserted():
     target, _, _ = _one_peak_for_the_narrowest_wall(label)
 
     def layout(config, row_noise=None):
-        evidence = gather_evidence(label.ceiling_v, label.floor_v, target, cam, jax.random.key(0), config)
+        evidence = gather_evidence(Rows(label.ceiling_v, label.floor_v, target), cam, jax.random.key(0), config)
         evidence = eqx.tree_at(lambda e: e.occluded, evidence, jnp.zeros_like(evidence.occluded))
         if row_noise is not None:
             evidence = eqx.tree_at(lambda e: e.row_noise, evidence, jnp.asarray(row_noise, evidence.row_noise.dtype))
-        return branch_layout(atlanta_walls, evidence, label.ceiling_v, label.floor_v, cam, config)
+        return branch_layout(atlanta_walls, evidence, config)
 
     count = int(np.sum(np.asarray(label.corner_mask)))
     found = layout(ncjax.PipelineConfig())
     assert bool(found.ok) and int(jnp.sum(found.mask)) == count and int(jnp.sum(found.inserted)) == 1
     result = metrics.evaluate_layout(found, label)
     assert result["iou3d"] > 0.95, result
-    missed = layout(ncjax.PipelineConfig(max_corner_offset=1e6))
+    missed = layout(ncjax.PipelineConfig().replace(branches={"max_corner_offset": 1e6}))
     assert int(jnp.sum(missed.mask)) == count - 1 and int(jnp.sum(missed.inserted)) == 0
     # rows as noisy as the walls' boundaries are apart at the peak: their far meeting may be the noise's
     lost = layout(ncjax.PipelineConfig(), row_noise=1e3)
@@ -1002,8 +1025,8 @@ def test_an_occlusion_beside_a_narrow_wall_is_found():
     label = ncjax.room_labels(room, cam)
     corners = np.asarray(label.corner_u)[np.asarray(label.corner_mask & label.corner_is_occlusion)]
     assert np.allclose(corners, 43.4, atol=0.1)  # the occlusion's near and far points
-    evidence = jax.jit(gather_evidence, static_argnums=5)(
-        label.ceiling_v, label.floor_v, label.corner_target, cam, jax.random.key(0), ncjax.PipelineConfig()
+    evidence = jax.jit(gather_evidence)(
+        Rows(label.ceiling_v, label.floor_v, label.corner_target), cam, jax.random.key(0), ncjax.PipelineConfig()
     )
     columns = np.asarray(evidence.corner_columns)[np.asarray(evidence.corner_mask)]
     occluded = np.asarray(evidence.occluded)[np.asarray(evidence.corner_mask)]
@@ -1024,13 +1047,13 @@ def test_noisy_rows_do_not_fake_occlusions():
     keys = jax.random.split(jax.random.key(0), labels.ceiling_v.shape[0])
 
     def occluded_fraction(config):
-        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: gather_evidence(c, f, p, cam, k, config)))(
+        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: gather_evidence(Rows(c, f, p), cam, k, config)))(
             labels.ceiling_v + noise[0], labels.floor_v + noise[1], labels.corner_target, cams, keys
         )
         return float(jnp.sum(evidence.occluded) / jnp.sum(evidence.corner_mask))
 
     assert occluded_fraction(ncjax.PipelineConfig()) < 0.1
-    assert occluded_fraction(ncjax.PipelineConfig(occlusion_noise_factor=0.0)) > 0.4
+    assert occluded_fraction(ncjax.PipelineConfig().replace(occlusion={"noise_factor": 0.0})) > 0.4
 
 
 @pytest.mark.extended
@@ -1043,7 +1066,7 @@ def test_joint_solver_weights_follow_the_row_noise():
     keys = jax.random.split(jax.random.key(0), labels.ceiling_v.shape[0])
 
     def row_weights(config):
-        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: gather_evidence(c, f, p, cam, k, config)))(
+        evidence = jax.jit(jax.vmap(lambda c, f, p, cam, k: gather_evidence(Rows(c, f, p), cam, k, config)))(
             labels.ceiling_v + noise[0], labels.floor_v + noise[1], labels.corner_target, cams, keys
         )
         return np.asarray(evidence.row_weights)
@@ -1051,7 +1074,9 @@ def test_joint_solver_weights_follow_the_row_noise():
     weights = row_weights(ncjax.PipelineConfig())
     np.testing.assert_array_equal(weights[:, 0], 1.0)
     assert np.all(weights[:, 1] < 0.5), weights  # (0.3 / 1)^2 = 0.09, more as the inlier cut trims the floor's errors
-    np.testing.assert_array_equal(row_weights(ncjax.PipelineConfig(min_boundary_noise=1e9)), 1.0)
+    np.testing.assert_array_equal(
+        row_weights(ncjax.PipelineConfig().replace(adjustment={"min_boundary_noise": 1e9})), 1.0
+    )
 
 
 def test_bad_arguments_raise():
@@ -1071,24 +1096,24 @@ def test_bad_arguments_raise():
     with pytest.raises(ValueError, match="capacity"):
         ncjax.PipelineConfig(capacity=2)
     with pytest.raises(ValueError, match="adjustment_stride"):
-        ncjax.PipelineConfig(adjustment_stride=0)
+        ncjax.PipelineConfig().replace(adjustment={"stride": 0})
     with pytest.raises(ValueError, match="occlusion_noise_factor"):
-        ncjax.PipelineConfig(occlusion_noise_factor=-1.0)
+        ncjax.PipelineConfig().replace(occlusion={"noise_factor": -1.0})
     with pytest.raises(ValueError, match="stray_noise_factor"):
-        ncjax.PipelineConfig(stray_noise_factor=-1.0)
+        ncjax.PipelineConfig().replace(branches={"stray_noise_factor": -1.0})
     with pytest.raises(ValueError, match="max_height_uncertainty must be > 0"):
-        ncjax.PipelineConfig(max_height_uncertainty=0.0)
+        ncjax.PipelineConfig().replace(checks={"max_height_uncertainty": 0.0})
     with pytest.raises(ValueError, match="needs covariance"):
-        ncjax.PipelineConfig(max_height_uncertainty=0.1, covariance=False)
+        ncjax.PipelineConfig().replace(checks={"max_height_uncertainty": 0.1}, uncertainty={"covariance": False})
     with pytest.raises(ValueError, match="max_scale_conflict must be > 0"):
-        ncjax.PipelineConfig(max_scale_conflict=0.0)
+        ncjax.PipelineConfig().replace(prior={"max_scale_conflict": 0.0})
     with pytest.raises(ValueError, match="min_corners"):
-        ncjax.PipelineConfig(min_corners=33)
+        ncjax.PipelineConfig().replace(corners={"min_corners": 33})
     with pytest.raises(ValueError, match="min_corners"):
-        ncjax.PipelineConfig(min_corners=20)  # more than the compact first run's 16 slots
-    assert ncjax.PipelineConfig(min_corners=20, compact_capacity=0).min_corners == 20
+        ncjax.PipelineConfig().replace(corners={"min_corners": 20})  # more than the compact first run's 16 slots
+    assert ncjax.PipelineConfig(compact_capacity=0).replace(corners={"min_corners": 20}).corners.min_corners == 20
     with pytest.raises(ValueError, match="fallback_corner_threshold"):
-        ncjax.PipelineConfig(fallback_corner_threshold=-0.1)
+        ncjax.PipelineConfig().replace(corners={"fallback_threshold": -0.1})
 
 
 @pytest.mark.extended
@@ -1196,10 +1221,8 @@ def test_auto_world_choice(
     manhattan_status, atlanta_status, manhattan_explained, atlanta_explained, in_frame, expected
 ):
     chosen = choose_manhattan(
-        jnp.int32(manhattan_status),
-        jnp.int32(atlanta_status),
-        jnp.float32(manhattan_explained),
-        jnp.float32(atlanta_explained),
+        (jnp.int32(manhattan_status), jnp.int32(atlanta_status)),
+        (jnp.float32(manhattan_explained), jnp.float32(atlanta_explained)),
         jnp.array(in_frame),
     )
     assert bool(chosen) is expected
@@ -1216,10 +1239,8 @@ def test_auto_world_choice(
 )
 def test_auto_world_choice_margin(manhattan_explained, atlanta_explained, margin, expected):
     chosen = choose_manhattan(
-        jnp.int32(OK),
-        jnp.int32(OK),
-        jnp.float32(manhattan_explained),
-        jnp.float32(atlanta_explained),
+        (jnp.int32(OK), jnp.int32(OK)),
+        (jnp.float32(manhattan_explained), jnp.float32(atlanta_explained)),
         jnp.array(False),
         margin,
     )
@@ -1278,7 +1299,7 @@ def test_floor_rows_hidden_by_furniture_do_not_bias_the_layout():
     floor_v = jnp.where(hidden, label.floor_v - 1.3, label.floor_v)
     errors = {}
     for threshold in (math.inf, 2.0):
-        config = dataclasses.replace(ncjax.PipelineConfig(), floor_consistency_threshold=threshold)
+        config = ncjax.PipelineConfig().replace(floor_check={"threshold": threshold})
         layout = ncjax.layout_from_boundaries(
             label.ceiling_v, floor_v, label.corner_target, cam, world="manhattan", config=config
         )
@@ -1288,7 +1309,7 @@ def test_floor_rows_hidden_by_furniture_do_not_bias_the_layout():
 
 
 def test_panorama_keys_split_one_key_or_keep_one_per_panorama():
-    from ncjax.pipeline.run import panorama_keys
+    from ncjax.pipeline.batch import panorama_keys
 
     key = jax.random.key(7)
     split = jax.random.key_data(jax.random.split(key, 6))

@@ -230,7 +230,7 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it(tmp_
         scale_layout(from_prior, 1.1), status=jnp.full(rc.shape, int(ncjax.LayoutStatus.UNCERTAIN_SCALE))
     )
     np.testing.assert_allclose(jax.vmap(scale_conflict)(measured, prior), np.log(1.1) / PRIOR_RELATIVE_SIGMA, rtol=0.02)
-    strict = dataclasses.replace(config, max_scale_conflict=0.5)
+    strict = config.replace(prior={"max_scale_conflict": 0.5})
     jitted = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, keys, "manhattan", strict)
     saved = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, keys, "manhattan", strict, tmp_path)
     assert np.all(np.asarray(jitted.layout.status) == ncjax.LayoutStatus.SCALE_CONFLICT)
@@ -249,7 +249,9 @@ def test_the_size_limits_apply_at_the_scale_of_the_prior():
     lowest = float(np.min(np.asarray(batch.ceiling_height - batch.floor_height)))
 
     def statuses(prior_room_height, max_room_height=1e6):
-        config = ncjax.PipelineConfig(max_room_height=max_room_height, prior_room_height=prior_room_height)
+        config = ncjax.PipelineConfig().replace(
+            checks={"max_room_height": max_room_height}, prior={"room_height": prior_room_height}
+        )
         return np.asarray(ncjax.layout_from_boundaries(*rows, cam, "manhattan", config).status)
 
     # at its own scale every room is too tall for this limit; at half the lowest one's height none is
@@ -271,7 +273,7 @@ def test_the_prior_route_judges_the_size_limits_at_the_prior_scale():
     rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
 
     def statuses(max_room_height):
-        config = ncjax.PipelineConfig(max_room_height=max_room_height)
+        config = ncjax.PipelineConfig().replace(checks={"max_room_height": max_room_height})
         return np.asarray(ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, prior=prior).status)
 
     assert np.all(statuses(0.99 * float(np.min(room_height))) == ncjax.LayoutStatus.DEGENERATE_LAYOUT)
@@ -290,7 +292,7 @@ def test_a_ceiling_or_floor_at_the_camera_is_implausible():
     rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
 
     def statuses(fraction):
-        config = ncjax.PipelineConfig(min_height_fraction=fraction)
+        config = ncjax.PipelineConfig().replace(checks={"min_height_fraction": fraction})
         return np.asarray(ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, prior=prior).status)
 
     # (a camera half-way up fails any valid fraction: those stop below 0.5)
@@ -303,7 +305,8 @@ def test_a_prior_s_walls_reach_the_adjustment_at_its_room_height_with_their_shap
     """Noisy rows leave the virtual rig's solve at some scale; the walls the adjustment starts from are at the
     prior's room height, their shape (directions, distance ratios, height ratio) kept."""
     from ncjax.pipeline.prior import prior_rows
-    from ncjax.pipeline.run import prior_config, walls_for, walls_to_adjust
+    from ncjax.pipeline.run import _fit_walls_of_rows, fit_walls, prior_config
+    from ncjax.pipeline.types import Rows
 
     room, labels = (jax.tree.map(lambda x: x[0], tree) for tree in rooms("manhattan", (0.0, 0.0)))
     cam = room.camera(WIDTH, HEIGHT)
@@ -314,17 +317,10 @@ def test_a_prior_s_walls_reach_the_adjustment_at_its_room_height_with_their_shap
     config = ncjax.NETWORK_PIPELINE_CONFIG
     virtual, ceiling_virtual, floor_virtual, heights = prior_rows(cam, ceiling_v, floor_v, prior)
     room_height = heights[0] - heights[1]
-    solved = walls_to_adjust(
-        ceiling_virtual,
-        floor_virtual,
-        labels.corner_target,
-        virtual,
-        key,
-        "auto",
-        prior_config(config, room_height),
-        heights,
-    ).branches
-    started = walls_for(ceiling_v, floor_v, labels.corner_target, cam, prior, key, "auto", config).branches
+    virtual_rows = Rows(ceiling_virtual, floor_virtual, labels.corner_target)
+    solved = _fit_walls_of_rows(virtual_rows, virtual, key, prior_config(config, room_height), "auto", heights).branches
+    rows = Rows(ceiling_v, floor_v, labels.corner_target)
+    started = fit_walls(rows, cam, prior, key, config, "auto").branches
     np.testing.assert_allclose(started.ceiling_height - started.floor_height, room_height, rtol=1e-5)
     factor = (started.ceiling_height - started.floor_height) / (solved.ceiling_height - solved.floor_height)
     np.testing.assert_allclose(started.distances, solved.distances * factor[:, None], rtol=1e-5, atol=1e-6)

@@ -63,7 +63,7 @@ def add_config_options(
         defaults: the configuration the command uses when no option is given.
         title: the group's heading in ``--help``.
         prefix: put before each option's name (and destination), to keep two configurations apart.
-        skip: fields the command sets by other means.
+        skip: fields the command sets by other means (``part.field`` for a nested configuration's).
         aliases: an extra option name per field (e.g. a shorter, established one).
     """
     aliases = aliases or {}
@@ -95,7 +95,8 @@ def add_config_options(
     for field in nested:
         inner = getattr(defaults, field.name)
         inner_title = f"{help_texts.get(field.name, field.name.replace('_', ' ')).rstrip('.')} ({type(inner).__name__})"
-        add_config_options(parser, inner, title=inner_title, prefix=f"{prefix}{field.name}-")
+        inner_skip = tuple(name.split(".", 1)[1] for name in skip if name.startswith(f"{field.name}."))
+        add_config_options(parser, inner, title=inner_title, prefix=f"{prefix}{field.name}-", skip=inner_skip)
 
 
 def config_from_options(args: argparse.Namespace, defaults: Any, *, prefix: str = "") -> Any:
@@ -111,3 +112,27 @@ def config_from_options(args: argparse.Namespace, defaults: Any, *, prefix: str 
         if value is not None:
             given[field.name] = tuple(value) if isinstance(value, list) else value  # a range comes as a list
     return dataclasses.replace(defaults, **given) if given else defaults
+
+
+class _Renamed(argparse.Action):
+    """An option that was renamed: using it is an error that names the new option."""
+
+    def __init__(self, option_strings, dest, new_name: str, **kwargs):
+        super().__init__(option_strings, dest, nargs="?", help=argparse.SUPPRESS, **kwargs)
+        self.new_name = new_name
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser.error(f"{option_string} is now {self.new_name}")
+
+
+def add_renamed_options(parser: argparse.ArgumentParser, renamed: dict[str, str]) -> None:
+    """Hidden options under the old names of ``renamed`` (``old_field: "part.field"``), each of which stops the
+    command with a one-line error naming the option that replaced it (``--corner-threshold`` ->
+    ``--corners-threshold``; a bool's ``--no-`` form likewise)."""
+    for old, new in renamed.items():
+        new_option = _option("", new.replace(".", "-"))
+        if new_option == _option("", old):
+            continue  # the option kept its name (``prior_wall_heights`` is ``--prior-wall-heights`` either way)
+        parser.add_argument(_option("", old), dest=f"renamed_{old}", action=_Renamed, new_name=new_option)
+        no_old, no_new = _option("no-", old), "--no-" + new_option[2:]
+        parser.add_argument(no_old, dest=f"renamed_no_{old}", action=_Renamed, new_name=no_new)

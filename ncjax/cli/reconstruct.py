@@ -37,7 +37,7 @@ from ..io.images import PanoramaError, PanoramaResizeWarning, read_panorama
 from ..network.edges import EdgeSnap
 from ..network.model import check_views
 from ..network.predict import DEFAULT_VIEWS
-from ..pipeline.config import DEFAULT_WORLD, WORLDS
+from ..pipeline.config import DEFAULT_WORLD, RENAMED, WORLDS
 from .compilation import CompileLedger, enable_compilation_cache, program_directory, settings_key
 from .inputs import (
     PANORAMA_SUFFIXES,
@@ -49,7 +49,7 @@ from .inputs import (
     parse_rc,
     radius_of,
 )
-from .options import add_config_options, config_from_options
+from .options import add_config_options, add_renamed_options, config_from_options
 from .outputs import align_to_gravity, write_outputs
 from .summary import SUMMARY_FILE, failure_message, read_summary, skipped_row, summary_row, update_summary
 
@@ -79,9 +79,15 @@ class ReconstructSettings:
 
 def program_key(shape: tuple[int, ...], settings: ReconstructSettings, central: bool) -> str:
     """:func:`~.compilation.settings_key` of the program that reconstructs a batch of ``shape`` with ``settings``."""
-    from ..pipeline.config import static_part
+    from ..pipeline.config import static_structure
 
-    parts = (settings.model.config, settings.world, settings.views, settings.edge_snap, static_part(settings.config))
+    parts = (
+        settings.model.config,
+        settings.world,
+        settings.views,
+        settings.edge_snap,
+        static_structure(settings.config),
+    )
     return settings_key(shape, *parts, central)
 
 
@@ -96,7 +102,7 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
     """
     import jax
 
-    from ..pipeline.run import panorama_keys
+    from ..pipeline.batch import panorama_keys
     from ..reconstruction import reconstruct_batch
 
     batch_size = settings.batch_size
@@ -492,8 +498,9 @@ def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:
         parser,
         NETWORK_PIPELINE_CONFIG,
         title="pipeline settings (PipelineConfig; defaults: NETWORK_PIPELINE_CONFIG)",
-        skip=("prior_room_height",),  # the height prior's route sets it (--camera-height and kin)
+        skip=("prior.room_height",),  # the height prior's route sets it (--camera-height and kin)
     )
+    add_renamed_options(parser, RENAMED)
 
 
 def pipeline_config(args: argparse.Namespace):

@@ -14,7 +14,7 @@ Minimises, over the wall directions, distances and the two heights,
   no column sees (those inserted for occlusions).
 
 Solved with ``optimistix.least_squares`` (``optx.Dogleg``, ``throw=False``,
-at most ``PipelineConfig.adjustment_steps`` iterations) and differentiable
+at most ``AdjustmentConfig.steps`` iterations) and differentiable
 through the implicit-function theorem (optimistix's default ``ImplicitAdjoint``).
 Dogleg rather than ``optx.LevenbergMarquardt``: same tests and accuracy checks, about
 twice as fast here (its Newton and Cauchy steps are computed once per accepted point,
@@ -51,7 +51,9 @@ from ..geometry.fastmath import arctan2
 from ..geometry.plucker import wall_planes_meet
 from ..geometry.polygon import previous_in_loop
 from ..geometry.reprojection import boundary_rows_along, column_directions
+from .config import AdjustmentConfig
 from .sparse_normal import JacobianStructure, SparseNormalCholesky, distinct_slots
+from .types import Walls
 
 
 class BoundaryObservations(eqx.Module):
@@ -59,7 +61,7 @@ class BoundaryObservations(eqx.Module):
 
     Attributes:
         columns: the panorama column of each observation (N,): all ``W`` of
-            them, or every ``s``-th (``PipelineConfig.adjustment_stride``).
+            them, or every ``s``-th (``AdjustmentConfig.stride``).
         ceiling_v: observed ceiling rows per column (N,).
         floor_v: observed floor rows per column (N,).
         ceiling_used: columns whose ceiling row enters the fit (RANSAC inliers).
@@ -174,11 +176,11 @@ def boundary_residuals(
     ceiling_height: Float[ArrayLike, ""],
     floor_height: Float[ArrayLike, ""],
     cam: NonCentralPanorama,
-    column_direction: Float[ArrayLike, " 2"],
-    ceiling_v: Float[ArrayLike, ""],
-    floor_v: Float[ArrayLike, ""],
+    column: tuple[Float[ArrayLike, " 2"], Float[ArrayLike, ""], Float[ArrayLike, ""]],
 ) -> Float[Array, " 2"]:
-    """Ceiling and floor row errors (pixels) of one column (given by its :func:`column_directions`) on its wall."""
+    """Ceiling and floor row errors (pixels) of one ``column`` on its wall: the column's
+    :func:`column_directions` and its observed ceiling and floor rows."""
+    column_direction, ceiling_v, floor_v = column
     ceiling, floor, _ = boundary_rows_along(cam, direction, distance, ceiling_height, floor_height, column_direction)
     return jnp.stack([ceiling - ceiling_v, floor - floor_v])
 
@@ -213,28 +215,25 @@ def corner_residual(
 def _residual_terms(
     angles: Float[Array, " K"],
     distances: Float[Array, " K"],
-    ceiling_height: Float[ArrayLike, ""],
-    floor_height: Float[ArrayLike, ""],
+    heights: tuple[Float[ArrayLike, ""], Float[ArrayLike, ""]],
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
     observed_directions: Float[Array, "N 2"],
 ) -> tuple[Float[Array, "N 2"], Float[Array, " K"]]:
-    """Unweighted, unmasked row errors per column and column errors per corner (wall ``k`` at ``angles[k]``).
+    """Unweighted, unmasked row errors per column and column errors per corner (wall ``k`` at ``angles[k]``,
+    the ceiling and floor at ``heights``).
 
     ``observed_directions`` are the :func:`column_directions` of the observed
     columns: the solvers evaluate the residuals many times, so they pass them in.
     """
     wall = jnp.maximum(observations.column_wall, 0)
     directions = jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1)
-    rows = jax.vmap(_boundary_residuals_fast_jvp, in_axes=(0, 0, None, None, None, 0, 0, 0))(
+    rows = jax.vmap(_boundary_residuals_fast_jvp, in_axes=(0, 0, None, None, None, 0))(
         directions[wall],
         distances[wall],
-        ceiling_height,
-        floor_height,
+        *heights,
         cam,
-        observed_directions,
-        observations.ceiling_v,
-        observations.floor_v,
+        (observed_directions, observations.ceiling_v, observations.floor_v),
     )
     previous = previous_in_loop(observations.wall_mask)
     corners = jax.vmap(corner_residual, in_axes=(0, 0, None, 0))(
@@ -264,22 +263,17 @@ def _fitted_residuals(
 
 
 def layout_residuals(
-    directions: Float[Array, "K 2"],
-    distances: Float[Array, " K"],
-    ceiling_height: Float[ArrayLike, ""],
-    floor_height: Float[ArrayLike, ""],
-    cam: NonCentralPanorama,
-    observations: BoundaryObservations,
-    corner_weight: Float[ArrayLike, ""],
+    walls: Walls, cam: NonCentralPanorama, observations: BoundaryObservations, corner_weight: Float[ArrayLike, ""]
 ) -> Float[Array, " residuals"]:
-    """Row errors of the ceiling and floor boundaries and weighted corner column errors (pixels).
+    """Row errors of the ceiling and floor boundaries of ``walls`` and weighted corner column errors (pixels).
 
     Returns:
         ``2 N + K`` residuals: the ``N`` ceiling rows, the ``N`` floor rows, the corners; 0 where unused.
     """
-    angles = jnp.arctan2(directions[:, 1], directions[:, 0])
+    angles = jnp.arctan2(walls.directions[:, 1], walls.directions[:, 0])
+    heights = (walls.ceiling_height, walls.floor_height)
     rows, corners = _residual_terms(
-        angles, distances, ceiling_height, floor_height, cam, observations, observation_directions(cam, observations)
+        angles, walls.distances, heights, cam, observations, observation_directions(cam, observations)
     )
     return _fitted_residuals(rows, corners, observations, corner_weight)
 
@@ -319,10 +313,10 @@ class LayoutProblem(eqx.Module):
     angle_index: Int[Array, " K"]
     angle_used: Bool[Array, " K"]
 
-    def walls(self, y) -> tuple[Float[Array, "K 2"], Float[Array, " K"], Float[Array, ""], Float[Array, ""]]:
-        """``(directions, distances, h_c, h_f)`` at the parameters ``y``."""
+    def walls(self, y) -> Walls:
+        """The walls and heights at the parameters ``y``."""
         angles = y[0][self.angle_index] + self.offsets
-        return jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1), y[1], y[2][0], y[2][1]
+        return Walls(jnp.stack([jnp.cos(angles), jnp.sin(angles)], -1), y[1], y[2][0], y[2][1])
 
 
 # the label of a wall with its own angle (an Atlanta layout's labels)
@@ -334,9 +328,11 @@ def is_manhattan(labels: Int[Array, " K"]) -> Bool[Array, ""]:
     return jnp.all(labels != FREE_ANGLE)
 
 
-def layout_problem(directions, distances, ceiling_height, floor_height, labels, wall_mask) -> LayoutProblem:
-    """The parametrisation of :func:`adjust_layout` at the given walls (``labels`` None or all
+def layout_problem(walls: Walls, labels: Int[Array, " K"] | None, wall_mask: Bool[Array, " K"]) -> LayoutProblem:
+    """The parametrisation of :func:`adjust_layout` at ``walls`` (``labels`` None or all
     :data:`FREE_ANGLE`: an angle per wall)."""
+    directions, distances = walls.directions, walls.distances
+    ceiling_height, floor_height = walls.ceiling_height, walls.floor_height
     capacity = distances.shape[0]
     dtype = distances.dtype
     if labels is None:
@@ -372,8 +368,7 @@ def problem_residuals(
     rows, corners = _residual_terms(
         wall_angles[problem.angle_index] + problem.offsets,
         distances,
-        heights[0],
-        heights[1],
+        (heights[0], heights[1]),
         cam,
         observations,
         observed_directions,
@@ -422,10 +417,7 @@ def jacobian_structure(problem: LayoutProblem, observations: BoundaryObservation
 def layout_least_squares(
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
-    directions: Float[Array, "K 2"],
-    distances: Float[Array, " K"],
-    ceiling_height: Float[ArrayLike, ""],
-    floor_height: Float[ArrayLike, ""],
+    walls: Walls,
     labels: Int[Array, " K"] | None,
     corner_weight: Float[ArrayLike, ""],
 ) -> tuple[LayoutProblem, Callable[[tuple[Array, Array, Array]], Float[Array, " residuals"]], JacobianStructure]:
@@ -437,7 +429,7 @@ def layout_least_squares(
         parameters ``y`` of those walls), the residuals as a function of ``y`` (:func:`problem_residuals`)
         and which parameters each residual depends on (:func:`jacobian_structure`).
     """
-    problem = layout_problem(directions, distances, ceiling_height, floor_height, labels, observations.wall_mask)
+    problem = layout_problem(walls, labels, observations.wall_mask)
     observed_directions = observation_directions(cam, observations)
 
     def residuals(y):
@@ -449,44 +441,32 @@ def layout_least_squares(
 def adjust_layout(
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
-    directions: Float[Array, "K 2"],
-    distances: Float[Array, " K"],
-    ceiling_height: Float[ArrayLike, ""],
-    floor_height: Float[ArrayLike, ""],
+    walls: Walls,
     labels: Int[Array, " K"] | None,
-    corner_weight: Float[ArrayLike, ""] = 1.0,
-    steps: int = 8,
-    tolerance: float = 1e-4,
-) -> tuple[Float[Array, "K 2"], Float[Array, " K"], Float[Array, ""], Float[Array, ""], Bool[Array, ""]]:
+    config: AdjustmentConfig = AdjustmentConfig(),
+) -> tuple[Walls, Bool[Array, ""]]:
     """Trust-region (dogleg) least-squares refinement of a layout (see the module docstring).
 
-    ``optimistix.least_squares`` with ``throw=False`` and at most ``steps``
+    ``optimistix.least_squares`` with ``throw=False`` and at most ``config.steps``
     iterations (under ``vmap`` a batch runs until its slowest member stops, so
     the small cap bounds the batch's while loop too).
 
     Args:
         cam: the camera.
         observations: boundaries, used columns and corners.
-        directions: initial unit wall directions (K, 2).
-        distances: initial signed distances (K,).
-        ceiling_height: initial ``h_c``.
-        floor_height: initial ``h_f``.
+        walls: the initial walls and heights.
         labels: Manhattan labels (0: ``u``, 1: ``u_perp``) to keep the walls
             exactly Manhattan with one yaw; None or all :data:`FREE_ANGLE` for free directions (Atlanta).
-        corner_weight: weight of the corner-plane penalty (may be traced).
-        steps: static iteration cap.
-        tolerance: static relative and absolute tolerance (optimistix's Cauchy
-            test; float32 rounds the residuals at about 1e-5 px, so a much
+        config: the corner-plane penalty's weight (traced), the static iteration cap ``steps`` and the static
+            ``tolerance`` (optimistix's Cauchy test; float32 rounds the residuals at about 1e-5 px, so a much
             tighter one is never met and every solve runs ``steps`` steps).
 
     Returns:
-        ``(directions, distances, h_c, h_f, improved)``; the initial values are
-        kept (``improved`` False) when the result is not finite or does not
-        lower the cost (an unconverged but better iterate is kept).
+        ``(walls, improved)``; the initial walls are kept (``improved`` False) when the result is not finite
+        or does not lower the cost (an unconverged but better iterate is kept).
     """
-    problem, residuals, structure = layout_least_squares(
-        cam, observations, directions, distances, ceiling_height, floor_height, labels, corner_weight
-    )
+    steps, tolerance = config.steps, config.tolerance
+    problem, residuals, structure = layout_least_squares(cam, observations, walls, labels, config.corner_weight)
     y0 = problem.start
 
     def cost(y):
@@ -504,4 +484,4 @@ def adjust_layout(
     final_cost = cost(solution.value)
     improved = jnp.isfinite(final_cost) & (final_cost < cost(y0))
     y = jax.tree.map(lambda new, old: jnp.where(improved, new, old), solution.value, y0)
-    return *problem.walls(y), improved
+    return problem.walls(y), improved

@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
 from ..geometry.polygon import previous_in_loop
 from ..geometry.reprojection import column_directions
 from .adjust import FREE_ANGLE, corner_column_offset
-from .config import scaled
+from .config import BranchConfig
 from .evidence import previous_of
-from .types import BranchWalls, FinalWalls
+from .settings import scaled
+from .types import BranchWalls, FinalWalls, WallEvidence
 from .walls import (
     boundary_gap,
     final_walls,
@@ -45,25 +46,15 @@ def _place_atlanta_walls(
     return jnp.where(keep, directions, new_direction), jnp.where(final.observed, distances, new_distance)
 
 
-def _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, config):
-    """The Atlanta wall loop after merging and insertion, and its walls from the joint solver.
-
-    Returns:
-        ``(final, ok, directions, distances, ceiling_height, floor_height)``.
-    """
-    final = final_walls(evidence, merge, insert, False, config.sample_size)
+def _solve_atlanta_walls(evidence, merge, insert, min_columns, max_room_height) -> BranchWalls:
+    """The Atlanta wall loop after merging and insertion, and its walls from the joint solver."""
+    final = final_walls(evidence, merge, insert, False, min_columns)
     solved, ok = solve_final_walls(
-        cam,
-        evidence,
-        final,
-        ceiling_v,
-        floor_v,
-        group_directions(evidence, merge, final),
-        lambda plan: plan,
-        config.max_room_height,
+        evidence, final, group_directions(evidence, merge, final), lambda plan: plan, max_room_height
     )
-    directions, distances = _place_atlanta_walls(cam, final, solved.directions, solved.distances)
-    return final, ok, directions, distances, solved.ceiling_height, solved.floor_height
+    directions, distances = _place_atlanta_walls(evidence.cam, final, solved.directions, solved.distances)
+    labels = jnp.full(merge.shape[0], FREE_ANGLE)
+    return BranchWalls(final, ok, directions, distances, solved.ceiling_height, solved.floor_height, labels)
 
 
 def corner_offsets(
@@ -85,7 +76,7 @@ def corner_offsets(
     return jnp.where((meet | ~wall_mask) & jnp.isfinite(offset), offset, jnp.inf)
 
 
-def _stray_corners(cam, evidence, final, directions, distances, h_c, h_f, config) -> Bool[Array, " K"]:
+def _stray_corners(evidence: WallEvidence, walls: BranchWalls, config: BranchConfig) -> Bool[Array, " K"]:
     """Corners of two observed walls that hold a wall between them whose two corners gave one peak.
 
     The two walls meet more than ``max_corner_offset`` columns from the corner (or are parallel). Noisy
@@ -94,6 +85,8 @@ def _stray_corners(cam, evidence, final, directions, distances, h_c, h_f, config
     times the rows' noise. At a corner whose peak follows the exact label target (no corner hides in it),
     the rows' jump there must stand out of its noise instead, where both sides' rows measure it.
     """
+    cam, final = evidence.cam, walls.final
+    directions, distances, h_c, h_f = walls.directions, walls.distances, walls.ceiling_height, walls.floor_height
     previous = previous_in_loop(final.mask)
     both_observed = final.observed & final.observed[previous]
     offsets = corner_offsets(cam, directions, distances, final.mask, final.corner_columns)
@@ -115,8 +108,11 @@ def _stray_corners(cam, evidence, final, directions, distances, h_c, h_f, config
     return both_observed & (offsets > scaled(config.max_corner_offset, cam.width, 1024)) & apart
 
 
-def atlanta_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
-    """Atlanta branch (step 4 of the module docstring)."""
+def atlanta_walls(
+    evidence: WallEvidence, config: BranchConfig, min_columns: int, max_room_height: Float[ArrayLike, ""]
+) -> BranchWalls:
+    """Atlanta branch (step 4 of :mod:`ncjax.pipeline.run`; ``min_columns`` and ``max_room_height`` as in
+    :func:`~ncjax.pipeline.manhattan.manhattan_walls`)."""
     ransac_directions = evidence.walls.direction
     turn = cross_2d(ransac_directions[previous_of(evidence)], ransac_directions)
     parallel = jnp.abs(turn) < jnp.sin(jnp.radians(config.merge_angle))
@@ -126,13 +122,10 @@ def atlanta_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
     def one_pass(insert, _):
         # the walls with those of ``insert`` inserted (in the corner ray's plane, as at an occlusion), and
         # ``insert`` with the stray corners of that layout's walls
-        solved = _solve_atlanta_walls(evidence, merge, insert, ceiling_v, floor_v, cam, config)
-        final, _, directions, distances, h_c, h_f = solved
-        stray = _stray_corners(cam, evidence, final, directions, distances, h_c, h_f, config)
-        return insert.at[jnp.where(stray, final.start_wall, capacity)].set(True, mode="drop"), solved
+        walls = _solve_atlanta_walls(evidence, merge, insert, min_columns, max_room_height)
+        stray = _stray_corners(evidence, walls, config)
+        return insert.at[jnp.where(stray, walls.final.start_wall, capacity)].set(True, mode="drop"), walls
 
     # the walls at the occlusions, then with the stray corners' walls too: one traced pass run twice
     _, passes = jax.lax.scan(one_pass, evidence.occluded, length=2)
-    final, ok, directions, distances, h_c, h_f = jax.tree.map(lambda x: x[1], passes)
-    labels = jnp.full(capacity, FREE_ANGLE)
-    return BranchWalls(final, ok, directions, distances, h_c, h_f, labels)
+    return jax.tree.map(lambda x: x[1], passes)

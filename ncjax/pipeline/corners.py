@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..synth.rooms import CORNER_LABEL_BASE
-from .config import PipelineConfig, nms_radius
+from .config import CornerConfig, PipelineConfig
 
 
 def is_peak(corner_prob: Float[Array, " W"], radius: int, threshold: Float[ArrayLike, ""]) -> Bool[Array, " W"]:
@@ -104,15 +104,12 @@ def find_corners(
     corner_prob: Float[Array, " W"],
     capacity: int,
     radius: int,
-    threshold: Float[ArrayLike, ""],
-    min_corners: int = 0,
-    fallback_threshold: Float[ArrayLike, ""] = 0.0,
-    exact_tolerance: Float[ArrayLike, ""] = 0.0,
+    config: CornerConfig,
 ) -> tuple[Float[Array, " C"], Bool[Array, " C"], Bool[Array, " C"], Bool[Array, ""]]:
     """Corner columns: the ``capacity`` strongest peaks, refined, sorted left to right.
 
-    A room has at least ``min_corners`` corners. When fewer peaks reach
-    ``threshold`` (a network unsure of a panorama unlike its training images
+    A room has at least ``config.min_corners`` corners. When fewer peaks reach
+    ``config.threshold`` (a network unsure of a panorama unlike its training images
     gives flat lobes), the threshold drops to the ``min_corners``-th strongest
     peak, but not below ``fallback_threshold``; otherwise nothing changes.
     A peak of the exact label target that holds two corners closer than the
@@ -123,10 +120,9 @@ def find_corners(
         corner_prob: per-column corner probability.
         capacity: static number of corner slots ``C``.
         radius: static non-maximum-suppression half-width (columns).
-        threshold: minimum peak probability.
-        min_corners: static; 0 keeps ``threshold`` whatever the count.
-        fallback_threshold: the lowest the threshold may drop to.
-        exact_tolerance: :func:`exact_target_corners`' tolerance (0: peaks are never split).
+        config: the threshold, the fallback for ``min_corners`` (static; 0 keeps ``threshold`` whatever the
+            count) and :func:`exact_target_corners`' tolerance (0: peaks are never split); its ``nms_radius``
+            is the caller's, as ``radius``.
 
     Returns:
         ``(columns, mask, exact, overflow)``: sub-column positions in ``[-0.5, W - 0.5)``
@@ -135,6 +131,8 @@ def find_corners(
         in them), and whether more corners than ``capacity`` were found.
     """
     width = corner_prob.shape[0]
+    threshold, min_corners, exact_tolerance = config.threshold, config.min_corners, config.exact_target_tolerance
+    fallback_threshold = config.fallback_threshold
     candidate = is_peak(corner_prob, radius, jnp.minimum(threshold, fallback_threshold) if min_corners else threshold)
     strength = jnp.where(candidate, corner_prob, -jnp.inf)
     values, strongest = jax.lax.top_k(strength, capacity)
@@ -160,18 +158,10 @@ def find_corners(
 def configured_corners(
     corner_prob: Float[Array, " W"], config: PipelineConfig
 ) -> tuple[Float[Array, " C"], Bool[Array, " C"], Bool[Array, " C"], Bool[Array, ""]]:
-    """The corners the pipeline takes: :func:`find_corners` with ``config``'s settings (``C`` =
+    """The corners the pipeline takes: :func:`find_corners` with ``config.corners`` (``C`` =
     ``config.capacity``), non-finite probabilities read as 0."""
     corner_prob = jnp.where(jnp.isfinite(corner_prob), corner_prob, 0.0)
-    return find_corners(
-        corner_prob,
-        config.capacity,
-        nms_radius(config, corner_prob.shape[0]),
-        config.corner_threshold,
-        config.min_corners,
-        config.fallback_corner_threshold,
-        config.exact_target_tolerance,
-    )
+    return find_corners(corner_prob, config.capacity, config.corners.radius(corner_prob.shape[0]), config.corners)
 
 
 def column_walls(corner_columns: Float[Array, " C"], corner_mask: Bool[Array, " C"], width: int) -> Int[Array, " W"]:

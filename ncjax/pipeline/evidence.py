@@ -15,7 +15,7 @@ from ..geometry.reprojection import column_directions
 from ..solvers.layout import solve_atlanta_layout
 from ..solvers.ransac import boundary_errors, ransac_wall, wall_columns
 from .adjust import boundary_weights
-from .config import PipelineConfig, min_noise, scaled
+from .config import PipelineConfig
 from .corners import (
     column_walls,
     configured_corners,
@@ -24,24 +24,26 @@ from .corners import (
     side_extrapolation,
     straight_wall_value,
 )
-from .types import WallEvidence
+from .settings import scaled
+from .types import Rows, WallEvidence
 from .walls import boundary_gap
 
 
 def gather_evidence(
-    ceiling_v: Float[Array, " W"],
-    floor_v: Float[Array, " W"],
-    corner_prob: Float[Array, " W"],
+    rows: Rows,
     cam: NonCentralPanorama,
     key: PRNGKeyArray,
     config: PipelineConfig,
     heights: tuple[Float[Array, ""], Float[Array, ""]] | None = None,
 ) -> WallEvidence:
-    """Steps 1-3: corners, one RANSAC wall between each pair, and the boundary jump at each corner.
+    """Steps 1-3: corners (``config.corners``), one RANSAC wall between each pair (``config.ransac``), and the
+    boundary jump at each corner (``config.occlusion``).
 
     ``heights``: a height prior's known ``(h_c, h_f)``, which RANSAC's walls then keep (:func:`ransac_wall`).
     """
     width, capacity = cam.width, config.capacity
+    ransac, occlusion = config.ransac, config.occlusion
+    ceiling_v, floor_v = rows.ceiling, rows.floor
     finite = jnp.isfinite(ceiling_v) & jnp.isfinite(floor_v)
     ceiling_v = jnp.where(finite, ceiling_v, cam.height / 4)
     floor_v = jnp.where(finite, floor_v, 3 * cam.height / 4)
@@ -50,18 +52,18 @@ def gather_evidence(
     ceiling_rays = pixel_to_ray(cam, columns, ceiling_v)
     floor_rays = pixel_to_ray(cam, columns, floor_v)
 
-    corner_columns, corner_mask, corner_exact, overflow = configured_corners(corner_prob, config)
+    corner_columns, corner_mask, corner_exact, overflow = configured_corners(rows.corner_prob, config)
     column_wall = column_walls(corner_columns, corner_mask, width)
-    away = distance_to_corners(corner_columns, corner_mask, width) >= scaled(config.corner_margin, width, 1024)
+    away = distance_to_corners(corner_columns, corner_mask, width) >= scaled(ransac.corner_margin, width, 1024)
     wall_of = jnp.where(column_wall >= 0, column_wall, capacity)  # segment ids, capacity: none
     seen_away = jax.ops.segment_sum((finite & away).astype(jnp.int32), wall_of, capacity + 1)
     # narrow walls (seen almost edge-on) keep the columns next to their corners
-    few = seen_away < 2 * config.sample_size
+    few = seen_away < 2 * ransac.sample_size
     usable = finite & (column_wall >= 0) & (away | few[wall_of])
 
     pixels = scaled(1.0, cam.height, 512)
-    threshold = config.inlier_threshold * pixels
-    sampled, sampled_valid = wall_columns(column_wall, usable, corner_columns, config.ransac_columns)
+    threshold = ransac.inlier_threshold * pixels
+    sampled, sampled_valid = wall_columns(column_wall, usable, corner_columns, ransac.columns)
     walls = jax.vmap(functools.partial(ransac_wall, heights=heights), in_axes=(0, None, 0, 0, 0, 0, None, None, None))(
         jax.random.split(key, capacity),
         cam,
@@ -69,8 +71,8 @@ def gather_evidence(
         ceiling_rays[sampled],
         floor_rays[sampled],
         sampled_valid,
-        config.hypotheses,
-        config.sample_size,
+        ransac.hypotheses,
+        ransac.sample_size,
         threshold,
     )
 
@@ -100,7 +102,7 @@ def gather_evidence(
     ceiling_trusted = ceiling_in | (usable & ~on_fitted)
     floor_trusted = floor_in | (usable & ~on_fitted)
     row_weights = boundary_weights(
-        ceiling_error, floor_error, ceiling_in & on_fitted, floor_in & on_fitted, min_noise(config, cam)
+        ceiling_error, floor_error, ceiling_in & on_fitted, floor_in & on_fitted, config.adjustment.min_noise(cam)
     )
     # one wall's rows fix its own metric scale poorly: the heights come from all the fitted walls at once
     heights = solve_atlanta_layout(
@@ -113,7 +115,7 @@ def gather_evidence(
     )
 
     # the boundary jump at each corner, from the walls' boundaries on either side extrapolated to it
-    margin = scaled(config.corner_margin, width, 1024)
+    margin = scaled(ransac.corner_margin, width, 1024)
     window = max(3, round(scaled(8.0, width, 1024)))
     column_angle = cam.fov_horizontal / width
 
@@ -168,8 +170,8 @@ def gather_evidence(
     )
     jump = jnp.where(both_fitted & both_seen, jnp.minimum(jump, wall_jump), jump)
     # each of walls j - 1 and j explains most inliers of the other
-    same_plane = (explained_fraction(previous) >= config.merge_fraction) & (
-        explained_fraction(following)[previous] >= config.merge_fraction
+    same_plane = (explained_fraction(previous) >= occlusion.merge_fraction) & (
+        explained_fraction(following)[previous] >= occlusion.merge_fraction
     )
     # noisy rows make the jump noisy too: it must also stand out of the noise, whose scale is
     # robustly 1.4826 x the median row error of the usable columns about their RANSAC walls,
@@ -185,10 +187,8 @@ def gather_evidence(
         return jnp.maximum(jnp.hypot(first, second) / (math.sqrt(2) * full_window), 1.0)
 
     jump_seen = corner_mask & seen_here & seen_before
-    jump_stands_out = jump_seen & (
-        jump > config.occlusion_noise_factor * noise * relative_spread(spread_here, spread_before)
-    )
-    occluded = jump_stands_out & (jump > config.occlusion_threshold * pixels)
+    jump_stands_out = jump_seen & (jump > occlusion.noise_factor * noise * relative_spread(spread_here, spread_before))
+    occluded = jump_stands_out & (jump > occlusion.threshold * pixels)
     previous_nearer = (floor_before - ceiling_before) > (floor_here - ceiling_here)
 
     # A wall too narrow to extrapolate (its corners closer than the window) between two that extrapolate: along a
@@ -212,8 +212,8 @@ def gather_evidence(
     hidden = narrow & (
         deviation
         > jnp.maximum(
-            config.occlusion_threshold * pixels,
-            config.occlusion_noise_factor * noise * relative_spread(spread_before, spread_here[following]),
+            occlusion.threshold * pixels,
+            occlusion.noise_factor * noise * relative_spread(spread_before, spread_here[following]),
         )
     )
     span_before = floor_before - ceiling_before
@@ -225,8 +225,10 @@ def gather_evidence(
     occluded = occluded | at_start | at_end
     previous_nearer = jnp.where(at_start, True, jnp.where(at_end, False, previous_nearer))
     # where the fitted walls part at the corner, an occlusion the jump missed may hide a wall there
-    walls_part = both_fitted & both_seen & (wall_jump > config.occlusion_noise_factor * noise)
+    walls_part = both_fitted & both_seen & (wall_jump > occlusion.noise_factor * noise)
     return WallEvidence(
+        cam=cam,
+        rows=rows,
         ceiling_rays=ceiling_rays,
         floor_rays=floor_rays,
         finite=finite,

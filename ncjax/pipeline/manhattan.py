@@ -10,7 +10,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry.camera import NonCentralPanorama
 from .adjust import manhattan_directions, manhattan_yaw
-from .config import PipelineConfig
+from .config import BranchConfig
 from .evidence import previous_of
 from .types import BranchWalls, FinalWalls, WallEvidence
 from .walls import final_walls, plan_lines, point_on_wall, several_corners, signed_distance, solve_final_walls
@@ -106,9 +106,7 @@ def manhattan_labels(
     return cyclic_binary_labels(unary, same_cost, turn_cost, mask)
 
 
-def _segment_directions(
-    cam: NonCentralPanorama, evidence: WallEvidence, ceiling_v, floor_v, config: PipelineConfig
-) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
+def _segment_directions(evidence: WallEvidence) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
     """Per RANSAC segment, a direction and its support (rows) for :func:`manhattan_labels`.
 
     A fitted wall keeps its RANSAC direction and inlier count. A segment RANSAC
@@ -118,9 +116,7 @@ def _segment_directions(
     walls' joint solve, whose rows fix the heights well, with its trusted rows as support.
     """
     heights = evidence.heights
-    plan = plan_lines(
-        cam, evidence, evidence.column_wall, ceiling_v, floor_v, heights.ceiling_height, heights.floor_height
-    )
+    plan = plan_lines(evidence, evidence.column_wall, heights.ceiling_height, heights.floor_height)
     usable_plan = heights.ok & jnp.all(jnp.isfinite(plan), axis=-1)
     capacity = evidence.corner_mask.shape[0]
     rows = (evidence.ceiling_trusted & evidence.floor_trusted).astype(evidence.weights.dtype) * 2
@@ -146,11 +142,13 @@ def _place_manhattan_walls(
     return jnp.where(final.observed, distances, signed_distance(directions, corner))
 
 
-def manhattan_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
-    """Manhattan branch (step 4 of the module docstring)."""
-    labels = manhattan_labels(
-        evidence, *_segment_directions(cam, evidence, ceiling_v, floor_v, config), config.turn_weight
-    )
+def manhattan_walls(
+    evidence: WallEvidence, config: BranchConfig, min_columns: int, max_room_height: Float[ArrayLike, ""]
+) -> BranchWalls:
+    """Manhattan branch (step 4 of :mod:`ncjax.pipeline.run`): a wall is observed with ``min_columns`` trusted
+    columns (:func:`~ncjax.pipeline.walls.final_walls`), a room taller than ``max_room_height`` is implausible
+    (:func:`~ncjax.pipeline.walls.solve_final_walls`)."""
+    labels = manhattan_labels(evidence, *_segment_directions(evidence), config.turn_weight)
     same_class = labels[previous_of(evidence)] == labels
     # Manhattan walls never meet at 0 degrees: consecutive walls of one class are one plane split by a
     # spurious corner if both were fitted and each explains the other's rows; otherwise a wall lies between
@@ -159,7 +157,7 @@ def manhattan_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
     one_plane = ~evidence.occluded & evidence.same_plane
     merge = evidence.corner_mask & same_class & one_plane & several_corners(evidence)
     insert = evidence.corner_mask & same_class & ~one_plane
-    final = final_walls(evidence, merge, insert, True, config.sample_size)
+    final = final_walls(evidence, merge, insert, True, min_columns)
     wall_labels = jnp.where(final.inserted, 1 - labels[final.start_wall], labels[final.start_wall])
     fitted = final.observed & evidence.fitted[final.start_wall]
     yaw = manhattan_yaw(evidence.walls.direction[final.start_wall], wall_labels, fitted)
@@ -167,9 +165,7 @@ def manhattan_walls(evidence, ceiling_v, floor_v, cam, config) -> BranchWalls:
     def snap(plan):
         return manhattan_directions(manhattan_yaw(plan, wall_labels, final.observed), wall_labels)
 
-    solved, ok = solve_final_walls(
-        cam, evidence, final, ceiling_v, floor_v, manhattan_directions(yaw, wall_labels), snap, config.max_room_height
-    )
-    distances = _place_manhattan_walls(cam, final, solved.directions, solved.distances)
+    solved, ok = solve_final_walls(evidence, final, manhattan_directions(yaw, wall_labels), snap, max_room_height)
+    distances = _place_manhattan_walls(evidence.cam, final, solved.directions, solved.distances)
     heights = (solved.ceiling_height, solved.floor_height)
     return BranchWalls(final, ok, solved.directions, distances, *heights, wall_labels)

@@ -24,7 +24,7 @@ take of those points:
    brought to the prior's room height before the final adjustment
    (:func:`ncjax.pipeline.run.at_room_height`: the virtual parallax of noisy
    rows can put them far off), and its layout is scaled so that the prior's
-   height holds exactly (:func:`ncjax.pipeline.run.layout_for`). The image's
+   height holds exactly (:func:`ncjax.pipeline.run.finish`). The image's
    own central rays cannot tell a room from a scaled copy, so the scaling
    changes no reprojection.
 
@@ -45,7 +45,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 from .floor_check import ceiling_floor_ratio
-from .types import Layout
+from .types import Layout, LayoutStatus
 
 # What a prior can give: the camera's height above the floor (HorizonNet's 1.6 m), the ceiling's height
 # above the camera (``h_c``, :attr:`ncjax.Layout.ceiling_height`), or the room's floor-to-ceiling height.
@@ -215,4 +215,36 @@ def scale_layout(layout: Layout, factor: Float[ArrayLike, ""]) -> Layout:
         floor_lines=lines(layout.floor_lines),
         corner_covariance=factor**2 * layout.corner_covariance,
         height_covariance=factor**2 * layout.height_covariance,
+    )
+
+
+def flag_scale_conflicts(
+    layout: Layout,
+    geometry: Layout,
+    prior: HeightPrior,
+    max_scale_conflict: Float[ArrayLike, ""],
+) -> Layout:
+    """``layout`` with ``SCALE_CONFLICT`` where an ``OK`` layout took its scale from ``prior`` because its
+    ``geometry`` was ``UNCERTAIN_SCALE`` (only a non-central one can be: a central one is ``NO_SCALE``), and that
+    geometry's height lies more than ``max_scale_conflict`` standard deviations from the prior's
+    (:func:`~ncjax.pipeline.prior.scale_conflict`).
+
+    Args:
+        layout: the layouts written, B leading.
+        geometry: the layouts with the scale each panorama's geometry measured, B leading.
+        prior: the height prior (a scalar value or one per panorama).
+        max_scale_conflict: the flag's threshold (``PriorConfig.max_scale_conflict``).
+
+    Returns:
+        ``layout`` with those panoramas' status ``SCALE_CONFLICT`` and ``ok`` false; the rest unchanged.
+    """
+    prior = jax.tree.map(lambda x: jnp.broadcast_to(x, geometry.status.shape), prior)
+    conflict = jax.vmap(scale_conflict)(geometry, prior)
+    flagged = (
+        (geometry.status == LayoutStatus.UNCERTAIN_SCALE)
+        & (layout.status == LayoutStatus.OK)
+        & (conflict > max_scale_conflict)
+    )
+    return dataclasses.replace(
+        layout, status=jnp.where(flagged, LayoutStatus.SCALE_CONFLICT, layout.status), ok=layout.ok & ~flagged
     )

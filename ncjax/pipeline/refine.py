@@ -10,18 +10,15 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .adjust import BoundaryObservations, adjust_layout, boundary_weights, layout_residuals
-from .config import min_noise, scaled
-from .types import FinalWalls, WallEvidence
-from .uncertainty import layout_uncertainty, not_computed
-
-# longest lag (columns of a 1024-wide panorama) over which the boundary rows' errors count as correlated
-CORRELATION_COLUMNS = 256.0
+from .config import AdjustmentConfig, PipelineConfig
+from .settings import scaled
+from .types import BranchWalls, FinalWalls, WallEvidence, Walls
+from .uncertainty import LayoutUncertainty, layout_uncertainty, not_computed
 
 
-def _observations(
-    evidence: WallEvidence, final: FinalWalls, ceiling_v, floor_v, height: int, stride: int
-) -> BoundaryObservations:
+def _observations(evidence: WallEvidence, final: FinalWalls, stride: int) -> BoundaryObservations:
     """The adjustment's data: every ``stride``-th column (the cost of a step grows with their number)."""
+    ceiling_v, floor_v, height = evidence.rows.ceiling, evidence.rows.floor, evidence.cam.height
     observations = BoundaryObservations(
         columns=jnp.arange(ceiling_v.shape[0]),
         ceiling_v=jnp.where(evidence.finite, ceiling_v, height / 4),
@@ -46,10 +43,9 @@ def _strided(observations: BoundaryObservations, stride: int) -> BoundaryObserva
     )
 
 
-def _row_errors(cam, observations: BoundaryObservations, walls) -> tuple[Float[Array, " N"], Float[Array, " N"]]:
-    """Ceiling and floor row errors (pixels) of the observed columns on the walls
-    ``(directions, distances, h_c, h_f)``."""
-    errors = layout_residuals(*walls, cam, observations, 0.0)
+def _row_errors(cam, observations: BoundaryObservations, walls: Walls) -> tuple[Float[Array, " N"], Float[Array, " N"]]:
+    """Ceiling and floor row errors (pixels) of the observed columns on ``walls``."""
+    errors = layout_residuals(walls, cam, observations, 0.0)
     count = observations.columns.shape[0]
     return errors[:count], errors[count : 2 * count]
 
@@ -58,16 +54,19 @@ def _using(observations: BoundaryObservations, ceiling_used, floor_used) -> Boun
     return eqx.tree_at(lambda o: (o.ceiling_used, o.floor_used), observations, (ceiling_used, floor_used))
 
 
-def _noise_weighted(cam, observations: BoundaryObservations, errors, config) -> BoundaryObservations:
+def _noise_weighted(cam, observations: BoundaryObservations, errors, config: AdjustmentConfig) -> BoundaryObservations:
     """``observations`` with each boundary's rows weighted by the squared inverse of its noise, from its
     rows' ``errors`` (ceiling, floor) about a layout (:func:`ncjax.pipeline.adjust.boundary_weights`)."""
-    weights = boundary_weights(*errors, observations.ceiling_used, observations.floor_used, min_noise(config, cam))
+    weights = boundary_weights(*errors, observations.ceiling_used, observations.floor_used, config.min_noise(cam))
     return eqx.tree_at(lambda o: o.row_weights, observations, weights)
 
 
-def refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c, h_f, labels, config):
+def refine(
+    evidence: WallEvidence, branch: BranchWalls, config: PipelineConfig
+) -> tuple[Walls, Float[Array, ""], LayoutUncertainty]:
     """Step 5: adjust on the trusted columns, keep the inliers of that layout, adjust again.
 
+    Reads ``config.adjustment``, ``config.uncertainty`` and the inlier threshold ``config.ransac.inlier_threshold``.
     Each pass weights the ceiling and floor rows by the squared inverse of each
     boundary's noise about its starting layout (:func:`ncjax.pipeline.adjust.boundary_weights`).
     The second pass estimates it on its inlier rows, whose errors are cut at
@@ -86,9 +85,10 @@ def refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c,
         columns' ceiling and floor rows they reproject within ``inlier_threshold``, and their
         :func:`ncjax.pipeline.uncertainty.layout_uncertainty` on the rows of the second adjustment.
     """
-    observations = _observations(evidence, final, ceiling_v, floor_v, cam.height, config.adjustment_stride)
-    threshold = config.inlier_threshold * scaled(1.0, cam.height, 512)
-    in_subset = jnp.arange(observations.columns.shape[0]) % config.inlier_pass_stride == 0
+    cam, adjustment, labels = evidence.cam, config.adjustment, branch.labels
+    observations = _observations(evidence, branch.final, adjustment.stride)
+    threshold = config.ransac.inlier_threshold * scaled(1.0, cam.height, 512)
+    in_subset = jnp.arange(observations.columns.shape[0]) % adjustment.inlier_pass_stride == 0
 
     def adjustment_pass(walls, first):
         ceiling_error, floor_error = _row_errors(cam, observations, walls)
@@ -97,35 +97,21 @@ def refine(cam, evidence, final, ceiling_v, floor_v, directions, distances, h_c,
             observations.ceiling_used & jnp.where(first, in_subset, jnp.abs(ceiling_error) < threshold),
             observations.floor_used & jnp.where(first, in_subset, jnp.abs(floor_error) < threshold),
         )
-        rows = _noise_weighted(cam, rows, (ceiling_error, floor_error), config)
-        adjusted = adjust_layout(
-            cam, rows, *walls, labels, config.corner_weight, config.adjustment_steps, config.adjustment_tolerance
-        )
-        return adjusted[:4], (adjusted[4], rows)
+        rows = _noise_weighted(cam, rows, (ceiling_error, floor_error), adjustment)
+        adjusted, improved = adjust_layout(cam, rows, walls, labels, adjustment)
+        return adjusted, (improved, rows)
 
-    walls, (improved, rows) = jax.lax.scan(adjustment_pass, (directions, distances, h_c, h_f), jnp.array([True, False]))
-    adjusted = (*walls, improved[1])
+    walls, (_, rows) = jax.lax.scan(adjustment_pass, branch.walls, jnp.array([True, False]))
     inliers = jax.tree.map(lambda x: x[1], rows)
-    if config.covariance:
-        max_lag = max(1, round(scaled(CORRELATION_COLUMNS, cam.width, 1024) / config.adjustment_stride))
-        uncertainty = layout_uncertainty(
-            cam,
-            inliers,
-            *adjusted[:4],
-            labels,
-            config.corner_weight,
-            max_lag,
-            config.wall_offset_ratio,
-            config.wall_offset_noise * scaled(1.0, cam.height, 512),
-            config.corner_column_noise * scaled(1.0, cam.width, 1024),
-        )
+    if config.uncertainty.covariance:
+        uncertainty = layout_uncertainty(cam, inliers, walls, labels, adjustment, config.uncertainty)
     else:
-        uncertainty = not_computed(distances.shape[0], distances.dtype)
+        uncertainty = not_computed(walls.distances.shape[0], walls.distances.dtype)
     # every usable column counts, on whichever wall this layout gives it, so that the two branches compare
-    usable = evidence.usable[:: config.adjustment_stride]
+    usable = evidence.usable[:: adjustment.stride]
     seen = usable & (observations.column_wall >= 0)
-    ceiling_error, floor_error = _row_errors(cam, _using(observations, seen, seen), adjusted[:4])
+    ceiling_error, floor_error = _row_errors(cam, _using(observations, seen, seen), walls)
     explained = jnp.sum(seen & (jnp.abs(ceiling_error) < threshold)) + jnp.sum(
         seen & (jnp.abs(floor_error) < threshold)
     )
-    return adjusted, explained / jnp.maximum(2 * jnp.sum(usable), 1), uncertainty
+    return walls, explained / jnp.maximum(2 * jnp.sum(usable), 1), uncertainty

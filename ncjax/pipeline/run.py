@@ -52,151 +52,140 @@ boundary rows within the inlier threshold than the Atlanta one less
 (exact rows), if every RANSAC wall lies within ``manhattan_tolerance`` degrees
 of the two perpendicular directions that fit them best (:func:`choose_manhattan`).
 
+The one path through the pipeline, for one panorama: :func:`fit_walls` (steps
+0-4; on a height prior's virtual rig when a prior is given) returns
+:class:`FittedWalls`, :func:`finish` (steps 5-6, ``world="auto"``'s choice and
+the prior's scale) the :class:`Layout`; :func:`layout_of` is the two. Batches
+map them with ``jax.vmap`` (:mod:`ncjax.pipeline.batch`:
+:func:`~ncjax.pipeline.batch.layout_from_boundaries`; :mod:`ncjax.reconstruction`
+after the network). They are two functions so that a program can be saved in
+two halves that load at once (:mod:`ncjax.reconstruction`).
+
 Everything has fixed capacity ``K`` (docs/design.md section 4); failures are
 status values (:class:`LayoutStatus`), never exceptions, inside traced code.
 Repeated stages are traced once, so that the program compiles and loads
 faster: the solver passes of step 4 are one ``lax.scan``, and with
 ``world="auto"`` steps 5-6 run on both branches' walls as one ``vmap``.
-Steps 0-4 (:func:`walls_to_adjust`) and 5-6 (:func:`adjusted_layout`) are two
-functions, joined by :class:`WallsToAdjust`, so that a program can be saved
-in two halves that load at once (:mod:`ncjax.reconstruction`).
 """
 
 from __future__ import annotations
 
-import dataclasses
-import functools
-import math
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Int, Key, PRNGKeyArray, UInt32
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
 from .assemble import finish_layout
 from .atlanta import atlanta_walls
-from .config import DEFAULT_WORLD, WORLDS, PipelineConfig, static_part, traced_part, with_traced
+from .config import PipelineConfig
 from .evidence import gather_evidence
 from .floor_check import ceiling_consistent_floor
 from .manhattan import manhattan_frame, manhattan_walls
 from .prior import HeightPrior, prior_rows, rescale_to_prior
-from .types import FLAGGED_STATUSES, BranchWalls, Layout, LayoutStatus, WallEvidence, pad_layout
+from .types import FLAGGED_STATUSES, BranchWalls, Layout, LayoutStatus, Rows, WallEvidence
 from .walls import room_height as solved_room_height
 from .walls import scaled_walls
 
 
-class WallsToAdjust(eqx.Module):
-    """One panorama after steps 0-4, before steps 5-6 (internal; traced): what :func:`adjusted_layout` takes.
+class FittedWalls(eqx.Module):
+    """One panorama after steps 0-4, before steps 5-6 (traced): what :func:`finish` takes.
 
     The reconstruction's saved programs end and start here (:mod:`ncjax.reconstruction`): XLA loads the
     two halves' compiled programs at once, on two cores.
 
     Attributes:
-        cam: the camera (a height prior's virtual rig).
-        evidence: steps 1-3 (:func:`~ncjax.pipeline.evidence.gather_evidence`).
+        evidence: steps 1-3 (:func:`~ncjax.pipeline.evidence.gather_evidence`), with the camera (a height
+            prior's virtual rig) and the rows the walls were fitted to (after step 0).
         branches: step 4's walls: one branch's, or with ``world="auto"`` the Manhattan and Atlanta
             branches' stacked on a leading axis.
-        ceiling_v: the rows the walls were fitted to.
-        floor_v: likewise, after step 0.
         in_frame: every RANSAC wall lies within ``manhattan_tolerance`` of a Manhattan frame (``auto``'s tie).
-        prior_room_height: the room height a height prior gives (0: no prior), ``config.prior_room_height``.
+        prior_room_height: the room height a height prior gives (0: no prior), ``config.prior.room_height``.
     """
 
-    cam: NonCentralPanorama
     evidence: WallEvidence
     branches: BranchWalls
-    ceiling_v: Float[Array, " W"]
-    floor_v: Float[Array, " W"]
     in_frame: Bool[Array, ""]
     prior_room_height: Float[Array, ""]
 
 
-def walls_to_adjust(
-    ceiling_v: Float[Array, " W"],
-    floor_v: Float[Array, " W"],
-    corner_prob: Float[Array, " W"],
-    cam: NonCentralPanorama,
-    key: PRNGKeyArray,
-    world: str,
-    config: PipelineConfig,
-    heights: tuple[Float[Array, ""], Float[Array, ""]] | None = None,
-) -> WallsToAdjust:
-    """Steps 0-4 of one panorama (no input checks; see :func:`layout_from_boundaries`); ``heights``: a height
-    prior's known ``(h_c, h_f)`` for RANSAC's walls (:func:`~ncjax.pipeline.evidence.gather_evidence`)."""
-    # step 0 always runs: at the default threshold (inf) it replaces no row
-    floor_v, replaced = ceiling_consistent_floor(cam, ceiling_v, floor_v, config.floor_consistency_threshold)
-    evidence = gather_evidence(ceiling_v, floor_v, corner_prob, cam, key, config, heights)
-    evidence = eqx.tree_at(lambda e: e.floor_measured, evidence, ~replaced)
-    in_frame = jnp.asarray(False)
+def _branch_walls(evidence: WallEvidence, config: PipelineConfig, world: str) -> tuple[BranchWalls, Bool[Array, ""]]:
+    """Step 4: the ``world``'s branch, or both stacked for ``"auto"``, and whether the RANSAC walls lie in a
+    Manhattan frame (``auto``'s tie)."""
+    limits = (config.ransac.sample_size, config.checks.max_room_height)
     if world == "manhattan":
-        branches = manhattan_walls(evidence, ceiling_v, floor_v, cam, config)
-    elif world == "atlanta":
-        branches = atlanta_walls(evidence, ceiling_v, floor_v, cam, config)
-    else:
-        _, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
-        counted = evidence.corner_mask & evidence.walls.ok
-        in_frame = jnp.all(jnp.where(counted, deviation, 0.0) < jnp.radians(config.manhattan_tolerance))
-        branches = jax.tree.map(
-            lambda m, a: jnp.stack([m, a]),
-            manhattan_walls(evidence, ceiling_v, floor_v, cam, config),
-            atlanta_walls(evidence, ceiling_v, floor_v, cam, config),
-        )
-    return WallsToAdjust(cam, evidence, branches, ceiling_v, floor_v, in_frame, jnp.asarray(config.prior_room_height))
-
-
-def adjusted_layout(walls: WallsToAdjust, world: str, config: PipelineConfig) -> Layout:
-    """Steps 5-6 of :func:`walls_to_adjust`'s walls, and ``world="auto"``'s choice of a branch."""
-    cam, evidence, ceiling_v, floor_v = walls.cam, walls.evidence, walls.ceiling_v, walls.floor_v
-    if world != "auto":
-        return finish_layout(cam, evidence, walls.branches, ceiling_v, floor_v, config)
-    # both branches' walls adjusted as one batch: the program holds steps 5-6 once
-    layouts = jax.vmap(finish_layout, in_axes=(None, None, 0, None, None, None))(
-        cam, evidence, walls.branches, ceiling_v, floor_v, config
+        return manhattan_walls(evidence, config.branches, *limits), jnp.asarray(False)
+    if world == "atlanta":
+        return atlanta_walls(evidence, config.branches, *limits), jnp.asarray(False)
+    _, deviation = manhattan_frame(evidence.walls.direction, evidence.weights)
+    counted = evidence.corner_mask & evidence.walls.ok
+    in_frame = jnp.all(jnp.where(counted, deviation, 0.0) < jnp.radians(config.branches.manhattan_tolerance))
+    branches = jax.tree.map(
+        lambda m, a: jnp.stack([m, a]),
+        manhattan_walls(evidence, config.branches, *limits),
+        atlanta_walls(evidence, config.branches, *limits),
     )
-    manhattan, atlanta = (jax.tree.map(lambda x, i=i: x[i], layouts) for i in range(2))
-    use_manhattan = choose_manhattan(
-        manhattan.status,
-        atlanta.status,
-        manhattan.explained_fraction,
-        atlanta.explained_fraction,
-        walls.in_frame,
-        config.manhattan_margin,
-    )
-    return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
+    return branches, in_frame
 
 
-def layout_from_evidence(
-    ceiling_v: Float[Array, " W"],
-    floor_v: Float[Array, " W"],
-    corner_prob: Float[Array, " W"],
+def _fit_walls_of_rows(
+    rows: Rows,
     cam: NonCentralPanorama,
     key: PRNGKeyArray,
-    world: str,
     config: PipelineConfig,
-) -> Layout:
-    """The traceable pipeline for one panorama (no input checks; see :func:`layout_from_boundaries`)."""
-    return layout_for(ceiling_v, floor_v, corner_prob, cam, None, key, world, config)
+    world: str,
+    heights: tuple[Float[Array, ""], Float[Array, ""]] | None = None,
+) -> FittedWalls:
+    """Steps 0-4 of these rows; ``heights``: a height prior's known ``(h_c, h_f)`` for RANSAC's walls
+    (:func:`~ncjax.pipeline.evidence.gather_evidence`)."""
+    # step 0 always runs: at the default threshold (inf) it replaces no row
+    floor_v, replaced = ceiling_consistent_floor(cam, rows.ceiling, rows.floor, config.floor_check.threshold)
+    evidence = gather_evidence(Rows(rows.ceiling, floor_v, rows.corner_prob), cam, key, config, heights)
+    evidence = eqx.tree_at(lambda e: e.floor_measured, evidence, ~replaced)
+    branches, in_frame = _branch_walls(evidence, config, world)
+    return FittedWalls(evidence, branches, in_frame, jnp.asarray(config.prior.room_height))
 
 
 def prior_config(config: PipelineConfig, prior_room_height: Float[ArrayLike, ""]) -> PipelineConfig:
     """``config`` for a height prior's virtual rig: the height-uncertainty test (``max_height_uncertainty``) off,
     since the prior, not the rows' parallax, fixes the scale, and the size limits (``max_room_height``,
-    ``max_corner_distance``) at the prior's scale (``prior_room_height``), not at the virtual rig's."""
-    return with_traced(config, {"max_height_uncertainty": jnp.asarray(jnp.inf), "prior_room_height": prior_room_height})
+    ``max_corner_distance``) at the prior's scale (``prior.room_height``), not at the virtual rig's."""
+    return eqx.tree_at(
+        lambda c: (c.checks.max_height_uncertainty, c.prior.room_height),
+        config,
+        (jnp.asarray(jnp.inf), prior_room_height),
+    )
 
 
-def walls_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> WallsToAdjust:
-    """:func:`walls_to_adjust`, on a height prior's virtual rig when ``prior`` is not None
-    (:mod:`ncjax.pipeline.prior`; its walls then at the prior's room height, :func:`at_room_height`)."""
+def fit_walls(
+    rows: Rows,
+    cam: NonCentralPanorama,
+    prior: HeightPrior | None,
+    key: PRNGKeyArray,
+    config: PipelineConfig,
+    world: str,
+) -> FittedWalls:
+    """Steps 0-4 of one panorama (no input checks; see :func:`~ncjax.pipeline.batch.layout_from_boundaries`).
+
+    With a height ``prior`` (not None) they run on the prior's virtual rig (:mod:`ncjax.pipeline.prior`),
+    its walls then at the prior's room height (:func:`at_room_height`).
+
+    Args:
+        rows: the panorama's rows (``W`` columns).
+        cam: its camera.
+        prior: a height prior, or None (the scale from the rows' parallax).
+        key: the RANSAC key.
+        config: the pipeline's configuration (traced thresholds).
+        world: static: ``"manhattan"``, ``"atlanta"`` or ``"auto"``.
+    """
     if prior is None:
-        return walls_to_adjust(ceiling_v, floor_v, corner_prob, cam, key, world, config)
-    virtual, ceiling_virtual, floor_virtual, heights = prior_rows(cam, ceiling_v, floor_v, prior)
+        return _fit_walls_of_rows(rows, cam, key, config, world)
+    virtual, ceiling_virtual, floor_virtual, heights = prior_rows(cam, rows.ceiling, rows.floor, prior)
     room_height = heights[0] - heights[1]
     config = prior_config(config, room_height)
-    known = heights if config.prior_wall_heights else None
-    walls = walls_to_adjust(ceiling_virtual, floor_virtual, corner_prob, virtual, key, world, config, known)
+    known = heights if config.prior.wall_heights else None
+    virtual_rows = Rows(ceiling_virtual, floor_virtual, rows.corner_prob)
+    walls = _fit_walls_of_rows(virtual_rows, virtual, key, config, world, known)
     return eqx.tree_at(lambda w: w.branches, walls, at_room_height(walls.branches, room_height))
 
 
@@ -212,19 +201,43 @@ def at_room_height(branches: BranchWalls, room_height: Float[ArrayLike, ""]) -> 
     return scaled_walls(branches, room_height / solved_room_height(branches))
 
 
-def layout_of_walls(walls: WallsToAdjust, prior: HeightPrior | None, world: str, config: PipelineConfig) -> Layout:
-    """:func:`adjusted_layout` of :func:`walls_for`'s walls, scaled to the height ``prior`` states if not None."""
+def _finish_branches(walls: FittedWalls, config: PipelineConfig, world: str) -> Layout:
+    """Steps 5-6 of :func:`fit_walls`'s walls, and ``world="auto"``'s choice of a branch."""
+    evidence = walls.evidence
+    if world != "auto":
+        return finish_layout(evidence, walls.branches, config)
+    # both branches' walls adjusted as one batch: the program holds steps 5-6 once
+    layouts = jax.vmap(finish_layout, in_axes=(None, 0, None))(evidence, walls.branches, config)
+    manhattan, atlanta = (jax.tree.map(lambda x, i=i: x[i], layouts) for i in range(2))
+    use_manhattan = choose_manhattan(
+        (manhattan.status, atlanta.status),
+        (manhattan.explained_fraction, atlanta.explained_fraction),
+        walls.in_frame,
+        config.branches.manhattan_margin,
+    )
+    return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
+
+
+def finish(walls: FittedWalls, prior: HeightPrior | None, config: PipelineConfig, world: str) -> Layout:
+    """Steps 5-6 of :func:`fit_walls`'s walls (with the same ``prior``, ``config`` and ``world``): the final
+    adjustment, its uncertainty and the layout, scaled to the height ``prior`` states if not None."""
     if prior is None:
-        return adjusted_layout(walls, world, config)
-    return rescale_to_prior(adjusted_layout(walls, world, prior_config(config, walls.prior_room_height)), prior)
+        return _finish_branches(walls, config, world)
+    layout = _finish_branches(walls, prior_config(config, walls.prior_room_height), world)
+    return rescale_to_prior(layout, prior)
 
 
-def layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> Layout:
-    """Steps 0-6 of one panorama: :func:`walls_for`, then :func:`layout_of_walls`. With a height ``prior``
-    (not None) the scale comes from it (:mod:`ncjax.pipeline.prior`, any ``rc``, 0 included; configured by
-    :func:`prior_config`)."""
-    walls = walls_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config)
-    return layout_of_walls(walls, prior, world, config)
+def layout_of(
+    rows: Rows,
+    cam: NonCentralPanorama,
+    prior: HeightPrior | None,
+    key: PRNGKeyArray,
+    config: PipelineConfig,
+    world: str,
+) -> Layout:
+    """Steps 0-6 of one panorama: :func:`fit_walls`, then :func:`finish`. With a height ``prior`` (not None)
+    the scale comes from it (:mod:`ncjax.pipeline.prior`, any ``rc``, 0 included)."""
+    return finish(fit_walls(rows, cam, prior, key, config, world), prior, config, world)
 
 
 def status_rank(status: Int[Array, ""]) -> Int[Array, ""]:
@@ -235,16 +248,15 @@ def status_rank(status: Int[Array, ""]) -> Int[Array, ""]:
 
 
 def choose_manhattan(
-    manhattan_status: Int[Array, ""],
-    atlanta_status: Int[Array, ""],
-    manhattan_explained: Float[Array, ""],
-    atlanta_explained: Float[Array, ""],
+    statuses: tuple[Int[Array, ""], Int[Array, ""]],
+    explained: tuple[Float[Array, ""], Float[Array, ""]],
     in_frame: Bool[Array, ""],
     margin: Float[ArrayLike, ""] = 0.0,
 ) -> Bool[Array, ""]:
     """``world="auto"``: whether to keep the Manhattan branch's layout rather than the Atlanta one.
 
-    The branch whose status is more usable wins (:func:`status_rank`: ``OK``, then flagged, then
+    ``statuses`` and ``explained`` (fractions of the rows) are the Manhattan and the Atlanta layout's. The
+    branch whose status is more usable wins (:func:`status_rank`: ``OK``, then flagged, then
     failed): a flagged layout is still written, so two flagged branches are compared like two ``OK``
     ones. Between equals the Manhattan layout is kept when it reprojects more of the usable boundary
     rows within the inlier threshold than the Atlanta one less ``margin`` (``manhattan_margin``: the
@@ -252,179 +264,8 @@ def choose_manhattan(
     noisy rows it explains more by following the noise), and on a tie (exact rows: both explain
     everything) when every RANSAC wall lies within ``manhattan_tolerance`` of a Manhattan frame.
     """
+    (manhattan_status, atlanta_status), (manhattan_explained, atlanta_explained) = statuses, explained
     manhattan_rank, atlanta_rank = status_rank(manhattan_status), status_rank(atlanta_status)
     lead = manhattan_explained + margin - atlanta_explained
     better = jnp.where(manhattan_explained == atlanta_explained, in_frame, lead > 0)
     return (manhattan_rank > atlanta_rank) | ((manhattan_rank == atlanta_rank) & better)
-
-
-def _padded_layout(ceiling_v, floor_v, corner_prob, cam, prior, key, thresholds, world, config, slots):
-    config = with_traced(config, thresholds)
-    return pad_layout(layout_for(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config), slots)
-
-
-_layout_jit = jax.jit(_padded_layout, static_argnames=("world", "config", "slots"))
-
-
-def layout_from_boundaries(
-    ceiling_v: Float[ArrayLike, "*batch W"],
-    floor_v: Float[ArrayLike, "*batch W"],
-    corner_prob: Float[ArrayLike, "*batch W"],
-    cam: NonCentralPanorama,
-    world: str = DEFAULT_WORLD,
-    config: PipelineConfig = PipelineConfig(),
-    key: PRNGKeyArray | Key[Array, "*batch"] | UInt32[Array, "*batch 2"] | None = None,
-    prior: HeightPrior | None = None,
-) -> Layout:
-    """Metric room layout from the per-column network outputs (paper Section 4.4).
-
-    Jitted; leading batch axes are mapped with ``jax.vmap``. Inside your own
-    ``jax.jit``/``jax.vmap`` it traces like any JAX function. Concrete arrays
-    run with ``config.compact_capacity`` slots first and only the panoramas
-    that need more are rerun with ``config.capacity`` (the same layouts,
-    faster); the Layout has ``config.capacity`` slots either way.
-
-    Args:
-        ceiling_v: ceiling-wall boundary row per column (pixels, sub-pixel; NaN = missing).
-        floor_v: floor-wall boundary row per column.
-        corner_prob: wall-wall corner probability per column, in [0, 1].
-        cam: the camera; ``cam.width`` must equal the number of columns. Its
-            traced fields (``rc``, the fields of view) are scalars, shared by the
-            batch, or have the batch's shape (one camera per panorama).
-        world: static: "manhattan", "atlanta" or "auto" (the default, :data:`DEFAULT_WORLD`).
-        config: :class:`PipelineConfig`; its thresholds (:data:`~ncjax.pipeline.config.TRACED_FIELDS`)
-            are traced, the rest static.
-        key: PRNG key of the RANSAC sampling (default ``jax.random.key(0)``; typed or raw): one key, split
-            over the batch, or one key per panorama (the batch's shape): a panorama's RANSAC samples then do
-            not depend on the batch it is in.
-        prior: a :class:`~ncjax.pipeline.prior.HeightPrior` (a scalar value or one per panorama): the scale
-            comes from it instead of the rows' parallax (:func:`layout_for`; needed for ``rc = 0``).
-
-    Returns:
-        A :class:`Layout`; check ``ok`` / ``status``.
-
-    Raises:
-        ValueError: for an unknown ``world``, arrays whose shapes do not match
-            the camera, camera fields or keys of another shape than the batch's.
-    """
-    if world not in WORLDS:
-        raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
-    arrays = [jnp.asarray(x) for x in (ceiling_v, floor_v, corner_prob)]
-    arrays = [x if jnp.issubdtype(x.dtype, jnp.floating) else x.astype(jnp.float32) for x in arrays]
-    shape = arrays[0].shape
-    if any(x.shape != shape for x in arrays) or not shape or shape[-1] != cam.width:
-        raise ValueError(
-            f"ceiling_v, floor_v and corner_prob must share one shape (..., W) with W = cam.width = {cam.width}; "
-            f"got {[tuple(x.shape) for x in arrays]}"
-        )
-    batch = shape[:-1]
-    fields = jax.tree.leaves(cam)
-    if any(jnp.shape(x) not in ((), batch) for x in fields):
-        raise ValueError(
-            f"the camera's rc and fields of view must be scalars or of the batch's shape {batch}; "
-            f"got {[jnp.shape(x) for x in fields]}"
-        )
-    if prior is not None and jnp.shape(prior.value) not in ((), batch):
-        raise ValueError(f"the prior's value must be a scalar or of the batch's shape {batch}")
-    keys = panorama_keys(jax.random.key(0) if key is None else key, batch)
-    if not batch:
-        return _layout_with_fallback(*arrays, cam, prior, keys, world, config)
-    flat = [x.reshape(-1, cam.width) for x in arrays]
-    cams, prior = jax.tree.map(lambda x: jnp.broadcast_to(x, batch).reshape(-1), (cam, prior))
-    layout = _layout_with_fallback(*flat, cams, prior, keys, world, config)
-    return jax.tree.map(lambda x: x.reshape(batch + x.shape[1:]), layout)
-
-
-def panorama_keys(key: Array, batch: tuple[int, ...]) -> Array:
-    """The RANSAC key of each panorama of ``batch``, flat: ``key`` split over the batch, or ``key`` itself
-    when it holds one key per panorama (the batch's shape); ``key`` unchanged when ``batch`` is ``()``.
-
-    Raw ``uint32`` keys (``jax.random.PRNGKey``, shape ``(..., 2)``) are wrapped first.
-
-    Raises:
-        ValueError: a key of another shape.
-    """
-    if not jax.dtypes.issubdtype(key.dtype, jax.dtypes.prng_key):
-        key = jax.random.wrap_key_data(jnp.asarray(key, jnp.uint32))
-    if jnp.shape(key) not in ((), batch):
-        raise ValueError(f"key must be one PRNG key or one per panorama {batch}, got shape {jnp.shape(key)}")
-    if not batch:
-        return key
-    return jax.random.split(key, math.prod(batch)) if jnp.shape(key) == () else jnp.reshape(key, (-1,))
-
-
-def _layout_with_fallback(ceiling_v, floor_v, corner_prob, cam, prior, key, world, config) -> Layout:
-    """One panorama (1D rows) or a flat batch: with ``config.compact_capacity`` slots first where that can help.
-
-    A rerun with ``config.capacity`` slots replaces the compact run's
-    ``TOO_MANY_WALLS`` layouts; the checks before that status do not depend
-    on the slots, so it is raised exactly when the layout needs more of them.
-    Traced inputs run with ``config.capacity`` slots directly.
-    """
-    batched = ceiling_v.ndim == 2
-    thresholds = traced_part(config)
-    run = functools.partial(
-        _batched_layout_jit if batched else _layout_jit, thresholds=thresholds, world=world, slots=config.capacity
-    )
-    full = static_part(dataclasses.replace(config, compact_capacity=0))
-    compact = config.compact_capacity
-    if not 0 < compact < config.capacity or any(
-        isinstance(x, jax.core.Tracer) for x in (ceiling_v, floor_v, corner_prob)
-    ):
-        return run(ceiling_v, floor_v, corner_prob, cam, prior, key, config=full)
-    layout = run(ceiling_v, floor_v, corner_prob, cam, prior, key, config=dataclasses.replace(full, capacity=compact))
-    if not batched:
-        return (
-            run(ceiling_v, floor_v, corner_prob, cam, prior, key, config=full)
-            if layout.status == LayoutStatus.TOO_MANY_WALLS
-            else layout
-        )
-    rerun = np.flatnonzero(np.asarray(layout.status) == LayoutStatus.TOO_MANY_WALLS)
-    if not rerun.size:
-        return layout
-    # padded to a power of two: few batch sizes, so few compilations
-    padding = (1 << (rerun.size - 1).bit_length()) - rerun.size
-    picked = jnp.asarray(np.concatenate([rerun, np.full(padding, rerun[0])]))
-    destination = jnp.asarray(np.concatenate([rerun, np.full(padding, ceiling_v.shape[0])]))
-    return _rerun_jit(
-        ceiling_v,
-        floor_v,
-        corner_prob,
-        cam,
-        prior,
-        key,
-        layout,
-        picked,
-        destination,
-        thresholds,
-        world=world,
-        config=full,
-    )
-
-
-def _batched_layout(ceiling_v, floor_v, corner_prob, cams, priors, keys, thresholds, world, config, slots):
-    def one(c, f, p, cam, prior, k):
-        return _padded_layout(c, f, p, cam, prior, k, thresholds, world, config, slots)
-
-    inputs = (ceiling_v, floor_v, corner_prob, cams, priors, keys)
-    if not 0 < config.chunk_size < ceiling_v.shape[0]:
-        return jax.vmap(one)(*inputs)
-    # the last, partial chunk (if any) is one more vmap after the loop over the full ones
-    return jax.lax.map(lambda args: one(*args), inputs, batch_size=config.chunk_size)
-
-
-_batched_layout_jit = jax.jit(_batched_layout, static_argnames=("world", "config", "slots"))
-
-
-def _rerun(ceiling_v, floor_v, corner_prob, cams, priors, keys, layout, picked, destination, thresholds, world, config):
-    """``layout`` with the panoramas ``picked`` solved again with ``config``: gather, solve and scatter in one call.
-
-    Result ``i`` goes to panorama ``destination[i]``; out-of-range
-    destinations (the padding of ``picked``) are dropped.
-    """
-    inputs = jax.tree.map(lambda x: x[picked], (ceiling_v, floor_v, corner_prob, cams, priors, keys))
-    redone = _batched_layout(*inputs, thresholds, world, config, config.capacity)
-    return jax.tree.map(lambda old, new: old.at[destination].set(new, mode="drop"), layout, redone)
-
-
-_rerun_jit = jax.jit(_rerun, static_argnames=("world", "config"))

@@ -9,8 +9,41 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ..geometry.camera import NonCentralPanorama
 from ..solvers.layout import WallLayout
 from ..solvers.wall import Wall
+
+
+class Rows(eqx.Module):
+    """What the pipeline reads of a panorama: per column, its two boundary rows and corner probability.
+
+    All fields traced; ``jax.vmap`` adds leading batch axes.
+
+    Attributes:
+        ceiling: ceiling-wall boundary row per column (pixels, sub-pixel; NaN = missing).
+        floor: floor-wall boundary row per column.
+        corner_prob: wall-wall corner probability per column, in [0, 1].
+    """
+
+    ceiling: Float[Array, "*batch W"]
+    floor: Float[Array, "*batch W"]
+    corner_prob: Float[Array, "*batch W"]
+
+
+class Walls(eqx.Module):
+    """A room's walls in the plan and its two heights (traced, ``K`` slots): what the final adjustment moves.
+
+    Attributes:
+        directions: (K, 2) unit wall directions.
+        distances: (K,) signed distances of the walls from the camera's axis.
+        ceiling_height: ``h_c``.
+        floor_height: ``h_f``.
+    """
+
+    directions: Float[Array, "K 2"]
+    distances: Float[Array, " K"]
+    ceiling_height: Float[Array, ""]
+    floor_height: Float[Array, ""]
 
 
 class LayoutStatus(enum.IntEnum):
@@ -187,8 +220,11 @@ class WallEvidence(eqx.Module):
     the final adjustment and its covariance use measured rows only). ``heights``: the fitted walls' joint solve
     (:func:`ncjax.solvers.layout.solve_atlanta_layout` on their RANSAC directions), for its ceiling and floor
     heights. ``row_noise``: the rows' noise about the RANSAC walls (pixels; 1.4826 x their median absolute error).
+    ``cam`` and ``rows``: the camera and the rows (after step 0) the evidence was gathered from.
     """
 
+    cam: NonCentralPanorama
+    rows: Rows
     ceiling_rays: Float[Array, "W 6"]
     floor_rays: Float[Array, "W 6"]
     finite: Bool[Array, " W"]
@@ -251,3 +287,8 @@ class BranchWalls(eqx.Module):
     ceiling_height: Float[Array, ""]
     floor_height: Float[Array, ""]
     labels: Int[Array, " K"]
+
+    @property
+    def walls(self) -> Walls:
+        """The branch's walls and heights."""
+        return Walls(self.directions, self.distances, self.ceiling_height, self.floor_height)

@@ -18,6 +18,8 @@ from .adjust import (
     loop_corners,
     used_rows,
 )
+from .config import AdjustmentConfig, UncertaintyConfig
+from .settings import scaled
 from .sparse_normal import (
     jacobian_product,
     normal_matrix,
@@ -26,6 +28,10 @@ from .sparse_normal import (
     squared_column_norms,
     transpose_product,
 )
+from .types import Walls
+
+# longest lag (columns of a 1024-wide panorama) over which the boundary rows' errors count as correlated
+CORRELATION_COLUMNS = 256.0
 
 _LAGS_PER_ITERATION = 8
 
@@ -105,13 +111,11 @@ def _wall_offset_spread(
     structure,
     inverse: Float[Array, "P P"],
     observations: BoundaryObservations,
-    boundary_variance: Float[Array, " 2"],
-    ratio: Float[ArrayLike, ""],
-    noise: Float[ArrayLike, ""],
+    sigma: Float[Array, " 2"],
 ) -> Float[Array, "offsets P"]:
     """Rows ``s_b (A^-1 J^T u_wb)^T`` whose Gram matrix is the per-wall offsets' share of the covariance.
 
-    ``u_wb`` indicates the used rows of boundary ``b`` on wall ``w``, ``s_b`` the offset's standard
+    ``u_wb`` indicates the used rows of boundary ``b`` on wall ``w``, ``s_b = sigma[b]`` the offset's standard
     deviation in the fit's weighted units (see :func:`layout_uncertainty`).
     """
     count = observations.columns.shape[0]
@@ -122,9 +126,6 @@ def _wall_offset_spread(
     indicators = jnp.zeros((2, slots, jacobian.shape[0]), jacobian.dtype)
     indicators = indicators.at[0, :, :count].set(on_wall[0]).at[1, :, count : 2 * count].set(on_wall[1])
     gradients = jax.vmap(lambda u: transpose_product(jacobian, structure, u))(indicators.reshape(2 * slots, -1))
-    sigma = jnp.sqrt(
-        ratio**2 * boundary_variance + (noise * observations.row_weights) ** 2
-    )  # weighted units: a weight times pixels
     return jnp.repeat(sigma, slots)[:, None] * (gradients @ inverse)
 
 
@@ -140,16 +141,10 @@ COVARIANCE_RIDGE = 1e-6
 def layout_uncertainty(
     cam: NonCentralPanorama,
     observations: BoundaryObservations,
-    directions: Float[Array, "K 2"],
-    distances: Float[Array, " K"],
-    ceiling_height: Float[ArrayLike, ""],
-    floor_height: Float[ArrayLike, ""],
+    walls: Walls,
     labels: Int[Array, " K"] | None,
-    corner_weight: Float[ArrayLike, ""] = 1.0,
-    max_lag: int = 64,
-    wall_offset_ratio: Float[ArrayLike, ""] = 0.0,
-    wall_offset_noise: Float[ArrayLike, ""] = 0.0,
-    corner_column_noise: Float[ArrayLike, ""] = 0.0,
+    adjustment: AdjustmentConfig = AdjustmentConfig(),
+    config: UncertaintyConfig = UncertaintyConfig(),
 ) -> LayoutUncertainty:
     """First-order covariance of the corners and heights of a layout that :func:`adjust_layout` returned.
 
@@ -164,13 +159,13 @@ def layout_uncertainty(
 
     Rows may also share an error along a whole wall (a network that follows a
     skirting board or a furniture edge): an offset per wall and boundary, of
-    standard deviation ``hypot(wall_offset_ratio sigma_b, wall_offset_noise)``
+    standard deviation ``hypot(config.wall_offset_ratio sigma_b, config.wall_offset_noise)``
     (``sigma_b`` the boundary's row noise above). The fit absorbs such an
     offset into the wall, so its residuals cannot show it; its share
     ``(J^T J)^-1 J^T u u^T J (J^T J)^-1`` per wall (``u`` the wall's used
     rows) is added to the sandwich, and does not shrink as the wall's
     columns grow. Likewise a corner detector's column error: the corner rows'
-    variance is the rows' pooled one plus ``(corner_weight corner_column_noise)^2``.
+    variance is the rows' pooled one plus ``(corner_weight config.corner_column_noise)^2``.
     It is propagated to
     each corner's plan position through the Jacobian of the corner (where
     consecutive walls meet). It describes the noise of the rows, not a
@@ -183,20 +178,23 @@ def layout_uncertainty(
     or the heights if it is one of them.
 
     Args:
-        cam, observations, directions, distances, ceiling_height, floor_height, labels, corner_weight:
-            as for :func:`adjust_layout`; the walls are its result.
-        max_lag: static largest lag of :func:`correlation_time`, in observations.
-        wall_offset_ratio: the per-wall offset's standard deviation, as a multiple of the rows' noise.
-        wall_offset_noise: the per-wall offset's standard deviation not tied to the rows' noise, pixels
-            of this panorama.
-        corner_column_noise: standard deviation of the detected corner columns, pixels of this panorama.
+        cam, observations, walls, labels: as for :func:`~ncjax.pipeline.adjust.adjust_layout`; the walls are
+            its result.
+        adjustment: the adjustment's settings: its ``corner_weight``, and its column ``stride``, which sets
+            the largest lag of :func:`correlation_time` (``CORRELATION_COLUMNS`` columns of a 1024-column
+            panorama, in observations).
+        config: the per-wall offset's standard deviation, as a multiple of the rows' noise
+            (``wall_offset_ratio``) and in pixels of a 512-row panorama (``wall_offset_noise``), and the
+            detected corner columns' standard deviation in columns of a 1024-column one (``corner_column_noise``).
 
     Returns:
         A :class:`LayoutUncertainty`; infinite where a parameter is free (see above).
     """
-    problem, residuals, structure = layout_least_squares(
-        cam, observations, directions, distances, ceiling_height, floor_height, labels, corner_weight
-    )
+    corner_weight = adjustment.corner_weight
+    max_lag = max(1, round(scaled(CORRELATION_COLUMNS, cam.width, 1024) / adjustment.stride))
+    wall_offset_noise = config.wall_offset_noise * scaled(1.0, cam.height, 512)
+    corner_column_noise = config.corner_column_noise * scaled(1.0, cam.width, 1024)
+    problem, residuals, structure = layout_least_squares(cam, observations, walls, labels, corner_weight)
     flat, unravel = jax.flatten_util.ravel_pytree(problem.start)
     values, linear = jax.linearize(lambda f: residuals(unravel(f)), flat)
     jacobian = probe_jacobian(linear, structure, flat.dtype)
@@ -225,24 +223,25 @@ def layout_uncertainty(
     # (the columns are scaled before their products, not after: J^T J spans 1e9 and float32 loses the difference)
     norms = safe_sqrt(squared_column_norms(jacobian, structure))
     scale = inverse_or_zero(norms)
-    scaled = scale_columns(jacobian, structure, scale)
+    scaled_jacobian = scale_columns(jacobian, structure, scale)
     identity = jnp.eye(flat.shape[0], dtype=flat.dtype)
-    cholesky = jnp.linalg.cholesky(normal_matrix(scaled, structure) + COVARIANCE_RIDGE * identity)
+    cholesky = jnp.linalg.cholesky(normal_matrix(scaled_jacobian, structure) + COVARIANCE_RIDGE * identity)
     inverse = jax.scipy.linalg.cho_solve((cholesky, True), identity)
     # the sandwich (J^T J)^-1 J^T V J (J^T J)^-1 (the fit's weights need not be the rows' inverse
     # variances) as the Gram matrix of V^1/2 J (J^T J)^-1: positive semi-definite in float32 too, which
     # the product of the three matrices is not where J^T J is ill-conditioned
     spread = jax.vmap(
-        lambda column: jacobian_product(scaled * safe_sqrt(residual_variance)[:, None], structure, column),
+        lambda column: jacobian_product(scaled_jacobian * safe_sqrt(residual_variance)[:, None], structure, column),
         in_axes=1,
         out_axes=1,
     )(inverse)
     # the prior's share of the sandwich, (A^-1 (J^T V J + ridge s I) A^-1 with A = J^T J + ridge I): without it a
     # direction the rows leave free (J v = 0) would get variance 0 instead of s / ridge
     prior = safe_sqrt(COVARIANCE_RIDGE * pooled_variance) * inverse
-    offsets = _wall_offset_spread(
-        scaled, structure, inverse, observations, boundary_variance, wall_offset_ratio, wall_offset_noise
-    )
+    offset_sigma = jnp.sqrt(
+        config.wall_offset_ratio**2 * boundary_variance + (wall_offset_noise * observations.row_weights) ** 2
+    )  # weighted units: a weight times pixels
+    offsets = _wall_offset_spread(scaled_jacobian, structure, inverse, observations, offset_sigma)
     sandwich = tau * (spread.T @ spread + prior.T @ prior) + offsets.T @ offsets
     covariance = scale[:, None] * sandwich * scale[None, :]
     # a parameter no residual depends on (a wall that no used row or corner row sees, a height without rows) has
@@ -252,8 +251,8 @@ def layout_uncertainty(
     covariance = jnp.where(failed, 0.0, covariance)
 
     def corners(f):
-        wall_directions, wall_distances, _, _ = problem.walls(unravel(f))
-        return loop_corners(wall_directions, wall_distances, observations.wall_mask)[0]
+        corner_walls = problem.walls(unravel(f))
+        return loop_corners(corner_walls.directions, corner_walls.distances, observations.wall_mask)[0]
 
     corner_jacobian = jax.jacfwd(corners)(flat)  # (K, 2, P)
     corner_covariance = jnp.einsum("kip,pq,kjq->kij", corner_jacobian, covariance, corner_jacobian)

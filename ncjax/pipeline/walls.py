@@ -133,9 +133,10 @@ def several_corners(evidence: WallEvidence) -> Bool[Array, ""]:
     return jnp.sum(evidence.corner_mask) > 1
 
 
-def plan_lines(cam, evidence, column_wall, ceiling_v, floor_v, h_c, h_f) -> Float[Array, "K 2"]:
+def plan_lines(evidence: WallEvidence, column_wall: Int[Array, " W"], h_c, h_f) -> Float[Array, "K 2"]:
     """Per wall of ``column_wall`` (-1: none), the direction of the plan line through its boundary points at
     heights ``h_c``, ``h_f``."""
+    cam, ceiling_v, floor_v = evidence.cam, evidence.rows.ceiling, evidence.rows.floor
     columns = jnp.arange(cam.width, dtype=ceiling_v.dtype)
     ceiling, ceiling_ok = boundary_points(cam, columns, jnp.where(evidence.finite, ceiling_v, 0.0), h_c)
     floor, floor_ok = boundary_points(cam, columns, jnp.where(evidence.finite, floor_v, 0.0), h_f)
@@ -153,11 +154,8 @@ def solver_columns(evidence: WallEvidence, column_wall: Int[Array, " W"]) -> Int
 
 
 def solve_final_walls(
-    cam: NonCentralPanorama,
     evidence: WallEvidence,
     final: FinalWalls,
-    ceiling_v: Float[Array, " W"],
-    floor_v: Float[Array, " W"],
     directions: Float[Array, "K 2"],
     snap: Callable[[Float[Array, "K 2"]], Float[Array, "K 2"]],
     max_room_height: Float[ArrayLike, ""],
@@ -186,9 +184,7 @@ def solve_final_walls(
             pass_directions,
             boundary_weights=evidence.row_weights,
         )
-        plan = plan_lines(
-            cam, evidence, final.column_wall, ceiling_v, floor_v, solved.ceiling_height, solved.floor_height
-        )
+        plan = plan_lines(evidence, final.column_wall, solved.ceiling_height, solved.floor_height)
         return (final.observed, snap(plan)), solved
 
     fitted = final.observed & evidence.fitted[final.start_wall]
