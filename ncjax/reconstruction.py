@@ -55,7 +55,8 @@ from .pipeline.types import Layout, LayoutStatus, Rows
 from .programs import call_saved, load_saved, result_like
 
 # The pipeline's settings for the shipped network's rows, chosen on tuning renders, never the test renders (the
-# figures behind each value: experiments/RESULTS.md, "The network's pipeline settings"): one corner peak per lobe
+# figures behind each value: experiments/RESULTS.md, "The network configuration, chosen on the tuning renders" and the
+# sections it points to): one corner peak per lobe
 # (threshold 0.4, +-4 columns), occlusion jumps of 8 px beside corners where two walls' edges mix, floor rows more than
 # 2 px off their ceiling's replaced (step 0), UNCERTAIN_SCALE beyond 15% of the room height, LOW_CONFIDENCE below 60%
 # of the rows explained, SCALE_CONFLICT beyond 3 sigmas from a height prior, and the covariances' share of the errors
@@ -112,17 +113,20 @@ class Reconstruction(NamedTuple):
     geometry: Layout | None = None
 
 
-def _fitted_walls(
-    rows: Rows,
-    image_height: int,
-    rc: Float[Array, " B"],
-    keys: Key[Array, " B"],
-    prior: HeightPrior | None,
-    config: PipelineConfig,
-    world: str,
-) -> FittedWalls:
+class _Geometry(NamedTuple):
+    """What the geometry of a batch takes besides its rows (B leading): each panorama's radius, RANSAC key and
+    height prior (or None), and the pipeline's configuration."""
+
+    rc: Float[Array, " B"]
+    keys: Key[Array, " B"]
+    prior: HeightPrior | None
+    config: PipelineConfig
+
+
+def _fitted_walls(rows: Rows, image_height: int, arguments: _Geometry, world: str) -> FittedWalls:
     """Steps 0-4 of the geometric pipeline (:func:`~ncjax.pipeline.run.fit_walls`) on each panorama's rows
     (B leading), with its own radius, key and prior."""
+    rc, keys, prior, config = arguments
 
     def one(panorama_rows, radius, one_prior, key):
         cam = NonCentralPanorama(panorama_rows.ceiling.shape[-1], image_height, rc=radius)
@@ -142,17 +146,10 @@ def _reconstruction(layouts: Layout, rows: Rows, prior: HeightPrior | None) -> R
     return Reconstruction(layouts, rows.ceiling, rows.floor, rows.corner_prob, source)
 
 
-def _geometry_body(
-    rows: Rows,
-    image_height: int,
-    rc: Float[Array, " B"],
-    keys: Key[Array, " B"],
-    prior: HeightPrior | None,
-    config: PipelineConfig,
-    world: str,
-) -> Layout:
+def _geometry_body(rows: Rows, image_height: int, arguments: _Geometry, world: str) -> Layout:
     """The geometric pipeline (steps 0-6) on a batch's rows: :func:`_fitted_walls`, then :func:`_finished`."""
-    return _finished(_fitted_walls(rows, image_height, rc, keys, prior, config, world), prior, config, world)
+    walls = _fitted_walls(rows, image_height, arguments, world)
+    return _finished(walls, arguments.prior, arguments.config, world)
 
 
 _geometry = jax.jit(_geometry_body, static_argnames=("image_height", "world"))
@@ -168,14 +165,13 @@ class _Network(NamedTuple):
 def _reconstruct_body(
     model: HorizonNet,
     images: Shaped[Array, "B H W 3"],
-    arguments: tuple[Float[Array, " B"], Key[Array, " B"], HeightPrior | None, PipelineConfig],
+    arguments: _Geometry,
     world: str,
     network: _Network,
 ) -> Reconstruction:
-    rc, keys, prior, config = arguments
     rows = Rows(*image_boundaries(model, images, network.views, network.edge_snap))
-    layouts = _geometry_body(rows, images.shape[1], rc, keys, prior, config, world)
-    return _reconstruction(layouts, rows, prior)
+    layouts = _geometry_body(rows, images.shape[1], arguments, world)
+    return _reconstruction(layouts, rows, arguments.prior)
 
 
 _reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "network"))
@@ -186,8 +182,8 @@ def _saved_geometry(
 ) -> Callable[[Rows], Layout]:
     """:func:`_geometry_body` for a batch of ``image_shape`` (B, H, W) through two programs saved in ``directory``
     (:mod:`ncjax.programs`): its steps 0-4 and 5-6, loaded in two threads from this call on, while the caller
-    goes on (XLA loads a compiled program on one core, and these are most of the loading). ``arguments``:
-    ``(rc, keys, prior, config)``. Returns the function of the rows (B leading) that runs them.
+    goes on (XLA loads a compiled program on one core, and these are most of the loading). Returns the function
+    of the rows (B leading) that runs them.
     """
     rc, keys, prior, config = arguments
     batch, image_height, width = image_shape
@@ -196,7 +192,9 @@ def _saved_geometry(
 
     def walls(rows, rc, key_data, prior, config):
         key = jax.random.wrap_key_data(key_data, impl=impl)
-        leaves, structure = jax.tree.flatten(_fitted_walls(rows, image_height, rc, key, prior, config, world))
+        leaves, structure = jax.tree.flatten(
+            _fitted_walls(rows, image_height, _Geometry(rc, key, prior, config), world)
+        )
         walls_structure.append(structure)
         return leaves  # a saved program returns plain containers (a pickled result tree)
 
@@ -241,21 +239,22 @@ def _reconstruct_saved(
     network_key = repr(("network", weights.config, views, edge_snap))
     saved_rows = call_saved(directory, network_key, boundaries, weights.tensors, images)
     rows = Rows(*(row.astype(jnp.float32) for row in saved_rows))
-    return _reconstruction(geometry(rows), rows, arguments[2])
+    return _reconstruction(geometry(rows), rows, arguments.prior)
 
 
 def _with_prior_fallback(
     result: Reconstruction,
-    arguments: tuple[np.ndarray, Key[Array, " B"], HeightPrior, PipelineConfig],
+    arguments: _Geometry,
     world: str,
     program_cache: str | os.PathLike | None = None,
 ) -> Reconstruction:
     """``result`` (the geometry's) with the prior's layout where ``rc = 0`` or the status is a :data:`SCALE_FAILURES`.
 
-    ``arguments``: ``(rc, keys, prior, config)``. The prior's pipeline runs on the same rows and RANSAC keys, for
-    the whole batch (one program per batch size), and only when some panorama needs it: the central route's
-    programs (saved in ``program_cache`` if given, as :func:`_saved_geometry`), flagged where the two scales
-    conflict (:func:`~ncjax.pipeline.prior.flag_scale_conflicts`).
+    ``arguments``: the batch's ``rc`` (numpy), keys, the prior to fall back on and the configuration. The prior's
+    pipeline runs on the same rows and RANSAC keys, for the whole batch (one program per batch size), and only
+    when some panorama needs it: the central route's programs (saved in ``program_cache`` if given, as
+    :func:`_saved_geometry`), flagged where the two scales conflict
+    (:func:`~ncjax.pipeline.prior.flag_scale_conflicts`).
     """
     rc, keys, prior, config = arguments
     status = np.asarray(result.layout.status)
@@ -267,10 +266,10 @@ def _with_prior_fallback(
     batch, width = result.ceiling_v.shape
     height = width // 2  # full panoramas: H = W / 2 (check_panorama)
     if program_cache is None:
-        from_prior = _geometry(rows, height, jnp.asarray(rc), keys, prior, config, world)
+        from_prior = _geometry(rows, height, _Geometry(jnp.asarray(rc), keys, prior, config), world)
     else:
-        saved = _saved_geometry(program_cache, (batch, height, width), (jnp.asarray(rc), keys, prior, config), world)
-        from_prior = saved(rows)
+        geometry = _Geometry(jnp.asarray(rc), keys, prior, config)
+        from_prior = _saved_geometry(program_cache, (batch, height, width), geometry, world)(rows)
     chosen = jax.tree.map(
         lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
     )
@@ -371,7 +370,7 @@ def reconstruct_batch(
         prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
     keys = panorama_keys(jax.random.key(0) if key is None else key, images.shape[:1])
     central = prior is not None and not np.any(rc > 0)
-    arguments = (jnp.asarray(rc), keys, prior if central else None, config)
+    arguments = _Geometry(jnp.asarray(rc), keys, prior if central else None, config)
     network = _Network(views, edge_snap)
     if program_cache is None:
         result = _reconstruct(_model_of(model), jnp.asarray(images), arguments, world, network)
@@ -380,7 +379,7 @@ def reconstruct_batch(
         result = _reconstruct_saved(program_cache, weights, jnp.asarray(images), arguments, world, network)
     if prior is None or central:
         return result
-    return _with_prior_fallback(result, (rc, keys, prior, config), world, program_cache)
+    return _with_prior_fallback(result, _Geometry(rc, keys, prior, config), world, program_cache)
 
 
 def reconstruct(

@@ -19,7 +19,7 @@ from test_wall import (
 )
 
 import ncjax
-from ncjax.solvers.wall_fit import refine_walls, search_scale
+from ncjax.solvers.wall_fit import FitRows, refine_walls, search_scale
 
 N_ROOMS = 40  # per world (experiments/solver_accuracy.py checks 1000)
 
@@ -224,12 +224,12 @@ def test_scale_search_recovers_a_scale_the_linear_solve_lost():
     arguments, truth = _stacked_rows(room, *rays(room))
     depths = jnp.asarray(ncjax.solvers.layout.FLOOR_DEPTHS, truth.dtype)
     corrupted = 0.37 * jnp.concatenate([jnp.array([-1.0]), truth])  # right shape, x_0 of the wrong sign
-    start, ok = search_scale(corrupted, *arguments, depths)
+    start, ok = search_scale(corrupted, FitRows(*arguments), depths)
     assert ok
     assert start[2] < 0 and 0.85 < float(start[2] / room["h_f"]) < 1.18  # the nearest of the grid's depths
-    refined = refine_walls(start, *arguments, refine_yaw=False, steps=8)
+    refined = refine_walls(start, FitRows(*arguments), refine_yaw=False, steps=8)
     np.testing.assert_allclose(refined[1:], truth, atol=1e-3)
-    exact, _ = search_scale(jnp.concatenate([jnp.ones(1), truth]), *arguments, depths)
+    exact, _ = search_scale(jnp.concatenate([jnp.ones(1), truth]), FitRows(*arguments), depths)
     np.testing.assert_allclose(exact[1:], truth, rtol=1e-6, atol=1e-6)  # an exact linear solution is kept
 
 
@@ -275,10 +275,12 @@ def test_weighted_gauss_newton_step_is_the_weighted_least_squares_step(x64):
     (rays_, base, row_wall, is_floor), truth, weights = _weighted_problem()
     start = truth * jnp.concatenate([jnp.ones(1), jnp.full(2, 1.03), jnp.full(truth.shape[0] - 3, 0.97)])
     geometry = ncjax.solvers.wall_fit._used_geometry(rays_, row_wall)
-    cost, delta = ncjax.solvers.wall_fit.gauss_newton_step(start, geometry, base, row_wall, is_floor, False, weights)
+    cost, delta = ncjax.solvers.wall_fit.gauss_newton_step(
+        start, geometry, FitRows(rays_, base, row_wall, is_floor, weights), False
+    )
 
     def residuals(p):
-        return ncjax.solvers.wall_fit.residuals_of(p, geometry, base, row_wall, is_floor, weights)
+        return ncjax.solvers.wall_fit.residuals_of(p, geometry, FitRows(rays_, base, row_wall, is_floor, weights))
 
     jacobian = jax.jacfwd(residuals)(start)
     # the yaw (not refined: Atlanta) and absent walls' distances stay
@@ -311,11 +313,11 @@ def test_equal_row_weights_change_nothing():
     assert float(cosine) < 0.9999  # unequal weights do change the null vector
     depths = jnp.asarray(ncjax.solvers.layout.FLOOR_DEPTHS, truth.dtype)
     vector = truth.at[0].set(0.8)  # the room at 1.25 times its scale
-    start, _ = search_scale(vector, *arguments, depths)
-    np.testing.assert_array_equal(search_scale(vector, *arguments, depths, row_weights=equal)[0], start)
+    start, _ = search_scale(vector, FitRows(*arguments), depths)
+    np.testing.assert_array_equal(search_scale(vector, FitRows(*arguments, equal), depths)[0], start)
     np.testing.assert_allclose(
-        refine_walls(start, *arguments, refine_yaw=False, row_weights=equal),
-        refine_walls(start, *arguments, refine_yaw=False),
+        refine_walls(start, FitRows(*arguments, equal), refine_yaw=False),
+        refine_walls(start, FitRows(*arguments), refine_yaw=False),
         rtol=1e-4,
         atol=1e-5,
     )

@@ -45,6 +45,7 @@ from ncjax.pipeline.atlanta import atlanta_walls, corner_offsets
 from ncjax.pipeline.batch import _batched_layout_jit, _Inputs, _layout_jit
 from ncjax.pipeline.config import CornerConfig, UncertaintyConfig
 from ncjax.pipeline.corners import (
+    SideWindow,
     column_walls,
     find_corners,
     full_window_spread,
@@ -989,7 +990,9 @@ def test_side_extrapolation_follows_a_near_walls_curved_boundary(rc):
     _, _, seen = wall_boundary_rows(cam, direction, distance, height, -height, jnp.arange(1024.0))
     usable = seen & (radial > rc)
     assert bool(usable[296:312].all())
-    value, ok, spread = side_extrapolation(height / radial, usable, jnp.asarray(corner), 1, 8, 2.0, 2 * np.pi / 1024)
+    value, ok, spread = side_extrapolation(
+        height / radial, usable, jnp.asarray(corner), 1, SideWindow(8, 2.0, 2 * np.pi / 1024)
+    )
     truth = height / (rc + range_along(cam, direction, distance, column_directions(cam, jnp.asarray(corner))))
     assert bool(ok) and abs(float(value) - float(truth)) < 1e-5 * float(truth)
     assert float(spread) == pytest.approx(float(full_window_spread(8, 2.0)), rel=0.1)  # the corner is 0.4 off

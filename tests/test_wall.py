@@ -555,7 +555,7 @@ def test_a_wall_at_heights_needs_two_columns_and_a_camera_between_them():
 def test_ransac_at_known_heights_ignores_outlier_rows():
     """A third of a wall's rows 40 px off (furniture, a doorway): RANSAC at the known heights keeps the true wall."""
     from ncjax.geometry.reprojection import column_directions
-    from ncjax.solvers.ransac import ransac_wall
+    from ncjax.solvers.ransac import RansacConfig, WallColumns, ransac_wall
 
     room = box_room([[-2.0, -1.5], [3.0, -1.5], [3.0, 2.5], [-2.0, 2.5]], rc=0.0)
     cam, columns = room["cam"], jnp.flatnonzero(room["wall_index"] == 1, size=40)
@@ -563,18 +563,12 @@ def test_ransac_at_known_heights_ignores_outlier_rows():
     floor_v = room["floor_v"][columns] - jnp.where(outlier, 40.0, 0.0)
     ceiling_rays = ncjax.pixel_to_ray(cam, columns.astype(float), room["ceiling_v"][columns])
     floor_rays = ncjax.pixel_to_ray(cam, columns.astype(float), floor_v)
-    wall = ransac_wall(
-        jax.random.key(0),
-        cam,
-        column_directions(cam, columns.astype(float)),
-        ceiling_rays,
-        floor_rays,
-        jnp.ones(columns.size, bool),
-        13,
-        3,
-        2.0,
-        heights=(room["h_c"], room["h_f"]),
+    wall_columns = WallColumns(
+        column_directions(cam, columns.astype(float)), ceiling_rays, floor_rays, jnp.ones(columns.size, bool)
     )
+    config = RansacConfig(inlier_threshold=2.0 * 512 / cam.height)  # 13 hypotheses of 3 columns, inliers within 2 px
+    assert config.hypotheses == 13
+    wall = ransac_wall(jax.random.key(0), cam, wall_columns, config, heights=(room["h_c"], room["h_f"]))
     assert bool(wall.ok)
     assert float(direction_error_deg(wall.direction, room["directions"][1])) < 0.01
     np.testing.assert_allclose(wall.distance, room["distances"][1], atol=1e-3)

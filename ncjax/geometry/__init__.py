@@ -8,3 +8,60 @@
 - ``gravity``: roll and pitch of a tilted central panorama, and maps of points and pixels between its
   frame and the levelled frame (numpy).
 """
+
+from .camera import (
+    NonCentralPanorama,
+    angles_to_pixel,
+    angles_to_ray,
+    is_visible,
+    optical_centre,
+    pixel_to_angles,
+    pixel_to_ray,
+    point_to_angles,
+    project,
+)
+from .linalg import null_space, scaled_null_space
+from .plucker import (
+    closest_point_to_origin,
+    closest_points,
+    horizontal_wall_line,
+    intersect_coplanar_lines,
+    line_from_point_direction,
+    line_through_points,
+    normalize_line,
+    plucker_constraint,
+    point_at,
+    rotate_line_z,
+    rotation_z,
+    safe_norm,
+    side,
+    translate_line,
+)
+
+__all__ = [
+    "NonCentralPanorama",
+    "angles_to_pixel",
+    "angles_to_ray",
+    "closest_point_to_origin",
+    "closest_points",
+    "horizontal_wall_line",
+    "intersect_coplanar_lines",
+    "is_visible",
+    "line_from_point_direction",
+    "line_through_points",
+    "normalize_line",
+    "null_space",
+    "optical_centre",
+    "pixel_to_angles",
+    "pixel_to_ray",
+    "plucker_constraint",
+    "point_at",
+    "point_to_angles",
+    "project",
+    "rotate_line_z",
+    "rotation_z",
+    "safe_norm",
+    "scaled_null_space",
+    "side",
+    "translate_line",
+]

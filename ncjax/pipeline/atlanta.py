@@ -10,10 +10,10 @@ from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
 from ..geometry.polygon import previous_in_loop
 from ..geometry.reprojection import column_directions
+from ..solvers.settings import scaled
 from .adjust import FREE_ANGLE, corner_column_offset
 from .config import BranchConfig
 from .evidence import previous_of
-from .settings import scaled
 from .types import BranchWalls, FinalWalls, WallEvidence
 from .walls import (
     boundary_gap,

@@ -1,6 +1,6 @@
 """The pipeline's configuration: :class:`PipelineConfig`, one part per stage.
 
-Every part is a frozen dataclass and a pytree (:func:`~ncjax.pipeline.settings.settings`): its thresholds and
+Every part is a frozen dataclass and a pytree (:func:`~ncjax.solvers.settings.settings`): its thresholds and
 weights are traced, so that another value reuses the compiled pipeline, and its ``static_fields`` (shapes, loop
 lengths, which code runs) compile anew. Column and pixel quantities are given for the 1024 x 512 reference
 panorama and scaled with the camera's width and height. A stage reads its own part; the orchestration
@@ -16,8 +16,8 @@ import jax
 from jaxtyping import ArrayLike, Float
 
 from ..geometry.camera import NonCentralPanorama
-from ..solvers.ransac import num_hypotheses
-from .settings import check_fraction, check_non_negative, check_positive, replaced, scaled, settings
+from ..solvers.ransac import RansacConfig
+from ..solvers.settings import check_fraction, check_non_negative, check_positive, replaced, scaled, settings
 
 WORLDS = ("manhattan", "atlanta", "auto")
 # the room model of the API and the CLI when none is given: per panorama, the branch that explains more of its rows
@@ -70,44 +70,6 @@ class CornerConfig:
     def radius(self, width: int) -> int:
         """``nms_radius`` in whole columns of a ``width``-column panorama."""
         return max(1, round(scaled(self.nms_radius, width, 1024)))
-
-
-@settings(static=("success_probability", "outlier_rate", "sample_size", "columns"))
-class RansacConfig:
-    """Step 2: one RANSAC wall per pair of corners (:func:`~ncjax.solvers.ransac.ransac_wall`).
-
-    Attributes:
-        success_probability: RANSAC's P (paper: 0.9999).
-        outlier_rate: RANSAC's epsilon (paper: 0.2).
-        sample_size: columns per RANSAC hypothesis (paper: 3).
-        columns: columns per wall on which RANSAC scores its hypotheses and refits the best one, evenly spaced
-            along the wall (all of them for a narrower wall); the cost grows with it, not with the width.
-        inlier_threshold: row error of an inlier, pixels (also the rows a layout explains, step 5).
-        corner_margin: columns this close to a corner are not used to fit walls.
-    """
-
-    success_probability: float = 0.9999
-    outlier_rate: float = 0.2
-    sample_size: int = 3
-    columns: int = 64
-    inlier_threshold: float = 3.0
-    corner_margin: float = 2.0
-
-    def __post_init__(self):
-        if self.sample_size < 3:
-            raise ValueError(
-                f"sample_size must be >= 3 columns (the wall solver needs 3 rays per line), got {self.sample_size}"
-            )
-        num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
-        if self.columns < 2 * self.sample_size:
-            raise ValueError(f"RansacConfig.columns must be >= 2 * sample_size, got {self.columns}")
-        check_positive(self, "inlier_threshold")
-        check_non_negative(self, "corner_margin")
-
-    @property
-    def hypotheses(self) -> int:
-        """RANSAC hypotheses per wall (paper's n_hyp)."""
-        return num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)
 
 
 @settings(static=())

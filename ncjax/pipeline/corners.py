@@ -11,6 +11,8 @@ fixed capacity ``C`` (corner slots) with a mask (docs/design.md section 4).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
@@ -187,14 +189,26 @@ def distance_to_corners(
     return jnp.min(jnp.where(corner_mask[None, :], gap, jnp.inf), axis=1)
 
 
+class SideWindow(NamedTuple):
+    """The columns :func:`side_extrapolation` fits beside a corner.
+
+    Attributes:
+        columns: static number of columns fitted.
+        margin: columns skipped next to the corner.
+        column_angle: azimuth step between columns (radians).
+    """
+
+    columns: int
+    margin: Float[ArrayLike, ""]
+    column_angle: Float[ArrayLike, ""]
+
+
 def side_extrapolation(
     height_over_range: Float[Array, " W"],
     usable: Bool[Array, " W"],
     corner: Float[Array, ""],
     side: int,
-    window: int,
-    margin: Float[ArrayLike, ""],
-    column_angle: Float[ArrayLike, ""],
+    window: SideWindow,
 ) -> tuple[Float[Array, ""], Bool[Array, ""], Float[Array, ""]]:
     """A boundary's ``h / R`` at a corner column, extrapolated from the wall on one side of it.
 
@@ -211,9 +225,7 @@ def side_extrapolation(
         usable: columns that may be used (finite, on the right wall).
         corner: the corner's (sub-)column.
         side: static, -1 for the columns left of the corner, +1 for the right.
-        window: static number of columns fitted.
-        margin: columns skipped next to the corner.
-        column_angle: azimuth step between columns (radians).
+        window: the columns fitted.
 
     Returns:
         ``(h / R, ok, spread)`` at the corner: ``ok`` is False with fewer than 3 usable
@@ -222,7 +234,8 @@ def side_extrapolation(
         columns near the corner extrapolate far less surely than a full window).
     """
     width = height_over_range.shape[0]
-    offsets = side * window_offsets(window, margin).astype(height_over_range.dtype)
+    window_columns, margin, column_angle = window
+    offsets = side * window_offsets(window_columns, margin).astype(height_over_range.dtype)
     columns = jnp.round(corner) + offsets
     index = (columns.astype(jnp.int32)) % width
     weight = usable[index].astype(height_over_range.dtype)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import math
 
 import jax
@@ -13,10 +12,12 @@ from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angl
 from ..geometry.polygon import previous_in_loop
 from ..geometry.reprojection import column_directions
 from ..solvers.layout import solve_atlanta_layout
-from ..solvers.ransac import boundary_errors, ransac_wall, wall_columns
+from ..solvers.ransac import WallColumns, boundary_errors, ransac_wall, wall_columns
+from ..solvers.settings import scaled
 from .adjust import boundary_weights
 from .config import PipelineConfig
 from .corners import (
+    SideWindow,
     column_walls,
     configured_corners,
     distance_to_corners,
@@ -24,7 +25,6 @@ from .corners import (
     side_extrapolation,
     straight_wall_value,
 )
-from .settings import scaled
 from .types import Rows, WallEvidence
 from .walls import boundary_gap
 
@@ -64,16 +64,9 @@ def gather_evidence(
     pixels = scaled(1.0, cam.height, 512)
     threshold = ransac.inlier_threshold * pixels
     sampled, sampled_valid = wall_columns(column_wall, usable, corner_columns, ransac.columns)
-    walls = jax.vmap(functools.partial(ransac_wall, heights=heights), in_axes=(0, None, 0, 0, 0, 0, None, None, None))(
-        jax.random.split(key, capacity),
-        cam,
-        azimuth[sampled],
-        ceiling_rays[sampled],
-        floor_rays[sampled],
-        sampled_valid,
-        ransac.hypotheses,
-        ransac.sample_size,
-        threshold,
+    columns_of_walls = WallColumns(azimuth[sampled], ceiling_rays[sampled], floor_rays[sampled], sampled_valid)
+    walls = jax.vmap(lambda k, c: ransac_wall(k, cam, c, ransac, heights))(
+        jax.random.split(key, capacity), columns_of_walls
     )
 
     previous = previous_in_loop(corner_mask)
@@ -141,8 +134,9 @@ def gather_evidence(
     def extrapolate(value, wall, side):
         """``h / R`` of the walls ``wall`` at their corners ``corner_columns`` from the given side, and its spread."""
         own = finite[None, :] & (column_wall[None, :] == wall[:, None])
-        return jax.vmap(side_extrapolation, in_axes=(None, 0, 0, None, None, None, None))(
-            value, own, corner_columns, side, window, margin, column_angle
+        side_window = SideWindow(window, margin, column_angle)
+        return jax.vmap(lambda usable, corner: side_extrapolation(value, usable, corner, side, side_window))(
+            own, corner_columns
         )
 
     ceiling_value = height_over_range(ceiling_v, heights.ceiling_height)

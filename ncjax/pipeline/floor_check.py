@@ -6,7 +6,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
-from .settings import scaled
+from ..solvers.settings import scaled
 
 
 def ceiling_floor_ratio(

@@ -9,9 +9,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ..solvers.settings import scaled
 from .adjust import BoundaryObservations, adjust_layout, boundary_weights, layout_residuals
 from .config import AdjustmentConfig, PipelineConfig
-from .settings import scaled
 from .types import BranchWalls, FinalWalls, WallEvidence, Walls
 from .uncertainty import LayoutUncertainty, layout_uncertainty, not_computed
 

@@ -12,6 +12,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.linalg import inverse_or_zero
 from ..geometry.plucker import safe_sqrt
+from ..solvers.settings import scaled
 from .adjust import (
     BoundaryObservations,
     layout_least_squares,
@@ -19,7 +20,6 @@ from .adjust import (
     used_rows,
 )
 from .config import AdjustmentConfig, UncertaintyConfig
-from .settings import scaled
 from .sparse_normal import (
     jacobian_product,
     normal_matrix,

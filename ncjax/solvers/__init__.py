@@ -5,3 +5,28 @@
 - ``layout``: the joint Manhattan and Atlanta layout solvers.
 - ``ransac``: RANSAC over one wall's columns with the single-wall solver.
 """
+
+from .layout import (
+    WallLayout,
+    layout_corners,
+    quarter_turn,
+    ray_in_wall_frame,
+    solve_atlanta_layout,
+    solve_manhattan_layout,
+)
+from .wall import HorizontalLine, Wall, solve_horizontal_line, solve_horizontal_lines, solve_wall, solve_wall_minimal
+
+__all__ = [
+    "HorizontalLine",
+    "Wall",
+    "WallLayout",
+    "layout_corners",
+    "quarter_turn",
+    "ray_in_wall_frame",
+    "solve_atlanta_layout",
+    "solve_horizontal_line",
+    "solve_horizontal_lines",
+    "solve_manhattan_layout",
+    "solve_wall",
+    "solve_wall_minimal",
+]

@@ -30,7 +30,7 @@ from .wall import (
     side_coefficients,
     wall_rows,
 )
-from .wall_fit import heights_of, linear_walls, refine_walls, search_scale, yaw_parameters
+from .wall_fit import FitRows, heights_of, linear_walls, refine_walls, search_scale, yaw_parameters
 
 
 class WallLayout(eqx.Module):
@@ -186,9 +186,8 @@ def solve_manhattan_layout(
         params, ok = yaw_parameters(jnp.concatenate([x, d]))
         base = jnp.where(turned[:, None], jnp.array([0.0, 1.0], shared.dtype), jnp.array([1.0, 0.0], shared.dtype))
         is_floor = jnp.arange(2 * ceiling_rays.shape[0]) >= ceiling_rays.shape[0]
-        params = refine_walls(
-            params, _stacked(ceiling_rays, floor_rays), _stacked(base, base), row_wall, is_floor, refine_yaw=True
-        )
+        rows = FitRows(_stacked(ceiling_rays, floor_rays), _stacked(base, base), row_wall, is_floor)
+        params = refine_walls(params, rows, refine_yaw=True)
         u = jnp.stack([jnp.cos(params[0]), jnp.sin(params[0])])
         h_c, h_f, distances = params[1], params[2], params[3:]
         ok = ok & jnp.all(jnp.isfinite(params))
@@ -271,16 +270,15 @@ def solve_atlanta_layout(
             None if boundary_weights is None else jnp.where(is_floor, boundary_weights[1], boundary_weights[0])
         )
         x, d = linear_walls(shared, distance, row_wall, wall_mask.shape[0], row_weights)
-        arguments = (
+        rows = FitRows(
             _stacked(ceiling_rays, floor_rays),
             _stacked(column_direction, column_direction),
             row_wall,
             is_floor,
+            row_weights,
         )
-        params, scale_ok = search_scale(
-            jnp.concatenate([x, d]), *arguments, jnp.asarray(FLOOR_DEPTHS, x.dtype), row_weights=row_weights
-        )
-        params = refine_walls(params, *arguments, refine_yaw=False, row_weights=row_weights)
+        params, scale_ok = search_scale(jnp.concatenate([x, d]), rows, jnp.asarray(FLOOR_DEPTHS, x.dtype))
+        params = refine_walls(params, rows, refine_yaw=False)
         vector = params.at[0].set(1.0)
         scale_ok = scale_ok & jnp.all(jnp.isfinite(params))
     else:

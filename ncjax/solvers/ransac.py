@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -21,7 +22,46 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.reprojection import boundary_rows_along, range_along
+from .settings import check_non_negative, check_positive, scaled, settings
 from .wall import Wall, solve_wall, solve_wall_at_heights
+
+
+@settings(static=("success_probability", "outlier_rate", "sample_size", "columns"))
+class RansacConfig:
+    """Step 2 of the pipeline: one RANSAC wall per pair of corners (:func:`ransac_wall`).
+
+    Attributes:
+        success_probability: RANSAC's P (paper: 0.9999).
+        outlier_rate: RANSAC's epsilon (paper: 0.2).
+        sample_size: columns per RANSAC hypothesis (paper: 3).
+        columns: columns per wall on which RANSAC scores its hypotheses and refits the best one, evenly spaced
+            along the wall (all of them for a narrower wall); the cost grows with it, not with the width.
+        inlier_threshold: row error of an inlier, pixels (also the rows a layout explains, step 5).
+        corner_margin: columns this close to a corner are not used to fit walls.
+    """
+
+    success_probability: float = 0.9999
+    outlier_rate: float = 0.2
+    sample_size: int = 3
+    columns: int = 64
+    inlier_threshold: float = 3.0
+    corner_margin: float = 2.0
+
+    def __post_init__(self):
+        if self.sample_size < 3:
+            raise ValueError(
+                f"sample_size must be >= 3 columns (the wall solver needs 3 rays per line), got {self.sample_size}"
+            )
+        num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)  # validates
+        if self.columns < 2 * self.sample_size:
+            raise ValueError(f"RansacConfig.columns must be >= 2 * sample_size, got {self.columns}")
+        check_positive(self, "inlier_threshold")
+        check_non_negative(self, "corner_margin")
+
+    @property
+    def hypotheses(self) -> int:
+        """RANSAC hypotheses per wall (paper's n_hyp)."""
+        return num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)
 
 
 def num_hypotheses(success_probability: float, outlier_rate: float, sample_size: int) -> int:
@@ -159,17 +199,31 @@ def inlier_rows(
     return inside(wall.ceiling_height, ceiling_band), inside(wall.floor_height, floor_band)
 
 
+class WallColumns(NamedTuple):
+    """One wall's columns as RANSAC sees them (traced, ``G`` columns, :func:`wall_columns`).
+
+    Attributes:
+        azimuth: unit horizontal direction of each column.
+        ceiling_rays: their rays of the ceiling boundary.
+        floor_rays: their rays of the floor boundary.
+        candidates: which of them are used (finite rows, away from corners).
+    """
+
+    azimuth: Float[Array, "G 2"]
+    ceiling_rays: Float[Array, "G 6"]
+    floor_rays: Float[Array, "G 6"]
+    candidates: Bool[Array, " G"]
+
+
+# walls whose ceiling or floor is closer than this (metres) to the camera's plane are rejected (:func:`plausible_wall`)
+MIN_WALL_HEIGHT = 0.1
+
+
 def ransac_wall(
     key: PRNGKeyArray,
     cam: NonCentralPanorama,
-    azimuth: Float[Array, "G 2"],
-    ceiling_rays: Float[Array, "G 6"],
-    floor_rays: Float[Array, "G 6"],
-    candidates: Bool[Array, " G"],
-    num_hypotheses: int,
-    sample_size: int,
-    inlier_threshold: Float[ArrayLike, ""],
-    min_height: float = 0.1,
+    columns: WallColumns,
+    config: RansacConfig,
     heights: tuple[Float[Array, ""], Float[Array, ""]] | None = None,
 ) -> Wall:
     """The wall that best explains the boundaries of the candidate columns.
@@ -177,15 +231,10 @@ def ransac_wall(
     Args:
         key: PRNG key.
         cam: the camera.
-        azimuth: unit horizontal direction of each of the wall's columns (:func:`wall_columns`).
-        ceiling_rays: their rays of the ceiling boundary.
-        floor_rays: their rays of the floor boundary.
-        candidates: which of them are used (finite rows, away from corners).
-        num_hypotheses: static number of hypotheses (:func:`num_hypotheses`).
-        sample_size: static number of columns per hypothesis (>= 3).
-        inlier_threshold: maximum row error of an inlier, pixels.
-        min_height: static; walls whose ceiling or floor is closer than this
-            to the camera's plane are rejected (:func:`plausible_wall`).
+        columns: the wall's columns.
+        config: the static number of hypotheses (:attr:`RansacConfig.hypotheses`) and columns per hypothesis
+            (``sample_size``, >= 3), and the maximum row error of an inlier (``inlier_threshold``, pixels of a
+            512-row panorama).
         heights: the known ``(h_c, h_f)`` of a height prior, or None. Given, every hypothesis and the refit are
             plan lines at those heights (:func:`ncjax.solvers.wall.solve_wall_at_heights`): two unknowns instead
             of four, which rows a few pixels off fix far better than the scale of one wall's weak parallax.
@@ -195,8 +244,11 @@ def ransac_wall(
         False when fewer than ``sample_size`` candidates exist or no
         hypothesis is valid.
     """
+    azimuth, ceiling_rays, floor_rays, candidates = columns
+    sample_size, min_height = config.sample_size, MIN_WALL_HEIGHT
+    inlier_threshold = config.inlier_threshold * scaled(1.0, cam.height, 512)
     samples = jax.vmap(sample_columns, in_axes=(0, None, None))(
-        jax.random.split(key, num_hypotheses), candidates, sample_size
+        jax.random.split(key, config.hypotheses), candidates, sample_size
     )
     if heights is None:
         solve = solve_wall

@@ -47,7 +47,7 @@ from ..geometry.fastmath import arctan2
 from ..geometry.linalg import divide_if_significant, null_space, scaled_null_space, segment_scaled_null_spaces
 from ..geometry.plucker import closest_point_to_origin, horizontal_wall_line, safe_norm
 from ..geometry.plucker import cross_2d as _cross2
-from .wall_fit import heights_of, linear_walls, refine_walls, yaw_parameters
+from .wall_fit import FitRows, heights_of, linear_walls, refine_walls, yaw_parameters
 
 
 class Wall(eqx.Module):
@@ -337,7 +337,7 @@ def solve_wall(
         rays = jnp.concatenate([ceiling_rays, floor_rays])
         is_floor = jnp.arange(rays.shape[0]) >= ceiling_rays.shape[0]
         base = jnp.broadcast_to(jnp.array([1.0, 0.0], rays.dtype), (rays.shape[0], 2))
-        params = refine_walls(params, rays, base, row_wall, is_floor, refine_yaw=True)
+        params = refine_walls(params, FitRows(rays, base, row_wall, is_floor), refine_yaw=True)
         yaw, h_c, h_f, distance = params
         direction = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
         ok = ok & jnp.all(jnp.isfinite(params))

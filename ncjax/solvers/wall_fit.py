@@ -37,6 +37,8 @@ of the (diagonal) distance block.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
@@ -163,16 +165,38 @@ def column_geometry(rays: Float[Array, "m 6"]) -> tuple[Float[Array, "m 2"], Flo
     return a, rc, jnp.stack([cos_phi, sin_phi], -1)
 
 
+class FitRows(NamedTuple):
+    """The rows a wall fit uses (traced; ``m`` rows: each column's ceiling and floor boundary rays).
+
+    Attributes:
+        rays: the rays, one per row.
+        base_directions: per row, its wall's direction at yaw 0.
+        row_wall: per row, its wall (-1: the row is unused).
+        is_floor: per row, floor (True) or ceiling ray.
+        weights: factor of each row's residual, or None (1): the inverse of its noise gives the
+            maximum-likelihood fit of rows of unequal independent noise (the pipeline uses its square,
+            :func:`ncjax.pipeline.adjust.boundary_weights`).
+    """
+
+    rays: Float[Array, "m 6"]
+    base_directions: Float[Array, "m 2"]
+    row_wall: Int[Array, " m"]
+    is_floor: Bool[Array, " m"]
+    weights: Float[Array, " m"] | None = None
+
+    def every(self, stride: int) -> FitRows:
+        """Every ``stride``-th row."""
+        return jax.tree.map(lambda x: x[::stride], self)
+
+
 def angular_residual(
-    yaw: Float[Array, ""],
-    height: Float[Array, ""],
-    distance: Float[Array, ""],
+    line: tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]],
     base_direction: Float[Array, 2],
-    azimuth: Float[Array, 2],
-    rc: Float[Array, ""],
-    observed: Float[Array, 2],
+    ray: tuple[Float[Array, 2], Float[Array, ""], Float[Array, 2]],
 ) -> Float[Array, ""]:
-    """Elevation error (radians) of one boundary ray against the wall line ``(u, d, h)``.
+    """Elevation error (radians) of one boundary ray against the wall line ``line = (yaw, h, d)``.
+
+    ``ray``: its :func:`column_geometry` ``(azimuth, rc, observed)``.
 
     With ``u = rotate(base_direction, yaw)``, ``e2 = (-uy, ux)``, the column's
     vertical half-plane from the optical centre ``c = rc a`` meets the wall at
@@ -181,6 +205,7 @@ def angular_residual(
     its signed angle to the observed ``(cos phi, sin phi)``. ``(g q, h q^2)`` is
     used for ``(s, h)``: the same direction without a division.
     """
+    (yaw, height, distance), (azimuth, rc, observed) = line, ray
     u = rotate_2d(base_direction, yaw)
     q = jnp.dot(jnp.stack([-u[1], u[0]]), azimuth)
     g = distance - rc * q
@@ -191,45 +216,25 @@ def angular_residual(
     return jnp.where(defined, arctan2(cross, jnp.where(defined, dot, 1.0)), 0.0)
 
 
-def _row_arguments(params, geometry, base_directions, row_wall, is_floor):
+def _row_arguments(params, geometry, rows: FitRows):
     """The per-row arguments of :func:`angular_residual`, and which rows are used."""
-    azimuth, rc, observed = geometry
-    used = row_wall >= 0
-    heights = jnp.where(is_floor, params[2], params[1])
-    distances = params[3:][jnp.maximum(row_wall, 0)]
-    return (
-        jnp.broadcast_to(params[0], heights.shape),
-        heights,
-        distances,
-        base_directions,
-        azimuth,
-        rc,
-        observed,
-    ), used
+    used = rows.row_wall >= 0
+    heights = jnp.where(rows.is_floor, params[2], params[1])
+    distances = params[3:][jnp.maximum(rows.row_wall, 0)]
+    line = (jnp.broadcast_to(params[0], heights.shape), heights, distances)
+    return (line, rows.base_directions, geometry), used
 
 
-def residuals_of(
-    params: Float[Array, " P"],
-    geometry: tuple[Array, Array, Array],
-    base_directions: Float[Array, "m 2"],
-    row_wall: Int[Array, " m"],
-    is_floor: Bool[Array, " m"],
-    row_weights: Float[Array, " m"] | None = None,
-) -> Float[Array, " m"]:
-    """:func:`angular_residual` of every row times its weight (default 1; 0 for unused rows, ``row_wall`` -1)."""
-    arguments, used = _row_arguments(params, geometry, base_directions, row_wall, is_floor)
-    weights = _ones_if_none(row_weights, row_wall, params.dtype)
+def residuals_of(params: Float[Array, " P"], geometry: tuple[Array, Array, Array], rows: FitRows) -> Float[Array, " m"]:
+    """:func:`angular_residual` of every row times its weight (default 1; 0 for unused rows, ``row_wall`` -1);
+    ``geometry``: the rows' :func:`column_geometry`."""
+    arguments, used = _row_arguments(params, geometry, rows)
+    weights = _ones_if_none(rows.weights, rows.row_wall, params.dtype)
     return jnp.where(used, weights * jax.vmap(angular_residual)(*arguments), 0.0)
 
 
 def gauss_newton_step(
-    params: Float[Array, " P"],
-    geometry: tuple[Array, Array, Array],
-    base_directions: Float[Array, "m 2"],
-    row_wall: Int[Array, " m"],
-    is_floor: Bool[Array, " m"],
-    refine_yaw: bool,
-    row_weights: Float[Array, " m"] | None = None,
+    params: Float[Array, " P"], geometry: tuple[Array, Array, Array], rows: FitRows, refine_yaw: bool
 ) -> tuple[Float[Array, ""], Float[Array, " P"]]:
     """The cost at ``params`` and the Gauss-Newton step from there, on the angular residuals of all used rows.
 
@@ -243,11 +248,10 @@ def gauss_newton_step(
         :func:`squared_error`) and the increment ``delta`` of ``params``.
     """
     num_walls = params.shape[0] - 3
-    arguments, used = _row_arguments(params, geometry, base_directions, row_wall, is_floor)
-    residual, (d_yaw, d_height, d_distance) = jax.vmap(jax.value_and_grad(angular_residual, argnums=(0, 1, 2)))(
-        *arguments
-    )
-    mask = jnp.where(used, _ones_if_none(row_weights, row_wall, params.dtype), 0.0)
+    row_wall, is_floor = rows.row_wall, rows.is_floor
+    arguments, used = _row_arguments(params, geometry, rows)
+    residual, (d_yaw, d_height, d_distance) = jax.vmap(jax.value_and_grad(angular_residual))(*arguments)
+    mask = jnp.where(used, _ones_if_none(rows.weights, row_wall, params.dtype), 0.0)
     residual = residual * mask
     d_yaw = d_yaw * mask if refine_yaw else jnp.zeros_like(d_yaw)
     shared = (
@@ -277,28 +281,16 @@ def _used_geometry(rays: Float[Array, "m 6"], row_wall: Int[Array, " m"]) -> tup
     return column_geometry(jnp.where((row_wall >= 0)[:, None], rays, 0.0))
 
 
-def squared_error(
-    geometry: tuple[Array, Array, Array],
-    base_directions: Float[Array, "m 2"],
-    row_wall: Int[Array, " m"],
-    is_floor: Bool[Array, " m"],
-    row_weights: Float[Array, " m"] | None = None,
-):
+def squared_error(geometry: tuple[Array, Array, Array], rows: FitRows):
     """The maximum-likelihood cost ``params -> sum of squared (weighted) angular residuals`` of these rows."""
-    return lambda params: jnp.sum(residuals_of(params, geometry, base_directions, row_wall, is_floor, row_weights) ** 2)
+    return lambda params: jnp.sum(residuals_of(params, geometry, rows) ** 2)
 
 
 _SCALE_SEARCH_ROWS = 512
 
 
 def search_scale(
-    vector: Float[Array, " n"],
-    rays: Float[Array, "m 6"],
-    base_directions: Float[Array, "m 2"],
-    row_wall: Int[Array, " m"],
-    is_floor: Bool[Array, " m"],
-    floor_depths: Float[Array, " S"],
-    row_weights: Float[Array, " m"] | None = None,
+    vector: Float[Array, " n"], rows: FitRows, floor_depths: Float[Array, " S"]
 ) -> tuple[Float[Array, " P"], Bool[Array, ""]]:
     """The start of :func:`refine_walls` for a linear solution ``(x_0, h_c, h_f, d_1..d_K)`` (Atlanta order).
 
@@ -327,54 +319,35 @@ def search_scale(
     candidates = jnp.concatenate([linear[None], scaled])
     valid = jnp.concatenate([linear_ok[None], jnp.broadcast_to(shape_ok, floor_depths.shape)])
     params = jnp.concatenate([jnp.zeros((candidates.shape[0], 1), vector.dtype), candidates], 1)
-    every = slice(None, None, max(1, rays.shape[0] // _SCALE_SEARCH_ROWS))
-    weights = _ones_if_none(row_weights, row_wall, vector.dtype)[every]
-    cost = squared_error(
-        _used_geometry(rays[every], row_wall[every]), base_directions[every], row_wall[every], is_floor[every], weights
-    )
+    stride = max(1, rows.rays.shape[0] // _SCALE_SEARCH_ROWS)
+    weights = _ones_if_none(rows.weights, rows.row_wall, vector.dtype)
+    sampled = rows._replace(weights=weights).every(stride)
+    cost = squared_error(_used_geometry(sampled.rays, sampled.row_wall), sampled)
     costs = jax.vmap(cost)(params)
     costs = jnp.where(valid & jnp.all(jnp.isfinite(params), 1) & jnp.isfinite(costs), costs, jnp.inf)
     return params[jnp.argmin(costs)], jnp.any(jnp.isfinite(costs))
 
 
-def refine_walls(
-    params: Float[Array, " P"],
-    rays: Float[Array, "m 6"],
-    base_directions: Float[Array, "m 2"],
-    row_wall: Int[Array, " m"],
-    is_floor: Bool[Array, " m"],
-    refine_yaw: bool,
-    steps: int = 3,
-    row_weights: Float[Array, " m"] | None = None,
-) -> Float[Array, " P"]:
+def refine_walls(params: Float[Array, " P"], rows: FitRows, refine_yaw: bool, steps: int = 3) -> Float[Array, " P"]:
     """Gauss-Newton on the angular residuals (:func:`angular_residual`) from ``params``.
 
     Args:
         params: initial ``(t, h_c, h_f, d_1..d_K)`` (from a linear solver).
-        rays: the rays, one per row.
-        base_directions: per row, its wall's direction at yaw 0.
-        row_wall: per row, its wall (-1: the row is unused).
-        is_floor: per row, floor (True) or ceiling ray.
+        rows: the rows fitted, with their weights.
         refine_yaw: static; False keeps ``t`` (Atlanta: known directions).
         steps: static number of Gauss-Newton steps (3: converged to float
             precision from the linear solutions in our experiments).
-        row_weights: factor of each row's residual (default 1): the inverse of
-            its noise gives the maximum-likelihood fit of rows of unequal
-            independent noise (the pipeline uses its square,
-            :func:`ncjax.pipeline.adjust.boundary_weights`).
 
     Returns:
         The refined ``(t, h_c, h_f, d_1..d_K)``.
     """
-    geometry = _used_geometry(rays, row_wall)
+    geometry = _used_geometry(rows.rays, rows.row_wall)
 
     def step(_, state):
         params, current, delta = state
         candidate = params + delta
         # the candidate's linearisation gives its cost and, if it is accepted, the next step
-        candidate_cost, candidate_delta = gauss_newton_step(
-            candidate, geometry, base_directions, row_wall, is_floor, refine_yaw, row_weights
-        )
+        candidate_cost, candidate_delta = gauss_newton_step(candidate, geometry, rows, refine_yaw)
         # a step that does not decrease the cost (far from the optimum, degenerate data) is refused
         better = candidate_cost <= current
         return (

@@ -1,6 +1,7 @@
-"""How the pipeline's configurations are made: frozen dataclasses that are also JAX pytrees.
+"""How the solvers' and the pipeline's configurations are made: frozen dataclasses that are also JAX pytrees.
 
-Each stage's configuration (:class:`~ncjax.pipeline.corners.CornerConfig`, ...) names its static fields: those
+Each stage's configuration (:class:`~ncjax.solvers.ransac.RansacConfig`,
+:class:`~ncjax.pipeline.config.CornerConfig`, ...) names its static fields: those
 set shapes, loop lengths or which code runs, and are part of the pytree's structure, so that changing one compiles
 the pipeline anew. Its other fields (thresholds and weights) are the pytree's leaves: a jitted function that takes
 the configuration as an argument traces them, and another threshold reuses the compiled program. The pipeline's
