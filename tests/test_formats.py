@@ -138,7 +138,7 @@ def test_label_cor_is_x_y_lines_ceiling_then_floor_leftmost_first(tmp_path):
 
 def test_label_cor_of_a_levelled_panorama_is_in_the_input_image(tmp_path):
     """With the levelling rotation R (input -> level), the pixels are those of R^T p in the input image."""
-    from ncjax.io.align import rotation_from_tilt
+    from ncjax.geometry.gravity import rotation_from_tilt
 
     record = record_of(L_SHAPE)
     rotation = rotation_from_tilt(4.0, -7.0)

@@ -107,11 +107,11 @@ def write_outputs(
 
 
 def align_to_gravity(image: np.ndarray) -> tuple[np.ndarray, dict]:
-    """A central panorama levelled (:mod:`ncjax.io.align`), and the JSON record of its tilt.
+    """A central panorama levelled (:mod:`ncjax.geometry.levelling`), and the JSON record of its tilt.
 
     An image whose vertical the line segments do not fix reliably is kept as it is (``reliable`` false).
     """
-    from ..io.align import estimate_tilt, level_panorama
+    from ..geometry.levelling import estimate_tilt, level_panorama
 
     estimate = estimate_tilt(image)
     record = {"reliable": estimate.reliable, "segments": int(estimate.segments), "roll_deg": None, "pitch_deg": None}

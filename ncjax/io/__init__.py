@@ -1,2 +1,2 @@
-"""Files: panoramas in (``images``) and levelled (``align``), layouts out as JSON (``export``) and meshes
-(``mesh``), atomically (``files``)."""
+"""Files: panoramas in (``images``), layouts out as JSON (``export``) and meshes (``mesh``), atomically
+(``files``)."""
