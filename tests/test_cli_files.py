@@ -22,7 +22,8 @@ import ncjax.network.predict
 import ncjax.reconstruction
 from ncjax import cli
 from ncjax.cli import outputs, reconstruct, summary
-from ncjax.cli.main import DefaultsHelpFormatter, build_parser
+from ncjax.cli.arguments import DefaultsHelpFormatter
+from ncjax.cli.main import build_parser
 from ncjax.io.files import replace_together
 from ncjax.network.checkpoint import load_model
 from ncjax.reconstruction import Reconstruction
