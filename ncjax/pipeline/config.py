@@ -161,7 +161,7 @@ class PipelineConfig:
             ceiling above and floor below the camera).
         prior_wall_heights: with a height prior (:mod:`ncjax.pipeline.prior`),
             RANSAC fits each wall at the prior's two heights
-            (:func:`~ncjax.solvers.wall.solve_wall_at_heights`: two unknowns
+            (:func:`~ncjax.solvers.wall_at_heights.solve_wall_at_heights`: two unknowns
             instead of four; experiments/RESULTS.md compares them); False:
             the paper's single-wall solver, whose walls carry their own heights.
         prior_room_height: set by the height-prior route

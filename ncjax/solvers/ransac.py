@@ -1,7 +1,7 @@
 """Per-wall RANSAC with the single-wall solver (paper Section 4.4).
 
 Each hypothesis is :func:`ncjax.solve_wall` on ``k`` sampled columns (one ceiling and one floor ray each: the paper's
-``k = 3``; with a height prior's known heights :func:`~ncjax.solvers.wall.solve_wall_at_heights`); it is scored by the
+``k = 3``; with a height prior's known heights :func:`~.wall_at_heights.solve_wall_at_heights`); it is scored by the
 number of boundary pixels it reprojects within a threshold (pixels, the closed form of
 :mod:`ncjax.geometry.reprojection`, tested as directions: :func:`inlier_rows`), and the best one is refitted on its
 inliers. Hypotheses are scored and refitted on at most ``G`` columns of the wall (:func:`wall_columns`), so the cost
@@ -21,7 +21,8 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.reprojection import boundary_rows_along, range_along
-from .wall import Wall, solve_wall, solve_wall_at_heights
+from .wall import Wall, solve_wall
+from .wall_at_heights import solve_wall_at_heights
 
 
 def num_hypotheses(success_probability: float, outlier_rate: float, sample_size: int) -> int:
@@ -187,7 +188,7 @@ def ransac_wall(
         min_height: static; walls whose ceiling or floor is closer than this
             to the camera's plane are rejected (:func:`plausible_wall`).
         heights: the known ``(h_c, h_f)`` of a height prior, or None. Given, every hypothesis and the refit are
-            plan lines at those heights (:func:`ncjax.solvers.wall.solve_wall_at_heights`): two unknowns instead
+            plan lines at those heights (:func:`~.wall_at_heights.solve_wall_at_heights`): two unknowns instead
             of four, which rows a few pixels off fix far better than the scale of one wall's weak parallax.
 
     Returns:
