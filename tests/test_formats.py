@@ -391,16 +391,18 @@ def test_unknown_export_format_stops_before_any_work(tmp_path, capsys):
 def test_reconstruct_outputs_write_and_remove_the_formats(tmp_path):
     from test_export import failed_layout, make_layout
 
-    from ncjax.cli.outputs import write_outputs
+    from ncjax.cli.outputs import ReconstructedImage, write_outputs
 
     image = np.zeros((64, 128, 3), np.uint8)
     rows = np.full(128, 20.0), np.full(128, 44.0), np.zeros(128), 0, None  # boundaries, scale source, geometry
-    write_outputs(str(tmp_path), "room", image, (make_layout(L_SHAPE, H_C, H_F), *rows), 0.3, "auto", export=FORMATS)
+    result = (make_layout(L_SHAPE, H_C, H_F), *rows)
+    write_outputs(str(tmp_path), ReconstructedImage("room", image, result, 0.3), "auto", export=FORMATS)
     written = sorted(path.name for path in tmp_path.iterdir() if path.name.startswith("room."))
     assert written == sorted(
         ["room.json", "room.obj", "room.ply", "room.glb", *(f"room{s}" for s in SUFFIXES.values())]
     )
     corners = read_layout(tmp_path / "room.label_cor.txt", 128, 64, rc=0.3)
     np.testing.assert_allclose(corners.floor, read_layout(tmp_path / "room.json").floor, atol=0.01)
-    write_outputs(str(tmp_path), "room", image, (failed_layout(), *rows), 0.3, "auto", export=("label_cor",))
+    failed_result = (failed_layout(), *rows)
+    write_outputs(str(tmp_path), ReconstructedImage("room", image, failed_result, 0.3), "auto", export=("label_cor",))
     assert not any((tmp_path / f"room{suffix}").exists() for suffix in SUFFIXES.values())

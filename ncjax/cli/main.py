@@ -201,7 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="rolled and mirrored views the network averages (1 or even; the default is ncjax reconstruct's)",
     )
     evaluate.set_defaults(run=_evaluate)
-    from .reconstruct import add_demo_arguments, add_reconstruct_arguments, run_demo, run_reconstruct
+    from .demo import add_demo_arguments, run_demo
+    from .reconstruct import add_reconstruct_arguments, run_reconstruct
 
     reconstruct = commands.add_parser(
         "reconstruct",
