@@ -23,7 +23,7 @@ import jax
 import numpy as np
 
 import ncjax
-from ncjax.cli.reconstruct import DEMO_DIR
+from ncjax.cli.demo import DEMO_DIR
 from ncjax.io.images import read_panorama
 from ncjax.network.predict import DEFAULT_VIEWS, _predict, default_model
 from ncjax.reconstruction import reconstruct_batch

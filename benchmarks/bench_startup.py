@@ -26,7 +26,7 @@ import sys
 import tempfile
 import time
 
-from ncjax.cli.reconstruct import DEMO_DIR
+from ncjax.cli.demo import DEMO_DIR
 
 DEMO_IMAGE = next(DEMO_DIR.glob("*.png"))
 

@@ -26,8 +26,8 @@ import time
 
 START = time.perf_counter()
 
+from ncjax.cli.demo import DEMO_DIR  # noqa: E402
 from ncjax.cli.main import main as ncjax_main  # noqa: E402
-from ncjax.cli.reconstruct import DEMO_DIR  # noqa: E402
 
 IMPORTED = time.perf_counter()
 

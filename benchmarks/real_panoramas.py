@@ -58,8 +58,9 @@ from tqdm import tqdm
 
 import ncjax
 from ncjax import metrics
+from ncjax.geometry.gravity import panorama_size_error
 from ncjax.io.files import write_atomic
-from ncjax.io.images import PanoramaError, panorama_size_error, read_rgb
+from ncjax.io.images import PanoramaError, read_rgb
 from ncjax.network.model import check_views
 from ncjax.network.predict import default_model
 from ncjax.network.scores import REFERENCE_WIDTH

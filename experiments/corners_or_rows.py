@@ -26,9 +26,10 @@ import numpy as np
 
 import ncjax
 from ncjax.io.export import status_has_geometry
-from ncjax.io.formats import LayoutCorners, format_path, write_layout_formats
+from ncjax.io.formats import format_path, write_layout_formats
 from ncjax.io.formats_read import read_layout
 from ncjax.io.images import read_panorama
+from ncjax.io.layout_corners import LayoutCorners
 from ncjax.metrics_central import evaluate_corners
 from ncjax.network.predict import default_model
 from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior

@@ -34,8 +34,8 @@ import tempfile
 import jax
 
 from ncjax import programs
+from ncjax.cli.demo import DEMO_DIR
 from ncjax.cli.main import main as ncjax_main
-from ncjax.cli.reconstruct import DEMO_DIR
 
 
 def main() -> int:

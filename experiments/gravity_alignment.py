@@ -1,4 +1,4 @@
-"""How well does ``ncjax.io.align.estimate_tilt`` recover the roll and pitch of tilted central panoramas?
+"""How well does ``ncjax.geometry.levelling.estimate_tilt`` recover the roll and pitch of tilted central panoramas?
 
 Rooms: ``--n`` synthetic rooms (Manhattan and Atlanta, furnished, ``rc = 0``) rendered
 level at ``--size`` by ``ncjax.synth`` into ``experiments/out/gravity_renders_<n>_<size>_<seed>/``
@@ -30,7 +30,8 @@ import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax.io.align import estimate_tilt, level_panorama, rotation_from_tilt
+from ncjax.geometry.gravity import rotation_from_tilt
+from ncjax.geometry.levelling import estimate_tilt, level_panorama
 from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 
 OUT = Path(__file__).parent / "out"

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import ncjax
-from ncjax.io.formats import LayoutCorners, corners_from_3d, pixel_angles
+from ncjax.io.layout_corners import LayoutCorners, corners_from_3d, pixel_angles
 from ncjax.metrics_central import evaluate_corners, room_geometry, surface_classes
 from ncjax.network.predict import default_model
 from ncjax.pipeline.corners import configured_corners

@@ -39,14 +39,8 @@ from .geometry.plucker import (
 from .geometry.linalg import null_space, scaled_null_space
 
 # Wall and layout solvers (paper Sections 4.1-4.3, 5.3)
-from .solvers.wall import (
-    HorizontalLine,
-    Wall,
-    solve_horizontal_line,
-    solve_horizontal_lines,
-    solve_wall,
-    solve_wall_minimal,
-)
+from .solvers.horizontal_line import HorizontalLine, solve_horizontal_line, solve_horizontal_lines
+from .solvers.wall import Wall, solve_wall, solve_wall_minimal
 from .solvers.layout import (
     WallLayout,
     layout_corners,

@@ -1,6 +1,6 @@
 """Layout metrics as the central-panorama papers compute them, from two corner sets of one image.
 
-The inputs are two :class:`~ncjax.io.formats.LayoutCorners` (e.g. from
+The inputs are two :class:`~ncjax.io.layout_corners.LayoutCorners` (e.g. from
 :func:`ncjax.io.formats_read.read_layout`): a prediction and its ground truth, each
 the ceiling and floor pixels of its corners, plus 3D corners where the format holds
 them. The definitions follow HorizonNet's ``eval_general.py`` / ``eval_cuboid.py``
@@ -56,7 +56,7 @@ import shapely
 from jaxtyping import Float, Int8
 from scipy.optimize import linear_sum_assignment
 
-from .io.formats import LayoutCorners, back_project, pixel_angles
+from .io.layout_corners import LayoutCorners, back_project, pixel_angles
 
 __all__ = [
     "RoomGeometry",

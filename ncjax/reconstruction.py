@@ -32,7 +32,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
 
 from .geometry.camera import NonCentralPanorama
-from .io.images import panorama_size_error
+from .geometry.gravity import panorama_size_error
 from .network.checkpoint import ModelWeights, load_model, model_from_weights, model_weights
 from .network.edges import EdgeSnap
 from .network.model import HorizonNet, check_views

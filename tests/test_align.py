@@ -11,8 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import ncjax
-from ncjax.geometry import gravity
-from ncjax.io import align
+from ncjax.geometry import gravity, levelling
 
 # A box room around the camera: x, y, z extents in metres (floor 1.4 m below, ceiling 1.2 m above).
 ROOM = np.array([[-2.3, 3.1], [-1.7, 2.6], [-1.4, 1.2]])
@@ -111,11 +110,15 @@ def general_rotation(roll, pitch, yaw):
 def test_frame_and_pixel_maps_are_inverse(roll, pitch, yaw, u, v):
     rotation = general_rotation(roll, pitch, yaw)
     point = np.array([u - 60.0, v - 30.0, 0.37 * u])
-    np.testing.assert_allclose(align.to_input_frame(align.to_level_frame(point, rotation), rotation), point, atol=1e-9)
-    np.testing.assert_allclose(align.to_level_frame(align.to_input_frame(point, rotation), rotation), point, atol=1e-9)
+    np.testing.assert_allclose(
+        gravity.to_input_frame(gravity.to_level_frame(point, rotation), rotation), point, atol=1e-9
+    )
+    np.testing.assert_allclose(
+        gravity.to_level_frame(gravity.to_input_frame(point, rotation), rotation), point, atol=1e-9
+    )
     for forward, backward in (
-        (align.input_to_level_pixels, align.level_to_input_pixels),
-        (align.level_to_input_pixels, align.input_to_level_pixels),
+        (gravity.input_to_level_pixels, gravity.level_to_input_pixels),
+        (gravity.level_to_input_pixels, gravity.input_to_level_pixels),
     ):
         there = forward(u, v, rotation, 128, 64)
         assert -0.5 <= there[0] < 127.5 and -0.5 <= there[1] <= 63.5
@@ -127,9 +130,9 @@ def test_layout_corners_map_to_the_input_image():
     """A point of the levelled frame is seen in the input image where the levelled image's pixel of it maps to."""
     rotation = general_rotation(6.0, -8.0, 30.0)
     corners = np.array([[3.1, 2.6, 1.2], [-2.3, 2.6, -1.4], [-2.3, -1.7, 1.2], [3.1, -1.7, -1.4]])
-    level_u, level_v = align.direction_to_pixel(corners, 512, 256)
-    input_u, input_v = align.direction_to_pixel(align.to_input_frame(corners, rotation), 512, 256)
-    mapped_u, mapped_v = align.level_to_input_pixels(level_u, level_v, rotation, 512, 256)
+    level_u, level_v = gravity.direction_to_pixel(corners, 512, 256)
+    input_u, input_v = gravity.direction_to_pixel(gravity.to_input_frame(corners, rotation), 512, 256)
+    mapped_u, mapped_v = gravity.level_to_input_pixels(level_u, level_v, rotation, 512, 256)
     np.testing.assert_allclose(circular_difference(mapped_u, input_u, 512), 0.0, atol=1e-9)
     np.testing.assert_allclose(mapped_v, input_v, atol=1e-9)
 
@@ -139,21 +142,23 @@ def test_layout_corners_map_to_the_input_image():
 
 def test_identity_and_yaw_resampling_are_exact():
     image = np.random.default_rng(0).integers(0, 256, (32, 64, 3)).astype(np.uint8)
-    np.testing.assert_array_equal(align.level_panorama(image, np.eye(3)), image)
+    np.testing.assert_array_equal(levelling.level_panorama(image, np.eye(3)), image)
     # A rotation about z by one column's azimuth shifts the columns by one, wrapping around.
     step = 360.0 / 64
     yaw = general_rotation(0.0, 0.0, step)
-    np.testing.assert_array_equal(align.level_panorama(image, yaw), np.roll(image, -1, axis=1))
+    np.testing.assert_array_equal(levelling.level_panorama(image, yaw), np.roll(image, -1, axis=1))
     labels = np.random.default_rng(1).integers(0, 5, (32, 64)).astype(np.uint8)
-    np.testing.assert_array_equal(align.level_panorama(labels, yaw, "nearest"), np.roll(labels, -1, axis=1))
+    np.testing.assert_array_equal(levelling.level_panorama(labels, yaw, "nearest"), np.roll(labels, -1, axis=1))
     values = image[..., 0].astype(np.float32)
-    np.testing.assert_array_equal(align.level_panorama(values, yaw.T), np.roll(values, 1, axis=1))
+    np.testing.assert_array_equal(levelling.level_panorama(values, yaw.T), np.roll(values, 1, axis=1))
 
 
 def test_half_turn_about_x_swaps_the_poles():
     image = np.random.default_rng(2).integers(0, 256, (16, 32)).astype(np.float32)
     # (x, y, z) -> (x, -y, -z): azimuth a -> -a (column u -> W - 1 - u), elevation e -> -e (row v -> H - 1 - v)
-    np.testing.assert_allclose(align.level_panorama(image, gravity.rotation_from_tilt(180.0, 0.0)), image[::-1, ::-1])
+    np.testing.assert_allclose(
+        levelling.level_panorama(image, gravity.rotation_from_tilt(180.0, 0.0)), image[::-1, ::-1]
+    )
 
 
 @pytest.mark.parametrize("roll, pitch", [(10.0, -10.0), (3.0, 4.0), (25.0, 0.0)])
@@ -165,8 +170,8 @@ def test_interpolation_wraps_in_azimuth_and_continues_over_the_poles(roll, pitch
     directions = gravity.pixel_to_direction(columns, rows, 32, 16)
     weights = np.array([0.3, -0.5, 0.8])
     rotation = gravity.rotation_from_tilt(roll, pitch)
-    levelled = align.level_panorama((directions @ weights).astype(np.float32), rotation)
-    np.testing.assert_allclose(levelled, align.to_input_frame(directions, rotation) @ weights, atol=0.012)
+    levelled = levelling.level_panorama((directions @ weights).astype(np.float32), rotation)
+    np.testing.assert_allclose(levelled, gravity.to_input_frame(directions, rotation) @ weights, atol=0.012)
 
 
 def _band(image: np.ndarray) -> np.ndarray:
@@ -179,15 +184,15 @@ def test_level_panorama_undoes_the_tilt():
     roll, pitch = 6.0, -8.0
     level, tilted = room_panorama(0.0, 0.0, noise=0.0), room_panorama(roll, pitch, noise=0.0)
     rotation = gravity.rotation_from_tilt(roll, pitch)
-    levelled = align.level_panorama(tilted, rotation)
+    levelled = levelling.level_panorama(tilted, rotation)
     error = np.abs(_band(levelled) - _band(level)).mean()
     before = np.abs(_band(tilted) - _band(level)).mean()
-    wrong_way = np.abs(_band(align.level_panorama(tilted, rotation.T)) - _band(level)).mean()
+    wrong_way = np.abs(_band(levelling.level_panorama(tilted, rotation.T)) - _band(level)).mean()
     assert error < 2.0 < before / 2 and wrong_way > before
     # level_panorama(level, rotation.T) tilts: it matches the tilted camera's own image
-    assert np.abs(_band(align.level_panorama(level, rotation.T)) - _band(tilted)).mean() < 2.0
+    assert np.abs(_band(levelling.level_panorama(level, rotation.T)) - _band(tilted)).mean() < 2.0
     # levelled with the estimated rotation: as good
-    estimated = align.level_panorama(tilted, align.estimate_tilt(tilted).rotation)
+    estimated = levelling.level_panorama(tilted, levelling.estimate_tilt(tilted).rotation)
     assert np.abs(_band(estimated) - _band(level)).mean() < 2.0
 
 
@@ -198,8 +203,8 @@ def test_level_panorama_undoes_the_tilt():
     "roll, pitch, height", [(0.0, 0.0, 256), (3.0, -2.0, 256), (-7.5, 6.0, 256), (10.0, -10.0, 256), (-4.0, 9.0, 512)]
 )
 def test_estimate_tilt_recovers_roll_and_pitch(roll, pitch, height):
-    estimate = align.estimate_tilt(room_panorama(roll, pitch, height))
-    assert estimate.reliable and estimate.segments >= align.TiltConfig().min_segments
+    estimate = levelling.estimate_tilt(room_panorama(roll, pitch, height))
+    assert estimate.reliable and estimate.segments >= levelling.TiltConfig().min_segments
     assert abs(estimate.roll - roll) < 0.3 and abs(estimate.pitch - pitch) < 0.3
     np.testing.assert_allclose(estimate.rotation, gravity.rotation_from_tilt(estimate.roll, estimate.pitch))
     np.testing.assert_allclose(estimate.up, estimate.rotation[2])
@@ -207,7 +212,7 @@ def test_estimate_tilt_recovers_roll_and_pitch(roll, pitch, height):
 
 def test_estimate_tilt_is_deterministic():
     image = room_panorama(-7.5, 6.0)
-    first, second = align.estimate_tilt(image), align.estimate_tilt(image)
+    first, second = levelling.estimate_tilt(image), levelling.estimate_tilt(image)
     assert (first.roll, first.pitch, first.segments) == (second.roll, second.pitch, second.segments)
     np.testing.assert_array_equal(first.rotation, second.rotation)
 
@@ -221,7 +226,7 @@ def test_featureless_panorama_is_unreliable(kind):
         image = np.repeat(np.linspace(40, 220, 128)[:, None, None], 256, axis=1).repeat(3, axis=2).astype(np.uint8)
     else:
         image = rng.integers(0, 256, (256, 512, 3)).astype(np.uint8)
-    estimate = align.estimate_tilt(image)
+    estimate = levelling.estimate_tilt(image)
     assert not estimate.reliable
     assert (estimate.roll, estimate.pitch) == (0.0, 0.0)
     np.testing.assert_array_equal(estimate.rotation, np.eye(3))
@@ -243,7 +248,7 @@ def test_vertical_from_normals_ignores_outliers():
     outliers = rng.normal(size=(60, 3))
     outliers /= np.linalg.norm(outliers, axis=-1, keepdims=True)
     normals = np.concatenate([inliers, outliers])
-    found, mask, reliable = align.vertical_from_normals(normals, np.full(100, 0.2))
+    found, mask, reliable = levelling.vertical_from_normals(normals, np.full(100, 0.2))
     assert reliable and mask[:40].all() and mask[40:].sum() < 5
     assert math.degrees(math.acos(min(1.0, float(found @ up)))) < 0.2
 
@@ -251,32 +256,32 @@ def test_vertical_from_normals_ignores_outliers():
 def test_vertical_from_normals_needs_lines_in_more_than_one_direction():
     up = gravity.rotation_from_tilt(4.0, -3.0)[2]
     normals = normals_of_lines_through(up, np.full(30, 40.0) + np.linspace(0, 0.5, 30))  # one wall edge, many times
-    found, mask, reliable = align.vertical_from_normals(normals, np.full(30, 0.5))
+    found, mask, reliable = levelling.vertical_from_normals(normals, np.full(30, 0.5))
     assert not reliable
     np.testing.assert_array_equal(found, [0.0, 0.0, 1.0])
 
 
 def test_bad_input_is_a_value_error():
     with pytest.raises(ValueError, match="not a full 360 x 180 degree panorama"):
-        align.estimate_tilt(np.zeros((100, 300, 3), np.uint8))
+        levelling.estimate_tilt(np.zeros((100, 300, 3), np.uint8))
     with pytest.raises(ValueError, match="RGB uint8"):
-        align.estimate_tilt(np.zeros((64, 128, 3), np.float32))
+        levelling.estimate_tilt(np.zeros((64, 128, 3), np.float32))
     with pytest.raises(ValueError, match="2:1"):
-        align.level_panorama(np.zeros((64, 100, 3), np.uint8), np.eye(3))
+        levelling.level_panorama(np.zeros((64, 100, 3), np.uint8), np.eye(3))
     with pytest.raises(ValueError, match="C <= 4"):
-        align.level_panorama(np.zeros((64, 128, 5), np.uint8), np.eye(3))
+        levelling.level_panorama(np.zeros((64, 128, 5), np.uint8), np.eye(3))
     with pytest.raises(ValueError, match="unsupported image type"):
-        align.level_panorama(np.zeros((64, 128), np.int64), np.eye(3))
+        levelling.level_panorama(np.zeros((64, 128), np.int64), np.eye(3))
     with pytest.raises(ValueError, match="rotation matrix"):
-        align.level_panorama(np.zeros((64, 128), np.uint8), 2 * np.eye(3))
+        levelling.level_panorama(np.zeros((64, 128), np.uint8), 2 * np.eye(3))
     with pytest.raises(ValueError, match="rotation matrix"):
-        align.to_input_frame(np.ones(3), np.diag([1.0, 1.0, -1.0]))
+        gravity.to_input_frame(np.ones(3), np.diag([1.0, 1.0, -1.0]))
     with pytest.raises(ValueError, match="interpolation"):
-        align.level_panorama(np.zeros((64, 128), np.uint8), np.eye(3), "cubic")
+        levelling.level_panorama(np.zeros((64, 128), np.uint8), np.eye(3), "cubic")
     with pytest.raises(ValueError, match="finite non-zero"):
         gravity.tilt_from_up(np.zeros(3))
     with pytest.raises(ValueError, match="max_tilt"):
-        align.TiltConfig(max_tilt=90.0)
+        levelling.TiltConfig(max_tilt=90.0)
 
 
 @pytest.mark.extended
@@ -289,6 +294,6 @@ def test_estimate_tilt_on_a_render(tmp_path):
     level = rendering_rgb8(rendering)
     for roll, pitch in ((5.0, -9.0), (-8.0, 2.5)):
         rotation = gravity.rotation_from_tilt(roll, pitch)
-        estimate = align.estimate_tilt(align.level_panorama(level, rotation.T))
+        estimate = levelling.estimate_tilt(levelling.level_panorama(level, rotation.T))
         assert estimate.reliable
         assert abs(estimate.roll - roll) < 0.3 and abs(estimate.pitch - pitch) < 0.3

@@ -10,7 +10,8 @@ import pytest
 
 import ncjax
 from ncjax import cli
-from ncjax.cli.reconstruct import DEMO_DIR, failure_message
+from ncjax.cli.demo import DEMO_DIR
+from ncjax.cli.summary import failure_message
 from ncjax.io.export import status_has_geometry
 from ncjax.io.images import MAX_WIDTH, PanoramaError, PanoramaResizeWarning, read_panorama
 from ncjax.pipeline.types import FLAGGED_STATUSES
@@ -273,7 +274,7 @@ def test_reconstruct_summarises_every_image_in_one_csv(batch_run):
 
 
 def test_summary_rows_of_each_result():
-    from ncjax.cli.reconstruct import summary_row
+    from ncjax.cli.summary import summary_row
 
     record = {
         "ok": True,

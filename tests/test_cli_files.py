@@ -21,8 +21,9 @@ import ncjax.io.export
 import ncjax.network.predict
 import ncjax.reconstruction
 from ncjax import cli
-from ncjax.cli import outputs, reconstruct, summary
-from ncjax.cli.main import DefaultsHelpFormatter, build_parser
+from ncjax.cli import demo, inputs, outputs, reconstruct, summary
+from ncjax.cli.arguments import DefaultsHelpFormatter
+from ncjax.cli.main import build_parser
 from ncjax.io.files import replace_together
 from ncjax.network.checkpoint import load_model
 from ncjax.reconstruction import Reconstruction
@@ -228,9 +229,9 @@ def test_folders_give_their_panoramas(tmp_path, fake, capsys):
     panoramas(folder / ".thumbnails", "e")
     (folder / "notes.txt").write_text("not a panorama")
     (folder / ".hidden.png").write_bytes(b"")
-    flat = reconstruct.expand_inputs([str(folder)])
+    flat = inputs.expand_inputs([str(folder)])
     assert flat == [str(folder / name) for name in ("a.png", "b.png", "c.JPG")]
-    deep = reconstruct.expand_inputs([str(folder)], recursive=True)
+    deep = inputs.expand_inputs([str(folder)], recursive=True)
     assert deep == [*flat, str(folder / "floor2" / "d.png")]
     out = folder / "out"  # an output folder inside the input folder is never read
     assert reconstruct_cli([folder], out, "--recursive") == 0
@@ -290,7 +291,7 @@ def test_ctrl_c_elsewhere_is_one_line(monkeypatch, capsys):
     def interrupted(args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(reconstruct, "run_demo", interrupted)
+    monkeypatch.setattr(demo, "run_demo", interrupted)
     assert cli.main(["demo"]) == 130
     assert capsys.readouterr().err == "ncjax demo: interrupted\n"
 

@@ -18,9 +18,13 @@ import ncjax
 from ncjax import cli
 
 # Shapes and dtypes checked at run time, as conftest.py does for the modules ncjax imports itself.
-with install_import_hook(["ncjax.io.formats", "ncjax.io.formats_read", "ncjax.metrics_central"], "beartype.beartype"):
-    from ncjax.io.formats import FORMATS, SUFFIXES, LayoutCorners, project_points, write_layout_formats
+with install_import_hook(
+    ["ncjax.io.formats", "ncjax.io.formats_read", "ncjax.io.layout_corners", "ncjax.metrics_central"],
+    "beartype.beartype",
+):
+    from ncjax.io.formats import FORMATS, SUFFIXES, write_layout_formats
     from ncjax.io.formats_read import layout_files, read_layout, read_mp3d
+    from ncjax.io.layout_corners import LayoutCorners, project_points
     from ncjax.metrics_central import evaluate_corners, room_geometry
 
 DATA = pathlib.Path(__file__).parent / "data" / "formats"
@@ -138,7 +142,7 @@ def test_label_cor_is_x_y_lines_ceiling_then_floor_leftmost_first(tmp_path):
 
 def test_label_cor_of_a_levelled_panorama_is_in_the_input_image(tmp_path):
     """With the levelling rotation R (input -> level), the pixels are those of R^T p in the input image."""
-    from ncjax.io.align import rotation_from_tilt
+    from ncjax.geometry.gravity import rotation_from_tilt
 
     record = record_of(L_SHAPE)
     rotation = rotation_from_tilt(4.0, -7.0)
@@ -387,16 +391,18 @@ def test_unknown_export_format_stops_before_any_work(tmp_path, capsys):
 def test_reconstruct_outputs_write_and_remove_the_formats(tmp_path):
     from test_export import failed_layout, make_layout
 
-    from ncjax.cli.outputs import write_outputs
+    from ncjax.cli.outputs import ReconstructedImage, write_outputs
 
     image = np.zeros((64, 128, 3), np.uint8)
     rows = np.full(128, 20.0), np.full(128, 44.0), np.zeros(128), 0, None  # boundaries, scale source, geometry
-    write_outputs(str(tmp_path), "room", image, (make_layout(L_SHAPE, H_C, H_F), *rows), 0.3, "auto", export=FORMATS)
+    result = (make_layout(L_SHAPE, H_C, H_F), *rows)
+    write_outputs(str(tmp_path), ReconstructedImage("room", image, result, 0.3), "auto", export=FORMATS)
     written = sorted(path.name for path in tmp_path.iterdir() if path.name.startswith("room."))
     assert written == sorted(
         ["room.json", "room.obj", "room.ply", "room.glb", *(f"room{s}" for s in SUFFIXES.values())]
     )
     corners = read_layout(tmp_path / "room.label_cor.txt", 128, 64, rc=0.3)
     np.testing.assert_allclose(corners.floor, read_layout(tmp_path / "room.json").floor, atol=0.01)
-    write_outputs(str(tmp_path), "room", image, (failed_layout(), *rows), 0.3, "auto", export=("label_cor",))
+    failed_result = (failed_layout(), *rows)
+    write_outputs(str(tmp_path), ReconstructedImage("room", image, failed_result, 0.3), "auto", export=("label_cor",))
     assert not any((tmp_path / f"room{suffix}").exists() for suffix in SUFFIXES.values())

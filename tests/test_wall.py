@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 import ncjax
 import ncjax.geometry.linalg
 import ncjax.solvers.wall
+import ncjax.solvers.wall_at_heights
 
 WIDTH, HEIGHT = 256, 128
 CAPACITY = 12
@@ -485,7 +486,9 @@ def _walls_at_heights(room):
     ceiling_rays, floor_rays = rays(room)
     masks = room["wall_index"][None, :] == jnp.arange(CAPACITY)[:, None]
     return jax.vmap(
-        lambda m: ncjax.solvers.wall.solve_wall_at_heights(ceiling_rays, floor_rays, m, m, room["h_c"], room["h_f"])
+        lambda m: ncjax.solvers.wall_at_heights.solve_wall_at_heights(
+            ceiling_rays, floor_rays, m, m, room["h_c"], room["h_f"]
+        )
     )(masks)
 
 
@@ -504,13 +507,14 @@ def test_boundary_points_at_a_height_lie_on_their_rays():
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
     columns = jnp.arange(0.0, WIDTH, 7.0)
     ray = ncjax.pixel_to_ray(cam, columns, jnp.full_like(columns, 20.0))  # above the horizon
-    points, ahead = ncjax.solvers.wall.boundary_points_at(ray, jnp.asarray(1.3))
+    points, ahead = ncjax.solvers.wall_at_heights.boundary_points_at(ray, jnp.asarray(1.3))
     assert bool(jnp.all(ahead))
     on_ray = ncjax.side(
         ray, ncjax.line_from_point_direction(jnp.pad(points, ((0, 0), (0, 1)), constant_values=1.3), ray[:, :3])
     )
     np.testing.assert_allclose(on_ray, 0.0, atol=1e-5)
-    _, behind = ncjax.solvers.wall.boundary_points_at(ray, jnp.asarray(-1.3))  # rays going up never reach the floor
+    # rays going up never reach the floor
+    _, behind = ncjax.solvers.wall_at_heights.boundary_points_at(ray, jnp.asarray(-1.3))
     assert not bool(jnp.any(behind))
 
 
@@ -521,10 +525,12 @@ def test_wall_at_heights_is_the_weighted_principal_axis():
     ceiling_v = room["ceiling_v"] + jnp.asarray(rng.normal(0, 1.0, WIDTH), room["ceiling_v"].dtype)
     ceiling_rays, floor_rays = boundary_rays(room["cam"], ceiling_v, room["floor_v"])
     mask = room["wall_index"] == 1
-    wall = ncjax.solvers.wall.solve_wall_at_heights(ceiling_rays, floor_rays, mask, mask, room["h_c"], room["h_f"])
+    wall = ncjax.solvers.wall_at_heights.solve_wall_at_heights(
+        ceiling_rays, floor_rays, mask, mask, room["h_c"], room["h_f"]
+    )
     points = np.concatenate(
         [
-            np.asarray(ncjax.solvers.wall.boundary_points_at(r, h)[0])[np.asarray(mask)]
+            np.asarray(ncjax.solvers.wall_at_heights.boundary_points_at(r, h)[0])[np.asarray(mask)]
             for r, h in ((ceiling_rays, room["h_c"]), (floor_rays, room["h_f"]))
         ]
     )
@@ -545,7 +551,7 @@ def test_a_wall_at_heights_needs_two_columns_and_a_camera_between_them():
     ceiling_rays, floor_rays = rays(room)
     one, two = jnp.arange(WIDTH) == 10, jnp.isin(jnp.arange(WIDTH), jnp.array([10, 20]))
     none = jnp.zeros(WIDTH, bool)
-    solve = ncjax.solvers.wall.solve_wall_at_heights
+    solve = ncjax.solvers.wall_at_heights.solve_wall_at_heights
     assert not bool(solve(ceiling_rays, floor_rays, one, none, room["h_c"], room["h_f"]).ok)
     assert not bool(solve(ceiling_rays, floor_rays, one, one, room["h_c"], room["h_f"]).ok)  # a line through the axis
     assert bool(solve(ceiling_rays, floor_rays, two, none, room["h_c"], room["h_f"]).ok)
@@ -581,7 +587,7 @@ def test_a_wall_at_heights_has_finite_gradients_even_where_it_fails():
 
     def distance(rows, mask):
         rays_now = ncjax.pixel_to_ray(room["cam"], jnp.arange(WIDTH, dtype=rows.dtype), rows)
-        wall = ncjax.solvers.wall.solve_wall_at_heights(
+        wall = ncjax.solvers.wall_at_heights.solve_wall_at_heights(
             rays_now, floor_rays, mask, mask & False, room["h_c"], room["h_f"]
         )
         return jnp.where(wall.ok, wall.distance, 0.0)

@@ -13,6 +13,8 @@ import math
 import pathlib
 import sys
 
+from .arguments import parse_size
+
 # (title, metric, factor, decimals) of the printed columns
 COLUMNS = (
     ("2D IoU", "iou2d", 100.0, 2),
@@ -69,9 +71,8 @@ def run_layout_evaluation(args: argparse.Namespace) -> int:
     """
     from ..io.formats_read import read_layout
     from ..metrics_central import aggregate_central, evaluate_corners
-    from .main import _parse_size
 
-    height, width = _parse_size(args.size) if args.size else (None, None)
+    height, width = parse_size(args.size) if args.size else (None, None)
     pairs, only_pred, only_gt = layout_pairs(args.pred, args.gt)
     name_width = max(12, *(len(name) for name, *_ in pairs))
     header = " ".join(f"{title:>{CELL}}" for title, *_ in COLUMNS)

@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import re
 import sys
 from typing import NoReturn
+
+from .arguments import DefaultsHelpFormatter, parse_size
 
 CONVENTIONS = """\
 frame      metres, right-handed, z up (revolution axis), circle of optical centres in z = 0
@@ -20,26 +21,6 @@ wall       ceiling line (ux, uy, 0, -h_c uy, h_c ux, -d), floor line the same wi
 """
 
 
-class DefaultsHelpFormatter(argparse.HelpFormatter):
-    """``--help`` that ends each option's text with its default, ``(default: X)``.
-
-    Left as they are: texts that already name their default, options without a default
-    (None: their text says what their absence means), flags (no value) and positionals.
-    """
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        if (
-            "default" in text
-            or not action.option_strings
-            or action.nargs == 0
-            or action.required
-            or action.default in (None, argparse.SUPPRESS)
-        ):
-            return text
-        return f"{text} (default: %(default)s)" if text else "(default: %(default)s)"
-
-
 def _info(args: argparse.Namespace) -> int:
     import jax
 
@@ -48,16 +29,6 @@ def _info(args: argparse.Namespace) -> int:
     print(f"ncjax {ncjax.__version__}, jax {jax.__version__}, devices: {', '.join(str(d) for d in jax.devices())}")
     print(CONVENTIONS, end="")
     return 0
-
-
-def _parse_size(text: str) -> tuple[int, int]:
-    match = re.fullmatch(r"(\d+)x(\d+)", text)
-    if not match:
-        raise ValueError(f"--size must be HxW, e.g. 512x1024, got {text!r}")
-    height, width = int(match.group(1)), int(match.group(2))
-    if height < 4 or width < 8 or width % 2 or height % 2:
-        raise ValueError(f"--size must be even sizes of at least 4x8 (HxW), got {text!r}")
-    return height, width
 
 
 def _parse_rc(text: str) -> tuple[float, float]:
@@ -72,7 +43,7 @@ def _parse_rc(text: str) -> tuple[float, float]:
 
 
 def _synth(args: argparse.Namespace) -> int:
-    height, width = _parse_size(args.size)
+    height, width = parse_size(args.size)
     rc_range = _parse_rc(args.rc)
     if args.n < 1:
         raise ValueError(f"--n must be >= 1, got {args.n}")
@@ -230,7 +201,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="rolled and mirrored views the network averages (1 or even; the default is ncjax reconstruct's)",
     )
     evaluate.set_defaults(run=_evaluate)
-    from .reconstruct import add_demo_arguments, add_reconstruct_arguments, run_demo, run_reconstruct
+    from .demo import add_demo_arguments, run_demo
+    from .reconstruct import add_reconstruct_arguments, run_reconstruct
 
     reconstruct = commands.add_parser(
         "reconstruct",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+from typing import NamedTuple
 
 import numpy as np
 
@@ -52,18 +53,28 @@ def output_names(name: str) -> tuple[str, ...]:
     )
 
 
+class ReconstructedImage(NamedTuple):
+    """One image's results, what :func:`write_outputs` writes of it.
+
+    Attributes:
+        name: the stem of its files (``<name>.json``, ...).
+        image: the panorama the layout was found on (levelled where ``gravity`` says so), RGB uint8.
+        result: its unbatched :func:`~ncjax.reconstruction.reconstruct_batch` result: the layout, the ceiling
+            and floor rows, the corner probability, the scale source and the geometry's own layout.
+        rc: the radius of its circle of optical centres, metres.
+        gravity: how it was levelled (:func:`align_to_gravity`), or None.
+    """
+
+    name: str
+    image: np.ndarray
+    result: tuple
+    rc: float
+    gravity: dict | None = None
+
+
 def write_outputs(
-    out: str,
-    name: str,
-    image: np.ndarray,
-    result,
-    rc: float,
-    world: str,
-    extra: dict | None = None,
-    export: tuple[str, ...] = (),
-    prior=None,
-    gravity: dict | None = None,
-):
+    out: str, reconstructed: ReconstructedImage, world: str, export: tuple[str, ...] = (), prior=None
+) -> dict:
     """All files of one image, which appear together or not at all; returns the JSON record.
 
     The files are written into a hidden staging folder inside ``out`` and renamed into
@@ -73,9 +84,9 @@ def write_outputs(
     exist only when the layout has geometry, and a format only when ``export`` names it.
 
     ``export`` names layout formats (:data:`ncjax.io.formats.FORMATS`) written beside the
-    JSON when the layout has geometry. ``gravity`` (:func:`align_to_gravity`) says how the
-    image was levelled: the JSON, the mesh and the metric formats are in the levelled frame
-    (z up), the corner pixels of label_cor and HorizonNet's json in the input image's.
+    JSON when the layout has geometry. ``reconstructed.gravity`` says how the image was
+    levelled: the JSON, the mesh and the metric formats are in the levelled frame (z up), the
+    corner pixels of label_cor and HorizonNet's json in the input image's.
     """
     from ..geometry.camera import NonCentralPanorama
     from ..io.export import has_geometry, layout_record, write_json, write_png
@@ -85,9 +96,10 @@ def write_outputs(
     from ..viz.overlay import draw_overlay
     from ..viz.plan import draw_plan
 
+    name, image, result, rc, gravity = reconstructed
     layout, ceiling_v, floor_v, corner_prob, *_ = result
     cam = NonCentralPanorama(image.shape[1], image.shape[0], rc=rc)
-    extra = (extra or {}) | scale_fields(result, prior) | {"gravity": gravity}
+    extra = scale_fields(result, prior) | {"gravity": gravity}
     record = layout_record(layout, cam, name=name, world=world, extra=extra)
     with replace_together(out, owned=output_names(name), last=f"{name}.json") as staging:
         stem = os.path.join(staging, name)
@@ -107,11 +119,11 @@ def write_outputs(
 
 
 def align_to_gravity(image: np.ndarray) -> tuple[np.ndarray, dict]:
-    """A central panorama levelled (:mod:`ncjax.io.align`), and the JSON record of its tilt.
+    """A central panorama levelled (:mod:`ncjax.geometry.levelling`), and the JSON record of its tilt.
 
     An image whose vertical the line segments do not fix reliably is kept as it is (``reliable`` false).
     """
-    from ..io.align import estimate_tilt, level_panorama
+    from ..geometry.levelling import estimate_tilt, level_panorama
 
     estimate = estimate_tilt(image)
     record = {"reliable": estimate.reliable, "segments": int(estimate.segments), "roll_deg": None, "pitch_deg": None}

@@ -1,4 +1,4 @@
-"""The user-facing commands ``ncjax reconstruct`` and ``ncjax demo``.
+"""The user-facing command ``ncjax reconstruct``.
 
 ``reconstruct`` reads panoramas (files, or folders of them), groups them by size into
 fixed-size batches (the last one padded, so each size compiles once), runs
@@ -21,14 +21,11 @@ from __future__ import annotations
 import argparse
 import collections
 import dataclasses
-import json
-import math
 import os
 import pathlib
 import signal
 import sys
 import threading
-import time
 import warnings
 
 import numpy as np
@@ -50,16 +47,13 @@ from .inputs import (
     radius_of,
 )
 from .options import add_config_options, add_renamed_options, config_from_options
-from .outputs import align_to_gravity, write_outputs
+from .outputs import ReconstructedImage, align_to_gravity, write_outputs
 from .summary import SUMMARY_FILE, failure_message, read_summary, skipped_row, summary_row, update_summary
 
 WORLD_HELP = (
     "room model: manhattan (walls at right angles), atlanta (vertical walls at any angles), or auto "
     "(per panorama, the one whose layout explains more of the boundaries; default)"
 )
-
-
-DEMO_DIR = pathlib.Path(__file__).parent.parent / "data" / "demo"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,14 +137,10 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
             try:
                 record = write_outputs(
                     settings.out,
-                    name,
-                    image,
-                    one,
-                    float(rc),
+                    ReconstructedImage(name, image, one, float(rc), gravity),
                     settings.world,
                     export=settings.export,
                     prior=settings.prior,
-                    gravity=gravity,
                 )
             except (OSError, ValueError) as error:  # nothing of this image was written (write_outputs)
                 on_error(path, f"{path}: its outputs could not be written ({one_line(error)})")
@@ -199,6 +189,97 @@ class StopRequest:
             raise KeyboardInterrupt
 
 
+def image_names(images: list[str]) -> list[str]:
+    """The name of each image's outputs, its file's stem (a ValueError if two images would write the same files)."""
+    names = [pathlib.Path(path).stem for path in images]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise ValueError(f"several images would write the same outputs: {', '.join(repeated)} (rename them)")
+    return names
+
+
+def read_image(path: str, rc: float | None, say_resized) -> tuple[np.ndarray, float]:
+    """The panorama of ``path`` and its radius (``--rc``, or from its name); ``say_resized`` reports a resize.
+
+    Raises:
+        PanoramaError: the file cannot be used (the message says why).
+    """
+    with warnings.catch_warnings(record=True) as notes:
+        warnings.simplefilter("always", PanoramaResizeWarning)
+        image = read_panorama(path)
+    for note in notes:
+        if issubclass(note.category, PanoramaResizeWarning):
+            say_resized(str(note.message))
+        else:
+            warnings.showwarning(note.message, note.category, note.filename, note.lineno)
+    return image, radius_of(path, rc)
+
+
+class RunTally:
+    """What ``ncjax reconstruct`` has done: each image's ``summary.csv`` row, the failures, and the progress bar.
+
+    :meth:`done`, :meth:`failed` and :meth:`skipped` record one image each; :meth:`finish` or
+    :meth:`interrupted` writes the summary and prints the run's last lines.
+    """
+
+    def __init__(self, images: list[str], out: str, bar):
+        self.images, self.out, self.bar = images, out, bar
+        self.summary: dict[str, dict] = {}  # path -> its summary.csv row
+        self.failures: list[str] = []
+        self.summary_path = os.path.join(out, SUMMARY_FILE)
+
+    def done(self, path: str, record: dict) -> None:
+        """An image reconstructed and its files written (its layout may have failed: ``record["ok"]``)."""
+        message = "" if record["ok"] else f"{failure_message(record)}; see {record['name']}_overlay.png"
+        self.summary[path] = summary_row(path, record, message)
+        if message:
+            self.failures.append(f"{path}: {message}")
+        self.bar.update()
+
+    def failed(self, path: str, message: str) -> None:
+        """An image without outputs, ``message`` saying why."""
+        self.summary[path] = summary_row(path, None, message.removeprefix(f"{path}: "))
+        self.failures.append(f"{path}: {self.summary[path]['message']}")
+        self.bar.update()
+
+    def skipped(self, path: str, name: str) -> None:
+        """An image left out because its ``<name>.json`` exists (``--skip-existing``)."""
+        self.summary[path] = skipped_row(path, os.path.join(self.out, f"{name}.json"))
+        self.bar.update()
+
+    def stopping(self) -> None:
+        """Ctrl-C was pressed once: say so on the bar."""
+        self.bar.set_description("ncjax reconstruct: stopping after this batch (Ctrl-C again: at once)")
+
+    def interrupted(self) -> int:
+        """Write the summary of the images done so far; returns 130."""
+        self.bar.close()
+        update_summary(self.summary_path, [self.summary[path] for path in self.images if path in self.summary])
+        print(
+            f"interrupted: {len(self.summary)} of {len(self.images)} images done; {self.summary_path} lists them",
+            file=sys.stderr,
+        )
+        return 130
+
+    def finish(self) -> int:
+        """Write the summary of every image and print the counts and the failures; returns 0, or 1 after failures."""
+        self.bar.close()
+        update_summary(self.summary_path, [self.summary[path] for path in self.images])
+        skipped = sum(row["result"] == "skipped" for row in self.summary.values())
+        succeeded = len(self.images) - len(self.failures) - skipped
+        skipped_note = f", {skipped} skipped (their .json existed)" if skipped else ""
+        print(
+            f"{succeeded} of {len(self.images)} images reconstructed into {self.out}{skipped_note} "
+            f"(one line per image: {SUMMARY_FILE})"
+        )
+        if self.failures:
+            print(f"{len(self.failures)} failed:", file=sys.stderr)
+            for reason in self.failures:
+                print(f"  {reason}", file=sys.stderr)
+            return 1
+        return 0
+
+
 def run_reconstruct(args: argparse.Namespace) -> int:
     """``ncjax reconstruct IMAGES_OR_FOLDERS... --rc RC|auto --out DIR``.
 
@@ -215,13 +296,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1, got {args.batch}")
     images = expand_inputs(args.images, args.recursive, out=args.out)
-    names = [pathlib.Path(path).stem for path in images]
-    repeated = sorted({name for name in names if names.count(name) > 1})
-    if repeated:
-        raise ValueError(f"several images would write the same outputs: {', '.join(repeated)} (rename them)")
+    names = image_names(images)
     check_output_folder(args.out)
-    summary_path = os.path.join(args.out, SUMMARY_FILE)
-    read_summary(summary_path)  # an earlier summary.csv that cannot be merged stops the run before any work
+    # an earlier summary.csv that cannot be merged stops the run before any work
+    read_summary(os.path.join(args.out, SUMMARY_FILE))
     model = model_weights_option(args.model)
     # fewer images than --batch: a smaller program, not one padded with copies to compute for nothing
     batch_size = max(1, min(args.batch, len(images)))
@@ -229,49 +307,22 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         model, batch_size, args.world, config, args.views, args.edge_snap, args.out, args.export, prior
     )
     ledger = CompileLedger(enable_compilation_cache())
+    tally = RunTally(images, args.out, tqdm(total=len(images), unit="image", desc="ncjax reconstruct"))
 
-    summary: dict[str, dict] = {}  # path -> its summary.csv row
-    failures: list[str] = []
+    def reconstruct(group):
+        _reconstruct_group(settings, group, tally.done, tally.failed, ledger, tally.bar.write)
+
     groups: dict[tuple[int, int], list] = collections.defaultdict(list)
-    bar = tqdm(total=len(images), unit="image", desc="ncjax reconstruct")
-
-    def done(path, record):
-        message = "" if record["ok"] else f"{failure_message(record)}; see {record['name']}_overlay.png"
-        summary[path] = summary_row(path, record, message)
-        if message:
-            failures.append(f"{path}: {message}")
-        bar.update()
-
-    def failed(path, message):
-        summary[path] = summary_row(path, None, message.removeprefix(f"{path}: "))
-        failures.append(f"{path}: {summary[path]['message']}")
-        bar.update()
-
-    def skip(path, name):
-        summary[path] = skipped_row(path, os.path.join(args.out, f"{name}.json"))
-        bar.update()
-
-    def stopping():
-        bar.set_description("ncjax reconstruct: stopping after this batch (Ctrl-C again: at once)")
-
     try:
-        with StopRequest(on_request=stopping) as stop:
+        with StopRequest(on_request=tally.stopping) as stop:
             for path, name in zip(images, names, strict=True):
                 if args.skip_existing and os.path.exists(os.path.join(args.out, f"{name}.json")):
-                    skip(path, name)
+                    tally.skipped(path, name)
                     continue
                 try:
-                    with warnings.catch_warnings(record=True) as notes:
-                        warnings.simplefilter("always", PanoramaResizeWarning)
-                        image = read_panorama(path)
-                    for note in notes:
-                        if issubclass(note.category, PanoramaResizeWarning):
-                            bar.write(str(note.message), file=sys.stderr)
-                        else:
-                            warnings.showwarning(note.message, note.category, note.filename, note.lineno)
-                    radius = radius_of(path, rc)
+                    image, radius = read_image(path, rc, lambda line: tally.bar.write(line, file=sys.stderr))
                 except PanoramaError as error:
-                    failed(path, str(error))
+                    tally.failed(path, str(error))
                     stop.check()
                     continue
                 # a tilted non-central rig cannot be levelled by resampling its image: only central panoramas are
@@ -279,102 +330,16 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                 group = groups[image.shape[:2]]
                 group.append((path, name, image, radius, gravity))
                 if len(group) == batch_size:
-                    _reconstruct_group(settings, group, done, failed, ledger, bar.write)
+                    reconstruct(group)
                     group.clear()
                 stop.check()
             for group in groups.values():
                 if group:
-                    _reconstruct_group(settings, group, done, failed, ledger, bar.write)
+                    reconstruct(group)
                     stop.check()
     except KeyboardInterrupt:
-        bar.close()
-        update_summary(summary_path, [summary[path] for path in images if path in summary])
-        print(f"interrupted: {len(summary)} of {len(images)} images done; {summary_path} lists them", file=sys.stderr)
-        return 130
-    bar.close()
-    update_summary(summary_path, [summary[path] for path in images])
-    skipped = sum(row["result"] == "skipped" for row in summary.values())
-    succeeded = len(images) - len(failures) - skipped
-    skipped_note = f", {skipped} skipped (their .json existed)" if skipped else ""
-    print(
-        f"{succeeded} of {len(images)} images reconstructed into {args.out}{skipped_note} "
-        f"(one line per image: {SUMMARY_FILE})"
-    )
-    if failures:
-        print(f"{len(failures)} failed:", file=sys.stderr)
-        for reason in failures:
-            print(f"  {reason}", file=sys.stderr)
-        return 1
-    return 0
-
-
-def run_demo(args: argparse.Namespace) -> int:
-    """``ncjax demo``: reconstruct the shipped sample and compare it with its ground truth."""
-    import jax
-
-    from .. import metrics
-    from ..reconstruction import reconstruct_batch
-
-    start = time.perf_counter()
-    config = pipeline_config(args)
-    check_output_folder(args.out)
-    ledger = CompileLedger(enable_compilation_cache())
-    with open(DEMO_DIR / "ground_truth.json") as file:
-        truth = json.load(file)
-    path = DEMO_DIR / truth["image"]
-    image = read_panorama(path)
-    rc = radius_of(str(path), None)
-    print(
-        f"ncjax demo: {truth['image']} ({image.shape[1]} x {image.shape[0]}, rc = {rc} m from its name, "
-        f"a {truth['world']} room rendered by ncjax synth and never seen in training)"
-    )
-    settings = ReconstructSettings(
-        model_weights_option(None), 1, args.world, config, args.views, args.edge_snap, args.out, (), None
-    )
-    key = program_key((1, *image.shape), settings, central=False)
-    with ledger.compiling(
-        key,
-        f"the network and the geometry for {image.shape[1]} x {image.shape[0]}",
-        lambda line: print(line, flush=True),
-    ):
-        result = jax.device_get(
-            reconstruct_batch(
-                image[None],
-                np.array([rc], np.float32),
-                args.world,
-                config=config,
-                views=args.views,
-                edge_snap=args.edge_snap,
-                program_cache=program_directory(),
-            )
-        )
-    one = jax.tree.map(lambda x: x[0], tuple(result))
-    record = write_outputs(args.out, pathlib.Path(truth["image"]).stem, image, one, rc, args.world, export=args.export)
-    elapsed = time.perf_counter() - start
-    if not record["ok"]:
-        print(failure_message(record), file=sys.stderr)
-        return 1
-    scores = metrics.evaluate_layout(one[0], truth)
-    true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
-    print(
-        f"layout: {len(record['ceiling_corners'])} corners ({record['branch']} branch, explains "
-        f"{100 * record['explained_fraction']:.0f}% of the boundary pixels), "
-        f"room height {record['room_height']:.3f} ± {record['room_height_sigma'] or math.inf:.3f} m "
-        f"(true {true_height:.3f} m), "
-        f"floor area {record['floor_area']:.2f} m^2"
-    )
-    found, true_count = len(record["ceiling_corners"]), len(truth["ceiling_corners"])
-    corner_error = (
-        f"corner error {scores['ce']:.3f} m"
-        if math.isfinite(scores["ce"])
-        else f"corner error n/a ({found} corners found, {true_count} in the ground truth)"
-    )
-    print(
-        f"error against the ground truth: {corner_error}, 3D IoU {100 * scores['iou3d']:.1f}%, "
-        f"2D IoU {100 * scores['iou2d']:.1f}%, height error {scores['height_error']:.3f} m"
-    )
-    print(f"outputs in {os.path.abspath(args.out)}/ (json, obj/ply/glb mesh, overlay and plan png); {elapsed:.0f} s")
-    return 0
+        return tally.interrupted()
+    return tally.finish()
 
 
 def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
@@ -480,14 +445,6 @@ def add_boundary_arguments(parser: argparse.ArgumentParser) -> None:
         default=EdgeSnap(),
         help="use the network's boundary rows as they are, not snapped to the image's edges",
     )
-
-
-def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="ncjax_demo", help="output folder (default ./ncjax_demo)")
-    parser.add_argument("--world", choices=WORLDS, default=DEFAULT_WORLD, help=WORLD_HELP)
-    add_export_argument(parser)
-    add_boundary_arguments(parser)
-    add_pipeline_arguments(parser)
 
 
 def add_pipeline_arguments(parser: argparse.ArgumentParser) -> None:

@@ -15,6 +15,7 @@ from ..network.checkpoint import WEIGHTS_DTYPES, check_warm_start
 from ..network.model import PRESETS, HorizonNetConfig
 from ..training.data import evaluate_arrays, folder_batches, painted_batches, training_data
 from ..training.loop import TrainConfig, train
+from .arguments import DefaultsHelpFormatter
 from .options import add_config_options, config_from_options
 
 # ----------------------------------------------------------------------------- command line
@@ -151,8 +152,6 @@ def run_train(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone ``ncjax train`` (same as the console script's sub-command)."""
-    from .main import DefaultsHelpFormatter
-
     parser = argparse.ArgumentParser(
         prog="ncjax train", description="Train Non-central HorizonNet.", formatter_class=DefaultsHelpFormatter
     )

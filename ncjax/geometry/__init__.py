@@ -6,7 +6,9 @@
 - ``reprojection``: a wall's boundary rows in the image, and plan lines through boundary points.
 - ``fastmath``: a float32 arctangent that vectorises.
 - ``gravity``: roll and pitch of a tilted central panorama, and maps of points and pixels between its
-  frame and the levelled frame (numpy).
+  frame and the levelled frame (numpy); which image sizes are full panoramas.
+- ``levelling``: the roll and pitch of a central panorama from its vertical lines (OpenCV), and the
+  panorama resampled level.
 """
 
 from .camera import (

@@ -1,5 +1,7 @@
 """Frames of a tilted central panorama: the roll/pitch rotation, and maps of points and pixels between frames.
 
+Also which image sizes are full panoramas (:func:`panorama_size_error`).
+
 Conventions (docs/design.md section 2, central panorama ``rc = 0``): z up, pixel (u, v) of a
 W x H equirectangular image looks along azimuth ``varphi = pi - 2 pi (u + 0.5) / W`` and
 elevation ``phi = pi/2 - pi (v + 0.5) / H``, i.e. along
@@ -13,7 +15,7 @@ degrees, a quarter of the width left of the centre), in degrees, right-handed:
 ``rotation = Ry(pitch) @ Rx(roll)``, and the true vertical seen in the input frame is
 ``rotation.T @ e_z = rotation[2] = (-sin pitch, cos pitch sin roll, cos pitch cos roll)``.
 
-Everything here is numpy float64 (the image side, :mod:`ncjax.io.align`, works with OpenCV).
+Everything here is numpy float64 (the image side, :mod:`ncjax.geometry.levelling`, works with OpenCV).
 """
 
 from __future__ import annotations
@@ -104,6 +106,20 @@ def to_level_frame(
         ValueError: ``points`` is not (..., 3) or ``rotation`` is not a rotation matrix.
     """
     return _check_points(points) @ _check_rotation(rotation).T
+
+
+def panorama_size_error(width: int, height: int) -> str | None:
+    """Why a ``width x height`` image cannot be a full 360 x 180 degree panorama, or None.
+
+    The network and the camera model read the image as the whole sphere, so
+    the aspect ratio must be 2:1.
+    """
+    if width != 2 * height or height < 32:
+        return (
+            f"{width} x {height} pixels is not a full 360 x 180 degree panorama "
+            "(width must be 2 x height, at least 64 x 32)"
+        )
+    return None
 
 
 def _check_size(width: int, height: int) -> None:

@@ -1,2 +1,2 @@
-"""Files: panoramas in (``images``) and levelled (``align``), layouts out as JSON (``export``) and meshes
-(``mesh``), atomically (``files``)."""
+"""Files: panoramas in (``images``), layouts out as JSON (``export``), meshes (``mesh``) and other tools' formats
+(``formats``, read back by ``formats_read`` as ``layout_corners.LayoutCorners``), atomically (``files``)."""

@@ -1,7 +1,7 @@
 """Readers of the layout formats of :mod:`ncjax.io.formats`, and of ncjax's own JSON record.
 
 :func:`read_layout` recognises a file by its content (``.txt``: ``label_cor``; JSON:
-its keys) and returns a :class:`~ncjax.io.formats.LayoutCorners`: the corner
+its keys) and returns a :class:`~ncjax.io.layout_corners.LayoutCorners`: the corner
 pixels (ceiling and floor of each corner, polygon order) plus, where the format holds
 them, the 3D corners in ncjax's camera frame. Formats that hold only 3D corners
 (``mp3d``, ``zind``, ncjax's JSON) get their pixels from ncjax's camera model, with
@@ -27,14 +27,12 @@ import numpy as np
 
 from ..geometry.camera import NonCentralPanorama
 from .export import PathLike
-from .formats import (
-    EXTRA_KEY,
-    SUFFIXES,
+from .formats import EXTRA_KEY, SUFFIXES, is_finite_number
+from .layout_corners import (
     LayoutCorners,
     back_project,
     corners_at,
     corners_from_3d,
-    is_finite_number,
     panoannotator_to_ncjax_plan,
     swap_axes,
 )

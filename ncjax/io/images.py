@@ -26,6 +26,8 @@ import warnings
 import cv2
 import numpy as np
 
+from ..geometry.gravity import panorama_size_error
+
 ASPECT_TOLERANCE = 0.005  # relative departure of width / height from 2 that is resized instead of refused
 MAX_WIDTH = 2048  # the widest panorama ncjax reconstruct works at
 _JPEG_END = b"\xff\xd9"
@@ -67,20 +69,6 @@ def to_rgb8(image: np.ndarray) -> np.ndarray:
     raise PanoramaError(f"unsupported number of channels: {channels}")
 
 
-def panorama_size_error(width: int, height: int) -> str | None:
-    """Why a ``width x height`` image cannot be a full 360 x 180 degree panorama, or None.
-
-    The network and the camera model read the image as the whole sphere, so
-    the aspect ratio must be 2:1.
-    """
-    if width != 2 * height or height < 32:
-        return (
-            f"{width} x {height} pixels is not a full 360 x 180 degree panorama "
-            "(width must be 2 x height, at least 64 x 32)"
-        )
-    return None
-
-
 def nearly_full_panorama(width: int, height: int) -> bool:
     """Whether a ``width x height`` image is within :data:`ASPECT_TOLERANCE` of 2:1 without being 2:1."""
     return width != 2 * height and height >= 32 and abs(width / (2 * height) - 1) <= ASPECT_TOLERANCE
@@ -91,7 +79,7 @@ def working_size(width: int, height: int) -> tuple[int, str] | None:
 
     Near 2:1 images become exactly 2:1 (the width rounded to even), and
     nothing becomes wider than :data:`MAX_WIDTH`; other shapes are left for
-    :func:`panorama_size_error` to refuse.
+    :func:`~ncjax.geometry.gravity.panorama_size_error` to refuse.
     """
     reasons = []
     if nearly_full_panorama(width, height):

@@ -238,7 +238,7 @@ class PriorConfig:
 
     Attributes:
         wall_heights: RANSAC fits each wall at the prior's two heights
-            (:func:`~ncjax.solvers.wall.solve_wall_at_heights`: two unknowns instead of four); False: the
+            (:func:`~ncjax.solvers.wall_at_heights.solve_wall_at_heights`: two unknowns instead of four); False: the
             paper's single-wall solver, whose walls carry their own heights.
         room_height: set by the height-prior route (:func:`~ncjax.pipeline.run.fit_walls`), not by hand: the
             room height (metres) its prior gives. The virtual rig's layout has an arbitrary scale, so the size

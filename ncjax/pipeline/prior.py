@@ -19,7 +19,7 @@ take of those points:
    parallax) sees those points at the rows of :func:`virtual_rows`; the
    geometric pipeline (both worlds, occlusions, the adjustment) runs on them,
    its RANSAC walls at the prior's two heights (plan lines through the
-   boundary points, :func:`ncjax.solvers.wall.solve_wall_at_heights`: a
+   boundary points, :func:`ncjax.solvers.wall_at_heights.solve_wall_at_heights`: a
    wall's few noisy rows fix two unknowns far better than four), its walls
    brought to the prior's room height before the final adjustment
    (:func:`ncjax.pipeline.run.at_room_height`: the virtual parallax of noisy

@@ -1,7 +1,7 @@
 """Per-wall RANSAC with the single-wall solver (paper Section 4.4).
 
 Each hypothesis is :func:`ncjax.solve_wall` on ``k`` sampled columns (one ceiling and one floor ray each: the paper's
-``k = 3``; with a height prior's known heights :func:`~ncjax.solvers.wall.solve_wall_at_heights`); it is scored by the
+``k = 3``; with a height prior's known heights :func:`~.wall_at_heights.solve_wall_at_heights`); it is scored by the
 number of boundary pixels it reprojects within a threshold (pixels, the closed form of
 :mod:`ncjax.geometry.reprojection`, tested as directions: :func:`inlier_rows`), and the best one is refitted on its
 inliers. Hypotheses are scored and refitted on at most ``G`` columns of the wall (:func:`wall_columns`), so the cost
@@ -23,7 +23,8 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.reprojection import boundary_rows_along, range_along
 from .settings import check_non_negative, check_positive, scaled, settings
-from .wall import Wall, solve_wall, solve_wall_at_heights
+from .wall import Wall, solve_wall
+from .wall_at_heights import solve_wall_at_heights
 
 
 @settings(static=("success_probability", "outlier_rate", "sample_size", "columns"))
@@ -236,7 +237,7 @@ def ransac_wall(
             (``sample_size``, >= 3), and the maximum row error of an inlier (``inlier_threshold``, pixels of a
             512-row panorama).
         heights: the known ``(h_c, h_f)`` of a height prior, or None. Given, every hypothesis and the refit are
-            plan lines at those heights (:func:`ncjax.solvers.wall.solve_wall_at_heights`): two unknowns instead
+            plan lines at those heights (:func:`~.wall_at_heights.solve_wall_at_heights`): two unknowns instead
             of four, which rows a few pixels off fix far better than the scale of one wall's weak parallax.
 
     Returns:

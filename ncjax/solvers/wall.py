@@ -1,5 +1,7 @@
-"""Single-wall solvers (paper Section 4.1 "Vertical wall extraction"), the single-line baseline [bermudez2016line] of
-Section 5.3, and a wall at known heights (:func:`solve_wall_at_heights`, not in the paper: a height prior's).
+"""Single-wall solvers (paper Section 4.1 "Vertical wall extraction"): over-determined (:func:`solve_wall`) and
+minimal (:func:`solve_wall_minimal`, for RANSAC). The rows below also serve the single-line baseline
+[bermudez2016line] of Section 5.3 (:mod:`ncjax.solvers.horizontal_line`) and a wall at known heights
+(:mod:`ncjax.solvers.wall_at_heights`, not in the paper: a height prior's).
 
 A wall (docs/design.md section 3) is the pair of horizontal lines
 ``L = (ux, uy, 0, -h_c uy, h_c ux, -d)`` (ceiling) and ``M`` (same with the
@@ -43,10 +45,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from ..geometry.fastmath import arctan2
-from ..geometry.linalg import divide_if_significant, null_space, scaled_null_space, segment_scaled_null_spaces
-from ..geometry.plucker import closest_point_to_origin, horizontal_wall_line, safe_norm
+from ..geometry.linalg import divide_if_significant, null_space, scaled_null_space
 from ..geometry.plucker import cross_2d as _cross2
+from ..geometry.plucker import horizontal_wall_line
 from .wall_fit import FitRows, heights_of, linear_walls, refine_walls, yaw_parameters
 
 
@@ -72,24 +73,6 @@ class Wall(eqx.Module):
     floor_height: Float[Array, "*batch"]
     ceiling_line: Float[Array, "*batch 6"]
     floor_line: Float[Array, "*batch 6"]
-    ok: Bool[Array, "*batch"]
-
-
-class HorizontalLine(eqx.Module):
-    """One horizontal 3D line ``(ux, uy, 0, -h uy, h ux, -d)`` (the [bermudez2016line] baseline).
-
-    Attributes:
-        direction: unit ``(ux, uy)``, canonical sign (``d <= 0``).
-        distance: signed distance ``d`` of its vertical plane along ``(-uy, ux)``.
-        height: ``h``.
-        line: the Plücker line (6,).
-        ok: False when the fit failed (fields finite but meaningless).
-    """
-
-    direction: Float[Array, "*batch 2"]
-    distance: Float[Array, "*batch"]
-    height: Float[Array, "*batch"]
-    line: Float[Array, "*batch 6"]
     ok: Bool[Array, "*batch"]
 
 
@@ -267,7 +250,8 @@ def make_wall(
     )
 
 
-def _unit_direction(u: Array, norm: Array) -> Array:
+def unit_direction(u: Array, norm: Array) -> Array:
+    """``u / norm``, or ``(1, 0)`` where ``norm`` is 0."""
     return jnp.where(norm > 0, u / jnp.where(norm > 0, norm, 1.0), jnp.array([1.0, 0.0], u.dtype))
 
 
@@ -350,85 +334,13 @@ def solve_wall(
         norm, h_c, h_f = heights_of(vector)
         ok = ok & (norm > 0)
         distance = vector[6] / jnp.where(norm > 0, norm, 1.0)
-        direction = _unit_direction(vector[0:2], norm)
+        direction = unit_direction(vector[0:2], norm)
     # the paper's over-determined case: 3 rays per line, from 3 different columns
     enough = (distinct_azimuths(ceiling_rays, ceiling_mask) >= 3) & (distinct_azimuths(floor_rays, floor_mask) >= 3)
     finite = jnp.all(jnp.isfinite(direction)) & jnp.isfinite(distance) & jnp.isfinite(h_c) & jnp.isfinite(h_f)
     ok = ok & enough & finite & (h_c > 0) & (h_f < 0)
     fields = jnp.where(finite, jnp.concatenate([direction, jnp.stack([distance, h_c, h_f])]), jnp.asarray(_NOT_A_WALL))
     return make_wall(fields[:2], fields[2], fields[3], fields[4], ok)
-
-
-def solve_horizontal_line(
-    rays: Float[Array, "n 6"], mask: Bool[Array, " n"], parallel_constraint: bool = True
-) -> HorizontalLine:
-    """One horizontal 3D line from its own rays: the baseline [bermudez2016line] of Section 5.3.
-
-    The line ``(ux, uy, 0, -h uy, h ux, -d)`` is a line parallel to the known
-    horizontal plane (4 dof). ``side(ray, line) = 0`` is linear in
-    ``(u, v = h u, d)`` (eq. iter1 for one line): 5 unknowns, rows
-    ``(xibar_1, xibar_2, xi_2, -xi_1, -xi_3)``. Of the two smallest right
-    singular vectors ``W(t) = cos t W0 + sin t W1``, the Plücker (Klein)
-    constraint of a horizontal line, ``cross(u, v) = 0`` (the quadratic
-    quad_v), keeps two roots; the one nearest ``W0`` (smallest algebraic
-    residual) is the answer. ``h`` is then ``u.v/|u|^2`` and ``d`` the last
-    unknown over ``|u|``.
-
-    Args:
-        rays: the projecting rays of the line's image.
-        mask: which rays are used.
-        parallel_constraint: static; False keeps ``W0`` (no Plücker constraint).
-    """
-    basis = scaled_null_space(_horizontal_line_rows(masked_rays(rays, mask)), 2)
-    return _horizontal_line_from_basis(basis, jnp.sum(mask), parallel_constraint)
-
-
-def solve_horizontal_lines(
-    rays: Float[Array, "n 6"], line_index: Int[Array, " n"], capacity: int, parallel_constraint: bool = True
-) -> HorizontalLine:
-    """Every line of a labelled boundary at once, each from its own rays (the baseline, batched over lines).
-
-    Equal to ``jax.vmap(solve_horizontal_line, (None, 0))(rays, line_index == arange(capacity)[:, None])``
-    but each ray is reduced once, into its own line's null space
-    (:func:`ncjax.geometry.linalg.segment_scaled_null_spaces`), instead of once per line.
-
-    Args:
-        rays: the projecting rays of one boundary (e.g. the ceiling), one per column.
-        line_index: the line each ray belongs to, -1 (or ``>= capacity``) for none.
-        capacity: static number of lines ``K``.
-        parallel_constraint: static, as in :func:`solve_horizontal_line`.
-
-    Returns:
-        A :class:`HorizontalLine` with a leading ``K`` axis.
-    """
-    basis = segment_scaled_null_spaces(_horizontal_line_rows(rays), line_index, capacity, 2)
-    counts = jnp.sum(line_index[None, :] == jnp.arange(capacity)[:, None], 1)
-    return jax.vmap(lambda b, c: _horizontal_line_from_basis(b, c, parallel_constraint))(basis, counts)
-
-
-def _horizontal_line_rows(rays: Float[Array, "n 6"]) -> Float[Array, "n 5"]:
-    a_u, a_h, a_d = side_coefficients(rays)
-    return jnp.concatenate([a_u, a_h, a_d[:, None]], -1)
-
-
-def _horizontal_line_from_basis(
-    basis: Float[Array, "5 2"], count: Int[Array, ""], parallel_constraint: bool
-) -> HorizontalLine:
-    """The line of :func:`solve_horizontal_line` from the two smallest null vectors of its ``count`` rows."""
-    w0, w1 = basis[:, 0], basis[:, 1]
-    if parallel_constraint:
-        theta = quadratic_root_angles(parallel_quadratic(w0[0:2], w1[0:2], w0[2:4], w1[2:4]))
-        theta = theta[jnp.argmin(jnp.abs(jnp.sin(theta)))]
-        vector = jnp.cos(theta) * w0 + jnp.sin(theta) * w1
-    else:
-        vector = w0
-    u = vector[0:2]
-    norm = safe_norm(u)
-    safe = jnp.where(norm > 0, norm, 1.0)
-    height = jnp.dot(u, vector[2:4]) / (safe * safe)
-    direction, distance = canonical_orientation(_unit_direction(u, norm), vector[4] / safe)
-    ok = (count >= 4) & (norm > 0)
-    return HorizontalLine(direction, distance, height, horizontal_wall_line(direction, distance, height), ok)
 
 
 # --------------------------------------------------------------------------
@@ -524,68 +436,3 @@ def solve_wall_minimal(
     walls = jax.vmap(wall_at)(theta)
     valid = real & walls.ok
     return eqx.tree_at(lambda w: w.ok, walls, valid), valid
-
-
-def boundary_points_at(
-    rays: Float[Array, "n 6"], height: Float[Array, ""]
-) -> tuple[Float[Array, "n 2"], Bool[Array, " n"]]:
-    """Where each ray meets the horizontal plane ``z = height``: plan points, and which rays reach it going forward.
-
-    The ray's nearest point to the origin ``p0`` (:func:`ncjax.closest_point_to_origin`) moves along its
-    direction ``xi`` to ``p0 + s xi`` with ``s = (height - p0_z) / xi_z``; the ray leaves its optical centre
-    in the plane ``z = 0``, so it reaches the plane ahead of it when ``xi_z`` has the sign of ``height``.
-    """
-    direction = rays[:, :3]
-    nearest = closest_point_to_origin(rays)
-    ahead = direction[:, 2] * height > 0
-    step = (height - nearest[:, 2]) / jnp.where(ahead, direction[:, 2], 1.0)
-    return nearest[:, :2] + step[:, None] * direction[:, :2], ahead
-
-
-def solve_wall_at_heights(
-    ceiling_rays: Float[Array, "n 6"],
-    floor_rays: Float[Array, "n 6"],
-    ceiling_mask: Bool[Array, " n"],
-    floor_mask: Bool[Array, " n"],
-    ceiling_height: Float[Array, ""],
-    floor_height: Float[Array, ""],
-) -> Wall:
-    """One vertical wall at known ceiling and floor heights (a height prior's): the plan line through its rays'
-    points at those heights.
-
-    Not in the paper, whose walls carry their own heights. With the heights fixed, each used ceiling (floor) ray
-    is one plan point (:func:`boundary_points_at`), and the wall is the line of least weighted squared distances
-    to them: through their weighted mean, along the main axis of their scatter (closed form of a symmetric
-    2 x 2 eigenvector). Each point is weighted by the inverse square of ``(r^2 + h^2) / |h|``, how far a row
-    error of one radian moves a point at range ``r`` from the axis along a central ray (a height prior's
-    virtual rig sees the central panorama's points): far points fix the wall less. Two simplifications: the
-    whole move counts, not only its part across the wall, and ceiling and floor rows count alike (the joint
-    solvers and the adjustment weight them by their noise).
-
-    Returns:
-        The :class:`Wall` (canonical orientation); ``ok`` is False when the used points lie in fewer than 2
-        columns (azimuths: a line through the axis), or the heights do not put the camera between ceiling and
-        floor.
-    """
-    ceiling_points, ceiling_ahead = boundary_points_at(ceiling_rays, ceiling_height)
-    floor_points, floor_ahead = boundary_points_at(floor_rays, floor_height)
-    points = jnp.concatenate([ceiling_points, floor_points])
-    used = jnp.concatenate([ceiling_mask & ceiling_ahead, floor_mask & floor_ahead])
-    used &= jnp.all(jnp.isfinite(points), -1)
-    heights = jnp.concatenate(
-        [jnp.full(ceiling_points.shape[0], ceiling_height), jnp.full(floor_points.shape[0], floor_height)]
-    )
-    spread = (jnp.sum(points**2, -1) + heights**2) / jnp.abs(heights)
-    weight = jnp.where(used, 1.0 / jnp.where(used, spread, 1.0) ** 2, 0.0)
-    points = jnp.where(used[:, None], points, 0.0)
-    total = jnp.sum(weight)
-    mean = jnp.sum(weight[:, None] * points, 0) / jnp.where(total > 0, total, 1.0)
-    centred = points - mean
-    scatter = jnp.einsum("n,ni,nj->ij", weight, centred, centred)
-    # the fast arctan2 has a zero gradient at (0, 0), where too few points leave the scatter
-    angle = 0.5 * arctan2(2.0 * scatter[0, 1], scatter[0, 0] - scatter[1, 1])
-    direction = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
-    distance = _cross2(direction, mean)
-    columns = distinct_azimuths(jnp.concatenate([ceiling_rays, floor_rays]), used)
-    ok = (columns >= 2) & (ceiling_height > 0) & (floor_height < 0)
-    return make_wall(direction, distance, ceiling_height, floor_height, ok)

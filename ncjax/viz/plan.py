@@ -146,23 +146,45 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     """
     rc = max(float(rc), 0.0) if rc is not None and math.isfinite(rc) else None
     if not has_geometry(layout):
-        canvas = _Canvas(np.zeros(2), 1.0)
-        canvas.text((SIZE / 2, SIZE / 2), failure_label(layout), 22)
-        if title:
-            canvas.text((SIZE / 2, 16), title, 13)
-        return canvas.finished()
+        return _failure_figure(layout, title)
 
     _, floor = valid_corners(layout)
     inserted = np.asarray(layout.inserted, bool)[np.asarray(layout.mask, bool)]
     plan = floor[:, :2]
-    n = len(plan)
     covariance = np.asarray(layout.corner_covariance, np.float64)[np.asarray(layout.mask, bool)]
     ellipses = [(c, e) for c, e in zip(plan, corner_ellipses(covariance), strict=True) if np.isfinite(e[0])]
     entries = _legend_entries(any(~inserted), any(inserted), bool(ellipses), rc)
+    canvas, place = _framed_canvas(plan, rc, entries)
+    ticks = _draw_grid(canvas)
+    canvas.draw.polygon(canvas.pixels(plan), fill=FLOOR)
+    if ellipses:
+        _draw_ellipses(canvas, ellipses)
+    _draw_walls(canvas, plan, inserted)
+    _draw_camera(canvas, rc)
+    _draw_frame(canvas, ticks)
+    _draw_legend(canvas, entries, place)
+    _draw_title(canvas, layout, plan, title)
+    return canvas.finished()
+
+
+def _failure_figure(layout: Layout, title: str) -> UInt8[np.ndarray, "H W 3"]:
+    """The figure of a layout without geometry: "no layout: <status>" and the title."""
+    canvas = _Canvas(np.zeros(2), 1.0)
+    canvas.text((SIZE / 2, SIZE / 2), failure_label(layout), 22)
+    if title:
+        canvas.text((SIZE / 2, 16), title, 13)
+    return canvas.finished()
+
+
+def _framed_canvas(
+    plan: np.ndarray, rc: float | None, entries: list[tuple[str, str]]
+) -> tuple[_Canvas, tuple[float, float]]:
+    """The canvas framed on the room and the camera, and the legend's place, widened until the legend covers no wall.
+
+    An ellipse far larger than the room is cut, not shrinking the room.
+    """
     along = np.linspace(0.0, 1.0, 25)[:, None, None]
     wall_points = (1 - along) * plan + along * np.roll(plan, -1, axis=0)  # where the room is drawn
-    # framed on the room and the camera (an ellipse far larger than the room is cut, not shrinking the room),
-    # with room for the legend in a corner of the plot
     shown = np.concatenate([plan, np.full((1, 2), -(rc or 0.0)), np.full((1, 2), rc or 0.0)])
     low, high = shown.min(0), shown.max(0)
     for widening in (1.0, 1.15, 1.3, 1.5):
@@ -170,8 +192,11 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         place, covered = _legend_place(canvas, entries, np.asarray(canvas.pixels(wall_points)))
         if not covered:
             break
-    left, top, right, bottom = (SUPERSAMPLE * x for x in PLOT_BOX)
+    return canvas, place
 
+
+def _draw_grid(canvas: _Canvas) -> list[np.ndarray]:
+    """The grid of whole metres over the plot (:func:`_grid_step`); returns its x and y ticks."""
     step = _grid_step(2 * canvas.half)
     lower, upper = canvas.centre - canvas.half, canvas.centre + canvas.half
     ticks = [np.arange(math.ceil(lower[axis] / step) * step, upper[axis] + 1e-9, step) for axis in (0, 1)]
@@ -179,16 +204,22 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         canvas.line([(x, lower[1]), (x, upper[1])], GRID, 1)
     for y in ticks[1]:
         canvas.line([(lower[0], y), (upper[0], y)], GRID, 1)
-    canvas.draw.polygon(canvas.pixels(plan), fill=FLOOR)
+    return ticks
 
-    if ellipses:
-        shade = Image.new("RGBA", canvas.image.size, (0, 0, 0, 0))
-        shade_draw = ImageDraw.Draw(shade)
-        for centre, (width, height, angle) in ellipses:
-            outline = canvas.pixels(_ellipse_outline(centre, width, height, angle))
-            shade_draw.polygon(outline, fill=(*ORANGE, 90), outline=(*ORANGE, 200))
-        canvas.image.paste(Image.alpha_composite(canvas.image.convert("RGBA"), shade).convert("RGB"))
 
+def _draw_ellipses(canvas: _Canvas, ellipses: list) -> None:
+    """The corners' 95% regions, ``(centre, (width, height, angle))`` each, shaded over the floor."""
+    shade = Image.new("RGBA", canvas.image.size, (0, 0, 0, 0))
+    shade_draw = ImageDraw.Draw(shade)
+    for centre, (width, height, angle) in ellipses:
+        outline = canvas.pixels(_ellipse_outline(centre, width, height, angle))
+        shade_draw.polygon(outline, fill=(*ORANGE, 90), outline=(*ORANGE, 200))
+    canvas.image.paste(Image.alpha_composite(canvas.image.convert("RGBA"), shade).convert("RGB"))
+
+
+def _draw_walls(canvas: _Canvas, plan: np.ndarray, inserted: np.ndarray) -> None:
+    """The walls (inserted ones red and dashed), then each one's length at its middle."""
+    n = len(plan)
     lengths = wall_lengths(plan)
     for k in range(n):
         start, end = plan[k], plan[(k + 1) % n]
@@ -196,6 +227,10 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     for k in range(n):
         middle = np.asarray(canvas.pixels((plan[k] + plan[(k + 1) % n]) / 2))[0] / SUPERSAMPLE
         canvas.text(tuple(middle), f"{lengths[k]:.2f} m", 10, box=True)
+
+
+def _draw_camera(canvas: _Canvas, rc: float | None) -> None:
+    """The origin's ``+``, and the circle of optical centres when ``rc`` is given and positive."""
     (origin,) = canvas.pixels(np.zeros(2))
     canvas.plus(origin, 7)
     if rc:
@@ -206,7 +241,11 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
             width=SUPERSAMPLE,
         )
 
-    # the margins cover what reaches past the plot (ellipses); then the frame, ticks, labels, legend and title
+
+def _draw_frame(canvas: _Canvas, ticks: list[np.ndarray]) -> None:
+    """White margins over what reaches past the plot (ellipses), then the frame, the tick labels and the axis names."""
+    left, top, right, bottom = (SUPERSAMPLE * x for x in PLOT_BOX)
+    lower = canvas.centre - canvas.half
     full = SIZE * SUPERSAMPLE
     for box in ((0, 0, full, top), (0, bottom, full, full), (0, 0, left, full), (right, 0, full, full)):
         canvas.draw.rectangle(box, fill="white")
@@ -222,8 +261,10 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
     ImageDraw.Draw(label).text((0, 0), "y (m)", font=canvas.font(12), fill="black")
     label = label.rotate(90, expand=True)
     canvas.image.paste(label, (6 * SUPERSAMPLE, (top + bottom - label.height) // 2))
-    _draw_legend(canvas, entries, place)
 
+
+def _draw_title(canvas: _Canvas, layout: Layout, plan: np.ndarray, title: str) -> None:
+    """The title and the heights, room height, its standard deviation and the floor area (a long line is cut)."""
     ceiling_height = float(np.asarray(layout.ceiling_height))
     floor_height = float(np.asarray(layout.floor_height))
     height_sigma = layout_height_sigma(layout)
@@ -241,7 +282,6 @@ def draw_plan(layout: Layout, *, title: str = "", rc: float | None = None) -> UI
         while len(line) > 1 and canvas.draw.textlength(line, font=canvas.font(size)) > (SIZE - 20) * SUPERSAMPLE:
             line = line[:-2] + "…"  # a long name is cut, not run off the image
         canvas.text((SIZE / 2, 14 + 18 * row - 9 * (len(lines) - 1) + 9), line, size)
-    return canvas.finished()
 
 
 def _legend_entries(walls: bool, inserted: bool, ellipses: bool, rc: float | None) -> list[tuple[str, str]]:

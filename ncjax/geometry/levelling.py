@@ -1,6 +1,6 @@
 """Gravity alignment of tilted central panoramas: estimate the roll and pitch, level the image, map results back.
 
-Frames: see :mod:`ncjax.geometry.gravity` (re-exported here). ``rotation`` takes the input
+Frames: see :mod:`ncjax.geometry.gravity`. ``rotation`` takes the input
 camera's frame to the levelled frame (z along the true vertical), ``p_level = rotation @ p_input``;
 roll and pitch are the camera's rotations about its x axis (the centre column) and its y axis
 (azimuth +90 degrees), ``rotation = Ry(pitch) @ Rx(roll)``.
@@ -15,7 +15,8 @@ eigenvector of the weighted sum of ``n n^T`` over the inliers). Where too few se
 agree, or they do not constrain the vertical in two directions, or chance explains their
 agreement, the estimate is flagged unreliable and the identity rotation is returned.
 
-Use (a layout found on the levelled image expressed in the input image):
+Use (a layout found on the levelled image expressed in the input image; ``to_input_frame`` and
+``direction_to_pixel`` are :mod:`ncjax.geometry.gravity`'s):
 
     estimate = estimate_tilt(image)
     levelled = level_panorama(image, estimate.rotation)
@@ -37,35 +38,14 @@ import cv2
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float, Shaped
 
-from ..geometry.gravity import (
+from .gravity import (
     _check_size,
     direction_to_pixel,
-    input_to_level_pixels,
     level_to_input_pixels,
-    pixel_to_direction,
+    panorama_size_error,
     rotation_from_tilt,
     tilt_from_up,
-    to_input_frame,
-    to_level_frame,
 )
-from .images import panorama_size_error
-
-__all__ = [
-    "GravityEstimate",
-    "TiltConfig",
-    "direction_to_pixel",
-    "estimate_tilt",
-    "input_to_level_pixels",
-    "level_panorama",
-    "level_to_input_pixels",
-    "pixel_to_direction",
-    "rotation_from_tilt",
-    "segment_normals",
-    "tilt_from_up",
-    "to_input_frame",
-    "to_level_frame",
-    "vertical_from_normals",
-]
 
 
 @dataclasses.dataclass(frozen=True)
