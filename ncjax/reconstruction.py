@@ -71,10 +71,9 @@ NETWORK_PIPELINE_CONFIG = PipelineConfig(
 )
 
 
-# The saved geometry programs (ncjax.programs, the CLI's) compile with XLA's cheaper backend settings: 21 instead of 37
-# CPU seconds of compilation on 2 cores (a first run 28-34 -> 20-24 s, benchmarks/bench_startup.py), for a geometry
-# that runs in tens of milliseconds a panorama either way (the same layouts to 1e-5). The network keeps the full
-# optimisation: it is most of a run's time.
+# The saved geometry programs (ncjax.programs, the CLI's) compile with XLA's cheaper backend settings: the geometry runs
+# in tens of milliseconds a panorama either way, and its compilation is most of a first run's (experiments/RESULTS.md,
+# "Speed"). The network keeps the full optimisation: it is most of a run's time.
 GEOMETRY_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
 
 

@@ -9,6 +9,7 @@
 - ``ransac``: RANSAC over one wall's columns with the single-wall solver.
 """
 
+from .horizontal_line import HorizontalLine, solve_horizontal_line, solve_horizontal_lines
 from .layout import (
     WallLayout,
     layout_corners,
@@ -17,7 +18,7 @@ from .layout import (
     solve_atlanta_layout,
     solve_manhattan_layout,
 )
-from .wall import HorizontalLine, Wall, solve_horizontal_line, solve_horizontal_lines, solve_wall, solve_wall_minimal
+from .wall import Wall, solve_wall, solve_wall_minimal
 
 __all__ = [
     "HorizontalLine",
