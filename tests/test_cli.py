@@ -151,7 +151,7 @@ def test_options_replace_only_the_settings_given(capsys):
 def test_a_bad_setting_is_one_line_before_any_work(tmp_path, capsys):
     out = tmp_path / "out"
     code = cli.main(
-        ["reconstruct", str(tmp_path / "missing.png"), "--rc", "0.5", "--out", str(out), "--sample-size", "2"]
+        ["reconstruct", str(tmp_path / "missing.png"), "--rc", "0.5", "--out", str(out), "--ransac-sample-size", "2"]
     )
     err = capsys.readouterr().err
     assert code == 2 and "sample_size must be >= 3" in err and len(err.strip().splitlines()) == 1

@@ -419,8 +419,8 @@ def test_help_shows_every_default():
     for name, parser in subcommands().items():
         formatter = DefaultsHelpFormatter(name)
         for action in parser._actions:
-            if not action.option_strings or action.nargs == 0 or action.required:
-                continue  # flags, positionals and required options have no default
+            if not action.option_strings or action.nargs == 0 or action.required or action.help == argparse.SUPPRESS:
+                continue  # flags, positionals, required options and hidden (renamed) ones have no default
             text = formatter._get_help_string(action)
             assert "default" in text or text.startswith("required"), (name, action.option_strings)
     reconstruct_help = " ".join(subcommands()["reconstruct"].format_help().split())

@@ -1098,15 +1098,15 @@ def test_bad_arguments_raise():
         ncjax.reconstruct_batch(images, [0.5, 0.5], key=jax.random.split(jax.random.key(0), 3))
     with pytest.raises(ValueError, match="capacity"):
         ncjax.PipelineConfig(capacity=2)
-    with pytest.raises(ValueError, match="adjustment_stride"):
+    with pytest.raises(ValueError, match="stride"):
         ncjax.PipelineConfig().replace(adjustment={"stride": 0})
-    with pytest.raises(ValueError, match="occlusion_noise_factor"):
+    with pytest.raises(ValueError, match="noise_factor"):
         ncjax.PipelineConfig().replace(occlusion={"noise_factor": -1.0})
     with pytest.raises(ValueError, match="stray_noise_factor"):
         ncjax.PipelineConfig().replace(branches={"stray_noise_factor": -1.0})
     with pytest.raises(ValueError, match="max_height_uncertainty must be > 0"):
         ncjax.PipelineConfig().replace(checks={"max_height_uncertainty": 0.0})
-    with pytest.raises(ValueError, match="needs covariance"):
+    with pytest.raises(ValueError, match="needs uncertainty.covariance"):
         ncjax.PipelineConfig().replace(checks={"max_height_uncertainty": 0.1}, uncertainty={"covariance": False})
     with pytest.raises(ValueError, match="max_scale_conflict must be > 0"):
         ncjax.PipelineConfig().replace(prior={"max_scale_conflict": 0.0})
@@ -1115,7 +1115,7 @@ def test_bad_arguments_raise():
     with pytest.raises(ValueError, match="min_corners"):
         ncjax.PipelineConfig().replace(corners={"min_corners": 20})  # more than the compact first run's 16 slots
     assert ncjax.PipelineConfig(compact_capacity=0).replace(corners={"min_corners": 20}).corners.min_corners == 20
-    with pytest.raises(ValueError, match="fallback_corner_threshold"):
+    with pytest.raises(ValueError, match="fallback_threshold"):
         ncjax.PipelineConfig().replace(corners={"fallback_threshold": -0.1})
 
 

@@ -143,7 +143,7 @@ def test_no_measured_height_is_no_conflict():
 def test_a_fallback_layout_is_flagged_where_the_geometry_confidently_measured_another_room():
     """The prior's layout is flagged only where it replaced an UNCERTAIN_SCALE geometry of a non-central
     panorama that measured a height many sigmas from the prior's (a 0.25 m camera against 1.6 m)."""
-    from ncjax.reconstruction import _flag_scale_conflicts
+    from ncjax.pipeline.prior import flag_scale_conflicts
 
     layout = make_layout(L_SHAPE)
     low = with_heights(layout, 0.3, -0.25, np.diag([0.01, 0.01]), ncjax.LayoutStatus.UNCERTAIN_SCALE)
@@ -157,12 +157,12 @@ def test_a_fallback_layout_is_flagged_where_the_geometry_confidently_measured_an
     prior = HeightPrior("camera_height", 1.6)  # one value for the batch
     assert float(scale_conflict(low, prior)) > 4
     assert float(scale_conflict(near, prior)) < 1
-    flagged = _flag_scale_conflicts(written, geometry, prior, 3.0)
+    flagged = flag_scale_conflicts(written, geometry, prior, 3.0)
     conflict, low_confidence = ncjax.LayoutStatus.SCALE_CONFLICT, ncjax.LayoutStatus.LOW_CONFIDENCE
     np.testing.assert_array_equal(flagged.status, [conflict, 0, 0, 0, low_confidence])
     np.testing.assert_array_equal(flagged.ok, [False, True, True, True, False])
     np.testing.assert_array_equal(flagged.floor_corners, written.floor_corners)
-    off = _flag_scale_conflicts(written, geometry, prior, np.inf)
+    off = flag_scale_conflicts(written, geometry, prior, np.inf)
     np.testing.assert_array_equal(off.status, written.status)
 
 
