@@ -44,7 +44,6 @@ import argparse
 import dataclasses
 import itertools
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -57,11 +56,15 @@ from ncjax.io.export import layout_height_sigma
 from ncjax.network.predict import DEFAULT_VIEWS
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-sys.path.insert(0, str(Path(__file__).parent))
-from error_sources import corner_calibration
-from network_table import OUT, test_renders
-from network_table import SEEDS as TEST_SEEDS
-from tune_network_pipeline import model_suffix, rendered_boundaries, tuning_boundaries
+from common import (
+    OUT,
+    TEST_SEEDS,
+    corner_calibration,
+    model_suffix,
+    rendered_boundaries,
+    test_renders,
+    tuning_boundaries,
+)
 
 WORLDS = ("manhattan", "atlanta")
 RATIOS = (0.0, 1.0, 2.0)

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 from pathlib import Path
 
 import jax
@@ -38,9 +37,7 @@ from ncjax.pipeline.run import layout_from_evidence
 from ncjax.pipeline.types import LayoutStatus
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-sys.path.insert(0, str(Path(__file__).parent))
-from network_table import scores
-from tune_network_pipeline import tuning_boundaries
+from common import layout_scores, tuning_boundaries
 
 THRESHOLDS = (0.5, 0.6, 0.7, 0.75, 0.8)
 CONFLICT_THRESHOLDS = (2.0, 2.5, 3.0, 4.0)
@@ -58,7 +55,7 @@ def explained_and_iou(data: dict, config: ncjax.PipelineConfig) -> tuple[np.ndar
     layouts = jax.device_get(
         jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys)
     )
-    per_room = scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
+    per_room = layout_scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
     iou = np.array([room.get("iou3d_up_to_scale", np.nan) for room in per_room])
     return np.asarray(layouts.explained_fraction), iou
 
@@ -73,7 +70,9 @@ def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np
     geometry = ncjax.layout_from_boundaries(*rows, cam, "auto", config)
     from_prior = ncjax.layout_from_boundaries(*rows, cam, "auto", config, prior=prior)
     conflict = np.asarray(jax.vmap(scale_conflict)(geometry, prior))
-    per_room = scores([jax.tree.map(lambda x, i=i: x[i], from_prior) for i in range(len(data["rc"]))], data["truth"])
+    per_room = layout_scores(
+        [jax.tree.map(lambda x, i=i: x[i], from_prior) for i in range(len(data["rc"]))], data["truth"]
+    )
     return {
         "status": np.asarray(geometry.status),
         "prior_ok": np.asarray(from_prior.ok),
