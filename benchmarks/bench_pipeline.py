@@ -95,8 +95,8 @@ def main(argv=None):
     )
     parser.add_argument("--sigma", type=float, default=0.0, help="white noise on the boundary rows, pixels")
     args = parser.parse_args(argv)
-    config = PipelineConfig(
-        adjustment_stride=args.adjustment_stride, compact_capacity=args.compact_capacity, chunk_size=args.chunk_size
+    config = PipelineConfig(compact_capacity=args.compact_capacity, chunk_size=args.chunk_size).replace(
+        adjustment={"stride": args.adjustment_stride}
     )
     print(
         f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "

@@ -4,18 +4,20 @@
         [any option of ncjax reconstruct: --world manhattan, --camera-height 1.5, --inlier-threshold 4, ...]
 
 Input: a folder of central panoramas (``*.jpg``, ``*.jpeg``, ``*.png``), each with its label ``<stem>.txt``
-(label_cor: one ``x y`` line per point, ceiling then floor of each corner, pixels of that image) beside it.
+(label_cor: one ``x y`` line per point, ceiling then floor of each corner, pixels of that image) beside it, or
+``label_cor/<stem>.txt`` for an image in ``img/``.
 
 It runs the command a user would (``ncjax reconstruct IMAGES --rc 0 --export label_cor``: the default camera height
 prior of 1.6 m, gravity alignment, the shipped model, 4 views; any other option is passed to the command as it is),
-reads back each written ``<stem>.label_cor.txt`` and scores it against the label with :mod:`ncjax.metrics_central`, both
-back-projected at camera height 1 (HorizonNet's and LGT-Net's convention: the metrics are up to scale). It prints per
-image and on average the 2D and 3D IoU, the corner error (% of the image diagonal), the pixel error, depth RMSE (camera
-heights) and delta-1, and the number of images with a layout. A written layout the metrics cannot back-project (a corner
-at or across the horizon, which fixes no point at camera height 1) counts as no layout, and the count of such layouts is
-printed. The mean 3D IoU is given twice: over the images with a layout, and over all images with 0 for those without,
-then per status of the written layouts (``OK``, or flagged ``LOW_CONFIDENCE``: does the flag pick the worse layouts?).
-Each image's status and explained fraction come from its JSON record."""
+reads back each written ``<stem>.label_cor.txt`` and scores it against the label with
+:mod:`ncjax.evaluation.central_metrics`, both back-projected at camera height 1 (HorizonNet's and LGT-Net's
+convention: the metrics are up to scale). It prints per image and on average the 2D and 3D IoU, the corner error (% of
+the image diagonal), the pixel error, depth RMSE (camera heights) and delta-1, and the number of images with a layout.
+A written layout the metrics cannot back-project (a corner at or across the horizon, which fixes no point at camera
+height 1) counts as no layout, and the count of such layouts is printed. The mean 3D IoU is given twice: over the
+images with a layout, and over all images with 0 for those without, then per status of the written layouts (``OK``,
+or flagged ``LOW_CONFIDENCE``: does the flag pick the worse layouts?). Each image's status and explained fraction come
+from its JSON record."""
 
 from __future__ import annotations
 
@@ -34,23 +36,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads busy-wait
 import numpy as np
 
 from ncjax.cli.main import main as ncjax_main
+from ncjax.evaluation.central_metrics import evaluate_corners
+from ncjax.evaluation.panorama_labels import labelled_image_paths
 from ncjax.io.formats import format_path
 from ncjax.io.formats_read import read_layout
-from ncjax.metrics_central import evaluate_corners
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 COLUMNS = ("iou2d", "iou3d", "corner_error", "pixel_error", "depth_rmse", "delta1")
-
-
-def labelled_images(folder: pathlib.Path) -> list[tuple[pathlib.Path, pathlib.Path]]:
-    pairs = [
-        (path, path.with_suffix(".txt"))
-        for path in sorted(folder.iterdir())
-        if path.suffix.lower() in IMAGE_SUFFIXES and path.with_suffix(".txt").exists()
-    ]
-    if not pairs:
-        raise ValueError(f"{folder}: no panorama with a label_cor <stem>.txt beside it")
-    return pairs
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -61,11 +52,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--limit", type=int, help="the first N images only")
     parser.add_argument("--no-align", action="store_true", help="do not level the panoramas")
     args, reconstruct_options = parser.parse_known_args(argv)
-    try:
-        pairs = labelled_images(args.data)[: args.limit]
-    except (ValueError, OSError) as error:
-        print(f"central_layouts: error: {error}", file=sys.stderr)
+    pairs = labelled_image_paths(args.data)
+    if not pairs:
+        print(f"central_layouts: error: {args.data}: no panorama with a label_cor <stem>.txt", file=sys.stderr)
         return 2
+    pairs = pairs[: args.limit]
     command = ["reconstruct", *(str(image) for image, _ in pairs), "--rc", "0", "--out", str(args.out)]
     command += ["--export", "label_cor"] + (["--model", args.model] if args.model else [])
     command += (["--no-align"] if args.no_align else []) + reconstruct_options

@@ -30,6 +30,7 @@ from bench_pipeline import inputs
 
 import ncjax.pipeline.config
 import ncjax.pipeline.run
+from ncjax.pipeline.types import Rows
 
 # the functions whose operations are attributed to a stage of their own name
 STAGES = [
@@ -131,9 +132,11 @@ def main(argv=None):
     ceiling, floor, prob, cams = inputs(args.world, args.batch)
     cam = jax.tree.map(lambda x: x[0], cams)
     keys = jax.random.split(jax.random.key(0), args.batch)
-    config = ncjax.pipeline.config.PipelineConfig(capacity=args.capacity, adjustment_stride=args.adjustment_stride)
+    config = ncjax.pipeline.config.PipelineConfig(capacity=args.capacity).replace(
+        adjustment={"stride": args.adjustment_stride}
+    )
     batched = jax.jit(
-        jax.vmap(lambda c, f, p, k: ncjax.pipeline.run.layout_from_evidence(c, f, p, cam, k, args.world, config))
+        jax.vmap(lambda c, f, p, k: ncjax.pipeline.run.layout_of(Rows(c, f, p), cam, None, k, config, args.world))
     )
     jax.block_until_ready(batched(ceiling, floor, prob, keys))
     with tempfile.TemporaryDirectory() as folder:

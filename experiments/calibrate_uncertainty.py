@@ -44,7 +44,6 @@ import argparse
 import dataclasses
 import itertools
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -52,16 +51,20 @@ import jax
 import numpy as np
 
 import ncjax
-from ncjax import metrics
+from ncjax.evaluation import layout_metrics as metrics
 from ncjax.io.export import layout_height_sigma
 from ncjax.network.predict import DEFAULT_VIEWS
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-sys.path.insert(0, str(Path(__file__).parent))
-from error_sources import corner_calibration
-from network_table import OUT, test_renders
-from network_table import SEEDS as TEST_SEEDS
-from tune_network_pipeline import model_suffix, rendered_boundaries, tuning_boundaries
+from common import (
+    OUT,
+    TEST_SEEDS,
+    corner_calibration,
+    model_suffix,
+    rendered_boundaries,
+    test_renders,
+    tuning_boundaries,
+)
 
 WORLDS = ("manhattan", "atlanta")
 RATIOS = (0.0, 1.0, 2.0)
@@ -126,12 +129,12 @@ SETTING = ("wall_offset_ratio", "wall_offset_noise", "corner_column_noise")
 def with_setting(setting: tuple[float, float, float], scale_test: bool) -> ncjax.PipelineConfig:
     """``NETWORK_PIPELINE_CONFIG`` with the three error sources of ``setting``, its scale test on or off."""
     config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **dict(zip(SETTING, setting, strict=True)))
-    return config if scale_test else dataclasses.replace(config, max_height_uncertainty=math.inf)
+    return config if scale_test else config.replace(checks={"max_height_uncertainty": math.inf})
 
 
 def setting_name(setting: tuple[float, float, float], scale_test: bool) -> str:
     ratio, noise, corner = setting
-    test = f"scale test {NETWORK_PIPELINE_CONFIG.max_height_uncertainty:g}" if scale_test else "no scale test"
+    test = f"scale test {NETWORK_PIPELINE_CONFIG.checks.max_height_uncertainty:g}" if scale_test else "no scale test"
     return f"ratio {ratio:g}, offset {noise:g} px, corner {corner:g} px, {test}"
 
 

@@ -28,35 +28,26 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import sys
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax import metrics
+from ncjax.evaluation import layout_metrics
+from ncjax.evaluation.panorama_labels import raw_prediction_room
 from ncjax.io.export import status_has_geometry
 from ncjax.network.checkpoint import load_model
 from ncjax.network.predict import DEFAULT_MODEL_PATH
 from ncjax.pipeline.prior import HeightPrior
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG, reconstruct_batch
-from ncjax.synth.augment import random_augment
-from ncjax.synth.dataset import rendered_samples, rendering_rgb8
+from ncjax.synth.dataset import rendered_samples
 from ncjax.training.data import SYNTH_SOURCES
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "benchmarks"))
-sys.path.insert(0, str(Path(__file__).parent))
-from real_panoramas import raw_prediction_room
-from tune_network_pipeline import model_suffix
+from common import BATCH, OUT, PHOTO_LIKE_SEED, model_suffix, photo_like_image
 
-OUT = Path(__file__).parent / "out"
 KINDS = ("synth-decor-home", "synth-decor-open")
-# seeds of no training stage (model card): 11-16, 21-22, 31-33, 61-63, 82-84; tests and tuning 71-72, 96-99
-DEFAULT_SEED = 401
-BATCH = 8
 # world, and the options replacing NETWORK_PIPELINE_CONFIG's ("margin": world auto with manhattan_margin; "own
 # heights": RANSAC's walls with their own heights, the paper's single-wall solver; then the network settings of
 # NETWORK_PIPELINE_CONFIG chosen on the tuning renders, and the inlier threshold, each changed alone)
@@ -76,16 +67,6 @@ SETTINGS = {
     "inlier 4": ("auto", {"inlier_threshold": 4.0}),
 }
 DEFAULT_SETTINGS = ("auto", "manhattan", "atlanta", "margin 0.1", "margin 0.2", "own heights")
-
-
-_augment = jax.jit(random_augment)
-
-
-def photo_like_image(seed: int, index: int, rendering) -> np.ndarray:
-    """Rendering ``index`` of ``seed``'s through its random camera of the training augmentation: an RGB uint8 image."""
-    rgb = rendering_rgb8(rendering).astype(np.float32) / 255.0
-    photo = _augment(jax.random.fold_in(jax.random.key(seed), index), jnp.asarray(rgb))
-    return np.round(np.clip(np.asarray(photo), 0, 1) * 255).astype(np.uint8)
 
 
 def photo_like_rows(kind: str, seed: int, rooms: int, model_path: Path) -> dict[str, np.ndarray]:
@@ -130,7 +111,7 @@ def raw_ious(data: dict[str, np.ndarray]) -> np.ndarray:
     cam = ncjax.NonCentralPanorama(data["floor_v"].shape[1], data["floor_v"].shape[1] // 2, rc=0.0)
     return np.array(
         [
-            metrics.iou_3d(raw_prediction_room(c, f, cam), true_layout(data, i), up_to_scale=True)
+            layout_metrics.iou_3d(raw_prediction_room(c, f, cam), true_layout(data, i), up_to_scale=True)
             for i, (c, f) in enumerate(zip(data["ceiling_v"], data["floor_v"], strict=True))
         ]
     )
@@ -151,8 +132,8 @@ def setting_scores(data: dict[str, np.ndarray], world: str, options: dict) -> di
         has = status_has_geometry(bool(layout.ok), int(layout.status))
         truth = true_layout(data, index)
         returned.append(has)
-        iou.append(metrics.iou_3d(layout, truth) if has else 0.0)
-        ce.append(metrics.corner_error(layout, truth)[0] if has else math.nan)
+        iou.append(layout_metrics.iou_3d(layout, truth) if has else 0.0)
+        ce.append(layout_metrics.corner_error(layout, truth)[0] if has else math.nan)
     return {"returned": np.array(returned), "iou": np.array(iou), "ce": np.array(ce)}
 
 
@@ -169,7 +150,7 @@ def table_line(name: str, scores: dict[str, np.ndarray], raw: np.ndarray) -> str
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rooms", type=int, default=64, help="rooms per kind")
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED, help="seed of the first kind (+1 for the second)")
+    parser.add_argument("--seed", type=int, default=PHOTO_LIKE_SEED, help="seed of the first kind (+1 for the second)")
     parser.add_argument("--model", type=Path, default=DEFAULT_MODEL_PATH, help="network weights")
     parser.add_argument("--settings", default=",".join(DEFAULT_SETTINGS), help=f"comma list of: {', '.join(SETTINGS)}")
     args = parser.parse_args(argv)

@@ -30,7 +30,6 @@ import dataclasses
 import functools
 import math
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -42,11 +41,10 @@ import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax import metrics
+from ncjax.evaluation import layout_metrics as metrics
 from ncjax.pipeline.prior import HeightPrior, scale_layout
 
-sys.path.insert(0, str(Path(__file__).parent))
-from pipeline_table import noisy_rows  # the same row noise as the non-central tables
+from common import noisy_rows  # the same row noise as the non-central tables
 
 OUT = Path(__file__).parent / "out"
 WIDTH, HEIGHT = 1024, 512

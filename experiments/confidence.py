@@ -3,7 +3,7 @@
 A layout's explained fraction (:attr:`ncjax.Layout.explained_fraction`) is the share of the usable
 ceiling and floor rows it reprojects within the inlier threshold. On renders like the training images
 the network's rows describe one room and the fraction is high; on a photograph unlike them (clutter,
-doorways, textures) the rows wander and it drops. ``NETWORK_PIPELINE_CONFIG.min_explained_fraction``
+doorways, textures) the rows wander and it drops. ``NETWORK_PIPELINE_CONFIG.checks.min_explained_fraction``
 flags the layouts below it. This script prints, on the tuning renders (seeds 71 and 72, the shipped
 model, 4 views, world auto, the network's configuration without the flag), the fraction's quantiles,
 the share of layouts each candidate threshold would flag and their up-to-scale 3D IoU against the rest.
@@ -24,8 +24,6 @@ threshold's flags among the renders that fall back to the prior, and their layou
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import sys
 from pathlib import Path
 
 import jax
@@ -34,13 +32,11 @@ import numpy as np
 import ncjax
 from ncjax.io.export import status_has_geometry
 from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior, scale_conflict
-from ncjax.pipeline.run import layout_from_evidence
-from ncjax.pipeline.types import LayoutStatus
+from ncjax.pipeline.run import layout_of
+from ncjax.pipeline.types import LayoutStatus, Rows
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-sys.path.insert(0, str(Path(__file__).parent))
-from network_table import scores
-from tune_network_pipeline import tuning_boundaries
+from common import layout_scores, tuning_boundaries
 
 THRESHOLDS = (0.5, 0.6, 0.7, 0.75, 0.8)
 CONFLICT_THRESHOLDS = (2.0, 2.5, 3.0, 4.0)
@@ -52,13 +48,13 @@ def explained_and_iou(data: dict, config: ncjax.PipelineConfig) -> tuple[np.ndar
 
     def one(ceiling_v, floor_v, corner_prob, rc, key):
         cam = ncjax.NonCentralPanorama(width, width // 2, rc=rc)
-        return layout_from_evidence(ceiling_v, floor_v, corner_prob, cam, key, "auto", config)
+        return layout_of(Rows(ceiling_v, floor_v, corner_prob), cam, None, key, config, "auto")
 
     keys = jax.random.split(jax.random.key(0), len(data["rc"]))
     layouts = jax.device_get(
         jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys)
     )
-    per_room = scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
+    per_room = layout_scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
     iou = np.array([room.get("iou3d_up_to_scale", np.nan) for room in per_room])
     return np.asarray(layouts.explained_fraction), iou
 
@@ -73,7 +69,9 @@ def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np
     geometry = ncjax.layout_from_boundaries(*rows, cam, "auto", config)
     from_prior = ncjax.layout_from_boundaries(*rows, cam, "auto", config, prior=prior)
     conflict = np.asarray(jax.vmap(scale_conflict)(geometry, prior))
-    per_room = scores([jax.tree.map(lambda x, i=i: x[i], from_prior) for i in range(len(data["rc"]))], data["truth"])
+    per_room = layout_scores(
+        [jax.tree.map(lambda x, i=i: x[i], from_prior) for i in range(len(data["rc"]))], data["truth"]
+    )
     return {
         "status": np.asarray(geometry.status),
         "prior_ok": np.asarray(from_prior.ok),
@@ -113,7 +111,7 @@ def print_conflicts(found: dict[str, np.ndarray], config: ncjax.PipelineConfig) 
             f"| {threshold} | {flagged.sum()} | {mean_ious(found, flagged)} | {mean_ious(found, fallback & ~flagged)} "
             f"| {100 * share:.1f}% |"
         )
-    print(f"in use: max_scale_conflict = {config.max_scale_conflict}")
+    print(f"in use: max_scale_conflict = {config.prior.max_scale_conflict}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -121,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rooms", type=int, default=64, help="tuning renders per world")
     parser.add_argument("--out", type=Path, default=Path("experiments/out"))
     args = parser.parse_args(argv)
-    config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, min_explained_fraction=0.0)
+    config = NETWORK_PIPELINE_CONFIG.replace(checks={"min_explained_fraction": 0.0})
     explained, iou, found = [], [], []
     for world in ("manhattan", "atlanta"):
         data = tuning_boundaries(world, args.rooms, 4, args.out)
@@ -142,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         low = explained < threshold
         flagged = f"{np.nanmean(iou[low]):.3f}" if low.any() else "-"
         print(f"| {threshold} | {low.sum()} ({100 * low.mean():.1f}%) | {flagged} | {np.nanmean(iou[~low]):.3f} |")
-    print(f"in use: min_explained_fraction = {NETWORK_PIPELINE_CONFIG.min_explained_fraction}")
+    print(f"in use: min_explained_fraction = {NETWORK_PIPELINE_CONFIG.checks.min_explained_fraction}")
     print_conflicts(found, NETWORK_PIPELINE_CONFIG)
     return 0
 

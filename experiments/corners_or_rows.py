@@ -6,7 +6,7 @@ edge snap; no gravity alignment, so that both runs see the same rows), and the c
 (``NETWORK_PIPELINE_CONFIG``, world auto, camera height 1.6 m) runs twice on those rows: with the network's
 corner probability, and with the label's corner columns in its place (HorizonNet's ``0.96**d`` target of the
 label's floor corners: every corner found, none spurious). Each layout's label_cor is scored against the
-label as ``central_layouts.py`` scores it (:func:`ncjax.metrics_central.evaluate_corners`, both at camera
+label as ``central_layouts.py`` scores it (:func:`ncjax.evaluation.central_metrics.evaluate_corners`, both at camera
 height 1; no layout counts 0). If the labelled corners lift the mean 3D IoU little, the rows are what the
 network has to learn.
 
@@ -17,67 +17,15 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import sys
 import tempfile
-from collections.abc import Iterator
 
-import jax
 import numpy as np
 
 import ncjax
-from ncjax.io.export import status_has_geometry
-from ncjax.io.formats import format_path, write_layout_formats
-from ncjax.io.formats_read import read_layout
-from ncjax.io.images import read_panorama
-from ncjax.io.layout_corners import LayoutCorners
-from ncjax.metrics_central import evaluate_corners
 from ncjax.network.predict import default_model
-from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior
-from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 from ncjax.synth.rooms import corner_target
 
-sys.path.insert(0, str(pathlib.Path(__file__).parents[1] / "benchmarks"))
-from central_layouts import labelled_images
-
-
-def labelled_rows(
-    folder: pathlib.Path, model
-) -> Iterator[tuple[pathlib.Path, ncjax.NonCentralPanorama, LayoutCorners, tuple]]:
-    """Per labelled panorama of ``folder``: its path, its central camera, its label and ``model``'s
-    ``(ceiling_v, floor_v, corner_prob)`` (4 views, edge snap)."""
-    for image_path, label_path in labelled_images(folder):
-        image = read_panorama(image_path)
-        height, width = image.shape[:2]
-        cam = ncjax.NonCentralPanorama(width, height, rc=0.0)
-        yield image_path, cam, read_layout(label_path, width, height), ncjax.predict_boundaries(image, model)
-
-
-def central_layout(ceiling_v, floor_v, corner_prob, cam: ncjax.NonCentralPanorama) -> ncjax.Layout:
-    """The central pipeline's layout of these rows (``NETWORK_PIPELINE_CONFIG``, world auto, camera height 1.6 m)."""
-    prior = HeightPrior("camera_height", DEFAULT_CAMERA_HEIGHT)
-    layout = ncjax.layout_from_boundaries(
-        ceiling_v, floor_v, corner_prob, cam, "auto", NETWORK_PIPELINE_CONFIG, prior=prior
-    )
-    return jax.device_get(layout)
-
-
-def written_layout(layout: ncjax.Layout, cam: ncjax.NonCentralPanorama, folder: pathlib.Path) -> LayoutCorners | None:
-    """One layout as its label_cor in ``folder`` gives it back (None without a layout)."""
-    if not status_has_geometry(bool(layout.ok), int(layout.status)):
-        return None
-    stem = folder / "layout"
-    write_layout_formats(stem, layout, cam, "label_cor")
-    return read_layout(format_path(stem, "label_cor"), cam.width, cam.height)
-
-
-def corners_iou(corners: LayoutCorners | None, label: LayoutCorners) -> float:
-    """3D IoU of written corners against the label (0 without a layout or a scorable one)."""
-    if corners is None:
-        return 0.0
-    try:
-        return evaluate_corners(corners, label)["iou3d"]
-    except ValueError:  # a corner at or across the horizon: no point at camera height 1
-        return 0.0
+from common import central_layout, corners_iou, labelled_rows, written_layout
 
 
 def layout_iou(layout: ncjax.Layout, cam: ncjax.NonCentralPanorama, label, folder: pathlib.Path) -> float:

@@ -20,8 +20,6 @@ share of columns and the floor and ceiling rows' mean absolute error and share o
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -32,8 +30,7 @@ from ncjax.synth.dataset import rendered_samples
 from ncjax.synth.render import Semantic
 from ncjax.training.data import SYNTH_SOURCES
 
-sys.path.insert(0, str(Path(__file__).parent))
-from central_renders import DEFAULT_SEED, photo_like_image
+from common import PHOTO_LIKE_SEED, photo_like_image
 
 KINDS = ("synth-decor-open", "synth-decor-home")
 ROWS_ABOVE = 3
@@ -87,8 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.rooms < 1:
         parser.error("--rooms must be at least 1")
     model = default_model()
-    per_kind = {kind: kind_errors(kind, DEFAULT_SEED + i, args.rooms, model) for i, kind in enumerate(KINDS)}
-    print(f"{args.rooms} rooms per kind, seeds {DEFAULT_SEED} and {DEFAULT_SEED + 1}; rows of a 512-row image")
+    per_kind = {kind: kind_errors(kind, PHOTO_LIKE_SEED + i, args.rooms, model) for i, kind in enumerate(KINDS)}
+    print(f"{args.rooms} rooms per kind, seeds {PHOTO_LIKE_SEED} and {PHOTO_LIKE_SEED + 1}; rows of a 512-row image")
     print(f"| renders, column class | columns | floor: mean px / > {FAR:.0f} px | ceiling: mean px / > {FAR:.0f} px |")
     print("| --- | --- | --- | --- |")
     for kind, errors in per_kind.items():

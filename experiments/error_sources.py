@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import collections
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -42,8 +41,8 @@ import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax import metrics
 from ncjax.cli.reconstruct import add_boundary_arguments
+from ncjax.evaluation import layout_metrics as metrics
 from ncjax.io.export import layout_height_sigma
 from ncjax.network.checkpoint import load_model
 from ncjax.network.predict import default_model
@@ -51,13 +50,9 @@ from ncjax.pipeline.types import LayoutStatus
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 from ncjax.synth.dataset import list_samples, read_sample
 from ncjax.synth.rooms import corner_target
-from ncjax.viz.plan import CHI2_2D_95
 
-sys.path.insert(0, str(Path(__file__).parent))
-from network_table import OUT, SEEDS, ground_truth, test_renders
-from pipeline_table import compiled
+from common import BATCH, OUT, TEST_SEEDS, compiled, corner_calibration, ground_truth, test_renders
 
-BATCH = 8
 SOURCES = ("network", "true corners", "true ceiling", "true floor", "exact")
 EXPLAINED_BINS = (0.6, 0.8, 0.9)  # Layout.explained_fraction bins of the quality check
 
@@ -159,18 +154,6 @@ def rank_correlation(x, y) -> float:
     return float(np.corrcoef(*ranks)[0, 1])
 
 
-def corner_calibration(layout, truth, shift: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per matched corner: inside its 95% ellipse (``Layout.corner_covariance``)? its sigma and its plan error (m)."""
-    mask = np.asarray(layout.mask, bool)
-    error = np.roll(np.asarray(layout.floor_corners)[mask, :2], -shift, 0) - np.asarray(truth["floor_corners"])[:, :2]
-    covariance = np.roll(np.asarray(layout.corner_covariance, np.float64)[mask], -shift, 0)
-    finite = np.all(np.isfinite(covariance), axis=(1, 2))
-    safe = np.where(finite[:, None, None], covariance, np.eye(2))
-    mahalanobis = np.einsum("ki,kij,kj->k", error, np.linalg.pinv(safe), error)
-    sigma = np.sqrt(np.trace(safe, axis1=1, axis2=2))
-    return finite & (mahalanobis <= CHI2_2D_95), np.where(finite, sigma, np.inf), np.linalg.norm(error, axis=1)
-
-
 def _bin_name(index: int) -> str:
     edges = [0.0, *EXPLAINED_BINS, 1.0]
     return f"{edges[index]:.1f}-{edges[index + 1]:.1f}"
@@ -200,7 +183,7 @@ def main(argv=None):
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     quality, calibration = [], []
-    for world in SEEDS:
+    for world in TEST_SEEDS:
         folder = str(test_renders(world, args.rooms, args.out))
         samples = [read_sample(folder, name) for name in list_samples(folder)]
         truths = [ground_truth(s, world) for s in samples]

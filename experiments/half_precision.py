@@ -22,8 +22,7 @@ from ncjax.network.checkpoint import load_model, model_file, read_metadata, save
 from ncjax.network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS
 from ncjax.training.data import evaluate_arrays, load_split
 
-sys.path.insert(0, str(Path(__file__).parent))
-from network_table import OUT, SEEDS, test_renders  # the test renders, shared
+from common import OUT, TEST_SEEDS, test_renders
 
 
 def main(argv=None) -> int:
@@ -39,7 +38,7 @@ def main(argv=None) -> int:
         save_model(full, half_path, dtype="float16")
         sizes = model_file(args.model).stat().st_size, half_path.stat().st_size
         half = load_model(half_path)
-    arrays = [load_split(str(test_renders(world, 128, OUT)), "all", 512, 1024) for world in SEEDS]
+    arrays = [load_split(str(test_renders(world, 128, OUT)), "all", 512, 1024) for world in TEST_SEEDS]
     pooled = {key: np.concatenate([a[key][: args.rooms] for a in arrays]) for key in arrays[0]}
     print(f"{args.model}: {sizes[0]:,} bytes float32, {sizes[1]:,} bytes float16; {len(pooled['image'])} test renders")
     print("| weights | precision | recall | IoU | PE mean (px) |")

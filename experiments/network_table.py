@@ -8,7 +8,7 @@ They are rendered once into ``experiments/out/test_renders_<world>/`` and reused
 1. Table netcorExp: boundary pixel error (PE, in pixels of a 1024-wide image)
    mean and std over images, corner precision / recall / accuracy / IoU with
    the probability and the ``0.96**d`` target binarised at 0.5
-   (:mod:`ncjax.network.scores`).
+   (:mod:`ncjax.evaluation.network_metrics`).
 2. Table pipeExp, "Network predictions": the network's boundaries through the
    paper's "Solvers" route and through the full pipeline
    (``ncjax.reconstruct_batch``), CE and 3D IoU, Manhattan and Atlanta, on the
@@ -37,35 +37,35 @@ with the flag: their share and 3D IoU, and the IoU over all rooms with them.
 from __future__ import annotations
 
 import argparse
-import collections
-import dataclasses
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
-from tqdm import tqdm
 
 import ncjax
-from ncjax import metrics
 from ncjax.cli.reconstruct import add_boundary_arguments
-from ncjax.io.export import status_has_geometry
 from ncjax.network.checkpoint import load_model
 from ncjax.network.predict import DEFAULT_VIEWS, default_model
-from ncjax.pipeline.config import PipelineConfig
-from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG, reconstruct_batch
-from ncjax.synth.dataset import list_samples, read_sample, write_dataset
+from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
+from ncjax.synth.dataset import list_samples, read_sample
 from ncjax.training.data import evaluate_arrays, load_split
 
-sys.path.insert(0, str(Path(__file__).parent))
-from pipeline_table import compiled  # the paper's "Solvers" route, shared
+from common import (
+    OUT,
+    TEST_SEEDS,
+    compiled,
+    failure_causes,
+    ground_truth,
+    layout_scores,
+    layouts_of,
+    scores_summary,
+    test_renders,
+    used_row_errors,
+)
 
-OUT = Path(__file__).parent / "out"
-SEEDS = {"manhattan": 99, "atlanta": 98}
-BATCH = 8
 PAPER = {
     "netcorExp": {
         "precision": 0.934,
@@ -83,55 +83,6 @@ PAPER = {
     },
     "comparison": {"manhattan": (93.87, 86.16, 0.78, 0.223), "atlanta": (90.46, 76.02, 1.5, 0.481)},
 }
-
-
-def test_renders(world: str, count: int, out: Path, seeds: dict[str, int] = SEEDS, name: str = "test") -> Path:
-    """The folder of ``count`` test renders of ``world`` (rendered on first use); other ``seeds`` give
-    another set of the same generator, named ``name``."""
-    folder = out / f"{name}_renders_{world}_{count}"
-    if folder.is_dir() and len(list_samples(str(folder))) == count:
-        return folder
-    config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
-    with tqdm(total=count, desc=f"render {world} {name} set") as bar:
-        write_dataset(str(folder), count, seeds[world], config, batch_size=BATCH, overwrite=True, progress=bar.update)
-    return folder
-
-
-def ground_truth(sample, world: str) -> dict:
-    """Manhattan: the true room in image order; Atlanta: the visible layout (see the module docstring)."""
-    meta = sample.metadata
-    if world == "atlanta":
-        return {"ceiling_corners": meta["ceiling_corners"], "floor_corners": meta["floor_corners"]}
-    plan = np.asarray(meta["room_corners"])[::-1]  # rooms are counter-clockwise, layouts clockwise
-    ones = np.ones((len(plan), 1))
-    return {
-        "ceiling_corners": np.hstack([plan, meta["ceiling_height"] * ones]),
-        "floor_corners": np.hstack([plan, meta["floor_height"] * ones]),
-    }
-
-
-def layouts_of(samples, world: str, model, config: PipelineConfig, views: int, edge_snap):
-    """Full-pipeline reconstructions and the network's boundaries of the samples, in fixed-size batches."""
-    layouts, boundaries = [], []
-    for start in tqdm(range(0, len(samples), BATCH), desc=f"reconstruct {world}"):
-        chunk = samples[start : start + BATCH]
-        chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
-        images = np.stack([s.image for s in chunk])
-        result = jax.device_get(
-            reconstruct_batch(
-                images,
-                np.array([s.rc for s in chunk], np.float32),
-                world,
-                model=model,
-                config=config,
-                views=views,
-                edge_snap=edge_snap,
-            )
-        )
-        for index in range(min(BATCH, len(samples) - start)):
-            layouts.append(jax.tree.map(lambda x: x[index], result.layout))
-            boundaries.append((result.ceiling_v[index], result.floor_v[index], result.corner_prob[index]))
-    return layouts, boundaries
 
 
 def solver_layouts(samples, boundaries, world: str):
@@ -164,68 +115,13 @@ def by_narrowest_wall(per_room: list[dict], narrowest: np.ndarray) -> list[dict]
         keep = (narrowest >= low) & (narrowest < high)
         rooms = [r for r, k in zip(per_room, keep, strict=False) if k]
         out.append(
-            {"low": low, "high": high if math.isfinite(high) else None, **(summary(rooms) if rooms else {"rooms": 0})}
-        )
-    return out
-
-
-def used_row_errors(samples, boundaries) -> dict:
-    """|row - true row| over every column of the samples, per boundary: mean, median, share within 1 px."""
-    out = {}
-    for index, name in ((0, "ceiling"), (1, "floor")):
-        error = np.abs(np.stack([b[index] for b in boundaries]) - np.stack([s.metadata[f"{name}_v"] for s in samples]))
-        out |= {
-            f"{name}_mean": float(error.mean()),
-            f"{name}_median": float(np.median(error)),
-            f"{name}_within_1px": float(np.mean(error < 1)),
-        }
-    return out
-
-
-def _field(layout, name: str):
-    return layout.get(name) if isinstance(layout, dict) else getattr(layout, name, None)
-
-
-def scores(layouts, truths) -> list[dict]:
-    """Per room: the metrics of a layout with geometry, whether it failed, its status (-1: unknown) and corner counts.
-
-    ``returned``: the layout is ok. ``written``: ok, or flagged ``UNCERTAIN_SCALE``, whose geometry
-    ``ncjax reconstruct`` writes too (:func:`ncjax.io.export.has_geometry`); both are scored. A failure
-    is a layout that is not ok or has another corner count than the truth.
-    """
-    out = []
-    for layout, truth in zip(layouts, truths, strict=False):
-        ok = bool(_field(layout, "ok"))
-        status, mask = _field(layout, "status"), _field(layout, "mask")
-        written = status_has_geometry(ok, -1 if status is None else status)
-        result = metrics.evaluate_layout(layout, truth) if written else None
-        failed = not ok or not math.isfinite(result["ce"])
-        out.append(
             {
-                "returned": ok,
-                "written": written,
-                "failed": failed,
-                "status": (0 if ok else -1) if status is None else int(status),
-                "corners": -1 if mask is None else int(np.sum(mask)),
-                "true_corners": len(truth["ceiling_corners"]),
-                **({} if result is None else result),
+                "low": low,
+                "high": high if math.isfinite(high) else None,
+                **(scores_summary(rooms) if rooms else {"rooms": 0}),
             }
         )
     return out
-
-
-def failure_causes(per_room: list[dict]) -> str:
-    """Why the failed rooms failed, in % of all rooms.
-
-    A status other than OK (by name), or too few or too many corners."""
-
-    def cause(r):
-        if r["status"]:
-            return ncjax.LayoutStatus(r["status"]).name if r["status"] > 0 else "not ok"
-        return "too few corners" if r["corners"] < r["true_corners"] else "too many corners"
-
-    causes = collections.Counter(cause(r) for r in per_room if r["failed"])
-    return ", ".join(f"{name} {100 * count / len(per_room):.1f}" for name, count in causes.most_common())
 
 
 def miscounted_layouts(per_room: list[dict]) -> str:
@@ -240,50 +136,25 @@ def miscounted_layouts(per_room: list[dict]) -> str:
     return "; ".join(parts)
 
 
-def summary(results: list[dict]) -> dict:
-    good = [r for r in results if not r["failed"]]
-    returned = [r["iou3d"] for r in results if r["returned"]]
-    flagged = [r["iou3d"] for r in results if r["written"] and not r["returned"]]
-    mean = lambda key: float(np.mean([r[key] for r in good])) if good else math.nan  # noqa: E731
-    return {
-        "returned": 100.0 * len(returned) / len(results),
-        "iou3d_returned": 100 * float(np.mean(returned)) if returned else math.nan,
-        "iou3d_returned_median": 100 * float(np.median(returned)) if returned else math.nan,
-        "iou3d_all_returned": 100 * float(np.sum(returned)) / len(results),
-        "flagged": 100.0 * len(flagged) / len(results),
-        "iou3d_flagged": 100 * float(np.mean(flagged)) if flagged else math.nan,
-        "iou3d_all_written": 100 * float(np.sum(returned) + np.sum(flagged)) / len(results),
-        "rooms": len(results),
-        "failed": 100.0 * (1 - len(good) / len(results)),
-        "ce": mean("ce"),
-        "ce_median": float(np.median([r["ce"] for r in good])) if good else math.nan,
-        "cen": 100 * mean("cen"),
-        "iou3d": 100 * mean("iou3d"),
-        "iou3d_all": 100 * float(np.sum([r["iou3d"] for r in good]) / len(results)),
-        "iou3d_u2s": 100 * mean("iou3d_up_to_scale"),
-        "height_error": mean("height_error"),
-    }
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rooms", type=int, default=128, help="test renders per world")
     parser.add_argument("--small", action="store_true", help="8 rooms per world")
     parser.add_argument("--model", help="weights (.safetensors); default: the shipped model")
     parser.add_argument("--out", type=Path, default=OUT)
-    parser.add_argument("--corner-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.corner_threshold)
-    parser.add_argument("--nms-radius", type=float, default=NETWORK_PIPELINE_CONFIG.nms_radius, help="columns at 1024")
+    parser.add_argument("--corner-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.corners.threshold)
     parser.add_argument(
-        "--occlusion-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.occlusion_threshold, help="pixels"
+        "--nms-radius", type=float, default=NETWORK_PIPELINE_CONFIG.corners.nms_radius, help="columns at 1024"
+    )
+    parser.add_argument(
+        "--occlusion-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.occlusion.threshold, help="pixels"
     )
     parser.add_argument("--skip-network", action="store_true", help="only the layout tables")
     add_boundary_arguments(parser)
     args = parser.parse_args(argv)
-    config = dataclasses.replace(
-        NETWORK_PIPELINE_CONFIG,
-        corner_threshold=args.corner_threshold,
-        nms_radius=args.nms_radius,
-        occlusion_threshold=args.occlusion_threshold,
+    config = NETWORK_PIPELINE_CONFIG.replace(
+        corners={"threshold": args.corner_threshold, "nms_radius": args.nms_radius},
+        occlusion={"threshold": args.occlusion_threshold},
     )
     count = 8 if args.small else args.rooms
     model = load_model(args.model) if args.model else default_model()
@@ -291,7 +162,7 @@ def main(argv=None):
     lines, record = [], {"rooms_per_world": count}
 
     arrays = {}
-    for world in SEEDS:
+    for world in TEST_SEEDS:
         folder = str(test_renders(world, count, args.out))
         arrays[world] = load_split(folder, "all", model.config.input_height, model.config.input_width)
     pooled = {key: np.concatenate([a[key] for a in arrays.values()]) for key in arrays["manhattan"]}
@@ -328,19 +199,19 @@ def main(argv=None):
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     comparison, row_errors, causes, widths, miscounts = {}, {}, {}, {}, {}
-    for world in SEEDS:
+    for world in TEST_SEEDS:
         folder = str(args.out / f"test_renders_{world}_{count}")
         samples = [read_sample(folder, name) for name in list_samples(folder)]
         truths = [ground_truth(s, world) for s in samples]
         clear = np.array([not any(s.metadata["corner_is_occlusion"]) for s in samples])
         layouts, boundaries = layouts_of(samples, world, model, config, args.views, args.edge_snap)
         results = {
-            "pipeline": scores(layouts, truths),
-            "solvers": scores(solver_layouts(samples, boundaries, world), truths),
+            "pipeline": layout_scores(layouts, truths),
+            "solvers": layout_scores(solver_layouts(samples, boundaries, world), truths),
         }
         for method, per_room in results.items():
             for subset, keep in (("no occlusion", clear), ("all", np.ones_like(clear))):
-                s = summary([r for r, k in zip(per_room, keep, strict=False) if k])
+                s = scores_summary([r for r, k in zip(per_room, keep, strict=False) if k])
                 record[f"{method}_{world}_{subset}"] = s
                 paper = PAPER["pipeExp"][(method, world)] if subset == "no occlusion" else ("", "")
                 lines.append(
@@ -348,7 +219,7 @@ def main(argv=None):
                     f"{s['ce_median']:.3f} | "
                     f"{s['iou3d']:.1f} | {s['iou3d_all']:.1f} | {paper[0]} / {paper[1]} |"
                 )
-        comparison[world] = summary(results["pipeline"])
+        comparison[world] = scores_summary(results["pipeline"])
         record[f"pipeline_{world}_per_room"] = [
             {
                 key: float(r[key]) if isinstance(r[key], (float, np.floating)) else r[key]

@@ -37,20 +37,13 @@ os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # busy-waiting BLAS threads stall on a shared machine
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax import metrics
-from ncjax.pipeline.config import PipelineConfig
-from ncjax.pipeline.corners import column_walls, find_corners
-from ncjax.pipeline.manhattan import manhattan_frame
-from ncjax.pipeline.run import layout_from_evidence
+from ncjax.evaluation import layout_metrics as metrics
 
-OUT = Path(__file__).parent / "out"
-WIDTH, HEIGHT = 1024, 512
-CAPACITY = 32
+from common import CAPACITY, HEIGHT, OUT, WIDTH, compiled, noisy_rows
 
 
 @functools.cache
@@ -67,41 +60,6 @@ def room_generator(world: str, occlusion: str):
 
 def room_batch(world: str, occlusion: str, count: int, seed: int):
     return room_generator(world, occlusion)(jax.random.split(jax.random.key(seed), count))
-
-
-def noisy_rows(labels, sigma: float, seed: int):
-    k1, k2 = jax.random.split(jax.random.key(seed + 1000))
-    return (
-        labels.ceiling_v + sigma * jax.random.normal(k1, labels.ceiling_v.shape),
-        labels.floor_v + sigma * jax.random.normal(k2, labels.floor_v.shape),
-    )
-
-
-def solvers_only(ceiling_v, floor_v, corner_prob, cam, world: str):
-    """The paper's "Solvers" route (see the module docstring)."""
-    config = PipelineConfig()
-    columns = jnp.arange(WIDTH, dtype=ceiling_v.dtype)
-    ceiling_rays = ncjax.pixel_to_ray(cam, columns, ceiling_v)
-    floor_rays = ncjax.pixel_to_ray(cam, columns, floor_v)
-    corners, mask, _, _ = find_corners(
-        corner_prob, CAPACITY, 2, config.corner_threshold
-    )  # the paper's peaks: no minimum count
-    wall_index = column_walls(corners, mask, WIDTH)
-    own = wall_index[None, :] == jnp.arange(CAPACITY)[:, None]
-    walls = jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m))(own)
-    if world == "manhattan":
-        labels, _ = manhattan_frame(walls.direction, jnp.sum(own, 1).astype(ceiling_v.dtype))
-        layout = ncjax.solve_manhattan_layout(ceiling_rays, floor_rays, wall_index, mask, labels)
-    else:
-        layout = ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, wall_index, mask, walls.direction)
-    ceiling = ncjax.layout_corners(layout.ceiling_lines, layout.mask)
-    floor = ncjax.layout_corners(layout.floor_lines, layout.mask)
-    return {
-        "ceiling_corners": ceiling,
-        "floor_corners": floor,
-        "mask": layout.mask,
-        "ok": layout.ok & jnp.all(walls.ok | ~mask),
-    }
 
 
 def evaluate(layouts, rooms, labels, world: str):
@@ -137,14 +95,6 @@ def failure_notes(world, method, occlusion, sigma, failed, rooms, labels) -> lis
         where = f"{world} {method}, occlusion {occlusion}, {sigma:.1f} px"
         notes.append(f"- {where}: room {i} failed; longest run of walls no column sees: {longest}")
     return notes
-
-
-@functools.cache
-def compiled(method: str, world: str, config: PipelineConfig = PipelineConfig()):
-    """One jit(vmap) per method and world (``config``: the pipeline's)."""
-    if method == "pipeline":
-        return jax.jit(jax.vmap(lambda c, f, p, cam, k: layout_from_evidence(c, f, p, cam, k, world, config)))
-    return jax.jit(jax.vmap(lambda c, f, p, cam, k: solvers_only(c, f, p, cam, world)))
 
 
 def run(method: str, world: str, ceiling_v, floor_v, corner_prob, rooms):

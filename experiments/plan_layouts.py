@@ -28,21 +28,19 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import sys
 import tempfile
 
 import jax.numpy as jnp
 import numpy as np
 
 import ncjax
+from ncjax.evaluation.central_metrics import evaluate_corners, room_geometry, surface_classes
 from ncjax.io.layout_corners import LayoutCorners, corners_from_3d, pixel_angles
-from ncjax.metrics_central import evaluate_corners, room_geometry, surface_classes
 from ncjax.network.predict import default_model
 from ncjax.pipeline.corners import configured_corners
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-sys.path.insert(0, str(pathlib.Path(__file__).parent))
-from corners_or_rows import central_layout, corners_iou, labelled_rows, written_layout
+from common import central_layout, corners_iou, labelled_rows, written_layout
 
 YAWS = np.radians(np.arange(0.0, 90.0, 0.25))
 CORNER_MARGIN = 4  # columns next to a corner peak left out of its walls
@@ -158,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=pathlib.Path, required=True, help="folder of panoramas with label_cor .txt")
     args = parser.parse_args(argv)
     model = default_model()
-    threshold = NETWORK_PIPELINE_CONFIG.inlier_threshold
+    threshold = NETWORK_PIPELINE_CONFIG.ransac.inlier_threshold
     scores = {"pipeline": [], "plan": [], "more rows explained": [], "better of the two": []}
     print("| image | pipeline (rows explained) | plan (rows explained) |")
     print("| --- | --- | --- |")

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -41,9 +40,7 @@ from ncjax.pipeline.uncertainty import room_height_sigma
 from ncjax.reconstruction import reconstruct_batch
 from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 
-sys.path.insert(0, str(Path(__file__).parent))
-from network_table import ground_truth, scores
-from tune_network_pipeline import SEEDS  # the tuning rooms
+from common import TUNING_SEEDS, ground_truth, layout_scores
 
 OUT = Path(__file__).parent / "out"
 RENDER_WIDTH = 4096
@@ -58,7 +55,9 @@ def renders(world: str, rooms: int, out: Path) -> list:
             room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)), width=RENDER_WIDTH, height=RENDER_WIDTH // 2
         )
         with tqdm(total=rooms, desc=f"render {world} at {RENDER_WIDTH}") as bar:
-            write_dataset(str(folder), rooms, SEEDS[world], config, batch_size=1, overwrite=True, progress=bar.update)
+            write_dataset(
+                str(folder), rooms, TUNING_SEEDS[world], config, batch_size=1, overwrite=True, progress=bar.update
+            )
     return [read_sample(str(folder), name) for name in list_samples(str(folder))]
 
 
@@ -86,7 +85,7 @@ def layouts_at(samples, world: str, width: int):
 
 def width_scores(layouts, truths) -> dict:
     """One line of the table: the scores of one world's layouts at one width (see the module docstring)."""
-    per_room = scores(layouts, truths)
+    per_room = layout_scores(layouts, truths)
     ok = [r for r in per_room if r["returned"]]
     strict = [r["ce"] for r in ok if not r["failed"]]
     height_error = np.array([r["height_error"] for r in ok])
@@ -132,7 +131,7 @@ def main(argv=None):
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     record = {"rooms": args.rooms, "render_width": RENDER_WIDTH}
-    for world in SEEDS:
+    for world in TUNING_SEEDS:
         samples = renders(world, args.rooms, args.out)
         truths = [ground_truth(s, world) for s in samples]
         for width in args.widths:

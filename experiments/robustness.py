@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -37,8 +36,16 @@ from ncjax.network.predict import default_model
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 from ncjax.synth.dataset import list_samples, read_sample
 
-sys.path.insert(0, str(Path(__file__).parent))
-from network_table import OUT, SEEDS, ground_truth, layouts_of, scores, summary, test_renders, used_row_errors
+from common import (
+    OUT,
+    TEST_SEEDS,
+    ground_truth,
+    layout_scores,
+    layouts_of,
+    scores_summary,
+    test_renders,
+    used_row_errors,
+)
 
 TEST_ROOMS = 128  # the renders of network_table.py
 
@@ -100,7 +107,7 @@ def main(argv=None):
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     record = {}
-    for world in SEEDS:
+    for world in TEST_SEEDS:
         folder = str(test_renders(world, TEST_ROOMS, args.out))
         samples = [read_sample(folder, name) for name in list_samples(folder)]
         samples = [s for s in samples if not any(s.metadata["corner_is_occlusion"])][: args.rooms]
@@ -111,7 +118,7 @@ def main(argv=None):
             layouts, boundaries = layouts_of(
                 degraded, world, model, NETWORK_PIPELINE_CONFIG, args.views, args.edge_snap
             )
-            s = summary(scores(layouts, truths))
+            s = scores_summary(layout_scores(layouts, truths))
             rows = used_row_errors(samples, boundaries)
             record[f"{name}/{world}"] = s | rows
             lines.append(

@@ -8,7 +8,7 @@ Tuning set: Manhattan and Atlanta rooms rendered by ``ncjax synth`` with seeds 7
 the test renders are never used to choose the configuration. The shipped model's
 boundaries (snapped, ``--views`` views) are computed once and cached in
 ``experiments/out/tune_<world>_<rooms>_views<V>_<model>_<hash>.npz``; each configuration then runs the
-pipeline alone (``layout_from_evidence``, each room with its own world, or with ``--world auto``
+pipeline alone (``layout_of``, each room with its own world, or with ``--world auto``
 every room with world auto, as ``ncjax reconstruct`` runs: to choose ``manhattan_margin``). ``--model``
 runs another model's boundaries through the same configurations (cached under its
 file's name and content hash), to compare a new model with the shipped one before it replaces it.
@@ -35,9 +35,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -46,18 +44,22 @@ import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax.network.checkpoint import load_model
-from ncjax.network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, predict_boundaries
-from ncjax.pipeline.run import layout_from_evidence
+from ncjax.network.predict import DEFAULT_VIEWS
+from ncjax.pipeline.run import layout_of
+from ncjax.pipeline.types import Rows
 from ncjax.pipeline.uncertainty import room_height_sigma
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
-from ncjax.synth.dataset import list_samples, read_sample, write_dataset
 
-sys.path.insert(0, str(Path(__file__).parent))
-from network_table import BATCH, failure_causes, ground_truth, scores, summary
+from common import (
+    OUT,
+    TUNING_SEEDS,
+    failure_causes,
+    layout_scores,
+    model_suffix,
+    scores_summary,
+    tuning_boundaries,
+)
 
-OUT = Path(__file__).parent / "out"
-SEEDS = {"manhattan": 71, "atlanta": 72}
 # the corner detection (threshold, NMS half-width in columns) and occlusion test (jump in px) settings compared,
 # each replacing those of NETWORK_PIPELINE_CONFIG (the rest, e.g. the adjustment's row weights, as it is)
 NO_SCALE_TEST = "nms 4, occlusion 8, threshold 0.4, no scale test"
@@ -117,64 +119,6 @@ MARGIN_CONFIGS = {
 SCALE_TEST_THRESHOLDS = (0.04, 0.06, 0.08, 0.1, 0.15, 0.2, math.inf)
 
 
-def model_suffix(model_path: Path | None) -> str:
-    """What names a model's cached rows and tables: the file's name and the start of its SHA-256 (the
-    shipped model's when ``model_path`` is None), so that new weights saved under an old name are not
-    mistaken for it."""
-    path = DEFAULT_MODEL_PATH if model_path is None else model_path
-    return f"_{path.stem}_{hashlib.sha256(path.read_bytes()).hexdigest()[:8]}"
-
-
-def tuning_boundaries(world: str, rooms: int, views: int, out: Path, model_path: Path | None = None) -> dict:
-    """Rows, corner probability, radii, ground truths, true rows and occlusion flags of the tuning renders of ``world``.
-
-    The rows and corner probability are those of the model in ``model_path``
-    (default: the shipped one), cached per model (:func:`model_suffix`).
-    """
-    folder = out / f"tune_renders_{world}_{rooms}"
-    if not (folder.is_dir() and len(list_samples(str(folder))) == rooms):
-        config = ncjax.SynthConfig(room=ncjax.RoomConfig(world=world, rc_range=(0.3, 1.0)))
-        with tqdm(total=rooms, desc=f"render {world} tuning set") as bar:
-            write_dataset(
-                str(folder), rooms, SEEDS[world], config, batch_size=BATCH, overwrite=True, progress=bar.update
-            )
-    cache = out / f"tune_{world}_{rooms}_views{views}{model_suffix(model_path)}.npz"
-    return rendered_boundaries(folder, world, cache, views, model_path)
-
-
-def rendered_boundaries(folder: Path, world: str, cache: Path, views: int, model_path: Path | None = None) -> dict:
-    """:func:`tuning_boundaries` of the renders in ``folder``, the network's outputs cached in ``cache``."""
-    samples = [read_sample(str(folder), name) for name in list_samples(str(folder))]
-    data = {
-        "rc": np.array([s.rc for s in samples], np.float32),
-        "truth": [ground_truth(s, world) for s in samples],
-        "clear": np.array([not any(s.metadata["corner_is_occlusion"]) for s in samples]),
-        "true_rows": np.stack([[s.metadata["ceiling_v"] for s in samples], [s.metadata["floor_v"] for s in samples]]),
-    }
-    if cache.is_file():
-        with np.load(cache) as stored:
-            return data | dict(stored)
-    model, rows, rooms = (default_model() if model_path is None else load_model(model_path)), [], len(samples)
-    for start in tqdm(range(0, rooms, BATCH), desc=f"network {world}"):
-        chunk = samples[start : start + BATCH]
-        chunk = chunk + [chunk[-1]] * (BATCH - len(chunk))
-        rows.append(
-            [
-                part[: min(BATCH, rooms - start)]
-                for part in predict_boundaries(np.stack([s.image for s in chunk]), model, views)
-            ]
-        )
-    boundaries = dict(
-        zip(
-            ("ceiling_v", "floor_v", "corner_prob"),
-            (np.concatenate(parts) for parts in zip(*rows, strict=False)),
-            strict=False,
-        )
-    )
-    np.savez(cache, **boundaries)
-    return data | boundaries
-
-
 def row_errors(data: dict) -> str:
     """The network's rows against the true ones, per boundary: mean / median |error| (px) and the share within 1 px."""
     parts = []
@@ -193,15 +137,14 @@ def pipeline_scores(data: dict, world: str, config: ncjax.PipelineConfig) -> lis
     width = data["ceiling_v"].shape[1]
 
     def one(ceiling_v, floor_v, corner_prob, rc, key):
-        return layout_from_evidence(
-            ceiling_v, floor_v, corner_prob, ncjax.NonCentralPanorama(width, width // 2, rc=rc), key, world, config
-        )
+        cam = ncjax.NonCentralPanorama(width, width // 2, rc=rc)
+        return layout_of(Rows(ceiling_v, floor_v, corner_prob), cam, None, key, config, world)
 
     keys = jax.random.split(jax.random.key(0), len(data["rc"]))
     layouts = jax.device_get(
         jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys)
     )
-    per_room = scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
+    per_room = layout_scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
     relative_sigma = np.asarray(room_height_sigma(layouts.height_covariance)) / (
         layouts.ceiling_height - layouts.floor_height
     )
@@ -295,14 +238,14 @@ def main(argv=None):
         parser.error(f"--model: no such file: {args.model}")
     args.out.mkdir(parents=True, exist_ok=True)
     start = time.time()
-    data = {world: tuning_boundaries(world, args.rooms, args.views, args.out, args.model) for world in SEEDS}
+    data = {world: tuning_boundaries(world, args.rooms, args.views, args.out, args.model) for world in TUNING_SEEDS}
     model = "the shipped model" if args.model is None else f"model {args.model.name}"
     suffix = model_suffix(args.model)  # names this run's table and plot
     lines = [
-        f"Tuning renders: {args.rooms} per world (seeds {SEEDS}), {model}, {args.views} view(s), snapped rows, "
+        f"Tuning renders: {args.rooms} per world (seeds {TUNING_SEEDS}), {model}, {args.views} view(s), snapped rows, "
         f"world: {'each room its own' if args.world == 'own' else 'auto'}.",
         "",
-        *(f"- rows, {world}: {row_errors(data[world])}" for world in SEEDS),
+        *(f"- rows, {world}: {row_errors(data[world])}" for world in TUNING_SEEDS),
         "",
         "| configuration | world | no occlusion: failed (%) / CE mean / median (m) / 3D IoU (%) | all: failed (%) / "
         "CE (m) / 3D IoU (%) "
@@ -318,10 +261,10 @@ def main(argv=None):
             else (CONFIGS | MARGIN_CONFIGS)[name]
         )
         config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **kwargs)
-        for world in SEEDS:
+        for world in TUNING_SEEDS:
             per_room = pipeline_scores(data[world], world if args.world == "own" else "auto", config)
             clear = [r for r, keep in zip(per_room, data[world]["clear"], strict=False) if keep]
-            s_clear, s_all = summary(clear), summary(per_room)
+            s_clear, s_all = scores_summary(clear), scores_summary(per_room)
             median = np.median([r["ce"] for r in clear if not r["failed"]] or [np.nan])
             record[(name, world)] = s_all
             lines.append(
@@ -337,7 +280,7 @@ def main(argv=None):
     mode = "" if args.world == "own" else "_auto"
     if unscaled:
         path = args.out / f"scale_test{mode}{suffix}.png"
-        plot_scale_test(unscaled, path, NETWORK_PIPELINE_CONFIG.max_height_uncertainty)
+        plot_scale_test(unscaled, path, NETWORK_PIPELINE_CONFIG.checks.max_height_uncertainty)
     print(table)
     print(f"total time {time.time() - start:.0f} s")
     (args.out / f"tune_network_pipeline_{args.rooms}{mode}{suffix}.md").write_text(table + "\n")

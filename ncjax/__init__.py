@@ -6,7 +6,7 @@ per-column boundaries) -> ``pipeline`` (boundaries to a metric layout, with ``so
 exported here; docs/architecture.md maps the stages and the paper's equations to the code.
 """
 
-from . import metrics
+from .evaluation import layout_metrics as metrics
 
 # Camera and Plücker geometry (paper Section 3)
 from .geometry.camera import (
@@ -55,7 +55,7 @@ from .network.model import BoundaryPrediction, HorizonNet, HorizonNetConfig, cou
 from .network.checkpoint import load_model, save_model
 from .network.predict import predict_boundaries
 from .network.edges import EdgeSnap, snap_to_edges
-from .network.scores import boundary_pixel_error, corner_confusion, corner_scores, network_table
+from .evaluation.network_metrics import boundary_pixel_error, corner_confusion, corner_scores, network_table
 
 # The geometric pipeline (paper Section 4.4)
 from .pipeline.config import DEFAULT_WORLD, PipelineConfig

@@ -1,23 +1,19 @@
 """The noise sweep runs end to end in its small version and writes its outputs."""
 
-import importlib.util
-from pathlib import Path
 from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from _scripts import script_module
 
 import ncjax
 
 
 def experiment(name: str):
     """The module of ``experiments/<name>.py``."""
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "experiments" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return script_module("experiments", name)
 
 
 @pytest.mark.extended
@@ -76,8 +72,8 @@ def test_network_table_bins_rooms_by_their_narrowest_wall():
     assert bins[2]["high"] is None
 
 
-def test_network_table_scores_every_returned_layout_also_with_another_corner_count():
-    module = experiment("network_table")
+def test_render_scores_summarise_every_returned_layout_also_with_another_corner_count():
+    module = experiment("common")
     scored = {"ce": 0.1, "cen": 0.01, "iou3d_up_to_scale": 0.9, "height_error": 0.0}
     per_room = [
         {"returned": True, "written": True, "failed": False, **scored, "iou3d": 0.9},  # the true corner count
@@ -92,7 +88,7 @@ def test_network_table_scores_every_returned_layout_also_with_another_corner_cou
         {"returned": False, "written": False, "failed": True},  # no layout
         {"returned": False, "written": True, "failed": True, **scored, "iou3d": 0.4},  # flagged UNCERTAIN_SCALE
     ]
-    s = module.summary(per_room)
+    s = module.scores_summary(per_room)
     assert s["failed"] == pytest.approx(75.0) and s["iou3d"] == pytest.approx(90.0)
     assert s["iou3d_all"] == pytest.approx(22.5)  # only the room with the true corner count scores
     assert s["returned"] == pytest.approx(50.0)
@@ -102,8 +98,8 @@ def test_network_table_scores_every_returned_layout_also_with_another_corner_cou
     assert s["iou3d_all_written"] == pytest.approx(50.0)
 
 
-def test_network_table_scores_the_geometry_of_uncertain_scale_layouts_but_counts_them_failed():
-    module = experiment("network_table")
+def test_render_scores_score_the_geometry_of_uncertain_scale_layouts_but_count_them_failed():
+    module = experiment("common")
     square = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, -1.0], [-1.0, 1.0]])
     truth = {
         "ceiling_corners": np.hstack([square, np.full((4, 1), 1.0)]),
@@ -113,7 +109,7 @@ def test_network_table_scores_the_geometry_of_uncertain_scale_layouts_but_counts
     def layout(ok, status):
         return {**truth, "ok": ok, "status": status, "mask": np.ones(4, bool)}
 
-    ok, flagged, failed = module.scores(
+    ok, flagged, failed = module.layout_scores(
         [
             layout(True, 0),
             layout(False, int(ncjax.LayoutStatus.UNCERTAIN_SCALE)),
@@ -172,7 +168,7 @@ def test_tuning_refuses_a_missing_model_before_any_work(tmp_path):
 
 
 def test_tuning_caches_are_named_by_the_model_file_and_its_content(tmp_path):
-    module = experiment("tune_network_pipeline")
+    module = experiment("common")
     model = tmp_path / "mine.safetensors"
     model.write_bytes(b"weights of one run")
     first = module.model_suffix(model)
@@ -182,13 +178,13 @@ def test_tuning_caches_are_named_by_the_model_file_and_its_content(tmp_path):
     assert module.model_suffix(None).startswith(f"_{module.DEFAULT_MODEL_PATH.stem}_")
 
 
-def test_central_renders_refuses_a_missing_model_or_setting_before_any_work(tmp_path):
+def test_central_renders_refuses_a_missing_model_or_setting_before_any_work(tmp_path, monkeypatch):
     module = experiment("central_renders")
 
     def render(*args):
         raise AssertionError("rendered before checking its options")
 
-    module.photo_like_rows = render
+    monkeypatch.setattr(module, "photo_like_rows", render)
     for options in (["--model", str(tmp_path / "missing.safetensors")], ["--settings", "auto,sideways"]):
         with pytest.raises(SystemExit) as raised:
             module.main(options)
@@ -327,9 +323,9 @@ def test_frozen_backbone_deepest_stages_give_the_backbones_coarsest_map_and_trai
 def test_plan_layouts_recovers_a_turned_manhattan_room_from_its_exact_rows(tmp_path):
     from test_export import L_SHAPE, make_layout
 
+    from ncjax.evaluation.central_metrics import evaluate_corners, room_geometry, surface_classes
     from ncjax.io.formats import format_path, write_layout_formats
     from ncjax.io.formats_read import read_layout
-    from ncjax.metrics_central import evaluate_corners, room_geometry, surface_classes
     from ncjax.synth.rooms import corner_target
 
     module = experiment("plan_layouts")

@@ -19,13 +19,13 @@ from ncjax import cli
 
 # Shapes and dtypes checked at run time, as conftest.py does for the modules ncjax imports itself.
 with install_import_hook(
-    ["ncjax.io.formats", "ncjax.io.formats_read", "ncjax.io.layout_corners", "ncjax.metrics_central"],
+    ["ncjax.io.formats", "ncjax.io.formats_read", "ncjax.io.layout_corners", "ncjax.evaluation.central_metrics"],
     "beartype.beartype",
 ):
+    from ncjax.evaluation.central_metrics import evaluate_corners, room_geometry
     from ncjax.io.formats import FORMATS, SUFFIXES, write_layout_formats
     from ncjax.io.formats_read import layout_files, read_layout, read_mp3d
     from ncjax.io.layout_corners import LayoutCorners, project_points
-    from ncjax.metrics_central import evaluate_corners, room_geometry
 
 DATA = pathlib.Path(__file__).parent / "data" / "formats"
 W, H = 1024, 512

@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ncjax
-from ncjax import metrics
+from ncjax.evaluation import layout_metrics as metrics
 from ncjax.geometry.plucker import wall_planes_meet
 from ncjax.geometry.reprojection import (
     boundary_points,

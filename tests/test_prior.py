@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from test_export import L_SHAPE, make_layout
 
 import ncjax
-from ncjax import metrics
+from ncjax.evaluation import layout_metrics as metrics
 from ncjax.pipeline.floor_check import ceiling_floor_ratio
 from ncjax.pipeline.prior import (
     PRIOR_KINDS,

@@ -1,4 +1,5 @@
-"""benchmarks/real_panoramas.py: label rows from label_cor, corner matching, bad input, and a run on renders."""
+"""The real-panorama benchmark (``benchmarks/real_panoramas.py`` and its scoring in :mod:`ncjax.evaluation`): label
+rows from label_cor, corner matching, bad input, and a run on renders."""
 
 import csv
 from pathlib import Path
@@ -10,6 +11,8 @@ import pytest
 from _scripts import script_module
 
 import ncjax
+from ncjax.evaluation.panorama_labels import distinct_corners, label_boundaries, read_label_cor
+from ncjax.evaluation.panorama_scores import match_one_to_one
 from ncjax.synth.dataset import label_cor_rows
 
 WIDTH, HEIGHT = 1024, 512
@@ -53,10 +56,9 @@ def exact_label_cor(labels: ncjax.RoomLabels, cam: ncjax.NonCentralPanorama) -> 
 
 def label_rows_from_file(label_cor: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The benchmark's label rows of a label_cor array written to ``path``, and its label corner columns."""
-    module = benchmark_module()
     path.write_text("".join(f"{x:.4f} {y:.4f}\n" for x, y in label_cor))
-    corners = module.read_label_cor(path, WIDTH, HEIGHT)
-    _, _, ceiling_v, floor_v = module.label_boundaries(corners, WIDTH, HEIGHT)
+    corners = read_label_cor(path, WIDTH, HEIGHT)
+    _, _, ceiling_v, floor_v = label_boundaries(corners, WIDTH, HEIGHT)
     return ceiling_v, floor_v, corners[:, 1, 0]
 
 
@@ -81,14 +83,13 @@ def test_label_rows_match_the_renderers_exact_rows(corners, tmp_path):
     # an occlusion's near and far points are one corner to find
     mask = np.asarray(labels.corner_mask)
     distinct = len(np.unique(np.asarray(labels.corner_u)[mask]))
-    assert benchmark_module().distinct_corners(columns, WIDTH).sum() == distinct
+    assert distinct_corners(columns, WIDTH).sum() == distinct
 
 
 def test_corners_match_one_to_one_across_the_seam():
-    module = benchmark_module()
     peaks = np.array([1023.4, 3.0, 500.0, 700.0])
     targets = np.array([0.2, 505.0, 900.0])
-    matched = module.match_one_to_one(peaks, targets, tolerance=10.0, width=1024)
+    matched = match_one_to_one(peaks, targets, tolerance=10.0, width=1024)
     assert matched.tolist() == [True, False, True, False]  # one peak per corner, the nearest across the seam
 
 

@@ -35,7 +35,7 @@ def run_demo(args: argparse.Namespace) -> int:
     """``ncjax demo``: reconstruct the shipped sample and compare it with its ground truth."""
     import jax
 
-    from .. import metrics
+    from ..evaluation import layout_metrics as metrics
     from ..reconstruction import reconstruct_batch
 
     start = time.perf_counter()

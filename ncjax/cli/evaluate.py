@@ -3,7 +3,7 @@
 PRED and GT are two layout files of one image, or two folders whose layout files are
 matched by image stem (:func:`ncjax.io.formats_read.layout_files`). Any format of
 :mod:`ncjax.io.formats_read` is read, ncjax's JSON included. Prints one line per image
-and the mean (:mod:`ncjax.metrics_central`).
+and the mean (:mod:`ncjax.evaluation.central_metrics`).
 """
 
 from __future__ import annotations
@@ -69,8 +69,8 @@ def run_layout_evaluation(args: argparse.Namespace) -> int:
     Returns:
         0, or 1 when some image could not be evaluated (its line says why).
     """
+    from ..evaluation.central_metrics import aggregate_central, evaluate_corners
     from ..io.formats_read import read_layout
-    from ..metrics_central import aggregate_central, evaluate_corners
 
     height, width = parse_size(args.size) if args.size else (None, None)
     pairs, only_pred, only_gt = layout_pairs(args.pred, args.gt)

@@ -304,17 +304,6 @@ def write_layout_formats(
     return paths
 
 
-def remove_layout_formats(stem: PathLike) -> list[pathlib.Path]:
-    """Remove the layout-format files of ``stem`` (all four formats) that exist; returns those removed."""
-    removed = []
-    for format in FORMATS:
-        path = format_path(stem, format)
-        if path.exists():
-            path.unlink()
-            removed.append(path)
-    return removed
-
-
 def is_finite_number(value: Any) -> bool:
     """Whether a JSON value is a finite number (not a bool)."""
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)

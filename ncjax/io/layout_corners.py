@@ -1,7 +1,7 @@
 """One image's layout corners as the layout formats store them, and the maps between their frames and ncjax's.
 
 :class:`LayoutCorners` is what :mod:`ncjax.io.formats_read` reads from any format and what
-:mod:`ncjax.metrics_central` compares: corner pixels, and 3D corners where the format holds them.
+:mod:`ncjax.evaluation.central_metrics` compares: corner pixels, and 3D corners where the format holds them.
 The maps: ncjax's camera model in float64 (:func:`project_points`, :func:`pixel_angles`,
 :func:`back_project`), PanoAnnotator's and ZInD's axes, and 3D corners from a plan.
 """

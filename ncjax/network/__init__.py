@@ -5,5 +5,4 @@
 - ``checkpoint``: safetensors models and training checkpoints.
 - ``denoise``, ``edges``: the image before the network, and the rows snapped to its edges after it.
 - ``predict``: :func:`predict_boundaries`, the network's rows on one or many panoramas.
-- ``scores``: the boundary error and corner precision/recall of Table netcorExp.
 """

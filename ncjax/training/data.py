@@ -14,9 +14,9 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from ..evaluation.network_metrics import network_table
 from ..geometry.camera import NonCentralPanorama
 from ..network.model import HorizonNet, check_views, predict_views, prediction_to_rows
-from ..network.scores import network_table
 from ..synth.dataset import (
     SPLITS,
     DatasetSample,

@@ -56,7 +56,7 @@ import shapely
 from jaxtyping import Float, Int8
 from scipy.optimize import linear_sum_assignment
 
-from .io.layout_corners import LayoutCorners, back_project, pixel_angles
+from ..io.layout_corners import LayoutCorners, back_project, pixel_angles
 
 __all__ = [
     "RoomGeometry",

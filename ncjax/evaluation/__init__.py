@@ -1,0 +1,11 @@
+"""Evaluation: every metric of a layout or of the network, and the real-panorama benchmark's scoring.
+
+- ``layout_metrics``: 3D and 2D IoU, corner error, CEN, heights and line errors of a layout against ground truth
+  in metres (paper Sections 5.3-5.5), on the host in numpy.
+- ``central_metrics``: the central-panorama papers' metrics from two corner sets of one image (``ncjax evaluate``).
+- ``network_metrics``: the boundary pixel error and corner precision/recall of Table netcorExp.
+- ``panorama_labels``: labelled real panoramas (label_cor and side json) read and checked, and the room each
+  label describes.
+- ``panorama_scores``: the network's rows, corners and raw layout on them scored against their labels, and the
+  benchmark's table and CSV; ``contact_sheet``: its picture of every panorama.
+"""

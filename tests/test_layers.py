@@ -1,0 +1,117 @@
+"""The package's layering: each module imports from its own floor or lower, and no modules import each other in a
+cycle. Read from the sources (``ast``), imports inside functions included; nothing is imported."""
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).parents[1] / "ncjax"
+
+# The floors of the house, lowest first: a module may import from its own floor or a lower one, never a higher one.
+# A module's floor is its subpackage's; the top-level modules (the package's __init__, reconstruction, programs) are
+# the public API.
+FLOORS = {
+    "geometry": 1,  # camera, Plücker lines, linear algebra, gravity, panorama levelling
+    "solvers": 2,  # walls and layouts from rays
+    "pipeline": 3,  # rows -> walls -> layout
+    "network": 4,  # image -> rows
+    "io": 5,  # files in and out: images, JSON, meshes, formats
+    "viz": 6,  # pictures of a layout
+    "synth": 7,  # synthetic rooms and their renders
+    "evaluation": 8,  # every metric, and the real-panorama benchmark's scoring
+    "training": 9,  # the network's training
+    "api": 10,  # ncjax/__init__.py, reconstruction.py, programs.py
+    "cli": 11,  # the ncjax command
+}
+API_MODULES = ("ncjax", "ncjax.reconstruction", "ncjax.programs")
+
+
+def module_name(path: Path) -> str:
+    """``ncjax/pipeline/corners.py`` -> ``ncjax.pipeline.corners``; a package's ``__init__.py`` is the package."""
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {module_name(path): path for path in sorted(PACKAGE.rglob("*.py"))}
+
+
+def floor_name(module: str) -> str:
+    """The floor of a module of the package, by its subpackage (the API for the top-level modules)."""
+    if module in API_MODULES:
+        return "api"
+    parts = module.split(".")
+    assert len(parts) > 1 and parts[1] in FLOORS, f"{module} is on no floor of FLOORS"
+    return parts[1]
+
+
+def imported_modules(module: str) -> set[str]:
+    """The package's modules that ``module`` imports anywhere in its source: a name imported from a package is its
+    submodule where one of that name exists, else the package."""
+    package = module if MODULES[module].name == "__init__.py" else module.rpartition(".")[0]
+    found = set()
+    for node in ast.walk(ast.parse(MODULES[module].read_text(), str(MODULES[module]))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{anchor}.{base}" if base else anchor
+            found |= {f"{base}.{alias.name}" if f"{base}.{alias.name}" in MODULES else base for alias in node.names}
+    return {name for name in found if name in MODULES and name != module}
+
+
+IMPORTS = {module: imported_modules(module) for module in MODULES}
+
+
+def test_every_module_imports_from_its_own_floor_or_lower():
+    upward = [
+        f"{module} (floor {FLOORS[floor_name(module)]} {floor_name(module)}) imports {target} "
+        f"(floor {FLOORS[floor_name(target)]} {floor_name(target)})"
+        for module, targets in IMPORTS.items()
+        for target in sorted(targets)
+        if FLOORS[floor_name(target)] > FLOORS[floor_name(module)]
+    ]
+    assert not upward, "imports from a higher floor:\n" + "\n".join(upward)
+
+
+def import_cycles() -> list[list[str]]:
+    """The modules that import each other in a cycle, one group per strongly connected component (Tarjan)."""
+    index, low, stack, on_stack, groups = {}, {}, [], set(), []
+
+    def visit(module):
+        index[module] = low[module] = len(index)
+        stack.append(module)
+        on_stack.add(module)
+        for target in sorted(IMPORTS[module]):
+            if target not in index:
+                visit(target)
+                low[module] = min(low[module], low[target])
+            elif target in on_stack:
+                low[module] = min(low[module], index[target])
+        if low[module] == index[module]:
+            group = []
+            while not group or group[-1] != module:
+                group.append(stack.pop())
+                on_stack.discard(group[-1])
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for module in sorted(IMPORTS):
+        if module not in index:
+            visit(module)
+    return groups
+
+
+def test_no_modules_import_each_other_in_a_cycle():
+    cycles = import_cycles()
+    assert not cycles, "modules that import each other in a cycle:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_import_reader_resolves_relative_and_absolute_imports():
+    assert {
+        "ncjax.evaluation.layout_metrics",  # from . import layout_metrics
+        "ncjax.evaluation.panorama_labels",  # from .panorama_labels import ...
+        "ncjax.pipeline.corners",  # from ..pipeline.corners import ...
+    } <= IMPORTS["ncjax.evaluation.panorama_scores"]
+    assert "ncjax.geometry.camera" in IMPORTS["ncjax"]
+    assert all(floor_name(module) for module in MODULES)
