@@ -33,7 +33,7 @@ from ncjax.metrics_central import evaluate_corners
 from ncjax.network.predict import default_model
 from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
-from ncjax.synth.rooms import corner_target
+from ncjax.synth.labels import corner_target
 
 sys.path.insert(0, str(pathlib.Path(__file__).parents[1] / "benchmarks"))
 from central_layouts import labelled_images

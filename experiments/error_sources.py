@@ -50,7 +50,7 @@ from ncjax.network.predict import default_model
 from ncjax.pipeline.types import LayoutStatus
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 from ncjax.synth.dataset import list_samples, read_sample
-from ncjax.synth.rooms import corner_target
+from ncjax.synth.labels import corner_target
 from ncjax.viz.plan import CHI2_2D_95
 
 sys.path.insert(0, str(Path(__file__).parent))

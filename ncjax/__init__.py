@@ -61,6 +61,7 @@ from .network.model import BoundaryPrediction, HorizonNet, HorizonNetConfig, cou
 from .network.checkpoint import load_model, save_model
 from .network.predict import predict_boundaries
 from .network.edges import EdgeSnap, snap_to_edges
+from .network.denoise import gaussian_blur, to_greyscale
 from .network.scores import boundary_pixel_error, corner_confusion, corner_scores, network_table
 
 # The geometric pipeline (paper Section 4.4)
@@ -73,16 +74,8 @@ from .pipeline.run import layout_from_boundaries
 from .reconstruction import NETWORK_PIPELINE_CONFIG, Reconstruction, reconstruct, reconstruct_batch
 
 # Synthetic rooms, scenes, renders and datasets (paper Section 5.1)
-from .synth.rooms import (
-    Room,
-    RoomConfig,
-    RoomLabels,
-    RoomStatus,
-    random_room,
-    room_corners_3d,
-    room_labels,
-    room_walls,
-)
+from .synth.rooms import Room, RoomConfig, RoomStatus, random_room, room_corners_3d, room_walls
+from .synth.labels import RoomLabels, room_labels
 from .synth.materials import Material, Pattern
 from .synth.scene import Boxes, Lights, Openings, Scene, SceneConfig, random_scene
 from .synth.render import (
@@ -101,9 +94,7 @@ from .synth.augment import (
     add_sensor_noise,
     adjust_exposure,
     adjust_gamma,
-    gaussian_blur,
     random_augment,
-    to_greyscale,
     white_balance,
 )
 from .synth.dataset import (

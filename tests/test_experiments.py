@@ -330,7 +330,7 @@ def test_plan_layouts_recovers_a_turned_manhattan_room_from_its_exact_rows(tmp_p
     from ncjax.io.formats import format_path, write_layout_formats
     from ncjax.io.formats_read import read_layout
     from ncjax.metrics_central import evaluate_corners, room_geometry, surface_classes
-    from ncjax.synth.rooms import corner_target
+    from ncjax.synth.labels import corner_target
 
     module = experiment("plan_layouts")
     cam = ncjax.NonCentralPanorama(1024, 512, rc=0.0)

@@ -23,7 +23,7 @@ from flax import nnx
 import ncjax
 import ncjax.network.model
 import ncjax.network.predict
-import ncjax.synth.rooms
+import ncjax.synth.labels
 import ncjax.training.data
 import ncjax.training.loop
 from ncjax.network import efficientnet
@@ -223,13 +223,13 @@ def test_sharper_corner_encoding():
     """The loss re-encodes the 0.96**d labels as base**d; re-encoding back recovers them."""
     rng = np.random.default_rng(1)
     corners = np.array([3.2, 20.0, 22.0, 90.0])
-    target = np.asarray(ncjax.synth.rooms.corner_target(corners, np.ones(4, bool), 128))
+    target = np.asarray(ncjax.synth.labels.corner_target(corners, np.ones(4, bool), 128))
     distance = np.abs(np.arange(128)[:, None] - corners[None, :])
     distance = np.minimum(distance, 128 - distance).min(axis=1)
     np.testing.assert_allclose(target, 0.96**distance, rtol=1e-5)
-    sharp = ncjax.synth.rooms.reencode_corner_prob(target, 0.96, 0.7)
+    sharp = ncjax.synth.labels.reencode_corner_prob(target, 0.96, 0.7)
     np.testing.assert_allclose(sharp, 0.7**distance, rtol=1e-4, atol=1e-30)
-    np.testing.assert_allclose(ncjax.synth.rooms.reencode_corner_prob(sharp, 0.7, 0.96), target, rtol=1e-4)
+    np.testing.assert_allclose(ncjax.synth.labels.reencode_corner_prob(sharp, 0.7, 0.96), target, rtol=1e-4)
     # Peaks and dips stay where they were (a monotone map); the dip between corners 2 columns apart deepens.
     assert np.array_equal(np.argsort(sharp), np.argsort(target))
     assert sharp[21] < 0.75 * sharp[20] and target[21] > 0.95 * target[20]

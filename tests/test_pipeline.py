@@ -59,7 +59,7 @@ from ncjax.pipeline.sparse_normal import normal_matrix, probe_jacobian
 from ncjax.pipeline.uncertainty import correlation_time, layout_uncertainty, room_height_sigma
 from ncjax.solvers.ransac import boundary_errors, elevation_band, inlier_rows, num_hypotheses, wall_columns
 from ncjax.solvers.wall import make_wall
-from ncjax.synth.rooms import corner_target
+from ncjax.synth.labels import corner_target
 
 WIDTH, HEIGHT = 512, 256
 

@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 
 import ncjax
 from ncjax.synth.furniture import PARTS_PER_PIECE
+from ncjax.synth.placement import Rectangle
 
 WALL_LIKE = (ncjax.Semantic.WALL, ncjax.Semantic.OPENING)
 
@@ -288,12 +289,8 @@ def test_rectangle_overlap_agrees_with_shapely(x1, y1, w1, h1, a1, x2, y2, w2, h
     assume(abs(distance) > 1e-3 or polygon_a.intersection(polygon_b).area > 1e-3)
     overlap = bool(
         _overlap()(
-            jnp.array([x1, y1]),
-            jnp.array([w1, h1]),
-            jnp.asarray(rotation_a),
-            jnp.array([x2, y2]),
-            jnp.array([w2, h2]),
-            jnp.asarray(rotation_b),
+            Rectangle(jnp.array([x1, y1]), jnp.array([w1, h1]), jnp.asarray(rotation_a)),
+            Rectangle(jnp.array([x2, y2]), jnp.array([w2, h2]), jnp.asarray(rotation_b)),
             0.0,
         )
     )
@@ -302,7 +299,7 @@ def test_rectangle_overlap_agrees_with_shapely(x1, y1, w1, h1, a1, x2, y2, w2, h
 
 @functools.cache
 def _interval():
-    return jax.jit(ncjax.synth.render.box_interval_2d)
+    return jax.jit(ncjax.synth.raycast.box_interval_2d)
 
 
 @given(_coordinate, _coordinate, _half, _half, _angle, _angle)

@@ -1,9 +1,11 @@
 """The network (paper Section "Non-central HorizonNet"): panorama -> per-column boundaries and corners.
 
 - ``model``: :class:`HorizonNet` in Flax NNX (ResNet or EfficientNet-Lite0, height compression, BiLSTM, heads).
+- ``resnet``: the ResNet backbone, trained from scratch, with wrap-around width padding.
 - ``efficientnet``: EfficientNet-Lite0 with ImageNet weights, a pretrained backbone.
 - ``checkpoint``: safetensors models and training checkpoints.
-- ``denoise``, ``edges``: the image before the network, and the rows snapped to its edges after it.
+- ``denoise``, ``edges``: the image before the network (its greyscale and blur are also training augmentations),
+  and the rows snapped to its edges after it.
 - ``predict``: :func:`predict_boundaries`, the network's rows on one or many panoramas.
 - ``scores``: the boundary error and corner precision/recall of Table netcorExp.
 """
