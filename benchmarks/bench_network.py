@@ -30,7 +30,8 @@ import jax
 import jax.numpy as jnp
 from flax import nnx
 
-from ncjax import HorizonNetConfig, TrainConfig, count_parameters, init_model
+from ncjax import HorizonNetConfig, TrainConfig
+from ncjax.network import count_parameters, init_model
 from ncjax.training.loop import make_optimizer, step_key_root, train_step
 
 

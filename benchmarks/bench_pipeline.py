@@ -48,8 +48,8 @@ def inputs(world: str, count: int, sigma: float = 0.0):
     config = ncjax.RoomConfig(
         world="atlanta" if world == "auto" else world, occlusion="any", room_tries=2, camera_tries=64
     )
-    rooms = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(3), count))
-    labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(rooms)
+    rooms = jax.jit(jax.vmap(lambda k: ncjax.synth.random_room(k, config)))(jax.random.split(jax.random.key(3), count))
+    labels = jax.jit(jax.vmap(lambda r: ncjax.synth.room_labels(r, r.camera(WIDTH, HEIGHT))))(rooms)
     cams = jax.vmap(lambda r: r.camera(WIDTH, HEIGHT))(rooms)
     ceiling_key, floor_key = jax.random.split(jax.random.key(4))
     ceiling_v = labels.ceiling_v + sigma * jax.random.normal(ceiling_key, labels.ceiling_v.shape)

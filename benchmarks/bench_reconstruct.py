@@ -65,7 +65,7 @@ def main(argv=None):
         "| geometry per call (s) |"
     )
     print("| --- | --- | --- | --- | --- | --- | --- |")
-    snap = jax.jit(jax.vmap(ncjax.snap_to_edges))
+    snap = jax.jit(jax.vmap(ncjax.network.snap_to_edges))
     for batch in args.batches:
         images = np.repeat(image[None], batch, axis=0)
         radii = np.full(batch, rc, np.float32)

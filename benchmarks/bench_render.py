@@ -43,7 +43,7 @@ def main():
         height, width = (int(x) for x in size.split("x"))
         config = ncjax.SynthConfig(
             room=ncjax.RoomConfig(world=args.world),
-            render=ncjax.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
+            render=ncjax.synth.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
             width=width,
             height=height,
         )

@@ -24,8 +24,8 @@ def main():
         config = ncjax.RoomConfig(world=world)
 
         def rooms_and_labels(key):
-            room = ncjax.random_room(key, config)
-            return room, ncjax.room_labels(room, room.camera(args.width, args.height))
+            room = ncjax.synth.random_room(key, config)
+            return room, ncjax.synth.room_labels(room, room.camera(args.width, args.height))
 
         generate = jax.jit(jax.vmap(rooms_and_labels))
         keys = jax.random.split(jax.random.key(0), args.batch)

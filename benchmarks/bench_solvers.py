@@ -35,18 +35,18 @@ CONFIG = ncjax.RoomConfig(world="manhattan", max_walls=6, capacity=12, occlusion
 
 
 def wall_batch(key, batch, rays, dtype):
-    """Exact rays of the widest wall of random rooms (``ncjax.random_room``), ``rays`` columns per line."""
+    """Exact rays of the widest wall of random rooms (``ncjax.synth.random_room``), ``rays`` columns per line."""
 
     def one(k):
-        room = ncjax.random_room(k, CONFIG)
+        room = ncjax.synth.random_room(k, CONFIG)
         cam = ncjax.NonCentralPanorama(1024, 512, rc=room.rc)
-        labels = ncjax.room_labels(room, cam)
+        labels = ncjax.synth.room_labels(room, cam)
         counts = jnp.sum(labels.wall_index[:, None] == jnp.arange(CONFIG.capacity), 0)
         index = jnp.nonzero(labels.wall_index == jnp.argmax(counts), size=1024, fill_value=0)[0]
         columns = index[jnp.round(jnp.linspace(0.0, 1.0, rays) * (jnp.max(counts) - 1)).astype(jnp.int32)]
         u = columns.astype(jnp.float32)
-        ceiling_rays = ncjax.pixel_to_ray(cam, u, labels.ceiling_v[columns])
-        floor_rays = ncjax.pixel_to_ray(cam, u, labels.floor_v[columns])
+        ceiling_rays = ncjax.geometry.pixel_to_ray(cam, u, labels.ceiling_v[columns])
+        floor_rays = ncjax.geometry.pixel_to_ray(cam, u, labels.floor_v[columns])
         return ceiling_rays.astype(dtype), floor_rays.astype(dtype), jnp.ones(rays, bool)
 
     return jax.jit(jax.vmap(one))(jax.random.split(key, batch))
@@ -62,7 +62,7 @@ def split_over_devices(*arrays):
 
 def solves_per_second(batch, rays, dtype, repeats=5):
     ceiling, floor, mask = split_over_devices(*wall_batch(jax.random.PRNGKey(0), batch, rays, dtype))
-    solve = jax.jit(jax.vmap(ncjax.solve_wall))
+    solve = jax.jit(jax.vmap(ncjax.solvers.solve_wall))
     jax.block_until_ready(solve(ceiling, floor, mask, mask))
     best = float("inf")
     for _ in range(repeats):
@@ -77,7 +77,7 @@ def svd_only_per_second(batch, rays, dtype, repeats=5):
 
     The solver's floor."""
     (a,) = split_over_devices(jax.random.normal(jax.random.PRNGKey(1), (batch, 2 * rays, 7), dtype))
-    svd = jax.jit(jax.vmap(lambda m: ncjax.null_space(m, 2)))
+    svd = jax.jit(jax.vmap(lambda m: ncjax.geometry.null_space(m, 2)))
     jax.block_until_ready(svd(a))
     best = float("inf")
     for _ in range(repeats):

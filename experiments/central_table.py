@@ -4,7 +4,7 @@ Each room is seen from one position by two cameras: a central panorama
 (``rc = 0``, the scale from a camera-height prior, as HorizonNet) and the
 paper's non-central one (``rc`` 0.3-1 m, the scale from the geometry). Both run
 through the same pipeline (:func:`ncjax.layout_from_boundaries`, each room in
-its own world) on the exact rows of the room (``ncjax.room_labels``), with
+its own world) on the exact rows of the room (``ncjax.synth.room_labels``), with
 Gaussian noise of sigma pixels added, 1024 x 512.
 
 Two scale cases, as the paper's table:
@@ -56,9 +56,9 @@ def room_generator(world: str, occlusion: str):
     config = ncjax.RoomConfig(world=world, occlusion=occlusion, capacity=CAPACITY, room_tries=4, camera_tries=128)
 
     def generate(keys):
-        rooms = jax.vmap(lambda k: ncjax.random_room(k, config))(keys)
+        rooms = jax.vmap(lambda k: ncjax.synth.random_room(k, config))(keys)
         central = dataclasses.replace(rooms, rc=0.0 * rooms.rc)
-        label = jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT)))
+        label = jax.vmap(lambda r: ncjax.synth.room_labels(r, r.camera(WIDTH, HEIGHT)))
         return rooms, label(rooms), label(central)
 
     return jax.jit(generate)

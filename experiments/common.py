@@ -165,21 +165,21 @@ def solvers_only(ceiling_v, floor_v, corner_prob, cam, world: str):
     as line intersections; no RANSAC, no occlusion handling."""
     config = PipelineConfig()
     columns = jnp.arange(WIDTH, dtype=ceiling_v.dtype)
-    ceiling_rays = ncjax.pixel_to_ray(cam, columns, ceiling_v)
-    floor_rays = ncjax.pixel_to_ray(cam, columns, floor_v)
+    ceiling_rays = ncjax.geometry.pixel_to_ray(cam, columns, ceiling_v)
+    floor_rays = ncjax.geometry.pixel_to_ray(cam, columns, floor_v)
     corners, mask, _, _ = find_corners(
         corner_prob, CAPACITY, 2, config.corners.threshold
     )  # the paper's peaks: no minimum count
     wall_index = column_walls(corners, mask, WIDTH)
     own = wall_index[None, :] == jnp.arange(CAPACITY)[:, None]
-    walls = jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m))(own)
+    walls = jax.vmap(lambda m: ncjax.solvers.solve_wall(ceiling_rays, floor_rays, m, m))(own)
     if world == "manhattan":
         labels, _ = manhattan_frame(walls.direction, jnp.sum(own, 1).astype(ceiling_v.dtype))
-        layout = ncjax.solve_manhattan_layout(ceiling_rays, floor_rays, wall_index, mask, labels)
+        layout = ncjax.solvers.solve_manhattan_layout(ceiling_rays, floor_rays, wall_index, mask, labels)
     else:
-        layout = ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, wall_index, mask, walls.direction)
-    ceiling = ncjax.layout_corners(layout.ceiling_lines, layout.mask)
-    floor = ncjax.layout_corners(layout.floor_lines, layout.mask)
+        layout = ncjax.solvers.solve_atlanta_layout(ceiling_rays, floor_rays, wall_index, mask, walls.direction)
+    ceiling = ncjax.solvers.layout_corners(layout.ceiling_lines, layout.mask)
+    floor = ncjax.solvers.layout_corners(layout.floor_lines, layout.mask)
     return {
         "ceiling_corners": ceiling,
         "floor_corners": floor,

@@ -4,7 +4,7 @@ Eight random realistic rooms (Manhattan and Atlanta; ``SceneConfig(decor=True)``
 open doors, decals, ceiling lights and panels, sunlight) rendered by ``ncjax``'s
 JAX ray caster (3x3 supersampling, shadows), each with its ceiling-wall (red) and
 floor-wall (blue) boundaries and its layout corners (yellow; occlusion corners
-magenta) from ``ncjax.room_labels``, i.e. the labels a network is trained on.
+magenta) from ``ncjax.synth.room_labels``, i.e. the labels a network is trained on.
 
     uv run python experiments/contact_sheet.py [--out docs/contact_sheet.png] [--seed 3]
 """
@@ -40,7 +40,7 @@ def draw_labels(image: np.ndarray, labels, cam: ncjax.NonCentralPanorama) -> np.
         if not valid:
             continue
         colour = (200, 0, 200) if occlusion else (0, 220, 255)
-        (u_top, u_bottom), (v_top, v_bottom) = ncjax.project(cam, np.stack([ceiling, floor]))
+        (u_top, u_bottom), (v_top, v_bottom) = ncjax.geometry.project(cam, np.stack([ceiling, floor]))
         top = (int(round(float(u_top) + 0.5)), int(round(float(v_top) + 0.5)))
         bottom = (int(round(float(u_bottom) + 0.5)), int(round(float(v_bottom) + 0.5)))
         cv2.line(canvas, top, bottom, colour, 1)
@@ -58,8 +58,8 @@ def main():
     height, width = (int(x) for x in args.size.split("x"))
     config = ncjax.SynthConfig(
         room=ncjax.RoomConfig(world="mix"),
-        scene=ncjax.SceneConfig(decor=True),
-        render=ncjax.RenderConfig(supersampling=3, shadows=True),
+        scene=ncjax.synth.SceneConfig(decor=True),
+        render=ncjax.synth.RenderConfig(supersampling=3, shadows=True),
         width=width,
         height=height,
     )

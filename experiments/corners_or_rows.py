@@ -23,7 +23,7 @@ import numpy as np
 
 import ncjax
 from ncjax.network.predict import default_model
-from ncjax.synth.rooms import corner_target
+from ncjax.synth.labels import corner_target
 
 from common import central_layout, corners_iou, labelled_rows, written_layout
 

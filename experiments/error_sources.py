@@ -49,7 +49,7 @@ from ncjax.network.predict import default_model
 from ncjax.pipeline.types import LayoutStatus
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 from ncjax.synth.dataset import list_samples, read_sample
-from ncjax.synth.rooms import corner_target
+from ncjax.synth.labels import corner_target
 
 from common import BATCH, OUT, TEST_SEEDS, compiled, corner_calibration, ground_truth, test_renders
 

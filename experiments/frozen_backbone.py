@@ -44,7 +44,8 @@ from ncjax.evaluation.network_metrics import network_table
 from ncjax.network.checkpoint import load_checkpoint, load_model, save_checkpoint, save_model
 from ncjax.network.efficientnet import FEATURE_STRIDES
 from ncjax.network.model import HorizonNet, prediction_to_rows, use_imagenet_backbone
-from ncjax.synth.rooms import CORNER_LABEL_BASE, reencode_corner_prob
+from ncjax.pipeline.corners import CORNER_LABEL_BASE
+from ncjax.synth.labels import reencode_corner_prob
 from ncjax.training.data import SYNTH_SOURCES, parse_synth_source, rendered_splits
 from ncjax.training.loop import (
     LABEL_KEYS,

@@ -5,7 +5,7 @@ NaN and infinite rows, rows off the image, ceiling and floor rows swapped, row n
 probability that is exact, flat, zero, NaN, noise or has only 0-2 peaks, and a radius of 0, 1e-9,
 1e-4, 1 cm or the room's. Cases come in batches of ``--batch``; each batch runs
 ``ncjax.layout_from_boundaries`` (world auto, the network's configuration) twice, without and with a
-camera-height prior, and ``ncjax.solve_wall`` on the rays of the room's first wall's columns.
+camera-height prior, and ``ncjax.solvers.solve_wall`` on the rays of the room's first wall's columns.
 
 A case FAILS when a call raises, when any field of any result is NaN (failed layouts carry finite fill
 values; only the covariances may be infinite, for what the rows leave free), or when an ok layout has a
@@ -47,8 +47,8 @@ MAY_BE_INFINITE = ("corner_covariance", "height_covariance")
 
 def rendered_rooms():
     config = ncjax.RoomConfig(world="mix", room_tries=2, camera_tries=64)
-    batch = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(5), ROOMS))
-    labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(batch)
+    batch = jax.jit(jax.vmap(lambda k: ncjax.synth.random_room(k, config)))(jax.random.split(jax.random.key(5), ROOMS))
+    labels = jax.jit(jax.vmap(lambda r: ncjax.synth.room_labels(r, r.camera(WIDTH, HEIGHT))))(batch)
     return jax.device_get(batch), jax.device_get(labels)
 
 
@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     batch, labels = rendered_rooms()
     config = NETWORK_PIPELINE_CONFIG
-    solve_walls = jax.jit(jax.vmap(ncjax.solve_wall))
+    solve_walls = jax.jit(jax.vmap(ncjax.solvers.solve_wall))
     first_wall = np.asarray(labels.wall_index == 0)  # (rooms, W): the columns of each room's first wall
     counts, statuses, failures = collections.Counter(), collections.Counter(), []
     start = time.perf_counter()
@@ -175,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
             counts["ok layouts"] += int(np.sum(layouts.ok))
             statuses.update(ncjax.LayoutStatus(int(code)).name for code in layouts.status)
             check(layouts, layouts.ok, "layout", drawn)
-        rays = jax.vmap(lambda c, f: ncjax.pixel_to_ray(cam, jnp.arange(WIDTH) + 0.5, jnp.stack([c, f])))(
+        rays = jax.vmap(lambda c, f: ncjax.geometry.pixel_to_ray(cam, jnp.arange(WIDTH) + 0.5, jnp.stack([c, f])))(
             jnp.asarray(ceiling), jnp.asarray(floor)
         )
         used = first_wall[[case["room"] for case in drawn]]

@@ -23,13 +23,13 @@ import ncjax
 
 def check(room, width, height):
     cam = room.camera(width, height)
-    labels = ncjax.room_labels(room, cam)
+    labels = ncjax.synth.room_labels(room, cam)
     columns = jnp.arange(width, dtype=jnp.float64)
-    u_c, v_c = ncjax.project(cam, labels.ceiling_points)
-    u_f, v_f = ncjax.project(cam, labels.floor_points)
+    u_c, v_c = ncjax.geometry.project(cam, labels.ceiling_points)
+    u_f, v_f = ncjax.geometry.project(cam, labels.floor_points)
     row_error = jnp.maximum(jnp.max(jnp.abs(v_c - labels.ceiling_v)), jnp.max(jnp.abs(v_f - labels.floor_v)))
     column_error = jnp.max(jnp.abs(jnp.stack([u_c, u_f]) - columns))
-    corner_u, _ = ncjax.project(cam, labels.ceiling_corners)
+    corner_u, _ = ncjax.geometry.project(cam, labels.ceiling_corners)
     corner_error = jnp.max(jnp.where(labels.corner_mask, jnp.abs(corner_u - labels.corner_u), 0.0))
     return labels.ok, row_error, column_error, corner_error, jnp.any(labels.corner_is_occlusion)
 
@@ -48,12 +48,14 @@ def main():
     total_ok, worst = 0, np.zeros(3)
     for seed, (world, occlusion, n) in enumerate(groups):
         config = ncjax.RoomConfig(world=world, occlusion=occlusion)
-        rooms = jax.jit(jax.vmap(partial(ncjax.random_room, config=config)))(jax.random.split(jax.random.key(seed), n))
+        rooms = jax.jit(jax.vmap(partial(ncjax.synth.random_room, config=config)))(
+            jax.random.split(jax.random.key(seed), n)
+        )
         ok, row, column, corner, has_occlusion = jax.jit(
             jax.vmap(partial(check, width=args.width, height=args.height))
         )(rooms)
-        statuses = np.bincount(np.asarray(rooms.status), minlength=len(ncjax.RoomStatus))
-        named = ", ".join(f"{s.name}={statuses[s]}" for s in ncjax.RoomStatus if statuses[s])
+        statuses = np.bincount(np.asarray(rooms.status), minlength=len(ncjax.synth.RoomStatus))
+        named = ", ".join(f"{s.name}={statuses[s]}" for s in ncjax.synth.RoomStatus if statuses[s])
         errors = np.array([np.max(row), np.max(column), np.max(corner)])
         worst = np.maximum(worst, errors)
         total_ok += int(np.sum(ok))

@@ -24,7 +24,7 @@ SEED = 2026
 
 def main():
     config = ncjax.SynthConfig(
-        room=ncjax.RoomConfig(world="mix", rc_range=(0.3, 1.0)), render=ncjax.RenderConfig(supersampling=3)
+        room=ncjax.RoomConfig(world="mix", rc_range=(0.3, 1.0)), render=ncjax.synth.RenderConfig(supersampling=3)
     )
     keys = jax.random.split(jax.random.key(SEED), 16)
     scenes, renderings, labels = jax.device_get(ncjax.synthesize_batch(keys, config))

@@ -1,8 +1,8 @@
 """Sensitivity of the geometric solvers to boundary noise (paper Section 5.3, Fig. Geomcomparison).
 
-Rooms come from ``ncjax.random_room`` without occlusion (Manhattan rooms at a
+Rooms come from ``ncjax.synth.random_room`` without occlusion (Manhattan rooms at a
 random yaw and Atlanta rooms, 4-8 Manhattan walls before clipping), with
-exact per-column labels from ``ncjax.room_labels``. Gaussian noise of
+exact per-column labels from ``ncjax.synth.room_labels``. Gaussian noise of
 standard deviation sigma (pixels) is added to the exact ceiling and floor
 boundary ROWS; the rays are back-projected and fed, with the true wall
 labels / directions, to the Manhattan layout solver (Manhattan rooms), the
@@ -65,7 +65,7 @@ def room_config(world: str) -> ncjax.RoomConfig:
     return ncjax.RoomConfig(world=world, max_walls=8, capacity=16, occlusion="none", rc_range=(1.0, 1.0))
 
 
-def generate_rooms(n_rooms: int, seed: int = 0) -> ncjax.Room:
+def generate_rooms(n_rooms: int, seed: int = 0) -> ncjax.synth.Room:
     """``n_rooms // 2`` Manhattan rooms, then ``n_rooms - n_rooms // 2`` Atlanta rooms (batched Room).
 
     Generated with rc = 1 m (the largest of the sweep, so the camera keeps its
@@ -74,22 +74,22 @@ def generate_rooms(n_rooms: int, seed: int = 0) -> ncjax.Room:
     parts = []
     for world, count, offset in (("manhattan", n_rooms // 2, 0), ("atlanta", n_rooms - n_rooms // 2, 1)):
         keys = jax.random.split(jax.random.PRNGKey(seed + offset), 2 * count)
-        rooms = jax.jit(jax.vmap(lambda k, w=world: ncjax.random_room(k, room_config(w))))(keys)
+        rooms = jax.jit(jax.vmap(lambda k, w=world: ncjax.synth.random_room(k, room_config(w))))(keys)
         index = np.nonzero(np.asarray(rooms.ok))[0][:count]
         parts.append(jax.tree.map(lambda x: x[index], rooms))
     return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), *parts)
 
 
-def rooms_per_rc(rooms: ncjax.Room, rcs, width: int, height: int) -> dict:
+def rooms_per_rc(rooms: ncjax.synth.Room, rcs, width: int, height: int) -> dict:
     """:func:`room_arrays` of every room (axis 1) for every rc (axis 0)."""
     return jax.vmap(jax.vmap(room_arrays, (0, None, None, None)), (None, 0, None, None))(rooms, rcs, width, height)
 
 
-def room_arrays(room: ncjax.Room, rc, width: int, height: int) -> dict:
+def room_arrays(room: ncjax.synth.Room, rc, width: int, height: int) -> dict:
     """Exact labels of ``room`` seen with radius ``rc``, and the truth, as fixed-shape arrays."""
     room = eqx.tree_at(lambda r: r.rc, room, jnp.asarray(rc, room.rc.dtype))
-    labels = ncjax.room_labels(room, ncjax.NonCentralPanorama(width, height, rc=room.rc))
-    directions, distances, _, _ = ncjax.room_walls(room)
+    labels = ncjax.synth.room_labels(room, ncjax.NonCentralPanorama(width, height, rc=room.rc))
+    directions, distances, _, _ = ncjax.synth.room_walls(room)
     capacity = room.mask.shape[0]
     columns = jnp.sum(labels.wall_index[:, None] == jnp.arange(capacity), 0)
     usable = labels.ok & ~jnp.any(labels.corner_is_occlusion) & jnp.all(~room.mask | (columns >= MIN_COLUMNS))
@@ -115,7 +115,7 @@ def _noisy_rays(room, sigma, key, width, height):
     k_c, k_f = jax.random.split(key)
     ceiling_v = room["ceiling_v"] + sigma * jax.random.normal(k_c, (width,))
     floor_v = room["floor_v"] + sigma * jax.random.normal(k_f, (width,))
-    return ncjax.pixel_to_ray(cam, columns, ceiling_v), ncjax.pixel_to_ray(cam, columns, floor_v)
+    return ncjax.geometry.pixel_to_ray(cam, columns, ceiling_v), ncjax.geometry.pixel_to_ray(cam, columns, floor_v)
 
 
 def _direction_error(a, b):
@@ -134,7 +134,7 @@ def _masked_mean(x, mask):
 
 def _gt_lines(room):
     capacity = room["mask"].shape[0]
-    line = lambda h: ncjax.horizontal_wall_line(room["directions"], room["distances"], jnp.full(capacity, h))  # noqa: E731
+    line = lambda h: ncjax.geometry.horizontal_wall_line(room["directions"], room["distances"], jnp.full(capacity, h))  # noqa: E731
     return line(room["h_c"]), line(room["h_f"])
 
 
@@ -143,7 +143,7 @@ def _layout_metrics(room, layout):
     gt_ceiling, gt_floor = _gt_lines(room)
     corner = 0.0
     for lines, height in ((layout.ceiling_lines, room["h_c"]), (layout.floor_lines, room["h_f"])):
-        corners = ncjax.layout_corners(lines, layout.mask)
+        corners = ncjax.solvers.layout_corners(lines, layout.mask)
         truth = jnp.concatenate([room["corners"], jnp.full((mask.shape[0], 1), height)], -1)
         corner = corner + 0.5 * _masked_mean(jnp.linalg.norm(corners - truth, axis=-1), mask)
     depth = 0.5 * (
@@ -155,14 +155,14 @@ def _layout_metrics(room, layout):
 
 
 def manhattan(room, ceiling_rays, floor_rays, method="refined"):
-    layout = ncjax.solve_manhattan_layout(
+    layout = ncjax.solvers.solve_manhattan_layout(
         ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"], method=method
     )
     return _layout_metrics(room, layout)
 
 
 def atlanta(room, ceiling_rays, floor_rays, method="refined"):
-    layout = ncjax.solve_atlanta_layout(
+    layout = ncjax.solvers.solve_atlanta_layout(
         ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], method=method
     )
     return _layout_metrics(room, layout)
@@ -173,7 +173,7 @@ def baseline(room, ceiling_rays, floor_rays):
     gt_ceiling, gt_floor = _gt_lines(room)
     direction, depth = 0.0, 0.0
     for rays, truth in ((ceiling_rays, gt_ceiling), (floor_rays, gt_floor)):
-        lines = ncjax.solve_horizontal_lines(rays, room["wall_index"], room["mask"].shape[0])
+        lines = ncjax.solvers.solve_horizontal_lines(rays, room["wall_index"], room["mask"].shape[0])
         direction = direction + 0.5 * _masked_mean(_direction_error(lines.direction, room["directions"]), room["mask"])
         depth = depth + 0.5 * _masked_mean(jnp.abs(_depth(lines.line) - _depth(truth)), room["mask"])
     return dict(corner=jnp.nan, direction=direction, depth=depth, ok=jnp.float32(1.0))
@@ -183,7 +183,7 @@ def single_walls(room, ceiling_rays, floor_rays, method="refined"):
     """Every wall with the single-wall solver (the ablation of the parallelism constraint)."""
     capacity = room["mask"].shape[0]
     masks = room["wall_index"][None, :] == jnp.arange(capacity)[:, None]
-    walls = jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m, method=method))(masks)
+    walls = jax.vmap(lambda m: ncjax.solvers.solve_wall(ceiling_rays, floor_rays, m, m, method=method))(masks)
     gt_ceiling, _ = _gt_lines(room)
     return dict(
         corner=jnp.nan,

@@ -1,7 +1,7 @@
 """The paper's Table pipeExp ("Network labels" columns) and robustness rows, on our synthetic rooms.
 
 Input: the exact per-column boundaries and corner target of random rooms
-(``ncjax.random_room`` + ``ncjax.room_labels``, 1024 x 512, Manhattan rooms at
+(``ncjax.synth.random_room`` + ``ncjax.synth.room_labels``, 1024 x 512, Manhattan rooms at
 random yaw), optionally with Gaussian noise of sigma pixels on the rows.
 
 * "solvers": the paper's "Solvers" route: walls split at the corner peaks,
@@ -52,8 +52,8 @@ def room_generator(world: str, occlusion: str):
     config = ncjax.RoomConfig(world=world, occlusion=occlusion, capacity=CAPACITY, room_tries=4, camera_tries=128)
 
     def generate(keys):
-        rooms = jax.vmap(lambda k: ncjax.random_room(k, config))(keys)
-        return rooms, jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT)))(rooms)
+        rooms = jax.vmap(lambda k: ncjax.synth.random_room(k, config))(keys)
+        return rooms, jax.vmap(lambda r: ncjax.synth.room_labels(r, r.camera(WIDTH, HEIGHT)))(rooms)
 
     return jax.jit(generate)
 

@@ -1,8 +1,8 @@
 """Acceptance of the geometric solvers on exact rays .
 
-1000 random rooms from ``ncjax.random_room`` without occlusion (500 Manhattan
+1000 random rooms from ``ncjax.synth.random_room`` without occlusion (500 Manhattan
 at a random yaw, 500 Atlanta), 1024 x 512, rc in 0.3-1.0 m, exact per-column
-labels from ``ncjax.room_labels``. For every solver, the maximum direction
+labels from ``ncjax.synth.room_labels``. For every solver, the maximum direction
 (deg), distance, height and corner (m) errors, in float32 and float64, against
 the goals (<= 5 mm and 0.2 deg in float32, <= 0.1 mm in float64):
 
@@ -50,13 +50,13 @@ def config(world):
 
 def room_arrays(room):
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=room.rc)
-    labels = ncjax.room_labels(room, cam)
-    directions, distances, _, _ = ncjax.room_walls(room)
+    labels = ncjax.synth.room_labels(room, cam)
+    directions, distances, _, _ = ncjax.synth.room_walls(room)
     columns = jnp.arange(WIDTH, dtype=room.rc.dtype)
     wall_columns = jnp.sum(labels.wall_index[:, None] == jnp.arange(CAPACITY), 0)
     return dict(
-        ceiling_rays=ncjax.pixel_to_ray(cam, columns, labels.ceiling_v),
-        floor_rays=ncjax.pixel_to_ray(cam, columns, labels.floor_v),
+        ceiling_rays=ncjax.geometry.pixel_to_ray(cam, columns, labels.ceiling_v),
+        floor_rays=ncjax.geometry.pixel_to_ray(cam, columns, labels.floor_v),
         wall_index=labels.wall_index,
         mask=room.mask,
         wall_columns=wall_columns,
@@ -75,7 +75,7 @@ def generate(n_rooms):
     for world, seed in (("manhattan", 0), ("atlanta", 1)):
         count = n_rooms // 2
         keys = jax.random.split(jax.random.PRNGKey(seed), 2 * count)
-        arrays = jax.jit(jax.vmap(lambda k, w=world: room_arrays(ncjax.random_room(k, config(w)))))(keys)
+        arrays = jax.jit(jax.vmap(lambda k, w=world: room_arrays(ncjax.synth.random_room(k, config(w)))))(keys)
         index = np.nonzero(np.asarray(arrays["usable"]))[0][:count]
         parts.append(jax.tree.map(lambda x: x[index], arrays))
     return parts
@@ -88,7 +88,7 @@ def _angle(a, b):
 
 
 def layout_errors(room, layout, mask):
-    corners = ncjax.layout_corners(layout.ceiling_lines, layout.mask)
+    corners = ncjax.solvers.layout_corners(layout.ceiling_lines, layout.mask)
     heights = jnp.concatenate([room["corners"], jnp.full((CAPACITY, 1), room["h_c"])], -1)
     distance = jnp.abs(jnp.abs(layout.distances) - jnp.abs(room["distances"]))
     return dict(
@@ -101,14 +101,14 @@ def layout_errors(room, layout, mask):
 
 
 def manhattan(room):
-    layout = ncjax.solve_manhattan_layout(
+    layout = ncjax.solvers.solve_manhattan_layout(
         room["ceiling_rays"], room["floor_rays"], room["wall_index"], room["mask"], room["labels"]
     )
     return layout_errors(room, layout, room["mask"])
 
 
 def atlanta(room):
-    layout = ncjax.solve_atlanta_layout(
+    layout = ncjax.solvers.solve_atlanta_layout(
         room["ceiling_rays"], room["floor_rays"], room["wall_index"], room["mask"], room["directions"]
     )
     return layout_errors(room, layout, room["mask"])
@@ -128,7 +128,7 @@ def _wall_errors(room, wall, mask):
 
 def single_wall(room):
     masks = room["wall_index"][None, :] == jnp.arange(CAPACITY)[:, None]
-    walls = jax.vmap(lambda m: ncjax.solve_wall(room["ceiling_rays"], room["floor_rays"], m, m))(masks)
+    walls = jax.vmap(lambda m: ncjax.solvers.solve_wall(room["ceiling_rays"], room["floor_rays"], m, m))(masks)
     return _wall_errors(room, walls, room["mask"])
 
 
@@ -137,7 +137,7 @@ def minimal_wall(room):
         columns = jnp.nonzero(room["wall_index"] == k, size=WIDTH, fill_value=0)[0]
         n = jnp.maximum(room["wall_columns"][k], 1)
         pick = columns[jnp.round(jnp.array([0.0, 1.0, 1 / 3, 2 / 3]) * (n - 1)).astype(jnp.int32)]
-        walls, valid = ncjax.solve_wall_minimal(room["ceiling_rays"][pick[:2]], room["floor_rays"][pick[2:]])
+        walls, valid = ncjax.solvers.solve_wall_minimal(room["ceiling_rays"][pick[:2]], room["floor_rays"][pick[2:]])
         error = jnp.abs(walls.distance - room["distances"][k]) + jnp.abs(walls.ceiling_height - room["h_c"])
         best = jnp.argmin(jnp.where(valid, error, jnp.inf))
         return jax.tree.map(lambda x: x[best], walls)
@@ -150,7 +150,7 @@ def baseline(room):
     masks = room["wall_index"][None, :] == jnp.arange(CAPACITY)[:, None]
     worst = None
     for rays, height in ((room["ceiling_rays"], room["h_c"]), (room["floor_rays"], room["h_f"])):
-        lines = jax.vmap(ncjax.solve_horizontal_line, (None, 0))(rays, masks)
+        lines = jax.vmap(ncjax.solvers.solve_horizontal_line, (None, 0))(rays, masks)
         mask = room["mask"]
         errors = dict(
             direction=jnp.where(mask, _angle(lines.direction, room["directions"]), 0.0),

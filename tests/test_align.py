@@ -68,10 +68,10 @@ def test_pixel_maps_follow_the_camera_conventions():
     u = np.array([0.0, 10.3, 31.5, 63.0, -0.5])
     v = np.array([0.0, 5.2, 15.5, 31.0, 20.0])
     np.testing.assert_allclose(
-        gravity.pixel_to_direction(u, v, 64, 32), np.asarray(ncjax.pixel_to_ray(cam, u, v))[..., :3], atol=1e-6
+        gravity.pixel_to_direction(u, v, 64, 32), np.asarray(ncjax.geometry.pixel_to_ray(cam, u, v))[..., :3], atol=1e-6
     )
     points = np.array([[1.0, 0.0, 0.0], [0.3, -2.0, 0.7], [-1.0, 0.2, -0.4], [-1.0, -1e-9, 0.0]])
-    expected = np.asarray(ncjax.project(cam, points))
+    expected = np.asarray(ncjax.geometry.project(cam, points))
     np.testing.assert_allclose(np.stack(gravity.direction_to_pixel(points, 64, 32)), expected, atol=1e-4)
     assert np.all(np.isnan(gravity.direction_to_pixel(np.zeros(3), 64, 32)))
 

@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.fft import dctn
 
+from ncjax.network.denoise import to_greyscale
 from ncjax.synth import augment
 
 HEIGHT, WIDTH = 32, 64
@@ -77,11 +78,11 @@ def test_jpeg_at_quality_100_is_nearly_lossless():
 
 def test_low_quality_jpeg_shows_its_blocks():
     image = smooth_image()
-    luma = np.asarray(augment.to_greyscale(augment.jpeg_compress(jnp.asarray(image, jnp.float32), 5)))[..., 0]
+    luma = np.asarray(to_greyscale(augment.jpeg_compress(jnp.asarray(image, jnp.float32), 5)))[..., 0]
     steps = np.abs(np.diff(luma, axis=1))  # steps[:, u] is between columns u and u + 1
     across = (np.arange(WIDTH - 1) + 1) % 8 == 0
     assert steps[:, across].mean() > 3 * steps[:, ~across].mean()
-    original = np.abs(np.diff(np.asarray(augment.to_greyscale(jnp.asarray(image)))[..., 0], axis=1))
+    original = np.abs(np.diff(np.asarray(to_greyscale(jnp.asarray(image)))[..., 0], axis=1))
     assert original[:, across].mean() < 1.5 * original[:, ~across].mean()  # the blocks are the compression's
 
 

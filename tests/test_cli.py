@@ -44,7 +44,7 @@ def test_fine_tuning_from_another_architecture_is_refused(tmp_path, capsys):
     import ncjax
 
     tiny = ncjax.HorizonNetConfig(depth=10, width=8, input_height=64, input_width=128, lstm_hidden=16, lstm_layers=1)
-    ncjax.save_model(ncjax.init_model(tiny), tmp_path / "tiny.safetensors")
+    ncjax.save_model(ncjax.network.init_model(tiny), tmp_path / "tiny.safetensors")
     checkpoints = tmp_path / "checkpoints"
     code = cli.main(
         [
@@ -144,7 +144,7 @@ def test_options_replace_only_the_settings_given(capsys):
         ["--no-photometric", "--augment-jpeg-quality", "5", "30", "--augment-seam-count", "2"]
     )
     train_config = config_from_options(train_args, ncjax.TrainConfig())
-    augment = ncjax.AugmentConfig(jpeg_quality=(5.0, 30.0), seam_count=2)
+    augment = ncjax.synth.AugmentConfig(jpeg_quality=(5.0, 30.0), seam_count=2)
     assert train_config == ncjax.TrainConfig(photometric=False, augment=augment)
 
 

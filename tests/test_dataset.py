@@ -24,12 +24,12 @@ def dataset(tmp_path_factory):
 
 @pytest.mark.extended
 def test_written_files_are_mutually_consistent(dataset):
-    names = ncjax.list_samples(dataset)
+    names = ncjax.synth.list_samples(dataset)
     assert len(names) == N
     for name in names:
         with open(os.path.join(dataset, "json", f"{name}.json")) as file:
             meta = json.load(file)
-        assert meta["rc"] == pytest.approx(ncjax.rc_from_name(name), abs=1e-6)
+        assert meta["rc"] == pytest.approx(ncjax.synth.rc_from_name(name), abs=1e-6)
         cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=meta["rc"])
         points = np.load(os.path.join(dataset, "3D_gt", f"{name}.npy"))
         pose = np.load(os.path.join(dataset, "cam_pose", f"{name}.npy"))
@@ -41,12 +41,12 @@ def test_written_files_are_mutually_consistent(dataset):
         # label_cor alternates ceiling and floor; 3D_gt holds the N ceiling corners then the N floor ones.
         ordered = np.stack([points[:n], points[n:]], 1).reshape(-1, 3)
         local = ordered - pose
-        # Both ncjax.project and the formulas of docs/design.md section 2 written out here.
+        # Both ncjax.geometry.project and the formulas of docs/design.md section 2 written out here.
         numpy_u = (np.pi - np.arctan2(local[:, 1], local[:, 0])) / (2 * np.pi) * WIDTH - 0.5
         numpy_v = (
             np.pi / 2 - np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1]) - meta["rc"])
         ) / np.pi * HEIGHT - 0.5
-        for u, v in (ncjax.project(cam, local), (numpy_u, numpy_v)):
+        for u, v in (ncjax.geometry.project(cam, local), (numpy_u, numpy_v)):
             du = np.abs(np.asarray(u) - label_cor[:, 0])
             du = np.minimum(du, WIDTH - du)
             assert np.all(du <= 1.0) and np.all(np.abs(np.asarray(v) - label_cor[:, 1]) <= 1.0)
@@ -57,7 +57,7 @@ def test_written_files_are_mutually_consistent(dataset):
 
 @pytest.mark.slow
 def test_reader_round_trip(dataset):
-    for sample in ncjax.read_dataset(dataset):
+    for sample in ncjax.synth.read_dataset(dataset):
         assert sample.image.shape == (HEIGHT, WIDTH, 3) and sample.image.dtype == np.uint8
         assert sample.depth.shape == sample.semantic.shape == (HEIGHT, WIDTH)
         assert sample.ceiling_v.shape == sample.floor_v.shape == (WIDTH,)
@@ -75,10 +75,10 @@ def test_reader_reads_the_authors_layout(dataset, tmp_path):
     authors = tmp_path / "authors"
     for folder in ("img", "label_cor", "3D_gt", "cam_pose"):
         shutil.copytree(os.path.join(dataset, folder), authors / folder)
-    names = ncjax.list_samples(str(authors))
-    assert names == ncjax.list_samples(dataset)
+    names = ncjax.synth.list_samples(str(authors))
+    assert names == ncjax.synth.list_samples(dataset)
     for name in names:
-        ours, theirs = ncjax.read_sample(dataset, name), ncjax.read_sample(str(authors), name)
+        ours, theirs = ncjax.synth.read_sample(dataset, name), ncjax.synth.read_sample(str(authors), name)
         assert theirs.metadata is None and theirs.depth is None and theirs.rc == pytest.approx(ours.rc, abs=1e-9)
         np.testing.assert_array_equal(theirs.image, ours.image)
         for mine, recomputed in ((ours.ceiling_v, theirs.ceiling_v), (ours.floor_v, theirs.floor_v)):
@@ -89,16 +89,16 @@ def test_reader_reads_the_authors_layout(dataset, tmp_path):
     for folder, ext in (("label_cor", ".txt"), ("3D_gt", ".npy"), ("cam_pose", ".npy")):
         os.rename(authors / folder / f"{names[0]}{ext}", authors / folder / f"room{ext}")
     with pytest.raises(ValueError, match="rc"):
-        ncjax.read_sample(str(authors), "room")
-    assert ncjax.read_sample(str(authors), "room", rc=0.5).rc == 0.5
+        ncjax.synth.read_sample(str(authors), "room")
+    assert ncjax.synth.read_sample(str(authors), "room", rc=0.5).rc == 0.5
 
 
 @pytest.mark.slow
 def test_split_never_shares_a_layout(dataset):
-    split = ncjax.read_split(dataset)
+    split = ncjax.synth.read_split(dataset)
     assert set(split) == {"train", "valid", "test"}
     everything = [name for names in split.values() for name in names]
-    assert sorted(everything) == ncjax.list_samples(dataset) and len(set(everything)) == len(everything)
+    assert sorted(everything) == ncjax.synth.list_samples(dataset) and len(set(everything)) == len(everything)
     layouts = {}
     for part, names in split.items():
         for name in names:
@@ -167,7 +167,7 @@ def test_folder_samples_at_the_network_size_keep_exact_labels(dataset):
         half = load_split(dataset, split, HEIGHT // 2, WIDTH // 2, progress=False)
         assert half["image"].shape == (len(members), HEIGHT // 2, WIDTH // 2, 3) and half["image"].dtype == np.uint8
         for index, name in enumerate(sorted(members)):
-            sample = ncjax.read_sample(dataset, name)
+            sample = ncjax.synth.read_sample(dataset, name)
             # Same size: the renderer's own labels (json), computed from the true room.
             np.testing.assert_allclose(same["ceiling_v"][index], sample.ceiling_v, atol=2e-3)
             np.testing.assert_allclose(same["floor_v"][index], sample.floor_v, atol=2e-3)
@@ -225,7 +225,7 @@ def test_folders_are_pooled_in_order(dataset):
 def test_evaluate_command_prints_the_network_table(dataset, tmp_path, capsys):
     config = ncjax.HorizonNetConfig(depth=10, width=8, input_height=32, input_width=64, lstm_hidden=8, lstm_layers=1)
     path = str(tmp_path / "tiny.safetensors")
-    ncjax.save_model(ncjax.init_model(config, seed=0), path)
+    ncjax.save_model(ncjax.network.init_model(config, seed=0), path)
     out = str(tmp_path / "row.json")
     assert cli.main(["evaluate", "--data", dataset, "--split", "train", "--model", path, "--json", out]) == 0
     printed = capsys.readouterr().out

@@ -20,7 +20,7 @@ from ncjax.synth.elements import FRAME_WIDTH
 from ncjax.synth.render import _batched_render, _batched_scenes
 
 # The shared test configuration with decor: its own two compiled calls.
-DECOR = dataclasses.replace(CONFIG, scene=ncjax.SceneConfig(decor=True))
+DECOR = dataclasses.replace(CONFIG, scene=ncjax.synth.SceneConfig(decor=True))
 
 
 @functools.cache
@@ -101,7 +101,7 @@ def test_decals_change_only_wall_pixels_inside_their_rectangles():
         np.testing.assert_array_equal(renderings.semantic[i], plain.semantic[i])
         np.testing.assert_array_equal(renderings.depth[i], plain.depth[i])
         points = _points(scenes, renderings, i)[changed]
-        assert np.all(np.asarray(renderings.semantic[i])[changed] == ncjax.Semantic.WALL)
+        assert np.all(np.asarray(renderings.semantic[i])[changed] == ncjax.synth.Semantic.WALL)
         inside = np.zeros(len(points), bool)
         decals = scenes.decor.decals
         for e in np.nonzero(np.asarray(decals.mask[i]))[0]:
@@ -156,7 +156,7 @@ def test_light_panels_are_saturated_and_brighter_than_the_ceiling_around_them():
     renderings = render_scenes(scenes)
     for i in range(BATCH):
         points = _points(scenes, renderings, i)
-        ceiling = np.asarray(renderings.semantic[i]) == ncjax.Semantic.CEILING
+        ceiling = np.asarray(renderings.semantic[i]) == ncjax.synth.Semantic.CEILING
         distance = np.max(np.abs(points[..., :2] - centre[i, 0]), -1)  # to the square's centre, Chebyshev
         brightness = np.asarray(renderings.rgb[i]).mean(-1)
         inside = ceiling & (distance < 0.25)
@@ -211,7 +211,7 @@ def test_sunlight_brightens_only_what_sees_the_sun_through_the_window():
         along = (on_wall[:, :2] - origin[i, 0]) @ axis[i, 0]
         assert np.all((back > 0) & (along > span[i, 0, 0] - 1e-3) & (along < span[i, 0, 1] + 1e-3))
         assert np.all((on_wall[:, 2] > z_range[i, 0, 0] - 1e-3) & (on_wall[:, 2] < z_range[i, 0, 1] + 1e-3))
-        lit_floor += (changed & (np.asarray(renderings.semantic[i]) == ncjax.Semantic.FLOOR)).sum()
+        lit_floor += (changed & (np.asarray(renderings.semantic[i]) == ncjax.synth.Semantic.FLOOR)).sum()
     assert lit_floor > 20
 
 
@@ -241,7 +241,7 @@ def test_open_doors_show_the_room_behind_and_keep_the_edges_on_the_labels():
     for i in range(BATCH):
         changed = np.any(np.asarray(after.rgb[i]) != np.asarray(before.rgb[i]), -1)
         # Only the door's pixels change, and they stay an opening: the labels' edges do not move.
-        assert np.all(np.asarray(before.semantic[i])[changed] == ncjax.Semantic.OPENING)
+        assert np.all(np.asarray(before.semantic[i])[changed] == ncjax.synth.Semantic.OPENING)
         np.testing.assert_array_equal(after.semantic[i], before.semantic[i])
         label = jax.tree.map(lambda x: x[i], labels)
         for errors in _edge_errors(np.asarray(after.semantic[i]), label):
@@ -256,7 +256,7 @@ def test_open_doors_show_the_room_behind_and_keep_the_edges_on_the_labels():
 
 @functools.cache
 def _decorated_scenes():
-    config = ncjax.SceneConfig(
+    config = ncjax.synth.SceneConfig(
         decor=True,
         door_probability=1.0,
         open_door_probability=1.0,
@@ -267,7 +267,7 @@ def _decorated_scenes():
     )
     rooms = batch(0)[0].room
     keys = jax.random.split(jax.random.key(5), BATCH)
-    generate = jax.jit(jax.vmap(lambda k, r: ncjax.random_scene(k, r, config)))
+    generate = jax.jit(jax.vmap(lambda k, r: ncjax.synth.random_scene(k, r, config)))
     return config, jax.device_get(generate(keys, rooms))
 
 
@@ -305,12 +305,12 @@ def test_neutral_paint_gives_pale_walls_and_leaves_the_rest_of_the_scene_as_it_w
     def scenes(config):
         def one(key):
             room_key, scene_key = jax.random.split(key)
-            return random_scene(scene_key, ncjax.random_room(room_key, CONFIG.room), config)
+            return random_scene(scene_key, ncjax.synth.random_room(room_key, CONFIG.room), config)
 
         return jax.device_get(jax.jit(jax.vmap(one))(jax.random.split(jax.random.key(5), 16)))
 
-    plain = scenes(ncjax.SceneConfig())
-    neutral = scenes(ncjax.SceneConfig(neutral_paint_probability=1.0))
+    plain = scenes(ncjax.synth.SceneConfig())
+    neutral = scenes(ncjax.synth.SceneConfig(neutral_paint_probability=1.0))
     colour = neutral.walls.colour_a
     value, saturation = colour.max(-1), 1.0 - colour.min(-1) / colour.max(-1)
     assert np.all(saturation <= 0.12 + 1e-5) and np.all((value >= 0.75 - 1e-5) & (value <= 0.97 + 1e-5))
@@ -326,10 +326,10 @@ def test_neutral_paint_gives_pale_walls_and_leaves_the_rest_of_the_scene_as_it_w
 
 @pytest.mark.slow
 def test_passages_are_wide_open_leafless_and_keep_the_edges_on_the_labels():
-    config = ncjax.SceneConfig(decor=True, door_probability=1.0, passage_probability=1.0)
+    config = ncjax.synth.SceneConfig(decor=True, door_probability=1.0, passage_probability=1.0)
     scenes_batch, _, labels = batch(0)
     keys = jax.random.split(jax.random.key(7), BATCH)
-    generate = jax.jit(jax.vmap(lambda k, r: ncjax.random_scene(k, r, config)))
+    generate = jax.jit(jax.vmap(lambda k, r: ncjax.synth.random_scene(k, r, config)))
     scenes = jax.device_get(generate(keys, scenes_batch.room))
     openings, doorways = scenes.openings, scenes.decor.doorways
     filled = np.asarray(openings.mask)
@@ -350,4 +350,4 @@ def test_passages_are_wide_open_leafless_and_keep_the_edges_on_the_labels():
         for errors in _edge_errors(np.asarray(renderings.semantic[i]), label):
             seen = ~np.isnan(errors)
             assert (errors[seen] <= 1.0).sum() >= 0.99 * seen.sum()
-    assert np.sum(np.asarray(renderings.semantic) == ncjax.Semantic.OPENING) > 0.02 * renderings.semantic.size
+    assert np.sum(np.asarray(renderings.semantic) == ncjax.synth.Semantic.OPENING) > 0.02 * renderings.semantic.size

@@ -200,8 +200,10 @@ def test_central_renders_scores_exact_rows_as_the_true_room():
     module = experiment("central_renders")
     width = 256
     config = ncjax.RoomConfig(world="manhattan", occlusion="none", rc_range=(0.0, 0.0), max_walls=6)
-    rooms = jax.vmap(lambda k: ncjax.random_room(k, config))(jax.random.split(jax.random.key(5), 3))
-    labels = jax.vmap(lambda room: ncjax.room_labels(room, ncjax.NonCentralPanorama(width, width // 2, rc=0.0)))(rooms)
+    rooms = jax.vmap(lambda k: ncjax.synth.random_room(k, config))(jax.random.split(jax.random.key(5), 3))
+    labels = jax.vmap(lambda room: ncjax.synth.room_labels(room, ncjax.NonCentralPanorama(width, width // 2, rc=0.0)))(
+        rooms
+    )
     data = {
         "ceiling_v": np.asarray(labels.ceiling_v),
         "floor_v": np.asarray(labels.floor_v),
@@ -326,7 +328,7 @@ def test_plan_layouts_recovers_a_turned_manhattan_room_from_its_exact_rows(tmp_p
     from ncjax.evaluation.central_metrics import evaluate_corners, room_geometry, surface_classes
     from ncjax.io.formats import format_path, write_layout_formats
     from ncjax.io.formats_read import read_layout
-    from ncjax.synth.rooms import corner_target
+    from ncjax.synth.labels import corner_target
 
     module = experiment("plan_layouts")
     cam = ncjax.NonCentralPanorama(1024, 512, rc=0.0)

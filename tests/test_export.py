@@ -323,7 +323,7 @@ def weighted_row(column_pixels, channel, around, reach=6):
 def test_overlay_passes_through_the_exact_boundaries():
     width, height = 512, 256
     corners = np.array(RECTANGLE[::-1])  # the room is counter-clockwise
-    room = ncjax.Room(
+    room = ncjax.synth.Room(
         corners=jnp.asarray(np.concatenate([corners, np.zeros((4, 2))]), jnp.float32),
         mask=jnp.arange(8) < 4,
         ceiling_height=jnp.float32(H_C),
@@ -334,7 +334,7 @@ def test_overlay_passes_through_the_exact_boundaries():
         status=jnp.array(0, jnp.int32),
     )
     cam = room.camera(width, height)
-    labels = jax.jit(ncjax.room_labels)(room, cam)  # compiled: faster than op by op
+    labels = jax.jit(ncjax.synth.room_labels)(room, cam)  # compiled: faster than op by op
     ceiling_v, floor_v = np.asarray(labels.ceiling_v), np.asarray(labels.floor_v)
     corner_u = np.asarray(labels.corner_u)[np.asarray(labels.corner_mask)]
     image = np.zeros((height, width, 3), np.uint8)

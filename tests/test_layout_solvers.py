@@ -26,12 +26,16 @@ N_ROOMS = 40  # per world (experiments/solver_accuracy.py checks 1000)
 
 def _manhattan(room):
     ceiling_rays, floor_rays = rays(room)
-    return ncjax.solve_manhattan_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"])
+    return ncjax.solvers.solve_manhattan_layout(
+        ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"]
+    )
 
 
 def _atlanta(room):
     ceiling_rays, floor_rays = rays(room)
-    return ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"])
+    return ncjax.solvers.solve_atlanta_layout(
+        ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"]
+    )
 
 
 @jax.jit
@@ -46,7 +50,7 @@ def _atlanta_many(rooms):
 
 def _errors(rooms, layout):
     mask = rooms["mask"]
-    corners = jax.vmap(ncjax.layout_corners)(layout.ceiling_lines, layout.mask)
+    corners = jax.vmap(ncjax.solvers.layout_corners)(layout.ceiling_lines, layout.mask)
     corner_error = jnp.linalg.norm(corners[..., :2] - rooms["corners"], axis=-1)
     return dict(
         ok=bool(jnp.all(layout.ok)),
@@ -127,8 +131,8 @@ def test_unseen_wall_is_not_ok():
 @jax.jit
 def _both_solvers(ceiling_rays, floor_rays, room):
     index, mask = room["wall_index"], room["mask"]
-    manhattan = ncjax.solve_manhattan_layout(ceiling_rays, floor_rays, index, mask, room["labels"])
-    atlanta = ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, index, mask, room["directions"])
+    manhattan = ncjax.solvers.solve_manhattan_layout(ceiling_rays, floor_rays, index, mask, room["labels"])
+    atlanta = ncjax.solvers.solve_atlanta_layout(ceiling_rays, floor_rays, index, mask, room["directions"])
     return jnp.concatenate([manhattan.distances, atlanta.distances])
 
 
@@ -150,7 +154,7 @@ def _layout_outputs(room, solver):
     def f(rows):
         ceiling_rays, floor_rays = boundary_rays(room["cam"], rows[0], rows[1])
         layout = solver(room, ceiling_rays, floor_rays)
-        corners = ncjax.layout_corners(layout.ceiling_lines, layout.mask)
+        corners = ncjax.solvers.layout_corners(layout.ceiling_lines, layout.mask)
         return jnp.concatenate(
             [
                 layout.directions[:4].ravel(),
@@ -165,11 +169,15 @@ def _layout_outputs(room, solver):
 
 
 def _manhattan_from(room, ceiling_rays, floor_rays):
-    return ncjax.solve_manhattan_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"])
+    return ncjax.solvers.solve_manhattan_layout(
+        ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["labels"]
+    )
 
 
 def _atlanta_from(room, ceiling_rays, floor_rays):
-    return ncjax.solve_atlanta_layout(ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"])
+    return ncjax.solvers.solve_atlanta_layout(
+        ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"]
+    )
 
 
 @pytest.mark.extended
@@ -186,15 +194,15 @@ def test_layout_corners_of_parallel_walls_are_invalid_not_nan():
     """Consecutive parallel walls (and a lone wall) have no corner: zero, flagged invalid, finite gradients."""
     directions = jnp.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [1.0, 0.0]])
     distances = jnp.array([-1.0, -2.0, -1.5, -1.0, -1.0])
-    lines = ncjax.horizontal_wall_line(directions, distances, jnp.full(5, 1.2))
+    lines = ncjax.geometry.horizontal_wall_line(directions, distances, jnp.full(5, 1.2))
     mask = jnp.array([True, True, True, True, False])
-    corners, valid = ncjax.layout_corners(lines, mask, return_valid=True)
+    corners, valid = ncjax.solvers.layout_corners(lines, mask, return_valid=True)
     np.testing.assert_array_equal(valid, [False, False, True, True, False])  # 3 -> 0 and 0 -> 1 are parallel
     np.testing.assert_allclose(corners[2], [1.5, -2.0, 1.2], atol=1e-6)  # wall 1 (y = -2) meets wall 2 (x = 1.5)
     assert bool(jnp.all(corners[~valid] == 0))
-    grad = jax.grad(lambda x: jnp.sum(ncjax.layout_corners(x, mask)))(lines)
+    grad = jax.grad(lambda x: jnp.sum(ncjax.solvers.layout_corners(x, mask)))(lines)
     assert bool(jnp.all(jnp.isfinite(grad)))
-    lone, lone_valid = ncjax.layout_corners(lines, jnp.arange(5) == 2, return_valid=True)
+    lone, lone_valid = ncjax.solvers.layout_corners(lines, jnp.arange(5) == 2, return_valid=True)
     assert not bool(jnp.any(lone_valid)) and bool(jnp.all(lone == 0))
 
 
@@ -243,7 +251,7 @@ def test_atlanta_boundary_weights_follow_the_cleaner_boundary():
     @jax.jit
     def solve(floor_noise, weights):
         ceiling_rays, floor_rays = boundary_rays(room["cam"], room["ceiling_v"], room["floor_v"] + floor_noise)
-        layout = ncjax.solve_atlanta_layout(
+        layout = ncjax.solvers.solve_atlanta_layout(
             ceiling_rays, floor_rays, room["wall_index"], room["mask"], room["directions"], boundary_weights=weights
         )
         distance_error = jnp.max(jnp.where(room["mask"], jnp.abs(layout.distances - room["distances"]), 0.0))
@@ -328,7 +336,7 @@ def test_boundary_weights_need_the_refined_solver():
     room = sample_room(5, "atlanta")
     ceiling_rays, floor_rays = rays(room)
     with pytest.raises(ValueError, match="refined"):
-        ncjax.solve_atlanta_layout(
+        ncjax.solvers.solve_atlanta_layout(
             ceiling_rays,
             floor_rays,
             room["wall_index"],

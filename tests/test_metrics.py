@@ -89,8 +89,8 @@ def test_room_and_labels_are_layouts():
     import jax
 
     config = ncjax.RoomConfig(occlusion="none", room_tries=1, camera_tries=16)
-    room = jax.jit(ncjax.random_room, static_argnums=1)(jax.random.key(0), config)
-    labels = jax.jit(lambda r: ncjax.room_labels(r, r.camera(128, 64)))(room)
+    room = jax.jit(ncjax.synth.random_room, static_argnums=1)(jax.random.key(0), config)
+    labels = jax.jit(lambda r: ncjax.synth.room_labels(r, r.camera(128, 64)))(room)
     result = layout_metrics.evaluate_layout(labels, room)
     assert result["iou3d"] == pytest.approx(1.0, abs=1e-5) and result["ce"] == pytest.approx(0.0, abs=1e-5)
 

@@ -23,7 +23,7 @@ from flax import nnx
 import ncjax
 import ncjax.network.model
 import ncjax.network.predict
-import ncjax.synth.rooms
+import ncjax.synth.labels
 import ncjax.training.data
 import ncjax.training.loop
 from ncjax.network import efficientnet
@@ -43,12 +43,12 @@ BATCH = 4
 
 @functools.cache
 def tiny_model():
-    return ncjax.init_model(TINY, seed=0)
+    return ncjax.network.init_model(TINY, seed=0)
 
 
 @functools.cache
 def lite0_model():
-    return ncjax.init_model(LITE0_TINY, seed=0)
+    return ncjax.network.init_model(LITE0_TINY, seed=0)
 
 
 def convex_room(key, rc=0.5, n=6):
@@ -76,7 +76,7 @@ def painted_samples(count=8):
     def one(key):
         k_room, k_colour = jax.random.split(key)
         room = convex_room(k_room)
-        labels = ncjax.room_labels(room, room.camera(TINY.input_width, TINY.input_height))
+        labels = ncjax.synth.room_labels(room, room.camera(TINY.input_width, TINY.input_height))
         colours = jax.random.uniform(k_colour, (3, 3), minval=0.1, maxval=0.9)
         image = ncjax.training.data.paint_panorama(
             labels.ceiling_v, labels.floor_v, labels.wall_index, TINY.input_height, colours
@@ -145,7 +145,7 @@ def test_parameter_counts():
     # + head 12,300. Flax's LSTM cell has one bias per gate where PyTorch has two
     # (b_ih and b_hh): 4 gates x 512 x 2 directions x 2 layers = 8,192 fewer.
     paper = ncjax.HorizonNetConfig.preset("paper")
-    assert ncjax.count_parameters(paper) == 81_570_348 - 8_192 == 81_562_156
+    assert ncjax.network.count_parameters(paper) == 81_570_348 - 8_192 == 81_562_156
     abstract = ncjax.network.model.abstract_model(paper)
 
     def count(node):
@@ -155,7 +155,7 @@ def test_parameter_counts():
     assert count(abstract.compressions) == 45_450_720
     assert count(abstract.lstm) == 12_599_296 - 8_192
     assert ncjax.network.model.column_feature_size(paper) == 1024  # HorizonNet's c_last at 512 rows
-    assert ncjax.count_parameters(ncjax.HorizonNetConfig.preset("compact")) <= 4_000_000
+    assert ncjax.network.count_parameters(ncjax.HorizonNetConfig.preset("compact")) <= 4_000_000
 
 
 def test_resample_columns_wraps_around():
@@ -190,7 +190,9 @@ def test_elevation_row_round_trip():
     elevation = ncjax.network.model.row_to_elevation(rows, 64)
     np.testing.assert_allclose(elevation[2], 0.0, atol=1e-7)  # the horizon is between rows 31 and 32
     np.testing.assert_allclose(ncjax.network.model.elevation_to_row(elevation, 64), rows, atol=1e-5)
-    prediction = ncjax.BoundaryPrediction(jnp.full((1, 8), 0.0), jnp.full((1, 8), -math.pi / 4), jnp.zeros((1, 8)))
+    prediction = ncjax.network.BoundaryPrediction(
+        jnp.full((1, 8), 0.0), jnp.full((1, 8), -math.pi / 4), jnp.zeros((1, 8))
+    )
     ceiling_v, floor_v, corner_prob = ncjax.network.model.prediction_to_rows(prediction, height=64, width=32)
     assert ceiling_v.shape == (1, 32)
     np.testing.assert_allclose(ceiling_v, 31.5, atol=1e-5)
@@ -206,7 +208,9 @@ def test_loss_matches_numpy():
     pred = [rng.normal(size=(2, 16)).astype(np.float32) for _ in range(3)]
     ceiling_v, floor_v = rng.uniform(0, 16, (2, 16)), rng.uniform(16, 32, (2, 16))
     target = rng.uniform(0, 1, (2, 16))
-    terms = ncjax.horizonnet_loss(ncjax.BoundaryPrediction(*map(jnp.asarray, pred)), ceiling_v, floor_v, target, 32)
+    terms = ncjax.training.horizonnet_loss(
+        ncjax.network.BoundaryPrediction(*map(jnp.asarray, pred)), ceiling_v, floor_v, target, 32
+    )
 
     def elevation(v):
         return np.pi / 2 - np.pi * (v + 0.5) / 32
@@ -223,21 +227,21 @@ def test_sharper_corner_encoding():
     """The loss re-encodes the 0.96**d labels as base**d; re-encoding back recovers them."""
     rng = np.random.default_rng(1)
     corners = np.array([3.2, 20.0, 22.0, 90.0])
-    target = np.asarray(ncjax.synth.rooms.corner_target(corners, np.ones(4, bool), 128))
+    target = np.asarray(ncjax.synth.labels.corner_target(corners, np.ones(4, bool), 128))
     distance = np.abs(np.arange(128)[:, None] - corners[None, :])
     distance = np.minimum(distance, 128 - distance).min(axis=1)
     np.testing.assert_allclose(target, 0.96**distance, rtol=1e-5)
-    sharp = ncjax.synth.rooms.reencode_corner_prob(target, 0.96, 0.7)
+    sharp = ncjax.synth.labels.reencode_corner_prob(target, 0.96, 0.7)
     np.testing.assert_allclose(sharp, 0.7**distance, rtol=1e-4, atol=1e-30)
-    np.testing.assert_allclose(ncjax.synth.rooms.reencode_corner_prob(sharp, 0.7, 0.96), target, rtol=1e-4)
+    np.testing.assert_allclose(ncjax.synth.labels.reencode_corner_prob(sharp, 0.7, 0.96), target, rtol=1e-4)
     # Peaks and dips stay where they were (a monotone map); the dip between corners 2 columns apart deepens.
     assert np.array_equal(np.argsort(sharp), np.argsort(target))
     assert sharp[21] < 0.75 * sharp[20] and target[21] > 0.95 * target[20]
 
     logits = rng.normal(size=(2, 128)).astype(np.float32)
-    prediction = ncjax.BoundaryPrediction(jnp.zeros((2, 128)), jnp.zeros((2, 128)), jnp.asarray(logits))
+    prediction = ncjax.network.BoundaryPrediction(jnp.zeros((2, 128)), jnp.zeros((2, 128)), jnp.asarray(logits))
     rows = np.full((2, 128), 10.0)
-    terms = ncjax.horizonnet_loss(prediction, rows, rows, np.stack([target, target]), 64, corner_base=0.7)
+    terms = ncjax.training.horizonnet_loss(prediction, rows, rows, np.stack([target, target]), 64, corner_base=0.7)
     p = 1 / (1 + np.exp(-logits))
     expected = np.mean(-(0.7**distance * np.log(p) + (1 - 0.7**distance) * np.log(1 - p)))
     np.testing.assert_allclose(terms["corner"], expected, rtol=1e-5)
@@ -282,7 +286,7 @@ def test_flip_is_the_mirrored_room():
     room = convex_room(jax.random.PRNGKey(3), rc=0.7)
     mirrored = Room(**{**vars(room), "corners": (room.corners * jnp.array([1.0, -1.0]))[::-1]})
     cam = room.camera(128, 64)
-    room_labels = jax.jit(ncjax.room_labels)
+    room_labels = jax.jit(ncjax.synth.room_labels)
     labels, mirror_labels = room_labels(room, cam), room_labels(mirrored, cam)
     sample = {
         "image": jnp.zeros((64, 128, 3)),
@@ -305,7 +309,7 @@ def test_photometric_augmentation_is_random_augment_and_keeps_the_labels():
 
     @jax.jit
     def both(key):
-        expected = ncjax.random_augment(jax.random.split(key, 3)[2], sample["image"], no_geometry.augment)
+        expected = ncjax.synth.random_augment(jax.random.split(key, 3)[2], sample["image"], no_geometry.augment)
         return ncjax.training.loop.augment_sample(key, sample, no_geometry), expected
 
     out, expected = both(jax.random.PRNGKey(0))
@@ -315,7 +319,7 @@ def test_photometric_augmentation_is_random_augment_and_keeps_the_labels():
 
 
 def test_train_config_json_round_trip_and_older_configurations():
-    augment = ncjax.AugmentConfig(jpeg_quality=(5.0, 30.0), seam_count=2, jpeg_chroma_subsampling=False)
+    augment = ncjax.synth.AugmentConfig(jpeg_quality=(5.0, 30.0), seam_count=2, jpeg_chroma_subsampling=False)
     config = ncjax.TrainConfig(peak_learning_rate=3e-4, photometric=False, augment=augment)
     restored = ncjax.TrainConfig.from_json(config.to_json())
     assert restored == config and hash(restored) == hash(config)
@@ -359,7 +363,7 @@ def test_time_budget_stops_after_a_step_with_a_checkpoint_to_resume(tmp_path):
 
 @pytest.mark.slow
 def test_checkpoint_round_trip_is_bit_exact(tmp_path):
-    model = ncjax.init_model(TINY, seed=0)
+    model = ncjax.network.init_model(TINY, seed=0)
     optimizer = ncjax.training.loop.make_optimizer(model, TRAIN)
     batch = next(batches(0))
     ncjax.training.loop.train_step(
@@ -390,7 +394,7 @@ def test_checkpoint_round_trip_is_bit_exact(tmp_path):
 def test_model_weights_are_the_files_tensors_and_rebuild_the_same_network(tmp_path):
     from ncjax.network.checkpoint import model_from_weights, model_weights
 
-    model = ncjax.init_model(TINY, seed=0)
+    model = ncjax.network.init_model(TINY, seed=0)
     model.eval()
     ncjax.save_model(model, tmp_path / "model.safetensors")
     from_file, from_model = model_weights(tmp_path / "model.safetensors"), model_weights(model)
@@ -476,20 +480,20 @@ def test_fine_tuning_starts_from_the_weights_with_a_new_corner_encoding(tmp_path
 def test_boundary_pixel_error_in_1024_pixels():
     width = 256
     truth = jnp.full(width, 40.0)
-    error = ncjax.boundary_pixel_error(truth + 1.0, truth + 60.0 - 3.0, truth, truth + 60.0)
+    error = ncjax.evaluation.boundary_pixel_error(truth + 1.0, truth + 60.0 - 3.0, truth, truth + 60.0)
     np.testing.assert_allclose(error, 2.0 * 1024 / width)
 
 
 def test_corner_metrics_on_hand_made_columns():
     target = jnp.array([0.2, 0.96, 1.0, 0.96, 0.2, 0.1, 0.1, 0.1, 0.1, 0.1])
     prob = jnp.array([0.1, 0.4, 0.9, 0.8, 0.7, 0.0, 0.0, 0.0, 0.0, 0.6])
-    confusion = ncjax.corner_confusion(prob, target)
+    confusion = ncjax.evaluation.corner_confusion(prob, target)
     np.testing.assert_array_equal(confusion, [2, 2, 1, 5])  # TP, FP, FN, TN
-    scores = ncjax.corner_scores(confusion)
+    scores = ncjax.evaluation.corner_scores(confusion)
     np.testing.assert_allclose([scores[k] for k in ("precision", "recall", "accuracy", "iou")], [0.5, 2 / 3, 0.7, 0.4])
-    assert np.isnan(ncjax.corner_scores(jnp.array([0, 0, 3, 7]))["precision"])
+    assert np.isnan(ncjax.evaluation.corner_scores(jnp.array([0, 0, 3, 7]))["precision"])
 
-    table = ncjax.network_table(
+    table = ncjax.evaluation.network_table(
         jnp.stack([target, target]) * 0 + 10.0,
         jnp.full((2, 10), 20.0),
         jnp.stack([prob, target]),
@@ -521,7 +525,7 @@ def test_predict_boundaries_input_size_and_errors(monkeypatch, tmp_path):
     raw = ncjax.predict_boundaries(image, model, edge_snap=None)
     denoised = denoise_for_network(jnp.asarray(image, jnp.float32)[None] / 255.0)[0]
     assert not np.allclose(denoised, image / 255.0, atol=0.05)
-    snapped = ncjax.snap_to_edges(denoised, raw[0], raw[1], ncjax.EdgeSnap())
+    snapped = ncjax.network.snap_to_edges(denoised, raw[0], raw[1], ncjax.EdgeSnap())
     np.testing.assert_allclose(ceiling_v, snapped[0], atol=1e-4)
     np.testing.assert_allclose(floor_v, snapped[1], atol=1e-4)
     np.testing.assert_array_equal(corner_prob, raw[2])
@@ -616,13 +620,13 @@ def test_efficientnet_backbone_parameter_counts():
         backbone(jnp.zeros((1, 32, 64, 3)))
     assert sum(math.prod(x.shape) for x in jax.tree.leaves(nnx.state(backbone, nnx.Param))) == 2_958_848
     assert efficientnet.count_parameters(classifier=False) == 2_958_848
-    assert ncjax.count_parameters(lite0) == 4_300_934
-    assert ncjax.count_parameters(ncjax.HorizonNetConfig.preset("compact1024")) == 3_907_848
+    assert ncjax.network.count_parameters(lite0) == 4_300_934
+    assert ncjax.network.count_parameters(ncjax.HorizonNetConfig.preset("compact1024")) == 3_907_848
 
 
 @pytest.mark.slow
 def test_init_model_starts_the_efficientnet_backbone_from_imagenet():
-    model, other_seed = lite0_model(), ncjax.init_model(LITE0_TINY, seed=1)
+    model, other_seed = lite0_model(), ncjax.network.init_model(LITE0_TINY, seed=1)
     imagenet = params_of(efficientnet.load_efficientnet_lite0(circular_width=True))
     backbone = params_of(model.backbone)
     assert backbone.keys() == {k for k in imagenet if not k.startswith(("head/", "classifier/"))}

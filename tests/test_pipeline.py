@@ -62,7 +62,7 @@ from ncjax.pipeline.types import Rows, Walls
 from ncjax.pipeline.uncertainty import correlation_time, layout_uncertainty, room_height_sigma
 from ncjax.solvers.ransac import boundary_errors, elevation_band, inlier_rows, num_hypotheses, wall_columns
 from ncjax.solvers.wall import make_wall
-from ncjax.synth.rooms import corner_target
+from ncjax.synth.labels import corner_target
 
 WIDTH, HEIGHT = 512, 256
 
@@ -83,8 +83,8 @@ def _corners(threshold, **settings):
 @functools.cache
 def rooms(world: str, occlusion: str, count: int = 6):
     config = ncjax.RoomConfig(world=world, occlusion=occlusion, room_tries=2, camera_tries=64)
-    batch = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(11), count))
-    labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(batch)
+    batch = jax.jit(jax.vmap(lambda k: ncjax.synth.random_room(k, config)))(jax.random.split(jax.random.key(11), count))
+    labels = jax.jit(jax.vmap(lambda r: ncjax.synth.room_labels(r, r.camera(WIDTH, HEIGHT))))(batch)
     return batch, labels
 
 
@@ -127,7 +127,7 @@ def test_inlier_slopes_match_the_row_errors(seed, threshold):
     ceiling_error, floor_error = boundary_errors(cam, wall, azimuth, ceiling_v, floor_v)
     tolerance = threshold * cam.fov_vertical / cam.height
     ceiling_band, floor_band = (
-        elevation_band(ncjax.pixel_to_ray(cam, columns, v), azimuth, tolerance) for v in (ceiling_v, floor_v)
+        elevation_band(ncjax.geometry.pixel_to_ray(cam, columns, v), azimuth, tolerance) for v in (ceiling_v, floor_v)
     )
     ceiling_in, floor_in = inlier_rows(cam, wall, azimuth, ceiling_band, floor_band)
     for errors, inside in ((ceiling_error, ceiling_in), (floor_error, floor_in)):
@@ -290,7 +290,7 @@ def test_adjustment_recovers_the_room_from_a_perturbed_start(manhattan, stride, 
     batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
-    directions, distances = ncjax.room_walls(room)[:2]
+    directions, distances = ncjax.synth.room_walls(room)[:2]
     every = slice(None, None, stride)  # PipelineConfig.adjustment_stride
     used = jnp.ones(WIDTH, bool)[every]
     observations = BoundaryObservations(
@@ -361,7 +361,7 @@ def test_adjustment_structure_gives_the_dense_normal_matrix(world):
     batch, labels = rooms(world, "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
-    directions, distances = ncjax.room_walls(room)[:2]
+    directions, distances = ncjax.synth.room_walls(room)[:2]
     labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if world == "manhattan" else None
     columns = jnp.arange(WIDTH)
     observations = BoundaryObservations(
@@ -429,7 +429,7 @@ def test_layout_uncertainty_matches_monte_carlo(manhattan, floor_noise):
     batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
-    directions, distances = ncjax.room_walls(room)[:2]
+    directions, distances = ncjax.synth.room_walls(room)[:2]
     wall_labels, _ = manhattan_frame(directions, room.mask.astype(directions.dtype))
     wall_labels = wall_labels if manhattan else None
     draws = 48
@@ -472,7 +472,7 @@ def test_layout_uncertainty_with_wall_offsets_matches_monte_carlo(manhattan):
     batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
-    directions, distances = ncjax.room_walls(room)[:2]
+    directions, distances = ncjax.synth.room_walls(room)[:2]
     wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if manhattan else None
     draws, offset = 64, 2.0
     white = 0.5 * jax.random.normal(jax.random.key(3), (draws, 2, WIDTH))
@@ -514,7 +514,7 @@ def test_layout_uncertainty_with_one_exact_boundary_is_positive(manhattan):
     checked = 0
     for room, label in [(pick(batch, i), pick(labels, i)) for i in range(4)]:
         cam = room.camera(WIDTH, HEIGHT)
-        directions, distances = ncjax.room_walls(room)[:2]
+        directions, distances = ncjax.synth.room_walls(room)[:2]
         wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if manhattan else None
         observations = _noisy_label_rows(room, label, jax.random.normal(jax.random.key(7), (WIDTH,)), jnp.zeros(WIDTH))
         walls = adjust_layout(
@@ -539,7 +539,7 @@ def test_layout_uncertainty_of_a_wall_no_row_sees(manhattan):
     batch, labels = rooms("manhattan" if manhattan else "atlanta", "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
-    directions, distances = ncjax.room_walls(room)[:2]
+    directions, distances = ncjax.synth.room_walls(room)[:2]
     wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0] if manhattan else None
     noise = jax.random.normal(jax.random.key(5), (2, WIDTH))
     every = _noisy_label_rows(room, label, noise[0], noise[1])
@@ -569,7 +569,7 @@ def test_layout_uncertainty_of_a_wall_one_corner_pins():
     batch, labels = rooms("atlanta", "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
-    directions, distances = ncjax.room_walls(room)[:2]
+    directions, distances = ncjax.synth.room_walls(room)[:2]
     noise = jax.random.normal(jax.random.key(5), (2, WIDTH))
     every = _noisy_label_rows(room, label, noise[0], noise[1])
     count, hidden = int(np.sum(room.mask)), 1
@@ -598,7 +598,7 @@ def test_layout_uncertainty_of_a_height_no_row_sees():
     batch, labels = rooms("manhattan", "none")
     room, label = pick(batch, 2), pick(labels, 2)
     cam = room.camera(WIDTH, HEIGHT)
-    directions, distances = ncjax.room_walls(room)[:2]
+    directions, distances = ncjax.synth.room_walls(room)[:2]
     wall_labels = manhattan_frame(directions, room.mask.astype(directions.dtype))[0]
     noise = jax.random.normal(jax.random.key(6), (2, WIDTH))
     every = _noisy_label_rows(room, label, noise[0], noise[1])
@@ -644,7 +644,7 @@ def test_wall_rows_match_exact_labels():
     batch, labels = rooms("atlanta", "any")
     for i in range(3):
         room, label = pick(batch, i), pick(labels, i)
-        directions, distances = ncjax.room_walls(room)[:2]
+        directions, distances = ncjax.synth.room_walls(room)[:2]
         wall = label.wall_index
         columns = jnp.arange(WIDTH, dtype=jnp.float32)
         ceiling, floor, seen = wall_boundary_rows(
@@ -677,8 +677,8 @@ def test_boundary_points_invert_the_rows_and_fit_the_wall_line():
 def test_wall_planes_meet_like_plucker_lines():
     a, b = jnp.array([1.0, 0.0]), jnp.array([0.6, 0.8])
     point, ok = wall_planes_meet(a, -2.0, b, -1.0)
-    lines = ncjax.horizontal_wall_line(jnp.stack([a, b]), jnp.array([-2.0, -1.0]), 1.0)
-    np.testing.assert_allclose(point, ncjax.intersect_coplanar_lines(lines[0], lines[1])[:2], atol=1e-5)
+    lines = ncjax.geometry.horizontal_wall_line(jnp.stack([a, b]), jnp.array([-2.0, -1.0]), 1.0)
+    np.testing.assert_allclose(point, ncjax.geometry.intersect_coplanar_lines(lines[0], lines[1])[:2], atol=1e-5)
     assert bool(ok) and not bool(wall_planes_meet(a, -2.0, a, -1.0)[1])
 
 
@@ -927,9 +927,9 @@ def test_corner_offsets_are_zero_at_the_true_corners_and_inf_for_parallel_walls(
     batch, _ = rooms("manhattan", "none")
     room = pick(batch, 0)
     cam = room.camera(WIDTH, HEIGHT)
-    directions, distances = ncjax.room_walls(room)[:2]
+    directions, distances = ncjax.synth.room_walls(room)[:2]
     corners = jnp.concatenate([room.corners, jnp.full((room.corners.shape[0], 1), room.ceiling_height)], -1)
-    columns, _ = ncjax.project(cam, corners)
+    columns, _ = ncjax.geometry.project(cam, corners)
     mask = room.mask
     offsets = corner_offsets(cam, directions, distances, mask, jnp.where(mask, columns, 0.0))
     assert float(jnp.max(jnp.where(mask, offsets, 0.0))) < 1e-2
@@ -1023,9 +1023,9 @@ def test_an_occlusion_beside_a_narrow_wall_is_found():
     next corner: the wall between is too narrow to extrapolate, and its one column's rows, off the straight wall
     between its neighbours' boundaries, show the occlusion at the corner of the nearer neighbour."""
     config = ncjax.RoomConfig(world="atlanta", occlusion="required", capacity=32, room_tries=4, camera_tries=128)
-    room = pick(jax.vmap(lambda k: ncjax.random_room(k, config))(jax.random.split(jax.random.key(8), 30)), 17)
+    room = pick(jax.vmap(lambda k: ncjax.synth.random_room(k, config))(jax.random.split(jax.random.key(8), 30)), 17)
     cam = room.camera(1024, 512)
-    label = ncjax.room_labels(room, cam)
+    label = ncjax.synth.room_labels(room, cam)
     corners = np.asarray(label.corner_u)[np.asarray(label.corner_mask & label.corner_is_occlusion)]
     assert np.allclose(corners, 43.4, atol=0.1)  # the occlusion's near and far points
     evidence = jax.jit(gather_evidence)(

@@ -36,8 +36,8 @@ def rooms(world: str, rc_range: tuple[float, float], count: int = 4):
     config = ncjax.RoomConfig(
         world=world, rc_range=rc_range, occlusion="none", max_walls=8, room_tries=2, camera_tries=64
     )
-    batch = jax.jit(jax.vmap(lambda k: ncjax.random_room(k, config)))(jax.random.split(jax.random.key(3), count))
-    labels = jax.jit(jax.vmap(lambda r: ncjax.room_labels(r, r.camera(WIDTH, HEIGHT))))(batch)
+    batch = jax.jit(jax.vmap(lambda k: ncjax.synth.random_room(k, config)))(jax.random.split(jax.random.key(3), count))
+    labels = jax.jit(jax.vmap(lambda r: ncjax.synth.room_labels(r, r.camera(WIDTH, HEIGHT))))(batch)
     return batch, labels
 
 
@@ -70,7 +70,7 @@ def test_ratio_and_virtual_rows_are_exact_on_a_room(rc):
         cam, labels.ceiling_v, labels.floor_v, room.ceiling_height, room.floor_height
     )
     assert float(virtual.rc) > 0.1
-    truth = ncjax.room_labels(room, virtual)
+    truth = ncjax.synth.room_labels(room, virtual)
     seen = np.isfinite(ceiling_v) & np.isfinite(floor_v)
     assert seen.mean() > 0.9
     np.testing.assert_allclose(ceiling_v[seen], truth.ceiling_v[seen], atol=2e-2)

@@ -23,10 +23,10 @@ def benchmark_module():
     return script_module("benchmarks", "real_panoramas")
 
 
-def central_room(corners, ceiling_height=1.5, floor_height=-1.4) -> ncjax.Room:
+def central_room(corners, ceiling_height=1.5, floor_height=-1.4) -> ncjax.synth.Room:
     """A room seen by a central camera (rc = 0) at the origin; ``corners`` counter-clockwise."""
     corners = jnp.asarray(corners, jnp.float32)
-    return ncjax.Room(
+    return ncjax.synth.Room(
         corners=corners,
         mask=jnp.ones(len(corners), bool),
         ceiling_height=jnp.asarray(ceiling_height, jnp.float32),
@@ -34,7 +34,7 @@ def central_room(corners, ceiling_height=1.5, floor_height=-1.4) -> ncjax.Room:
         rc=jnp.asarray(0.0, jnp.float32),
         camera_position=jnp.asarray([0.0, 0.0, -floor_height], jnp.float32),
         is_atlanta=jnp.array(True),
-        status=jnp.array(ncjax.RoomStatus.OK, jnp.int32),
+        status=jnp.array(ncjax.synth.RoomStatus.OK, jnp.int32),
     )
 
 
@@ -45,11 +45,11 @@ ROOMS = {
 }
 
 
-def exact_label_cor(labels: ncjax.RoomLabels, cam: ncjax.NonCentralPanorama) -> np.ndarray:
+def exact_label_cor(labels: ncjax.synth.RoomLabels, cam: ncjax.NonCentralPanorama) -> np.ndarray:
     """The (2N, 2) label_cor of :func:`label_cor_rows` before its rounding to integer pixels."""
     mask = np.asarray(labels.corner_mask)
     points = np.stack([np.asarray(labels.ceiling_corners)[mask], np.asarray(labels.floor_corners)[mask]], 1)
-    _, rows = ncjax.project(cam, points)
+    _, rows = ncjax.geometry.project(cam, points)
     columns = np.repeat(np.asarray(labels.corner_u)[mask], 2)
     return np.stack([columns, np.asarray(rows).reshape(-1)], axis=-1)
 
@@ -66,7 +66,7 @@ def label_rows_from_file(label_cor: np.ndarray, path: Path) -> tuple[np.ndarray,
 @pytest.mark.parametrize("corners", ROOMS.values(), ids=ROOMS.keys())
 def test_label_rows_match_the_renderers_exact_rows(corners, tmp_path):
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.0)
-    labels = ncjax.room_labels(central_room(corners), cam, corner_capacity=2 * len(corners))
+    labels = ncjax.synth.room_labels(central_room(corners), cam, corner_capacity=2 * len(corners))
     assert bool(labels.ok)
     exact = (np.asarray(labels.ceiling_v), np.asarray(labels.floor_v))
 
@@ -131,9 +131,9 @@ def test_bad_input_is_one_line_and_exit_code_2(problem, tmp_path, capsys):
 def rendered_folder(tmp_path_factory):
     """Two rendered central rooms without furniture at the network's input size, in ``ncjax synth``'s folders."""
     folder = tmp_path_factory.mktemp("renders") / "data"
-    room, scene = ncjax.RoomConfig(rc_range=(0.0, 0.0)), ncjax.SceneConfig(furniture_probability=0.0)
+    room, scene = ncjax.RoomConfig(rc_range=(0.0, 0.0)), ncjax.synth.SceneConfig(furniture_probability=0.0)
     config = ncjax.SynthConfig(room=room, scene=scene, width=WIDTH, height=HEIGHT)
-    names = ncjax.write_dataset(str(folder), 2, seed=5, config=config, batch_size=2)
+    names = ncjax.synth.write_dataset(str(folder), 2, seed=5, config=config, batch_size=2)
     return folder, names
 
 

@@ -18,8 +18,9 @@ from hypothesis import strategies as st
 
 import ncjax
 from ncjax.synth.furniture import PARTS_PER_PIECE
+from ncjax.synth.placement import Rectangle
 
-WALL_LIKE = (ncjax.Semantic.WALL, ncjax.Semantic.OPENING)
+WALL_LIKE = (ncjax.synth.Semantic.WALL, ncjax.synth.Semantic.OPENING)
 
 
 def _edge_errors(semantic: np.ndarray, labels, window: int = 3):
@@ -28,14 +29,14 @@ def _edge_errors(semantic: np.ndarray, labels, window: int = 3):
     rows = np.arange(semantic.shape[0])
     errors = []
     for label_rows, upper, lower in (
-        (labels.ceiling_v, (ncjax.Semantic.CEILING,), WALL_LIKE),
-        (labels.floor_v, WALL_LIKE, (ncjax.Semantic.FLOOR,)),
+        (labels.ceiling_v, (ncjax.synth.Semantic.CEILING,), WALL_LIKE),
+        (labels.floor_v, WALL_LIKE, (ncjax.synth.Semantic.FLOOR,)),
     ):
         column_errors = np.full(semantic.shape[1], np.nan)
         for u, row in enumerate(np.asarray(label_rows)):
             near = (rows >= row - window) & (rows <= row + window)
             classes = semantic[near, u]
-            if np.any(classes == ncjax.Semantic.OBJECT) or not near.any():
+            if np.any(classes == ncjax.synth.Semantic.OBJECT) or not near.any():
                 continue
             # The edge: the first row of the window whose class is below the boundary.
             below = np.isin(classes, lower)
@@ -181,16 +182,18 @@ def test_rendering_shapes_ranges_and_columns_without_overflow():
     assert renderings.depth.shape == renderings.semantic.shape == (BATCH, HEIGHT, WIDTH)
     assert np.all((renderings.rgb >= 0) & (renderings.rgb <= 1))
     assert np.all(np.isfinite(renderings.depth) & (renderings.depth > 0))
-    assert set(np.unique(renderings.semantic)) <= set(range(len(ncjax.Semantic)))
+    assert set(np.unique(renderings.semantic)) <= set(range(len(ncjax.synth.Semantic)))
     assert np.std(renderings.rgb) > 0.05  # not a flat image
-    overflow = jax.jit(jax.vmap(lambda s: ncjax.box_overflow(s, s.room.camera(WIDTH, HEIGHT), CONFIG.render)))(scenes)
+    overflow = jax.jit(jax.vmap(lambda s: ncjax.synth.box_overflow(s, s.room.camera(WIDTH, HEIGHT), CONFIG.render)))(
+        scenes
+    )
     assert not np.any(overflow)
 
 
 @functools.cache
 def _single_render(supersampling: int):
-    config = ncjax.RenderConfig(supersampling=supersampling, shadows=supersampling > 1)
-    return jax.jit(lambda scene: ncjax.render(scene, scene.room.camera(32, 16), config))
+    config = ncjax.synth.RenderConfig(supersampling=supersampling, shadows=supersampling > 1)
+    return jax.jit(lambda scene: ncjax.synth.render(scene, scene.room.camera(32, 16), config))
 
 
 @pytest.mark.slow
@@ -205,9 +208,9 @@ def test_supersampling_keeps_depth_and_semantics_of_the_pixel_centre():
 
 def test_configurations_reject_bad_values():
     with pytest.raises(ValueError, match="odd"):
-        ncjax.RenderConfig(supersampling=2)
+        ncjax.synth.RenderConfig(supersampling=2)
     with pytest.raises(ValueError, match="positive"):
-        ncjax.SceneConfig(furniture_slots=0)
+        ncjax.synth.SceneConfig(furniture_slots=0)
     with pytest.raises(ValueError, match="image size"):
         ncjax.SynthConfig(width=2, height=2)
 
@@ -218,22 +221,22 @@ _IMAGE = jax.random.uniform(jax.random.key(3), (16, 32, 3))
 
 
 def test_neutral_augmentations_are_identities():
-    np.testing.assert_allclose(ncjax.adjust_exposure(_IMAGE, 1.0), _IMAGE, atol=1e-6)
-    np.testing.assert_allclose(ncjax.adjust_gamma(_IMAGE, 1.0), _IMAGE, atol=1e-6)
-    np.testing.assert_allclose(ncjax.white_balance(_IMAGE, jnp.ones(3)), _IMAGE, atol=1e-6)
-    np.testing.assert_allclose(ncjax.add_sensor_noise(jax.random.key(0), _IMAGE, 0.0, 0.0), _IMAGE, atol=1e-6)
+    np.testing.assert_allclose(ncjax.synth.adjust_exposure(_IMAGE, 1.0), _IMAGE, atol=1e-6)
+    np.testing.assert_allclose(ncjax.synth.adjust_gamma(_IMAGE, 1.0), _IMAGE, atol=1e-6)
+    np.testing.assert_allclose(ncjax.synth.white_balance(_IMAGE, jnp.ones(3)), _IMAGE, atol=1e-6)
+    np.testing.assert_allclose(ncjax.synth.add_sensor_noise(jax.random.key(0), _IMAGE, 0.0, 0.0), _IMAGE, atol=1e-6)
 
 
 def test_greyscale_and_blur():
-    grey = np.asarray(ncjax.to_greyscale(_IMAGE))
+    grey = np.asarray(ncjax.synth.to_greyscale(_IMAGE))
     assert np.allclose(grey[..., 0], grey[..., 1]) and np.allclose(grey[..., 1], grey[..., 2])
     np.testing.assert_allclose(grey[..., 0], np.asarray(_IMAGE) @ np.array([0.299, 0.587, 0.114]), atol=1e-6)
-    blurred = np.asarray(ncjax.gaussian_blur(_IMAGE, 1.0))
+    blurred = np.asarray(ncjax.synth.gaussian_blur(_IMAGE, 1.0))
     # Wrapping horizontally, a blur of a horizontally constant image keeps it;
     # the mean of each row is kept (the kernel is normalised).
     np.testing.assert_allclose(
         blurred.mean(1),
-        np.asarray(ncjax.gaussian_blur(_IMAGE.mean(1, keepdims=True) * jnp.ones_like(_IMAGE), 1.0)).mean(1),
+        np.asarray(ncjax.synth.gaussian_blur(_IMAGE.mean(1, keepdims=True) * jnp.ones_like(_IMAGE), 1.0)).mean(1),
         atol=1e-5,
     )
     assert blurred.std() < np.asarray(_IMAGE).std()
@@ -246,13 +249,13 @@ def test_blur_matches_scipy_wrapping_horizontally_and_clamping_vertically(sigma,
     image = np.asarray(jax.random.uniform(jax.random.key(3), (12, 20, 3)))
     expected = ndimage.gaussian_filter1d(image, sigma, axis=1, mode="wrap", truncate=radius / sigma)
     expected = ndimage.gaussian_filter1d(expected, sigma, axis=0, mode="nearest", truncate=radius / sigma)
-    np.testing.assert_allclose(ncjax.gaussian_blur(jnp.asarray(image), sigma, radius), expected, atol=2e-6)
+    np.testing.assert_allclose(ncjax.synth.gaussian_blur(jnp.asarray(image), sigma, radius), expected, atol=2e-6)
 
 
 @pytest.mark.slow
 def test_random_augment_is_a_pure_batched_function():
     keys = jax.random.split(jax.random.key(1), 3)
-    augment = jax.jit(jax.vmap(ncjax.random_augment, in_axes=(0, None)))
+    augment = jax.jit(jax.vmap(ncjax.synth.random_augment, in_axes=(0, None)))
     first, second = augment(keys, _IMAGE), augment(keys, _IMAGE)
     assert first.shape == (3,) + _IMAGE.shape
     np.testing.assert_array_equal(first, second)
@@ -288,12 +291,8 @@ def test_rectangle_overlap_agrees_with_shapely(x1, y1, w1, h1, a1, x2, y2, w2, h
     assume(abs(distance) > 1e-3 or polygon_a.intersection(polygon_b).area > 1e-3)
     overlap = bool(
         _overlap()(
-            jnp.array([x1, y1]),
-            jnp.array([w1, h1]),
-            jnp.asarray(rotation_a),
-            jnp.array([x2, y2]),
-            jnp.array([w2, h2]),
-            jnp.asarray(rotation_b),
+            Rectangle(jnp.array([x1, y1]), jnp.array([w1, h1]), jnp.asarray(rotation_a)),
+            Rectangle(jnp.array([x2, y2]), jnp.array([w2, h2]), jnp.asarray(rotation_b)),
             0.0,
         )
     )
@@ -302,7 +301,7 @@ def test_rectangle_overlap_agrees_with_shapely(x1, y1, w1, h1, a1, x2, y2, w2, h
 
 @functools.cache
 def _interval():
-    return jax.jit(ncjax.synth.render.box_interval_2d)
+    return jax.jit(ncjax.synth.raycast.box_interval_2d)
 
 
 @given(_coordinate, _coordinate, _half, _half, _angle, _angle)

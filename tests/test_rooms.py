@@ -21,7 +21,7 @@ def _box_room(half=2.0, h_c=1.0, h_f=-1.5, rc=0.5, capacity=8):
     corners = (
         jnp.zeros((capacity, 2)).at[:4].set(jnp.array([[half, -half], [half, half], [-half, half], [-half, -half]]))
     )
-    return ncjax.Room(
+    return ncjax.synth.Room(
         corners=corners,
         mask=jnp.arange(capacity) < 4,
         ceiling_height=jnp.array(h_c),
@@ -37,7 +37,7 @@ def _box_room(half=2.0, h_c=1.0, h_f=-1.5, rc=0.5, capacity=8):
 def test_box_room_labels_by_hand(x64):
     room = _box_room()
     cam = ncjax.NonCentralPanorama(width=W, height=H, rc=0.5)
-    labels = ncjax.room_labels(room, cam)
+    labels = ncjax.synth.room_labels(room, cam)
     assert bool(labels.ok)
     # Column 0 looks at azimuth pi - pi/W, onto the wall x = -2 (wall 2, from (-2, 2) to (-2, -2)).
     azimuth = math.pi - math.pi / W
@@ -68,20 +68,20 @@ def test_box_room_labels_by_hand(x64):
 
 @pytest.mark.slow
 def test_walls_of_box_room_follow_design_convention():
-    direction, distance, ceiling, floor = ncjax.room_walls(_box_room())
+    direction, distance, ceiling, floor = ncjax.synth.room_walls(_box_room())
     np.testing.assert_allclose(direction[:4], [[0, 1], [-1, 0], [0, -1], [1, 0]], atol=1e-7)
     np.testing.assert_allclose(distance[:4], -2.0)
-    ceiling_corners, floor_corners = ncjax.room_corners_3d(_box_room())
+    ceiling_corners, floor_corners = ncjax.synth.room_corners_3d(_box_room())
     for i in range(4):
-        line = ncjax.line_from_point_direction(ceiling_corners[i], jnp.append(direction[i], 0.0))
+        line = ncjax.geometry.line_from_point_direction(ceiling_corners[i], jnp.append(direction[i], 0.0))
         np.testing.assert_allclose(ceiling[i], line, atol=1e-6)
-        line = ncjax.line_from_point_direction(floor_corners[i], jnp.append(direction[i], 0.0))
+        line = ncjax.geometry.line_from_point_direction(floor_corners[i], jnp.append(direction[i], 0.0))
         np.testing.assert_allclose(floor[i], line, atol=1e-6)
 
 
 @functools.cache
 def _generator(config):
-    return jax.jit(jax.vmap(partial(ncjax.random_room, config=config)))
+    return jax.jit(jax.vmap(partial(ncjax.synth.random_room, config=config)))
 
 
 def _generate(config, n, seed=0):
@@ -108,7 +108,7 @@ def test_same_key_same_room():
 @pytest.mark.slow
 def test_random_rooms_are_valid(mixed_rooms):
     rooms = mixed_rooms
-    assert np.all(np.asarray(rooms.status) == ncjax.RoomStatus.OK)
+    assert np.all(np.asarray(rooms.status) == ncjax.synth.RoomStatus.OK)
     walls = np.asarray(rooms.num_walls)
     manhattan = ~np.asarray(rooms.is_atlanta)
     assert 0 < manhattan.sum() < len(walls)
@@ -121,7 +121,7 @@ def test_random_rooms_are_valid(mixed_rooms):
         room = jax.tree.map(lambda leaf: leaf[i], rooms)
         assert float(polygon_area(room.corners, room.mask)) > 0
         assert float(distance_to_walls(jnp.zeros(2), room.corners, room.mask)) > float(room.rc) + 0.3 - 1e-5
-        direction, *_ = ncjax.room_walls(room)
+        direction, *_ = ncjax.synth.room_walls(room)
         direction = np.asarray(direction)[: walls[i]]
         cosines = np.abs(direction @ direction.T)
         axis_aligned = np.isclose(cosines, 0, atol=1e-5) | np.isclose(cosines, 1, atol=1e-5)
@@ -137,10 +137,10 @@ def test_labels_are_exact_projections_of_boundary_points(mixed_rooms, x64):
 
     def check(room):
         cam = room.camera(W, H)
-        labels = ncjax.room_labels(room, cam)
+        labels = ncjax.synth.room_labels(room, cam)
         columns = jnp.arange(W, dtype=jnp.float64)
-        u_c, v_c = ncjax.project(cam, labels.ceiling_points)
-        u_f, v_f = ncjax.project(cam, labels.floor_points)
+        u_c, v_c = ncjax.geometry.project(cam, labels.ceiling_points)
+        u_f, v_f = ncjax.geometry.project(cam, labels.floor_points)
         column_error = jnp.max(jnp.abs(jnp.stack([u_c, u_f]) - columns))
         row_error = jnp.maximum(jnp.max(jnp.abs(v_c - labels.ceiling_v)), jnp.max(jnp.abs(v_f - labels.floor_v)))
         # Each boundary point lies on the wall the label names.
@@ -157,7 +157,7 @@ def test_labels_are_exact_projections_of_boundary_points(mixed_rooms, x64):
 
 
 def test_corners_sit_where_the_visible_wall_changes(mixed_rooms):
-    labels = jax.jit(jax.vmap(lambda room: ncjax.room_labels(room, room.camera(W, H))))(mixed_rooms)
+    labels = jax.jit(jax.vmap(lambda room: ncjax.synth.room_labels(room, room.camera(W, H))))(mixed_rooms)
     for i in range(mixed_rooms.corners.shape[0]):
         wall = np.asarray(labels.wall_index[i])
         changes = np.flatnonzero(wall != np.roll(wall, -1))  # change between column c and c + 1
@@ -174,8 +174,8 @@ def test_corners_sit_where_the_visible_wall_changes(mixed_rooms):
 def test_occlusion_option(occlusion):
     config = ncjax.RoomConfig(world="mix", occlusion=occlusion, camera_tries=64)
     rooms = _generate(config, 24, seed=3)
-    assert np.all(np.asarray(rooms.status) == ncjax.RoomStatus.OK)
-    labels = jax.vmap(lambda room: ncjax.room_labels(room, room.camera(W, H)))(rooms)
+    assert np.all(np.asarray(rooms.status) == ncjax.synth.RoomStatus.OK)
+    labels = jax.vmap(lambda room: ncjax.synth.room_labels(room, room.camera(W, H)))(rooms)
     occluded = np.asarray(labels.corner_is_occlusion).any(1)
     assert np.all(occluded) if occlusion == "required" else not np.any(occluded)
     # An occlusion shows as two corners in one column: near and far.
@@ -191,7 +191,7 @@ def test_failure_is_reported_not_hidden():
     config = ncjax.RoomConfig(size_range=(3.5, 3.6), rc_range=(1.5, 1.5), camera_margin=1.0, room_tries=1)
     rooms = _generate(config, 4)
     statuses = set(np.asarray(rooms.status).tolist())
-    assert statuses <= {ncjax.RoomStatus.OK, ncjax.RoomStatus.CAMERA_NOT_PLACED}
+    assert statuses <= {ncjax.synth.RoomStatus.OK, ncjax.synth.RoomStatus.CAMERA_NOT_PLACED}
 
 
 @pytest.mark.parametrize(
@@ -215,7 +215,7 @@ def test_small_room_source_gives_closets_and_corridors():
 
     config = dataclasses.replace(SYNTH_SOURCES["synth-decor-small"].room, camera_tries=64)
     rooms = _generate(config, 32, seed=3)
-    assert np.all(np.asarray(rooms.status) == ncjax.RoomStatus.OK)
+    assert np.all(np.asarray(rooms.status) == ncjax.synth.RoomStatus.OK)
     manhattan = ~np.asarray(rooms.is_atlanta)
     assert np.all(np.asarray(rooms.rc) == 0) and 0 < manhattan.sum() < 32
     assert np.asarray(rooms.num_walls)[manhattan].max() <= 6

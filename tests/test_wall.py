@@ -1,8 +1,8 @@
 """Single-wall solver, minimal solver, horizontal-line baseline (paper Section 4.1, 5.3).
 
-Rooms come from the public generator (``ncjax.random_room`` without
+Rooms come from the public generator (``ncjax.synth.random_room`` without
 occlusion, Manhattan at any yaw and Atlanta) with exact labels
-(``ncjax.room_labels``); the helpers here are shared with
+(``ncjax.synth.room_labels``); the helpers here are shared with
 ``test_layout_solvers.py``.
 """
 
@@ -34,14 +34,14 @@ CONFIGS = {
 def boundary_rays(cam, ceiling_v, floor_v):
     """Rays of the per-column boundary rows (column ``u`` at its centre)."""
     columns = jnp.arange(cam.width, dtype=ceiling_v.dtype)
-    return ncjax.pixel_to_ray(cam, columns, ceiling_v), ncjax.pixel_to_ray(cam, columns, floor_v)
+    return ncjax.geometry.pixel_to_ray(cam, columns, ceiling_v), ncjax.geometry.pixel_to_ray(cam, columns, floor_v)
 
 
 def room_data(room):
     """A room as a dict of the solver inputs and the truth (walls in the room's order)."""
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=room.rc)
-    labels = ncjax.room_labels(room, cam)
-    directions, distances, _, _ = ncjax.room_walls(room)
+    labels = ncjax.synth.room_labels(room, cam)
+    directions, distances, _, _ = ncjax.synth.room_walls(room)
     capacity = room.mask.shape[0]
     columns = jnp.sum(labels.wall_index[:, None] == jnp.arange(capacity), 0)
     usable = labels.ok & ~jnp.any(labels.corner_is_occlusion) & jnp.all(~room.mask | (columns >= MIN_COLUMNS))
@@ -63,7 +63,7 @@ def room_data(room):
 
 @functools.partial(jax.jit, static_argnames="world")
 def _candidate_rooms(keys, world):
-    return jax.vmap(lambda k: room_data(ncjax.random_room(k, CONFIGS[world])))(keys)
+    return jax.vmap(lambda k: room_data(ncjax.synth.random_room(k, CONFIGS[world])))(keys)
 
 
 def sample_rooms(seed, world, n):
@@ -90,7 +90,7 @@ def box_room(corners, h_c=1.0, h_f=-1.5, rc=0.5, capacity=CAPACITY):
     """An explicit counter-clockwise room around the camera (e.g. axis-aligned)."""
     corners = jnp.asarray(corners, float)
     n = corners.shape[0]
-    room = ncjax.Room(
+    room = ncjax.synth.Room(
         corners=jnp.zeros((capacity, 2), corners.dtype).at[:n].set(corners),
         mask=jnp.arange(capacity) < n,
         ceiling_height=jnp.asarray(h_c, corners.dtype),
@@ -114,7 +114,7 @@ def direction_error_deg(a, b):
 
 
 def _line_of(direction, distance, height):
-    return ncjax.horizontal_wall_line(direction, distance, height)
+    return ncjax.geometry.horizontal_wall_line(direction, distance, height)
 
 
 @pytest.mark.slow
@@ -125,11 +125,11 @@ def test_rows_are_side():
     angle = jax.random.uniform(k1, (50,), maxval=7.0)
     u = jnp.stack([jnp.cos(angle), jnp.sin(angle)], -1)
     d, h_c, h_f = jax.random.normal(k2, (3, 50))
-    ray = ncjax.angles_to_ray(0.4, *jax.random.uniform(k3, (2, 50), minval=-1.5, maxval=1.5))
+    ray = ncjax.geometry.angles_to_ray(0.4, *jax.random.uniform(k3, (2, 50), minval=-1.5, maxval=1.5))
     ceiling, floor = ncjax.solvers.wall.wall_rows(ray, ray)
     unknown = jnp.concatenate([u, h_c[:, None] * u, h_f[:, None] * u, d[:, None]], -1)
-    np.testing.assert_allclose(jnp.sum(ceiling * unknown, -1), ncjax.side(ray, _line_of(u, d, h_c)), atol=1e-5)
-    np.testing.assert_allclose(jnp.sum(floor * unknown, -1), ncjax.side(ray, _line_of(u, d, h_f)), atol=1e-5)
+    np.testing.assert_allclose(jnp.sum(ceiling * unknown, -1), ncjax.geometry.side(ray, _line_of(u, d, h_c)), atol=1e-5)
+    np.testing.assert_allclose(jnp.sum(floor * unknown, -1), ncjax.geometry.side(ray, _line_of(u, d, h_f)), atol=1e-5)
 
 
 def test_parallel_quadratic_is_cross_product():
@@ -146,7 +146,7 @@ def test_parallel_quadratic_is_cross_product():
 def _all_walls(room, method):
     ceiling_rays, floor_rays = rays(room)
     masks = room["wall_index"][None, :] == jnp.arange(CAPACITY)[:, None]
-    return jax.vmap(lambda m: ncjax.solve_wall(ceiling_rays, floor_rays, m, m, method=method))(masks)
+    return jax.vmap(lambda m: ncjax.solvers.solve_wall(ceiling_rays, floor_rays, m, m, method=method))(masks)
 
 
 @functools.partial(jax.jit, static_argnames="method")
@@ -206,7 +206,7 @@ def test_unknown_method_is_a_value_error():
     ceiling_rays, floor_rays = rays(room)
     mask = room["wall_index"] == 0
     with pytest.raises(ValueError, match="method"):
-        ncjax.solve_wall(ceiling_rays, floor_rays, mask, mask, method="quadratic")
+        ncjax.solvers.solve_wall(ceiling_rays, floor_rays, mask, mask, method="quadratic")
 
 
 @pytest.mark.slow
@@ -269,7 +269,7 @@ def test_order_and_masked_rows(seed):
         np.testing.assert_allclose(a, b, atol=2e-4)
 
 
-_solve_jit = jax.jit(ncjax.solve_wall)
+_solve_jit = jax.jit(ncjax.solvers.solve_wall)
 
 
 def _wall_outputs(room, wall_id, method="paper"):
@@ -278,7 +278,7 @@ def _wall_outputs(room, wall_id, method="paper"):
 
     def f(rows):
         ceiling_rays, floor_rays = _wall_rays(room, rows)
-        wall = ncjax.solve_wall(ceiling_rays, floor_rays, mask, mask, method=method)
+        wall = ncjax.solvers.solve_wall(ceiling_rays, floor_rays, mask, mask, method=method)
         return jnp.concatenate(
             [wall.direction, wall.distance[None], wall.ceiling_height[None], wall.floor_height[None]]
         )
@@ -333,7 +333,7 @@ def test_null_space_gradient_with_repeated_singular_values(x64):
     a = jnp.concatenate([a, jnp.ones((1, 4)) * 0.0])
 
     def projector(m):
-        v = ncjax.null_space(m, 1)
+        v = ncjax.geometry.null_space(m, 1)
         return v @ v.T
 
     check_gradients(projector, a)
@@ -384,7 +384,7 @@ def test_minimal_solver(x64):
     room = sample_room(7, "atlanta")
     ceiling_rays, floor_rays = rays(room)
     index = jnp.nonzero(room["wall_index"] == 2, size=4)[0]
-    walls, valid = jax.jit(ncjax.solve_wall_minimal)(
+    walls, valid = jax.jit(ncjax.solvers.solve_wall_minimal)(
         ceiling_rays[index[jnp.array([0, 3])]], floor_rays[index[jnp.array([1, 2])]]
     )
     assert walls.distance.shape == (3,) and valid.shape == (3,)
@@ -406,7 +406,7 @@ def test_horizontal_line_baseline():
         if int(mask.sum()) < WALL_COLUMNS:
             continue
         for rays_, height in ((ceiling_rays, room["h_c"]), (floor_rays, room["h_f"])):
-            line = jax.jit(ncjax.solve_horizontal_line)(rays_, mask)
+            line = jax.jit(ncjax.solvers.solve_horizontal_line)(rays_, mask)
             assert bool(line.ok)
             assert float(direction_error_deg(line.direction, room["directions"][wall_id])) < 0.05
             np.testing.assert_allclose(line.distance, room["distances"][wall_id], atol=2e-3)
@@ -448,9 +448,9 @@ def test_batched_baseline_matches_one_line_at_a_time():
     room = sample_room(8, "atlanta")
     ceiling_rays, _ = rays(room)
     index = jnp.where(jnp.arange(WIDTH) % 17 == 0, -1, room["wall_index"])  # some columns of no line
-    batched = jax.jit(ncjax.solve_horizontal_lines, static_argnums=2)(ceiling_rays, index, CAPACITY)
+    batched = jax.jit(ncjax.solvers.solve_horizontal_lines, static_argnums=2)(ceiling_rays, index, CAPACITY)
     masks = index[None, :] == jnp.arange(CAPACITY)[:, None]
-    single = jax.jit(jax.vmap(ncjax.solve_horizontal_line, (None, 0)))(ceiling_rays, masks)
+    single = jax.jit(jax.vmap(ncjax.solvers.solve_horizontal_line, (None, 0)))(ceiling_rays, masks)
     assert batched.direction.shape == (CAPACITY, 2)
     np.testing.assert_array_equal(batched.ok, single.ok)
     ok = np.asarray(single.ok)
@@ -468,8 +468,8 @@ def test_batched_baseline_gradient(x64):
 
     def distances(ceiling_v):
         columns = jnp.arange(WIDTH, dtype=ceiling_v.dtype)
-        rays_ = ncjax.pixel_to_ray(room["cam"], columns, ceiling_v)
-        lines = ncjax.solve_horizontal_lines(rays_, room["wall_index"], CAPACITY)
+        rays_ = ncjax.geometry.pixel_to_ray(room["cam"], columns, ceiling_v)
+        lines = ncjax.solvers.solve_horizontal_lines(rays_, room["wall_index"], CAPACITY)
         return jnp.where(room["mask"], lines.distance, 0.0)
 
     tangent = jnp.asarray(np.random.default_rng(0).normal(size=WIDTH))
@@ -506,11 +506,12 @@ def test_walls_at_known_heights_are_exact(rc):
 def test_boundary_points_at_a_height_lie_on_their_rays():
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=0.4)
     columns = jnp.arange(0.0, WIDTH, 7.0)
-    ray = ncjax.pixel_to_ray(cam, columns, jnp.full_like(columns, 20.0))  # above the horizon
+    ray = ncjax.geometry.pixel_to_ray(cam, columns, jnp.full_like(columns, 20.0))  # above the horizon
     points, ahead = ncjax.solvers.wall_at_heights.boundary_points_at(ray, jnp.asarray(1.3))
     assert bool(jnp.all(ahead))
-    on_ray = ncjax.side(
-        ray, ncjax.line_from_point_direction(jnp.pad(points, ((0, 0), (0, 1)), constant_values=1.3), ray[:, :3])
+    on_ray = ncjax.geometry.side(
+        ray,
+        ncjax.geometry.line_from_point_direction(jnp.pad(points, ((0, 0), (0, 1)), constant_values=1.3), ray[:, :3]),
     )
     np.testing.assert_allclose(on_ray, 0.0, atol=1e-5)
     # rays going up never reach the floor
@@ -567,8 +568,8 @@ def test_ransac_at_known_heights_ignores_outlier_rows():
     cam, columns = room["cam"], jnp.flatnonzero(room["wall_index"] == 1, size=40)
     outlier = jnp.arange(columns.size) % 3 == 0
     floor_v = room["floor_v"][columns] - jnp.where(outlier, 40.0, 0.0)
-    ceiling_rays = ncjax.pixel_to_ray(cam, columns.astype(float), room["ceiling_v"][columns])
-    floor_rays = ncjax.pixel_to_ray(cam, columns.astype(float), floor_v)
+    ceiling_rays = ncjax.geometry.pixel_to_ray(cam, columns.astype(float), room["ceiling_v"][columns])
+    floor_rays = ncjax.geometry.pixel_to_ray(cam, columns.astype(float), floor_v)
     wall_columns = WallColumns(
         column_directions(cam, columns.astype(float)), ceiling_rays, floor_rays, jnp.ones(columns.size, bool)
     )
@@ -586,7 +587,7 @@ def test_a_wall_at_heights_has_finite_gradients_even_where_it_fails():
     ceiling_rays, floor_rays = rays(room)
 
     def distance(rows, mask):
-        rays_now = ncjax.pixel_to_ray(room["cam"], jnp.arange(WIDTH, dtype=rows.dtype), rows)
+        rays_now = ncjax.geometry.pixel_to_ray(room["cam"], jnp.arange(WIDTH, dtype=rows.dtype), rows)
         wall = ncjax.solvers.wall_at_heights.solve_wall_at_heights(
             rays_now, floor_rays, mask, mask & False, room["h_c"], room["h_f"]
         )

@@ -9,3 +9,18 @@
 - ``panorama_scores``: the network's rows, corners and raw layout on them scored against their labels, and the
   benchmark's table and CSV; ``contact_sheet``: its picture of every panorama.
 """
+
+from . import central_metrics, layout_metrics, network_metrics
+from .layout_metrics import evaluate_layout
+from .network_metrics import boundary_pixel_error, corner_confusion, corner_scores, network_table
+
+__all__ = [
+    "boundary_pixel_error",
+    "central_metrics",
+    "corner_confusion",
+    "corner_scores",
+    "evaluate_layout",
+    "layout_metrics",
+    "network_metrics",
+    "network_table",
+]

@@ -5,6 +5,9 @@ no sensor noise); on noisy panoramas its rows fall apart (experiments/RESULTS.md
 shot sigma of 0.05, 84-94% of the test rooms fail). A panorama whose estimated noise exceeds a
 target is blurred just enough to bring it to that target before the network and the edge snap
 see it; a clean panorama is left bit for bit as it is.
+
+Its two pixel operations, greyscale and a wrap-around Gaussian blur, are also among the training
+augmentations (:mod:`ncjax.synth.augment`).
 """
 
 from __future__ import annotations
@@ -13,14 +16,34 @@ import math
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
-
-from ..synth.augment import gaussian_blur, to_greyscale
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 # Luma noise the network is given at most: inside its training range, above our clean renders' 0.006.
 NOISE_TARGET = 0.01
 _MAX_BLUR = 2.5  # pixels at 512 rows: a stronger blur costs more than the noise it removes
 _BLUR_RADIUS = 8  # static kernel half-width, >= 3 sigmas of the strongest blur
+_LUMA = np.array([0.299, 0.587, 0.114], np.float32)  # numpy: importing ncjax starts no JAX backend
+
+
+def to_greyscale(image: Float[Array, "H W 3"]) -> Float[Array, "H W 3"]:
+    """Luma (ITU-R 601) copied to the three channels."""
+    return jnp.broadcast_to((image @ _LUMA)[..., None], image.shape)
+
+
+def gaussian_blur(image: Float[Array, "H W 3"], sigma: Float[ArrayLike, ""], radius: int = 3) -> Float[Array, "H W 3"]:
+    """Separable Gaussian blur of standard deviation ``sigma`` pixels (a static
+    ``radius`` bounds the kernel): wraps around horizontally, clamps vertically."""
+    offsets = jnp.arange(-radius, radius + 1)
+    weights = jnp.exp(-0.5 * (offsets / jnp.maximum(sigma, 1e-3)) ** 2)
+    weights = weights / jnp.sum(weights)
+    # each pass sums slices of one padded copy (wrapped, then edge-padded), which XLA fuses: shifted copies
+    # (jnp.roll) or a gather of (H, 2 radius + 1, W, 3) rows are materialised, 27 GB for four 4096 x 2048 images
+    height, width = image.shape[:2]
+    wrapped = jnp.pad(image, ((0, 0), (radius, radius), (0, 0)), mode="wrap")
+    horizontal = sum(w * wrapped[:, 2 * radius - k : 2 * radius - k + width] for k, w in enumerate(weights))
+    padded = jnp.pad(horizontal, ((radius, radius), (0, 0), (0, 0)), mode="edge")
+    return sum(w * padded[k : k + height] for k, w in enumerate(weights))
 
 
 def noise_sigma(image: Float[Array, "H W 3"]) -> Float[Array, ""]:

@@ -297,25 +297,16 @@ class MBConv(nnx.Module):
 
     1x1 expansion (ReLU6; absent for expand ratio 1), depthwise k x k with the
     block's stride (ReLU6), linear 1x1 projection; the input is added back
-    when the stride is 1 and the channels are kept.
+    when the stride is 1 and the channels are kept. The expand ratio, the kernel
+    and the output channels are those of the block's stage, ``spec``.
     """
 
-    def __init__(
-        self,
-        in_channels: int,
-        out_channels: int,
-        expand_ratio: int,
-        kernel: int,
-        stride: int,
-        config: EfficientNetConfig,
-        *,
-        rngs: nnx.Rngs,
-    ):
-        hidden = in_channels * expand_ratio
-        self.expand = ConvNorm(in_channels, hidden, 1, 1, config, rngs=rngs) if expand_ratio != 1 else None
-        self.depthwise = ConvNorm(hidden, hidden, kernel, stride, config, depthwise=True, rngs=rngs)
-        self.project = ConvNorm(hidden, out_channels, 1, 1, config, activation=False, rngs=rngs)
-        self.residual = stride == 1 and in_channels == out_channels
+    def __init__(self, in_channels: int, spec: StageConfig, stride: int, config: EfficientNetConfig, *, rngs: nnx.Rngs):
+        hidden = in_channels * spec.expand_ratio
+        self.expand = ConvNorm(in_channels, hidden, 1, 1, config, rngs=rngs) if spec.expand_ratio != 1 else None
+        self.depthwise = ConvNorm(hidden, hidden, spec.kernel, stride, config, depthwise=True, rngs=rngs)
+        self.project = ConvNorm(hidden, spec.channels, 1, 1, config, activation=False, rngs=rngs)
+        self.residual = stride == 1 and in_channels == spec.channels
 
     def __call__(self, x: Float[Array, "B H W C"]) -> Float[Array, "B h w D"]:
         y = x if self.expand is None else self.expand(x)
@@ -347,9 +338,7 @@ class EfficientNet(nnx.Module):
             blocks = nnx.List()
             for j in range(spec.repeats):
                 stride = spec.stride if j == 0 else 1
-                blocks.append(
-                    MBConv(in_channels, spec.channels, spec.expand_ratio, spec.kernel, stride, config, rngs=rngs)
-                )
+                blocks.append(MBConv(in_channels, spec, stride, config, rngs=rngs))
                 in_channels = spec.channels
             self.stages.append(blocks)
         if config.classifier:

@@ -17,8 +17,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ..synth.rooms import CORNER_LABEL_BASE
 from .config import CornerConfig, PipelineConfig
+
+# The labels' corner target is CORNER_LABEL_BASE**d, d the distance in columns to the nearest corner.
+CORNER_LABEL_BASE = 0.96
 
 
 def is_peak(corner_prob: Float[Array, " W"], radius: int, threshold: Float[ArrayLike, ""]) -> Bool[Array, " W"]:

@@ -1,10 +1,82 @@
 """Synthetic rooms and their panoramas with exact labels (paper Section 5.1).
 
-- ``rooms``: random Manhattan and Atlanta rooms, a camera inside, and their labels.
+- ``rooms``: random Manhattan and Atlanta rooms and a camera inside; ``labels``: their exact labels.
 - ``furniture``, ``scene``, ``materials``: furnished, lit scenes with procedural materials;
   ``placement``: rectangles in the plan, packed without overlap.
 - ``decor``: the realistic scenes' decor (``SceneConfig(decor=True)``): ceiling lights and panels, decals,
   sunlight, open doors; ``elements``: the scenes' containers.
-- ``render``, ``render_details``: ray-cast non-central panoramas (RGB, depth, semantics).
+- ``render``, ``raycast``, ``render_details``: ray-cast non-central panoramas (RGB, depth, semantics).
 - ``augment``: photometric and sensor effects; ``dataset``: the dataset folders on disk.
 """
+
+from .augment import AugmentConfig, add_sensor_noise, adjust_exposure, adjust_gamma, random_augment, white_balance
+from .dataset import (
+    DatasetSample,
+    labels_from_corners,
+    list_samples,
+    rc_from_name,
+    read_dataset,
+    read_sample,
+    read_split,
+    sample_name,
+    write_dataset,
+)
+from .elements import Boxes, Lights, Openings
+from .labels import RoomLabels, room_labels
+from .materials import Material, Pattern
+from .render import (
+    RenderConfig,
+    Rendering,
+    Semantic,
+    SynthConfig,
+    box_overflow,
+    render,
+    synthesize,
+    synthesize_batch,
+    synthesize_scene,
+)
+from .rooms import Room, RoomConfig, RoomStatus, random_room, room_corners_3d, room_walls
+from .scene import Scene, SceneConfig, random_scene
+
+__all__ = [
+    "add_sensor_noise",
+    "adjust_exposure",
+    "adjust_gamma",
+    "AugmentConfig",
+    "box_overflow",
+    "Boxes",
+    "DatasetSample",
+    "labels_from_corners",
+    "Lights",
+    "list_samples",
+    "Material",
+    "Openings",
+    "Pattern",
+    "random_augment",
+    "random_room",
+    "random_scene",
+    "rc_from_name",
+    "read_dataset",
+    "read_sample",
+    "read_split",
+    "render",
+    "RenderConfig",
+    "Rendering",
+    "Room",
+    "room_corners_3d",
+    "room_labels",
+    "room_walls",
+    "RoomConfig",
+    "RoomLabels",
+    "RoomStatus",
+    "sample_name",
+    "Scene",
+    "SceneConfig",
+    "Semantic",
+    "SynthConfig",
+    "synthesize",
+    "synthesize_batch",
+    "synthesize_scene",
+    "white_balance",
+    "write_dataset",
+]

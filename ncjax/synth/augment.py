@@ -9,6 +9,7 @@ from several lenses, and JPEG compression. The geometry is untouched (at most th
 seams' shift of a pixel or two, as in real stitching), so the labels stay those of
 the scene. Real non-central captures are often grey, so greyscale is among them.
 Horizontal operations wrap around: a panorama's left and right edges meet.
+The greyscale and the blur are the network's own (:mod:`ncjax.network.denoise`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray, Real
 
-_LUMA = np.array([0.299, 0.587, 0.114], np.float32)  # numpy: importing ncjax starts no JAX backend
+from ..network.denoise import gaussian_blur, to_greyscale
 
 
 def adjust_exposure(image: Float[Array, "H W 3"], factor: Float[ArrayLike, "*#S"]) -> Float[Array, "H W 3"]:
@@ -39,32 +40,12 @@ def white_balance(image: Float[Array, "H W 3"], gains: Float[ArrayLike, 3]) -> F
     return jnp.clip(image * gains, 0.0, 1.0)
 
 
-def to_greyscale(image: Float[Array, "H W 3"]) -> Float[Array, "H W 3"]:
-    """Luma (ITU-R 601) copied to the three channels."""
-    return jnp.broadcast_to((image @ _LUMA)[..., None], image.shape)
-
-
 def add_sensor_noise(
     key: PRNGKeyArray, image: Float[Array, "H W 3"], read_sigma: Float[ArrayLike, ""], shot_sigma: Float[ArrayLike, ""]
 ) -> Float[Array, "H W 3"]:
     """Gaussian noise whose variance grows with the intensity (read + shot noise)."""
     sigma = jnp.sqrt(read_sigma**2 + shot_sigma**2 * jnp.clip(image, 0.0, 1.0))
     return jnp.clip(image + sigma * jax.random.normal(key, image.shape), 0.0, 1.0)
-
-
-def gaussian_blur(image: Float[Array, "H W 3"], sigma: Float[ArrayLike, ""], radius: int = 3) -> Float[Array, "H W 3"]:
-    """Separable Gaussian blur of standard deviation ``sigma`` pixels (a static
-    ``radius`` bounds the kernel): wraps around horizontally, clamps vertically."""
-    offsets = jnp.arange(-radius, radius + 1)
-    weights = jnp.exp(-0.5 * (offsets / jnp.maximum(sigma, 1e-3)) ** 2)
-    weights = weights / jnp.sum(weights)
-    # each pass sums slices of one padded copy (wrapped, then edge-padded), which XLA fuses: shifted copies
-    # (jnp.roll) or a gather of (H, 2 radius + 1, W, 3) rows are materialised, 27 GB for four 4096 x 2048 images
-    height, width = image.shape[:2]
-    wrapped = jnp.pad(image, ((0, 0), (radius, radius), (0, 0)), mode="wrap")
-    horizontal = sum(w * wrapped[:, 2 * radius - k : 2 * radius - k + width] for k, w in enumerate(weights))
-    padded = jnp.pad(horizontal, ((radius, radius), (0, 0), (0, 0)), mode="edge")
-    return sum(w * padded[k : k + height] for k, w in enumerate(weights))
 
 
 def vignetting_factor(

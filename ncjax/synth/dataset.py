@@ -42,8 +42,9 @@ import numpy as np
 
 from ..geometry.camera import NonCentralPanorama, project
 from ..io.files import write_atomic
+from .labels import RoomLabels, room_labels
 from .render import Rendering, SynthConfig, synthesize_batch
-from .rooms import Room, RoomLabels, RoomStatus, room_labels
+from .rooms import Room, RoomStatus
 from .scene import Scene
 
 SCHEMA_VERSION = 1

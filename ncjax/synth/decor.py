@@ -23,6 +23,7 @@ from .elements import FRAME_WIDTH, Boxes, DecalKind, Decals, Doorways, Lights, O
 from .materials import Material, Pattern, colour_in_hsv_box
 from .placement import (
     Footprints,
+    Rectangle,
     between,
     categorical,
     no_footprints,
@@ -65,16 +66,16 @@ def _from_plan_coordinates(ab: Float[Array, "*n 2"], room: Room, axis: Float[Arr
     return ab[..., :1] * axis + ab[..., 1:] * perpendicular(axis) - room.camera_position[:2]
 
 
-def _blocked_below(footprints: Footprints, bottom, obstacles: Footprints, tops) -> Array:
-    """Per candidate: whether an obstacle under its footprint reaches within 10 cm of its bottom."""
+def _blocked_below(footprints: Footprints, bottom, standing: Boxes) -> Array:
+    """Per candidate: whether a box standing under its footprint reaches within 10 cm of its bottom."""
+    obstacles = Rectangle(standing.centre[:, :2], standing.half_size[:, :2], standing.rotation)
+    tops = standing.centre[:, 2] + standing.half_size[:, 2]
 
-    def one(centre, half, rotation, low):
-        hits = jax.vmap(rectangles_overlap, in_axes=(0, 0, 0, None, None, None, None))(
-            obstacles.centre, obstacles.half_size, obstacles.rotation, centre, half, rotation, 0.05
-        )
-        return jnp.any(hits & obstacles.mask & (tops > low - 0.1))
+    def one(rectangle, low):
+        hits = jax.vmap(rectangles_overlap, in_axes=(0, None, None))(obstacles, rectangle, 0.05)
+        return jnp.any(hits & standing.mask & (tops > low - 0.1))
 
-    return jax.vmap(one)(footprints.centre, footprints.half_size, footprints.rotation, bottom)
+    return jax.vmap(one)(footprints.rectangles, bottom)
 
 
 def _panel_shape(uniform, centre_ab, grid_scale, is_grid):
@@ -146,9 +147,9 @@ def _lamp_parts(kind, centre, reach, axis, ceiling, uniform):
     return centre3, half, rotation, emissive, mask & (kind != LampKind.PANEL), light_z - 0.1
 
 
-def ceiling_lights(key, room: Room, config, axis, ceiling: Material, obstacles: Footprints, tops):
-    """Ceiling lights, away from walls and apart, clear of the furniture under the
-    hanging ones: boxes (LAMP_PARTS per slot), their point lights and the flush panels.
+def ceiling_lights(key, room: Room, config, axis, ceiling: Material, standing: Boxes):
+    """Ceiling lights, away from walls and apart, clear of the ``standing`` boxes (furniture, door leaves) under
+    the hanging ones: boxes (LAMP_PARTS per slot), their point lights and the flush panels.
 
     A room has either light panels (chance ``config.panel_probability``) or lamps,
     each flush, a pendant or a fan (``config.pendant_probability``,
@@ -189,7 +190,7 @@ def ceiling_lights(key, room: Room, config, axis, ceiling: Material, obstacles: 
         jnp.where(kind == LampKind.FAN, room.ceiling_height - 0.65, room.ceiling_height),
     )
     candidates = Footprints(centre, half, rotation, inside & away & (bottom > 0.4))
-    clear = ~_blocked_below(candidates, bottom, obstacles, tops)
+    clear = ~_blocked_below(candidates, bottom, standing)
     candidates = Footprints(centre, half, rotation, candidates.mask & clear)
     chosen, filled = pack_footprints(candidates, slots, no_footprints(), 0.8)
     filled = filled & (jnp.arange(slots) <= jnp.floor(v[0, 10] * slots) + panel_room)
@@ -335,10 +336,10 @@ def door_leaves(key, room: Room, openings: Openings, doorways: Doorways, config)
             > room.rc + config.camera_clearance
         )
     )
-    overlap = jax.vmap(
-        jax.vmap(rectangles_overlap, in_axes=(None, None, None, 0, 0, 0, None)),
-        in_axes=(0, 0, 0, None, None, None, None),
-    )(centre, half, leaf_axis, centre, half, leaf_axis, 0.02)
+    leaves = Rectangle(centre, half, leaf_axis)
+    overlap = jax.vmap(jax.vmap(rectangles_overlap, in_axes=(None, 0, None)), in_axes=(0, None, None))(
+        leaves, leaves, 0.02
+    )
     earlier = jnp.arange(d)[None, :] < jnp.arange(d)[:, None]
     valid = valid & ~jnp.any(overlap & earlier & valid[None, :], axis=1)
     return Boxes(

@@ -1,10 +1,21 @@
-"""Furniture types: their parts, sizes and where they stand (placed by :mod:`ncjax.synth.placement`)."""
+"""Furniture: its types (parts, sizes and where they stand) and random pieces of them, with their
+materials and boxes (placed in a scene by :mod:`ncjax.synth.scene` with :mod:`ncjax.synth.placement`)."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Bool
+
+from ..geometry.polygon import perpendicular
+from .elements import Boxes
+from .materials import Material, Pattern, colour_in_hsv_box
+from .placement import between, categorical, rectangle_distance_to_point, rectangle_in_room, room_frame, wall_position
+from .rooms import Room
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,3 +213,79 @@ def _template_arrays():
 
 
 TEMPLATES = _template_arrays()
+
+
+# ---------------------------------------------------------------- random pieces
+
+
+def furniture_candidate(key, room: Room, config):
+    """One random piece for a scene of configuration ``config`` (a :class:`~ncjax.synth.scene.SceneConfig`):
+    (type, size (3,), centre (2,), rotation (2,), valid)."""
+    u = jax.random.uniform(key, (11,))
+    # The types of the realistic scenes come last in the pool: the basic pool is its head.
+    weight = TEMPLATES["weight"] if config.decor else TEMPLATES["weight"][:BASIC_TYPES]
+    kind = categorical(u[0], jnp.asarray(weight))
+    size = between(u[1:4], jnp.asarray(TEMPLATES["size_low"])[kind], jnp.asarray(TEMPLATES["size_high"])[kind])
+    size = size.at[2].min(room.ceiling_height - room.floor_height - 0.25)
+    # Against a wall: the back 1 cm off the wall, the piece's x axis along it.
+    wall, along, fits, start, direction, normal = wall_position(u[4:6], room, size[0], 0.05)
+    wall_centre = start + (along + size[0] / 2) * direction + (size[1] / 2 + 0.01) * normal
+    # Free-standing: anywhere, aligned with the room (wall 0) more often than not.
+    _, room_direction, _, _, low_xy, high_xy = room_frame(room)
+    free_centre = between(u[6:8], low_xy, high_xy)
+    aligned = jnp.arctan2(room_direction[0, 1], room_direction[0, 0]) + jnp.floor(4 * u[8]) * (math.pi / 2)
+    angle = jnp.where(u[9] < 0.6, aligned, 2 * math.pi * u[10])
+    free_rotation = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+    against_wall = jnp.asarray(TEMPLATES["against_wall"])[kind]
+    centre = jnp.where(against_wall, wall_centre, free_centre)
+    rotation = jnp.where(against_wall, direction, free_rotation)
+    half = size[:2] / 2
+    clear_of_camera = (
+        rectangle_distance_to_point(jnp.zeros(2), centre, half, rotation) > room.rc + config.camera_clearance
+    )
+    valid = (
+        rectangle_in_room(centre, half, rotation, room)
+        & (clear_of_camera | jnp.asarray(TEMPLATES["may_cover_camera"])[kind])
+        & jnp.where(against_wall, fits, True)
+    )
+    return kind, size, centre, rotation, valid
+
+
+def piece_materials(key, fabric: Bool[Array, ""]) -> tuple[Material, Material]:
+    """Primary and secondary materials of a piece of furniture."""
+    u = jax.random.uniform(key, (13,))
+    wood = colour_in_hsv_box(u[0:3], (0.04, 0.11), (0.3, 0.75), (0.2, 0.75))
+    painted = colour_in_hsv_box(u[3:6], (0.0, 1.0), (0.0, 0.6), (0.15, 0.95))
+    cloth = colour_in_hsv_box(u[6:9], (0.0, 1.0), (0.1, 0.8), (0.15, 0.85))
+    is_wood = u[9] < 0.6
+    primary_colour = jnp.where(fabric, cloth, jnp.where(is_wood, wood, painted))
+    primary_pattern = jnp.where(fabric, Pattern.FABRIC, jnp.where(is_wood, Pattern.WOOD, Pattern.PAINT))
+    secondary_colour = jnp.where(fabric, wood, jnp.where(u[10] < 0.5, 0.6 * primary_colour, painted))
+    secondary_pattern = jnp.where(fabric, Pattern.WOOD, Pattern.PAINT)
+    shade = between(u[11:13], 0.6, 0.9)
+    return (
+        Material(primary_pattern.astype(jnp.int32), primary_colour, shade[0] * primary_colour, jnp.array(0.3)),
+        Material(secondary_pattern.astype(jnp.int32), secondary_colour, shade[1] * secondary_colour, jnp.array(0.3)),
+    )
+
+
+def piece_boxes(kind, size, centre, rotation, floor_height, materials: tuple[Material, Material]) -> Boxes:
+    """The boxes of one piece of furniture (PARTS_PER_PIECE of them, with a mask), in its primary and
+    secondary ``materials`` (:func:`piece_materials`)."""
+    primary, secondary = materials
+    parts = jnp.asarray(TEMPLATES["parts"])[kind]
+    low, high = parts[:, 0::2] * size, parts[:, 1::2] * size
+    local = (low + high) / 2 - jnp.array([size[0] / 2, size[1] / 2, 0.0])
+    xy = centre + local[:, :1] * rotation + local[:, 1:2] * perpendicular(rotation)
+    secondary_part = jnp.asarray(TEMPLATES["secondary"])[kind]
+    material = jax.tree.map(
+        lambda a, b: jnp.where(secondary_part.reshape((-1,) + (1,) * a.ndim), b, a), primary, secondary
+    )
+    return Boxes(
+        centre=jnp.concatenate([xy, floor_height + local[:, 2:]], -1),
+        half_size=(high - low) / 2,
+        rotation=jnp.broadcast_to(rotation, (PARTS_PER_PIECE, 2)),
+        material=material,
+        emission=jnp.zeros((PARTS_PER_PIECE, 3)),
+        mask=jnp.asarray(TEMPLATES["part_mask"])[kind],
+    )

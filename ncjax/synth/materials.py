@@ -5,8 +5,8 @@ A material is a pattern kind, two colours and a scale (:class:`Material`);
 and up it) into an albedo. Patterns are built from a 32-bit integer hash, so they
 are identical on every run and every backend that implements uint32 arithmetic.
 Variety matters more than photorealism here: the point is to keep a layout
-network from learning the texture of a handful of rooms (paper Section 5.1
-draws materials from pools).
+network from learning the texture of a handful of rooms: :func:`surface_materials`
+draws a scene's floor, wall and ceiling materials from pools, as paper Section 5.1 does.
 """
 
 from __future__ import annotations
@@ -14,8 +14,12 @@ from __future__ import annotations
 import enum
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
+
+from .placement import between, categorical
 
 
 class Pattern(enum.IntEnum):
@@ -184,3 +188,92 @@ def colour_in_hsv_box(
     low = jnp.array([hue[0], saturation[0], value[0]])
     high = jnp.array([hue[1], saturation[1], value[1]])
     return hsv_to_rgb(low + uniform * (high - low))
+
+
+# ---------------------------------------------------------------- surfaces
+
+# fold_in data of the neutral-paint draw: its own stream, so the other draws stay those of earlier scenes.
+_NEUTRAL_PAINT_STREAM = 0x9A17
+
+# Range of the pattern period (metres) per Pattern, indexed by its value.
+_SCALE_RANGE = np.array(
+    [
+        [1.0, 1.0],
+        [0.6, 2.0],
+        [0.12, 0.22],
+        [0.3, 0.7],
+        [0.6, 1.0],
+        [0.1, 0.4],
+        [0.15, 0.35],
+        [0.3, 0.3],
+        [0.3, 0.3],
+        [0.59, 0.62],  # suspended-ceiling tiles: 60 cm (2 ft)
+        [0.12, 0.25],
+    ],
+    np.float32,
+)
+
+
+def _surface_material(uniform: Float[Array, 9], pool: list[tuple[float, Pattern]], colour_a, colour_b) -> Material:
+    """A material from a weighted pool of patterns, with its period drawn in the pattern's range.
+
+    ``colour_a`` and ``colour_b`` map (pattern, uniforms (3,)) to a colour."""
+    pattern = jnp.array([int(p) for _, p in pool], jnp.int32)[categorical(uniform[0], jnp.array([w for w, _ in pool]))]
+    low, high = jnp.asarray(_SCALE_RANGE)[pattern]
+    a = colour_a(pattern, uniform[2:5])
+    return Material(pattern, a, jnp.clip(colour_b(pattern, a, uniform[5:9]), 0.0, 1.0), between(uniform[1], low, high))
+
+
+def surface_materials(key, config) -> tuple[Material, Material, Material]:
+    """Floor, ceiling and wall materials drawn from pools (paper Section 5.1) for a scene of configuration
+    ``config`` (a :class:`~ncjax.synth.scene.SceneConfig`)."""
+    u = jax.random.uniform(key, (3, 9))
+    floor = _surface_material(
+        u[0],
+        [(0.45, Pattern.PLANKS), (0.25, Pattern.TILES), (0.15, Pattern.CARPET), (0.15, Pattern.PAINT)],
+        lambda pattern, w: jnp.where(
+            pattern == Pattern.PLANKS,
+            colour_in_hsv_box(w, (0.04, 0.11), (0.3, 0.8), (0.2, 0.8)),
+            colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.5), (0.15, 0.9)),
+        ),
+        lambda pattern, a, w: a * between(w[0], 0.45, 1.4),
+    )
+    walls = _surface_material(
+        u[1],
+        [(0.35, Pattern.PAINT), (0.25, Pattern.PLASTER), (0.2, Pattern.STRIPES), (0.2, Pattern.DIAMONDS)],
+        lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.05, 0.55), (0.45, 0.9)),
+        lambda pattern, a, w: jnp.where(
+            w[0] < 0.5, a * between(w[1], 0.6, 0.9), colour_in_hsv_box(w[1:4], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95))
+        ),
+    )
+    if config.neutral_paint_probability > 0.0:
+        draw = jax.random.uniform(jax.random.fold_in(key, _NEUTRAL_PAINT_STREAM), (10,))
+        neutral = _surface_material(
+            draw[1:],
+            [(0.6, Pattern.PAINT), (0.4, Pattern.PLASTER)],
+            lambda pattern, w: colour_in_hsv_box(w, (0.05, 0.15), (0.0, 0.12), (0.75, 0.97)),
+            lambda pattern, a, w: a * between(w[0], 0.88, 0.97),
+        )
+        painted = draw[0] < config.neutral_paint_probability
+        walls = jax.tree.map(lambda a, b: jnp.where(painted, a, b), neutral, walls)
+    if config.decor:
+        plain = 1.0 - config.suspended_ceiling_probability - config.stipple_ceiling_probability
+        ceiling_pool = [
+            (0.5 * plain, Pattern.PAINT),
+            (0.3 * plain, Pattern.PLASTER),
+            (0.2 * plain, Pattern.TILES),
+            (config.suspended_ceiling_probability, Pattern.GRID),
+            (config.stipple_ceiling_probability, Pattern.STIPPLE),
+        ]
+    else:
+        ceiling_pool = [(0.5, Pattern.PAINT), (0.3, Pattern.PLASTER), (0.2, Pattern.TILES)]
+    ceiling = _surface_material(
+        u[2],
+        ceiling_pool,
+        lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.1), (0.8, 0.98)),
+        # A suspended ceiling's grid is a grey or white metal T-bar.
+        lambda pattern, a, w: (
+            jnp.where(pattern == Pattern.GRID, a * between(w[0], 0.55, 1.0), 0.85 * a) if config.decor else 0.85 * a
+        ),
+    )
+    return floor, ceiling, walls

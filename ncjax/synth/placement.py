@@ -3,6 +3,8 @@ that turn uniforms into positions (used by the furniture and the decor)."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -23,24 +25,30 @@ def rectangle_corners(
     return centre + local[:, :1] * rotation + local[:, 1:] * perpendicular(rotation)
 
 
-def rectangles_overlap(
-    centre_a: Float[Array, 2],
-    half_a: Float[Array, 2],
-    rotation_a: Float[Array, 2],
-    centre_b: Float[Array, 2],
-    half_b: Float[Array, 2],
-    rotation_b: Float[Array, 2],
-    gap: Float[ArrayLike, ""] = 0.0,
-) -> Bool[Array, ""]:
+class Rectangle(NamedTuple):
+    """A rotated rectangle in the plan (or a batch of them, along a leading axis).
+
+    Attributes:
+        centre: (2,) its centre.
+        half_size: (2,) its half extents along ``rotation`` and perpendicular to it.
+        rotation: (2,) the unit direction of its first axis.
+    """
+
+    centre: Float[Array, "*n 2"]
+    half_size: Float[Array, "*n 2"]
+    rotation: Float[Array, "*n 2"]
+
+
+def rectangles_overlap(a: Rectangle, b: Rectangle, gap: Float[ArrayLike, ""] = 0.0) -> Bool[Array, ""]:
     """Whether two rotated rectangles come closer than ``gap`` along some axis
     (separating-axis theorem on the four edge normals)."""
-    axes = jnp.stack([rotation_a, perpendicular(rotation_a), rotation_b, perpendicular(rotation_b)])
+    axes = jnp.stack([a.rotation, perpendicular(a.rotation), b.rotation, perpendicular(b.rotation)])
 
     def radius(half, rotation):
         return jnp.abs(half[0] * axes @ rotation) + jnp.abs(half[1] * axes @ perpendicular(rotation))
 
-    separation = jnp.abs(axes @ (centre_b - centre_a))
-    return ~jnp.any(separation > radius(half_a, rotation_a) + radius(half_b, rotation_b) + gap)
+    separation = jnp.abs(axes @ (b.centre - a.centre))
+    return ~jnp.any(separation > radius(a.half_size, a.rotation) + radius(b.half_size, b.rotation) + gap)
 
 
 def rectangle_distance_to_point(
@@ -74,6 +82,10 @@ class Footprints(eqx.Module):
     rotation: Float[Array, "*n 2"]
     mask: Bool[Array, "*n"]
 
+    @property
+    def rectangles(self) -> Rectangle:
+        return Rectangle(self.centre, self.half_size, self.rotation)
+
 
 def pack_footprints(candidates: Footprints, capacity: int, obstacles: Footprints, gap: float):
     """Greedy rejection sampling: accept the valid candidates in order while they
@@ -83,20 +95,16 @@ def pack_footprints(candidates: Footprints, capacity: int, obstacles: Footprints
     slots were filled.
     """
 
-    def overlaps_any(footprints, centre, half, rotation):
-        hits = jax.vmap(rectangles_overlap, in_axes=(0, 0, 0, None, None, None, None))(
-            footprints.centre, footprints.half_size, footprints.rotation, centre, half, rotation, gap
-        )
+    def overlaps_any(footprints, rectangle):
+        hits = jax.vmap(rectangles_overlap, in_axes=(0, None, None))(footprints.rectangles, rectangle, gap)
         return jnp.any(hits & footprints.mask)
 
-    blocked = jax.vmap(lambda c, h, r: overlaps_any(obstacles, c, h, r))(
-        candidates.centre, candidates.half_size, candidates.rotation
-    )
+    blocked = jax.vmap(lambda rectangle: overlaps_any(obstacles, rectangle))(candidates.rectangles)
 
     def step(carry, inputs):
         accepted, chosen, count = carry
         index, centre, half, rotation, valid, is_blocked = inputs
-        take = valid & ~is_blocked & (count < capacity) & ~overlaps_any(accepted, centre, half, rotation)
+        take = valid & ~is_blocked & (count < capacity) & ~overlaps_any(accepted, Rectangle(centre, half, rotation))
         slot = jnp.minimum(count, capacity - 1)
         accepted = jax.tree.map(
             lambda field, value: field.at[slot].set(jnp.where(take, value, field[slot])),

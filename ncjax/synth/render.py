@@ -10,7 +10,8 @@ column lies in one vertical half-plane and shares its horizontal path. The
 renderer exploits that: the walls (O(K)) and the footprints of the boxes (O(B),
 2D slab tests) are intersected once per column, and per pixel only the heights
 are compared (``z = t tan(phi)`` at horizontal distance ``t``), which makes a
-pixel cost O(B) comparisons. ``rc = 0`` is the central equirectangular panorama.
+pixel cost O(B) comparisons (:mod:`.raycast`). ``rc = 0`` is the central
+equirectangular panorama.
 
 Shading: procedural albedo (``ncjax.synth.materials``), an ambient term darkened
 near the room's edges, Lambertian point lights with ``1 / (1 + d^2)`` falloff,
@@ -45,19 +46,18 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, Key, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama, pixel_to_angles
-from ..geometry.polygon import perpendicular
+from .labels import RoomLabels, room_labels
 from .materials import Material, material_albedo
+from .raycast import box_segment_blocked, cast_columns, nearest_box
 from .render_details import (
     ceiling_panels,
     decal_appearance,
-    doorway_columns,
-    in_span,
     opening_appearance,
     sunlight,
     through_doorway,
 )
-from .rooms import RoomConfig, RoomLabels, random_room, ray_hits, room_labels, room_walls
-from .scene import Boxes, Scene, SceneConfig, random_scene
+from .rooms import RoomConfig, random_room
+from .scene import Scene, SceneConfig, random_scene
 
 
 class Semantic(enum.IntEnum):
@@ -114,151 +114,11 @@ class Rendering(eqx.Module):
     semantic: Int[Array, "H W"]
 
 
-def box_interval_2d(
-    origin: Float[Array, 2],
-    direction: Float[Array, 2],
-    centre: Float[Array, 2],
-    half_size: Float[Array, 2],
-    rotation: Float[Array, 2],
-) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, 2]]:
-    """Slab test of a horizontal ray against a rotated rectangle.
-
-    Returns:
-        ``(t_in, t_out, normal)``: the ray parameters where it enters and leaves
-        the rectangle (empty when ``t_in >= t_out``), and the outward normal of
-        the entry side.
-    """
-    axes = jnp.stack([rotation, perpendicular(rotation)])
-    o, d = axes @ (origin - centre), axes @ direction
-    safe_d = jnp.where(jnp.abs(d) > 1e-12, d, 1e-12)
-    t_a, t_b = (-half_size - o) / safe_d, (half_size - o) / safe_d
-    near, far = jnp.minimum(t_a, t_b), jnp.maximum(t_a, t_b)
-    entry_axis = jnp.argmax(near)
-    normal = -jnp.sign(safe_d[entry_axis]) * axes[entry_axis]
-    return jnp.max(near), jnp.min(far), normal
-
-
-def box_segment_blocked(
-    start: Float[Array, 3], end: Float[Array, 3], boxes: Boxes, casts_shadow: Bool[Array, " B"]
-) -> Bool[Array, ""]:
-    """Whether the segment from ``start`` to ``end`` passes through a box (3D slab test)."""
-    axes = jnp.stack([boxes.rotation, perpendicular(boxes.rotation)], -2)  # (B, 2, 2)
-    offset = start[None] - boxes.centre
-    delta = end - start
-    o = jnp.concatenate([jnp.einsum("bij,bj->bi", axes, offset[:, :2]), offset[:, 2:]], -1)
-    d = jnp.concatenate([jnp.einsum("bij,j->bi", axes, delta[:2]), jnp.broadcast_to(delta[2:], (o.shape[0], 1))], -1)
-    safe_d = jnp.where(jnp.abs(d) > 1e-12, d, 1e-12)
-    t_a, t_b = (-boxes.half_size - o) / safe_d, (boxes.half_size - o) / safe_d
-    t_in = jnp.max(jnp.minimum(t_a, t_b), -1)
-    t_out = jnp.min(jnp.maximum(t_a, t_b), -1)
-    return jnp.any((t_in < t_out) & (t_out > 1e-4) & (t_in < 1.0 - 1e-4) & casts_shadow)
-
-
 def _select_material(condition: Array, a: Material, b: Material) -> Material:
     """Per pixel: ``a`` where ``condition`` holds, else ``b`` (fields shaped ``condition.shape + ...``)."""
     return jax.tree.map(
         lambda x, y: jnp.where(condition.reshape(condition.shape + (1,) * (x.ndim - condition.ndim)), x, y), a, b
     )
-
-
-def _columns(scene: Scene, cam: NonCentralPanorama, boxes_per_column: int):
-    """Everything that depends on the column only: the horizontal ray, the wall
-    it meets and where, the door or window there (with decor, the decal there
-    and the path through an open door), and the boxes whose footprints it
-    crosses with all their attributes (so that the per-pixel code gathers nothing)."""
-    room, boxes = scene.room, scene.boxes
-    azimuth, _ = pixel_to_angles(cam, jnp.arange(cam.width, dtype=room.corners.dtype), 0.0)
-    direction = jnp.stack([jnp.cos(azimuth), jnp.sin(azimuth)], -1)
-    origin = cam.rc * direction
-    hits = jax.vmap(ray_hits, in_axes=(0, 0, None, None))(origin, direction, room.corners, room.mask)
-    wall = jnp.argmin(hits, axis=1)
-    t_wall = jnp.min(hits, axis=1)
-    t_wall = jnp.where(jnp.isfinite(t_wall), t_wall, 1e3)  # only for invalid rooms
-    wall_direction, _, _, _ = room_walls(room)
-    wall_point = origin + t_wall[:, None] * direction
-    along = jnp.sum((wall_point - room.corners[wall]) * wall_direction[wall], -1)
-    wall_normal = perpendicular(wall_direction[wall])
-
-    def rectangles_on_walls(fields, names):
-        present, index = in_span(fields.wall, fields.span, fields.mask, wall, along)
-        gathered = dict(
-            present=present,
-            index=index,
-            start=fields.span[index, 0],
-            width=fields.span[index, 1] - fields.span[index, 0],
-            bottom=fields.z_range[index, 0],
-            tall=fields.z_range[index, 1] - fields.z_range[index, 0],
-        )
-        return gathered | {name: getattr(fields, name)[index] for name in names}
-
-    opening = rectangles_on_walls(scene.openings, ("is_window", "colour", "frame_colour"))
-    details = {}
-    if scene.decor is not None:
-        doorways = scene.decor.doorways
-        opening |= {f.name: getattr(doorways, f.name)[opening["index"]] for f in dataclasses.fields(doorways)}
-        details = dict(
-            decal=rectangles_on_walls(
-                scene.decor.decals, ("kind", "colour_a", "colour_b", "frame_colour", "frame_width")
-            ),
-            doorway=doorway_columns(opening, direction, t_wall, along, wall_direction[wall], wall_normal),
-        )
-    t_in, t_out, box_normal = jax.vmap(
-        jax.vmap(box_interval_2d, in_axes=(None, None, 0, 0, 0)), in_axes=(0, 0, None, None, None)
-    )(origin, direction, boxes.centre[:, :2], boxes.half_size[:, :2], boxes.rotation)
-    # Keep, per column, the nearest boxes whose footprint the column's ray crosses
-    # in front of the wall: pixels then test only those (box axis first, so that
-    # the per-pixel work vectorises along the row).
-    crossed = boxes.mask[None, :] & (t_in < t_out) & (t_out > 0) & (t_in < t_wall[:, None])
-    _, nearest = jax.lax.top_k(jnp.where(crossed, -t_in, -jnp.inf), boxes_per_column)
-    nearest = nearest.T  # (M, W)
-    column = jnp.arange(cam.width)[None, :]
-    candidates = dict(
-        box=nearest,
-        t_in=jnp.where(crossed.T[nearest, column], t_in.T[nearest, column], jnp.inf),
-        t_out=t_out.T[nearest, column],
-        normal_x=box_normal[..., 0].T[nearest, column],
-        normal_y=box_normal[..., 1].T[nearest, column],
-        bottom=boxes.centre[nearest, 2] - boxes.half_size[nearest, 2],
-        top=boxes.centre[nearest, 2] + boxes.half_size[nearest, 2],
-        centre_x=boxes.centre[nearest, 0],
-        centre_y=boxes.centre[nearest, 1],
-        cos=boxes.rotation[nearest, 0],
-        sin=boxes.rotation[nearest, 1],
-        emission=boxes.emission[nearest],
-        material=jax.tree.map(lambda x: x[nearest], boxes.material),
-    )
-    return dict(
-        origin=origin,
-        direction=direction,
-        t_wall=t_wall,
-        along=along,
-        wall_normal=wall_normal,
-        opening=opening,
-        candidates=candidates,
-        overflow=jnp.sum(crossed, 1) > boxes_per_column,
-        **details,
-    )
-
-
-def _nearest_box(candidates: dict, cotangent: Float[Array, ""]):
-    """Per pixel of a row: the distance to the nearest candidate box (inf if
-    none) and that box's attributes: a running minimum over the M candidates,
-    each a slab test of the column's footprint interval against the row's
-    height interval."""
-    best = jnp.full(candidates["t_in"].shape[1:], jnp.inf)
-    index = jnp.zeros(best.shape, jnp.int32)
-    for m in range(candidates["t_in"].shape[0]):
-        low, high = candidates["bottom"][m] * cotangent, candidates["top"][m] * cotangent
-        enter = jnp.maximum(candidates["t_in"][m], jnp.minimum(low, high))
-        leave = jnp.minimum(candidates["t_out"][m], jnp.maximum(low, high))
-        t = jnp.where((enter < leave) & (leave > 0), enter, jnp.inf)
-        closer = t < best
-        best = jnp.where(closer, t, best)
-        index = jnp.where(closer, m, index)
-    chosen = jax.tree.map(
-        lambda x: jnp.take_along_axis(x, index.reshape((1,) + index.shape + (1,) * (x.ndim - 2)), 0)[0], candidates
-    )
-    return best, chosen
 
 
 def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool):
@@ -267,7 +127,7 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     The decor's steps run only for scenes that have it (a static choice): a basic
     scene's program is the furnished room's alone.
     """
-    room, boxes, decor = scene.room, scene.boxes, scene.decor
+    room, decor = scene.room, scene.decor
     slope = jnp.tan(elevation)
     cotangent = 1.0 / jnp.where(jnp.abs(slope) > 1e-12, slope, 1e-12)
     # Room: the wall of the column, unless the ray leaves through the ceiling or floor first.
@@ -287,7 +147,7 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
         )
         t_behind, behind_upright, in_lining = through_doorway(doorway, slope, cotangent, room.floor_height)
         t_room = jnp.where(in_doorway, t_behind, t_room)
-    t_box, box = _nearest_box(columns["candidates"], cotangent)
+    t_box, box = nearest_box(columns["candidates"], cotangent)
     on_box = t_box < t_room
     t = jnp.where(on_box, t_box, t_room)
     # Points and normals as separate coordinate arrays (structure of arrays):
@@ -318,6 +178,7 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     height_above_floor = z - room.floor_height
     world_x, world_y = x + room.camera_position[0], y + room.camera_position[1]
     plan_a, plan_b, wall_a, flat = world_x, world_y, columns["along"], on_floor_or_ceiling
+    through = None  # with decor, the pixels that see the room behind an open door
     if decor is not None:
         through = in_doorway & ~on_box
         behind_flat = through & ~behind_upright
@@ -394,9 +255,31 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     direction = scene.ambient_direction
     facing = 0.7 + 0.3 * (normal_x * direction[0] + normal_y * direction[1] + normal_z * direction[2])
     irradiance = (facing * jnp.where(on_box, 0.85, occlusion))[:, None] * scene.ambient
+    irradiance = _add_direct_light(scene, irradiance, (x, y, z), (normal_x, normal_y, normal_z), through, shadows)
+    radiance = albedo * irradiance + emission
+    rgb = (1.0 - jnp.exp(-1.5 * radiance)) ** (1.0 / 2.2)
+    semantic = jnp.where(
+        on_box,
+        Semantic.OBJECT,
+        jnp.where(
+            is_ceiling,
+            Semantic.CEILING,
+            jnp.where(is_floor, Semantic.FLOOR, jnp.where(in_opening, Semantic.OPENING, Semantic.WALL)),
+        ),
+    )
+    return rgb, t / jnp.cos(elevation), semantic.astype(jnp.int32)
+
+
+def _add_direct_light(scene: Scene, irradiance, point, normal, through, shadows: bool):
+    """``irradiance`` plus the light of the point lights (each optionally shadowed by the furniture) and, with
+    decor, of the sun at the pixels of a row: ``point`` and ``normal`` are their coordinate arrays ``(x, y, z)``;
+    the room behind an open door (``through``, None without decor) gets none of it."""
+    boxes, decor = scene.boxes, scene.decor
+    x, y, z = point
+    normal_x, normal_y, normal_z = normal
     casts_shadow = jnp.all(boxes.emission == 0, -1) & boxes.mask
     if decor is not None:
-        sun = sunlight(decor.sun, x, y, z, normal_x, normal_y, normal_z)
+        sun = sunlight(decor.sun, point, normal)
         irradiance = irradiance + jnp.where(through[:, None], 0.0, sun)
         # Thin plates (fan blades, carpets) cast no shadow: from a point light, a fan's
         # blades would throw huge black shadows over the ceiling that real, softer light does not.
@@ -415,18 +298,7 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
             blocked = jax.vmap(box_segment_blocked, in_axes=(0, None, None, None))(start, light, boxes, casts_shadow)
             received = jnp.where(blocked, 0.0, received)
         irradiance = irradiance + received[:, None] * lights.colour[index]
-    radiance = albedo * irradiance + emission
-    rgb = (1.0 - jnp.exp(-1.5 * radiance)) ** (1.0 / 2.2)
-    semantic = jnp.where(
-        on_box,
-        Semantic.OBJECT,
-        jnp.where(
-            is_ceiling,
-            Semantic.CEILING,
-            jnp.where(is_floor, Semantic.FLOOR, jnp.where(in_opening, Semantic.OPENING, Semantic.WALL)),
-        ),
-    )
-    return rgb, t / jnp.cos(elevation), semantic.astype(jnp.int32)
+    return irradiance
 
 
 def render(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderConfig()) -> Rendering:
@@ -443,7 +315,7 @@ def render(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderC
     """
     s = config.supersampling
     fine = NonCentralPanorama(cam.width * s, cam.height * s, cam.rc, cam.fov_horizontal, cam.fov_vertical)
-    columns = _columns(scene, fine, min(config.boxes_per_column, scene.boxes.mask.shape[-1]))
+    columns = cast_columns(scene, fine, min(config.boxes_per_column, scene.boxes.mask.shape[-1]))
     _, elevation = pixel_to_angles(fine, 0.0, jnp.arange(fine.height, dtype=columns["t_wall"].dtype))
     rgb, depth, semantic = jax.lax.map(
         lambda e: _row(scene, columns, e, config.shadows), elevation, batch_size=config.rows_per_chunk * s
@@ -460,7 +332,7 @@ def render(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderC
 def box_overflow(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderConfig()) -> Bool[Array, " W"]:
     """Columns whose ray crosses more box footprints than ``config.boxes_per_column``
     (where :func:`render` may miss a box behind the nearest ones)."""
-    return _columns(scene, cam, min(config.boxes_per_column, scene.boxes.mask.shape[-1]))["overflow"]
+    return cast_columns(scene, cam, min(config.boxes_per_column, scene.boxes.mask.shape[-1]))["overflow"]
 
 
 @dataclasses.dataclass(frozen=True)

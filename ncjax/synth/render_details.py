@@ -106,10 +106,12 @@ def ceiling_panels(panels: Panels, x, y):
     return inside, rim, emission
 
 
-def sunlight(sun: SunPatches, x, y, z, normal_x, normal_y, normal_z) -> Float[Array, "W 3"]:
-    """Irradiance of the sun at points ``x, y, z`` with unit normals: where the line
-    back towards the sun crosses a window's glass (inside its frame, off its
-    mullions), so that patches carry the window's shape."""
+def sunlight(sun: SunPatches, point, normal) -> Float[Array, "W 3"]:
+    """Irradiance of the sun at points ``(x, y, z)`` with unit normals ``(normal_x, normal_y, normal_z)`` (each
+    a tuple of coordinate arrays): where the line back towards the sun crosses a window's glass (inside its
+    frame, off its mullions), so that patches carry the window's shape."""
+    x, y, z = point
+    normal_x, normal_y, normal_z = normal
     irradiance = jnp.zeros(x.shape + (3,))
     for s in range(sun.mask.shape[0]):
         dx, dy, dz = sun.direction[s, 0], sun.direction[s, 1], sun.direction[s, 2]

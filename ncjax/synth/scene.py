@@ -6,7 +6,9 @@ orientation (beds, desks, wardrobes, TV units, shelves) or free-standing at
 any orientation (chairs, sofas, tables, carpets), never overlapping one
 another and never over the camera; doors and windows drawn on walls; ceiling
 lamps with point lights; skirting boards; procedural materials for the floor,
-walls, ceiling and furniture, and an ambient light.
+walls, ceiling and furniture, and an ambient light. The pieces of furniture are
+drawn by :mod:`ncjax.synth.furniture`, the surfaces' materials by
+:func:`~ncjax.synth.materials.surface_materials`.
 
 Realistic scenes (``SceneConfig(decor=True)``) add decor
 (:mod:`ncjax.synth.decor`): open doors showing a room behind them and their
@@ -35,26 +37,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from ..geometry.polygon import perpendicular
 from .decor import LAMP_PARTS, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
 from .elements import Boxes, Decor, Doorways, Lights, Openings
-from .furniture import BASIC_TYPES, PARTS_PER_PIECE, TEMPLATES
-from .materials import Material, Pattern, colour_in_hsv_box
+from .furniture import PARTS_PER_PIECE, TEMPLATES, furniture_candidate, piece_boxes, piece_materials
+from .materials import Material, Pattern, colour_in_hsv_box, surface_materials
 from .placement import (
     Footprints,
     between,
-    categorical,
     no_footprints,
     pack_footprints,
-    rectangle_distance_to_point,
-    rectangle_in_room,
     room_frame,
     wall_position,
 )
@@ -64,8 +62,6 @@ from .rooms import Room, distance_to_walls, point_in_polygon
 _DECOR_STREAM = 0xDEC0
 # fold_in data of the passage draw: its own stream, so that rooms drawn without passages stay those of earlier scenes.
 _PASSAGE_STREAM = 0xDA55
-# fold_in data of the neutral-paint draw: its own stream, so the other draws stay those of earlier scenes.
-_NEUTRAL_PAINT_STREAM = 0x9A17
 
 
 @dataclasses.dataclass(frozen=True)
@@ -216,76 +212,6 @@ class Scene(eqx.Module):
 # them made the scene generator take a minute to compile.
 
 
-def _furniture_candidate(key, room: Room, config: SceneConfig):
-    """One random piece: (type, size (3,), centre (2,), rotation (2,), valid)."""
-    u = jax.random.uniform(key, (11,))
-    # The types of the realistic scenes come last in the pool: the basic pool is its head.
-    weight = TEMPLATES["weight"] if config.decor else TEMPLATES["weight"][:BASIC_TYPES]
-    kind = categorical(u[0], jnp.asarray(weight))
-    size = between(u[1:4], jnp.asarray(TEMPLATES["size_low"])[kind], jnp.asarray(TEMPLATES["size_high"])[kind])
-    size = size.at[2].min(room.ceiling_height - room.floor_height - 0.25)
-    # Against a wall: the back 1 cm off the wall, the piece's x axis along it.
-    wall, along, fits, start, direction, normal = wall_position(u[4:6], room, size[0], 0.05)
-    wall_centre = start + (along + size[0] / 2) * direction + (size[1] / 2 + 0.01) * normal
-    # Free-standing: anywhere, aligned with the room (wall 0) more often than not.
-    _, room_direction, _, _, low_xy, high_xy = room_frame(room)
-    free_centre = between(u[6:8], low_xy, high_xy)
-    aligned = jnp.arctan2(room_direction[0, 1], room_direction[0, 0]) + jnp.floor(4 * u[8]) * (math.pi / 2)
-    angle = jnp.where(u[9] < 0.6, aligned, 2 * math.pi * u[10])
-    free_rotation = jnp.stack([jnp.cos(angle), jnp.sin(angle)])
-    against_wall = jnp.asarray(TEMPLATES["against_wall"])[kind]
-    centre = jnp.where(against_wall, wall_centre, free_centre)
-    rotation = jnp.where(against_wall, direction, free_rotation)
-    half = size[:2] / 2
-    clear_of_camera = (
-        rectangle_distance_to_point(jnp.zeros(2), centre, half, rotation) > room.rc + config.camera_clearance
-    )
-    valid = (
-        rectangle_in_room(centre, half, rotation, room)
-        & (clear_of_camera | jnp.asarray(TEMPLATES["may_cover_camera"])[kind])
-        & jnp.where(against_wall, fits, True)
-    )
-    return kind, size, centre, rotation, valid
-
-
-def _piece_materials(key, fabric: Bool[Array, ""]):
-    """Primary and secondary materials of a piece of furniture."""
-    u = jax.random.uniform(key, (13,))
-    wood = colour_in_hsv_box(u[0:3], (0.04, 0.11), (0.3, 0.75), (0.2, 0.75))
-    painted = colour_in_hsv_box(u[3:6], (0.0, 1.0), (0.0, 0.6), (0.15, 0.95))
-    cloth = colour_in_hsv_box(u[6:9], (0.0, 1.0), (0.1, 0.8), (0.15, 0.85))
-    is_wood = u[9] < 0.6
-    primary_colour = jnp.where(fabric, cloth, jnp.where(is_wood, wood, painted))
-    primary_pattern = jnp.where(fabric, Pattern.FABRIC, jnp.where(is_wood, Pattern.WOOD, Pattern.PAINT))
-    secondary_colour = jnp.where(fabric, wood, jnp.where(u[10] < 0.5, 0.6 * primary_colour, painted))
-    secondary_pattern = jnp.where(fabric, Pattern.WOOD, Pattern.PAINT)
-    shade = between(u[11:13], 0.6, 0.9)
-    return (
-        Material(primary_pattern.astype(jnp.int32), primary_colour, shade[0] * primary_colour, jnp.array(0.3)),
-        Material(secondary_pattern.astype(jnp.int32), secondary_colour, shade[1] * secondary_colour, jnp.array(0.3)),
-    )
-
-
-def _piece_boxes(kind, size, centre, rotation, floor_height, primary: Material, secondary: Material):
-    """The boxes of one piece of furniture (PARTS_PER_PIECE of them, with a mask)."""
-    parts = jnp.asarray(TEMPLATES["parts"])[kind]
-    low, high = parts[:, 0::2] * size, parts[:, 1::2] * size
-    local = (low + high) / 2 - jnp.array([size[0] / 2, size[1] / 2, 0.0])
-    xy = centre + local[:, :1] * rotation + local[:, 1:2] * perpendicular(rotation)
-    secondary_part = jnp.asarray(TEMPLATES["secondary"])[kind]
-    material = jax.tree.map(
-        lambda a, b: jnp.where(secondary_part.reshape((-1,) + (1,) * a.ndim), b, a), primary, secondary
-    )
-    return Boxes(
-        centre=jnp.concatenate([xy, floor_height + local[:, 2:]], -1),
-        half_size=(high - low) / 2,
-        rotation=jnp.broadcast_to(rotation, (PARTS_PER_PIECE, 2)),
-        material=material,
-        emission=jnp.zeros((PARTS_PER_PIECE, 3)),
-        mask=jnp.asarray(TEMPLATES["part_mask"])[kind],
-    )
-
-
 def _opening_candidate(key, room: Room, config: SceneConfig):
     """One door or window: its fields, (with decor) its doorway's, its footprint on
     the wall and (doors) the keep-out area in front of it (with decor, as deep as
@@ -393,120 +319,29 @@ def _lamps(key, room: Room, config: SceneConfig):
     return boxes, lights
 
 
-# Range of the pattern period (metres) per Pattern, indexed by its value.
-_SCALE_RANGE = np.array(
-    [
-        [1.0, 1.0],
-        [0.6, 2.0],
-        [0.12, 0.22],
-        [0.3, 0.7],
-        [0.6, 1.0],
-        [0.1, 0.4],
-        [0.15, 0.35],
-        [0.3, 0.3],
-        [0.3, 0.3],
-        [0.59, 0.62],  # suspended-ceiling tiles: 60 cm (2 ft)
-        [0.12, 0.25],
-    ],
-    np.float32,
-)
+class _BasicDraws(NamedTuple):
+    """What a realistic scene draws as a basic one does, and its decor goes round (:func:`_decorate`)."""
+
+    pieces: Boxes  # the furniture's boxes
+    openings: Openings  # doors and windows
+    doorways: Doorways
+    opening_footprints: Footprints  # the doors' and windows' footprints on the walls
+    floor: Material
+    ceiling: Material
 
 
-def _surface_material(uniform: Float[Array, 9], pool: list[tuple[float, Pattern]], colour_a, colour_b) -> Material:
-    """A material from a weighted pool of patterns, with its period drawn in the pattern's range.
-
-    ``colour_a`` and ``colour_b`` map (pattern, uniforms (3,)) to a colour."""
-    pattern = jnp.array([int(p) for _, p in pool], jnp.int32)[categorical(uniform[0], jnp.array([w for w, _ in pool]))]
-    low, high = jnp.asarray(_SCALE_RANGE)[pattern]
-    a = colour_a(pattern, uniform[2:5])
-    return Material(pattern, a, jnp.clip(colour_b(pattern, a, uniform[5:9]), 0.0, 1.0), between(uniform[1], low, high))
-
-
-def _surface_materials(key, config: SceneConfig):
-    """Floor, ceiling and wall materials drawn from pools (paper Section 5.1)."""
-    u = jax.random.uniform(key, (3, 9))
-    floor = _surface_material(
-        u[0],
-        [(0.45, Pattern.PLANKS), (0.25, Pattern.TILES), (0.15, Pattern.CARPET), (0.15, Pattern.PAINT)],
-        lambda pattern, w: jnp.where(
-            pattern == Pattern.PLANKS,
-            colour_in_hsv_box(w, (0.04, 0.11), (0.3, 0.8), (0.2, 0.8)),
-            colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.5), (0.15, 0.9)),
-        ),
-        lambda pattern, a, w: a * between(w[0], 0.45, 1.4),
-    )
-    walls = _surface_material(
-        u[1],
-        [(0.35, Pattern.PAINT), (0.25, Pattern.PLASTER), (0.2, Pattern.STRIPES), (0.2, Pattern.DIAMONDS)],
-        lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.05, 0.55), (0.45, 0.9)),
-        lambda pattern, a, w: jnp.where(
-            w[0] < 0.5, a * between(w[1], 0.6, 0.9), colour_in_hsv_box(w[1:4], (0.0, 1.0), (0.0, 0.6), (0.3, 0.95))
-        ),
-    )
-    if config.neutral_paint_probability > 0.0:
-        draw = jax.random.uniform(jax.random.fold_in(key, _NEUTRAL_PAINT_STREAM), (10,))
-        neutral = _surface_material(
-            draw[1:],
-            [(0.6, Pattern.PAINT), (0.4, Pattern.PLASTER)],
-            lambda pattern, w: colour_in_hsv_box(w, (0.05, 0.15), (0.0, 0.12), (0.75, 0.97)),
-            lambda pattern, a, w: a * between(w[0], 0.88, 0.97),
-        )
-        painted = draw[0] < config.neutral_paint_probability
-        walls = jax.tree.map(lambda a, b: jnp.where(painted, a, b), neutral, walls)
-    if config.decor:
-        plain = 1.0 - config.suspended_ceiling_probability - config.stipple_ceiling_probability
-        ceiling_pool = [
-            (0.5 * plain, Pattern.PAINT),
-            (0.3 * plain, Pattern.PLASTER),
-            (0.2 * plain, Pattern.TILES),
-            (config.suspended_ceiling_probability, Pattern.GRID),
-            (config.stipple_ceiling_probability, Pattern.STIPPLE),
-        ]
-    else:
-        ceiling_pool = [(0.5, Pattern.PAINT), (0.3, Pattern.PLASTER), (0.2, Pattern.TILES)]
-    ceiling = _surface_material(
-        u[2],
-        ceiling_pool,
-        lambda pattern, w: colour_in_hsv_box(w, (0.0, 1.0), (0.0, 0.1), (0.8, 0.98)),
-        # A suspended ceiling's grid is a grey or white metal T-bar.
-        lambda pattern, a, w: (
-            jnp.where(pattern == Pattern.GRID, a * between(w[0], 0.55, 1.0), 0.85 * a) if config.decor else 0.85 * a
-        ),
-    )
-    return floor, ceiling, walls
-
-
-def _decorate(
-    key,
-    lamps_key,
-    room: Room,
-    config: SceneConfig,
-    pieces: Boxes,
-    openings: Openings,
-    doorways: Doorways,
-    opening_footprints: Footprints,
-    floor: Material,
-    ceiling: Material,
-) -> tuple[Boxes, Lights, Decor]:
-    """The decor of a realistic scene around its furniture ``pieces``, doors and
-    windows: all its boxes (furniture, ceiling lights, door leaves), its point
-    lights and its :class:`~ncjax.synth.elements.Decor`. The ceiling lights are
-    drawn from ``lamps_key`` (the basic lamps' key), the rest from ``key``."""
+def _decorate(key, lamps_key, room: Room, config: SceneConfig, basic: _BasicDraws) -> tuple[Boxes, Lights, Decor]:
+    """The decor of a realistic scene around its furniture, doors and windows (``basic``): all its boxes
+    (furniture, ceiling lights, door leaves), its point lights and its :class:`~ncjax.synth.elements.Decor`.
+    The ceiling lights are drawn from ``lamps_key`` (the basic lamps' key), the rest from ``key``."""
+    pieces, openings, doorways, opening_footprints, floor, ceiling = basic
     keys = jax.random.split(key, 5)
     leaves = door_leaves(keys[0], room, openings, doorways, config)
     axis = plan_axis(room)
     # Hanging lights keep clear of the furniture and door leaves under them.
     standing = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, leaves)
-    lamps, lights, panels = ceiling_lights(
-        lamps_key,
-        room,
-        config,
-        axis,
-        ceiling,
-        Footprints(standing.centre[:, :2], standing.half_size[:, :2], standing.rotation, standing.mask),
-        standing.centre[:, 2] + standing.half_size[:, 2],
-    )
-    next_floor, _, next_walls = _surface_materials(keys[1], config)
+    lamps, lights, panels = ceiling_lights(lamps_key, room, config, axis, ceiling, standing)
+    next_floor, _, next_walls = surface_materials(keys[1], config)
     # Half the rooms behind open doors continue this room's floor (open plans, corridors).
     same_floor = jax.random.uniform(keys[2]) < 0.5
     next_floor = jax.tree.map(lambda a, b: jnp.where(same_floor, a, b), floor, next_floor)
@@ -537,7 +372,7 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
     keys = jax.random.split(key, 6)
     openings, doorways, opening_footprints, keep_out = _openings(keys[0], room, config)
     n = config.furniture_slots * config.candidates_per_slot
-    kind, size, centre, rotation, valid = jax.vmap(lambda k: _furniture_candidate(k, room, config))(
+    kind, size, centre, rotation, valid = jax.vmap(lambda k: furniture_candidate(k, room, config))(
         jax.random.split(keys[1], n)
     )
     chosen, filled = pack_footprints(
@@ -546,26 +381,16 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
     u = jax.random.uniform(keys[2], (config.furniture_slots + 9,))
     filled = filled & (u[: config.furniture_slots] < config.furniture_probability)
     fabric = jnp.asarray(TEMPLATES["fabric"])[kind[chosen]]
-    primary, secondary = jax.vmap(_piece_materials)(jax.random.split(keys[3], config.furniture_slots), fabric)
-    pieces = jax.vmap(_piece_boxes, in_axes=(0, 0, 0, 0, None, 0, 0))(
-        kind[chosen], size[chosen], centre[chosen], rotation[chosen], room.floor_height, primary, secondary
+    materials = jax.vmap(piece_materials)(jax.random.split(keys[3], config.furniture_slots), fabric)
+    pieces = jax.vmap(piece_boxes, in_axes=(0, 0, 0, 0, None, 0))(
+        kind[chosen], size[chosen], centre[chosen], rotation[chosen], room.floor_height, materials
     )
     pieces = eqx.tree_at(lambda b: b.mask, pieces, pieces.mask & filled[:, None])
     pieces = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), pieces)
-    floor, ceiling, walls = _surface_materials(keys[5], config)
+    floor, ceiling, walls = surface_materials(keys[5], config)
     if config.decor:
-        boxes, lights, decor = _decorate(
-            jax.random.fold_in(key, _DECOR_STREAM),
-            keys[4],
-            room,
-            config,
-            pieces,
-            openings,
-            doorways,
-            opening_footprints,
-            floor,
-            ceiling,
-        )
+        basic = _BasicDraws(pieces, openings, doorways, opening_footprints, floor, ceiling)
+        boxes, lights, decor = _decorate(jax.random.fold_in(key, _DECOR_STREAM), keys[4], room, config, basic)
     else:
         lamps, lights = _lamps(keys[4], room, config)
         boxes, decor = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, lamps), None

@@ -17,6 +17,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 from ..evaluation.network_metrics import network_table
 from ..geometry.camera import NonCentralPanorama
 from ..network.model import HorizonNet, check_views, predict_views, prediction_to_rows
+from ..pipeline.corners import CORNER_LABEL_BASE
 from ..synth.dataset import (
     SPLITS,
     DatasetSample,
@@ -28,8 +29,9 @@ from ..synth.dataset import (
     rendering_rgb8,
     split_of,
 )
+from ..synth.labels import reencode_corner_prob
 from ..synth.render import SynthConfig
-from ..synth.rooms import CORNER_LABEL_BASE, RoomConfig, reencode_corner_prob
+from ..synth.rooms import RoomConfig
 from ..synth.scene import SceneConfig
 
 # ----------------------------------------------------------------------------- stand-in data
@@ -69,7 +71,8 @@ def painted_batch(key: PRNGKeyArray, batch_size: int, height: int, width: int) -
     :func:`paint_panorama` in random colours. Meant for tests and smoke runs
     until rendered data is wired in.
     """
-    from ..synth.rooms import random_room, room_labels
+    from ..synth.labels import room_labels
+    from ..synth.rooms import random_room
 
     room_config = RoomConfig(world="mix", max_walls=8, camera_tries=32, room_tries=2)
 
@@ -309,7 +312,7 @@ def evaluate_arrays(
     """Table netcorExp's row (:func:`~ncjax.network_table`) of a model on :func:`load_split` arrays.
 
     The corner output is compared in the labels' ``0.96**d`` encoding whatever
-    the model's ``corner_base`` (:func:`~ncjax.synth.rooms.reencode_corner_prob`).
+    the model's ``corner_base`` (:func:`~ncjax.synth.labels.reencode_corner_prob`).
 
     ``views``: the network's output averaged over rolled and mirrored views
     (:func:`~ncjax.network.model.predict_views`); 1 is the network alone.

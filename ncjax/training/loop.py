@@ -42,8 +42,9 @@ from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from ..network.checkpoint import load_checkpoint, load_weights, save_checkpoint
 from ..network.model import BoundaryPrediction, HorizonNet, HorizonNetConfig, init_model, row_to_elevation
+from ..pipeline.corners import CORNER_LABEL_BASE
 from ..synth.augment import AugmentConfig, random_augment
-from ..synth.rooms import CORNER_LABEL_BASE, reencode_corner_prob
+from ..synth.labels import reencode_corner_prob
 
 # ----------------------------------------------------------------------------- configuration
 
@@ -279,6 +280,12 @@ def latest_checkpoint(checkpoint_dir: str | pathlib.Path) -> pathlib.Path | None
     return files[-1] if files else None
 
 
+def remove_old_checkpoints(checkpoint_dir: str | pathlib.Path, keep: int) -> None:
+    """Delete the checkpoints in ``checkpoint_dir`` but the ``keep`` with the highest steps."""
+    for old in sorted(pathlib.Path(checkpoint_dir).glob("step_*.safetensors"))[:-keep]:
+        old.unlink()
+
+
 def _restore_or_init(config, train_config, checkpoint_dir, seed, resume, initial_weights):
     latest = latest_checkpoint(checkpoint_dir) if (resume and checkpoint_dir is not None) else None
     if latest is None:
@@ -348,8 +355,7 @@ def train(
         save_checkpoint(
             checkpoint_path(checkpoint_dir, step), model, optimizer, step=step, train_config_json=train_config.to_json()
         )
-        for old in sorted(pathlib.Path(checkpoint_dir).glob("step_*.safetensors"))[:-keep_checkpoints]:
-            old.unlink()
+        remove_old_checkpoints(checkpoint_dir, keep_checkpoints)
 
     def run_validation(step):
         model.eval()
