@@ -57,8 +57,8 @@ def _synth(args: argparse.Namespace) -> int:
 
     config = ncjax.SynthConfig(
         room=ncjax.RoomConfig(world=args.world, rc_range=rc_range),
-        scene=ncjax.SceneConfig(decor=args.decor),
-        render=ncjax.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
+        scene=ncjax.synth.SceneConfig(decor=args.decor),
+        render=ncjax.synth.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
         width=width,
         height=height,
     )
@@ -154,7 +154,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--decor",
         action="store_true",
         help="realistic rooms: open doors, posters and pictures, ceiling lights of several kinds and light panels, "
-        "suspended and popcorn ceilings, sunlight, counters and desks with monitors (ncjax.SceneConfig(decor=True))",
+        "suspended and popcorn ceilings, sunlight, counters and desks with monitors "
+        "(ncjax.synth.SceneConfig(decor=True))",
     )
     synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")
     synth.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")

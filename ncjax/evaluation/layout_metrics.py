@@ -8,7 +8,7 @@ clipper gets wrong.
 
 A layout is anything with ``ceiling_corners`` and ``floor_corners`` (K, 3) in
 metres (camera frame) and optionally a ``mask`` (K,) — e.g. a pipeline Layout or
-:class:`ncjax.RoomLabels` (then ``corner_mask`` is used) — or a :class:`ncjax.Room`
+:class:`ncjax.synth.RoomLabels` (then ``corner_mask`` is used) — or a :class:`ncjax.synth.Room`
 (the full room, its corners put in image order), or a dict with those keys.
 """
 

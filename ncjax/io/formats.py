@@ -34,7 +34,7 @@ common in-memory form of :mod:`ncjax.io.layout_corners`):
   ZInD (x, y) = ncjax (y, x) / camera height.
 
 Every file the writers make holds the corners of one layout with the image's
-corner pixels projected by ncjax's camera model (:func:`ncjax.project`), so the
+corner pixels projected by ncjax's camera model (:func:`ncjax.geometry.project`), so the
 pixels are exact for non-central panoramas too. The JSON files also carry an
 ``"ncjax"`` key (``rc``, ``image_size``, ``camera_height`` in metres) that the
 other tools ignore and :func:`ncjax.io.formats_read.read_layout` uses to read the

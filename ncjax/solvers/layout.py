@@ -159,7 +159,7 @@ def solve_manhattan_layout(
     walls labelled 1 have ``u_perp = (-uy, ux)`` and contribute
     eqs. manPx/manPy (the same rows for the ray turned by -90 degrees,
     :func:`quarter_turn`); any yaw of the room is fine. Methods as for
-    :func:`ncjax.solve_wall`: ``"refined"`` (default; the linear solution
+    :func:`ncjax.solvers.solve_wall`: ``"refined"`` (default; the linear solution
     with the distances eliminated, then the maximum-likelihood fit of the yaw,
     ``h_c``, ``h_f`` and all ``d_k``), ``"paper"`` (two smallest singular
     vectors of the equilibrated ``A`` and the parallelism quadratics) or
@@ -296,7 +296,7 @@ def layout_corners(
 
     "Previous" is cyclic over the present walls in index order (for a
     counter-clockwise room with walls in order, corner ``k`` is ``P_k``).
-    Uses :func:`ncjax.intersect_coplanar_lines`. Two consecutive walls that
+    Uses :func:`ncjax.geometry.intersect_coplanar_lines`. Two consecutive walls that
     are parallel (within ``sqrt(eps)`` radians; also a wall alone) have no
     corner: it is zero and invalid, never inf or NaN. Masked corners are
     zero and invalid.

@@ -1,6 +1,6 @@
 """Per-wall RANSAC with the single-wall solver (paper Section 4.4).
 
-Each hypothesis is :func:`ncjax.solve_wall` on ``k`` sampled columns (one ceiling and one floor ray each: the paper's
+Each hypothesis is :func:`~.wall.solve_wall` on ``k`` sampled columns (one ceiling and one floor ray each: the paper's
 ``k = 3``; with a height prior's known heights :func:`~.wall_at_heights.solve_wall_at_heights`); it is scored by the
 number of boundary pixels it reprojects within a threshold (pixels, the closed form of
 :mod:`ncjax.geometry.reprojection`, tested as directions: :func:`inlier_rows`), and the best one is refitted on its

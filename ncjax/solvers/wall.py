@@ -8,7 +8,7 @@ A wall (docs/design.md section 3) is the pair of horizontal lines
 floor height ``h_f``) in the vertical plane of unit direction ``u`` at signed
 distance ``d`` along ``e2 = (-uy, ux, 0)``.
 
-Derivation of the rows (from :func:`ncjax.side`, tested in
+Derivation of the rows (from :func:`ncjax.geometry.side`, tested in
 ``tests/test_wall.py``): for a ray ``Xi = (xi, xibar)``
 
     side(Xi, L) = xibar_1 ux + xibar_2 uy + h (xi_2 ux - xi_1 uy) - d xi_3    (eq. iter1)
@@ -295,7 +295,7 @@ def solve_wall(
     only weakly observable (through ``rc``) and the maximum-likelihood fit
     has a heavier tail than the paper's constrained solution, which is the
     best of the three there (experiments/RESULTS.md); for layouts the shared
-    heights make "refined" by far the best, see :func:`ncjax.solve_manhattan_layout`.
+    heights make "refined" by far the best, see :func:`ncjax.solvers.solve_manhattan_layout`.
 
     Args:
         ceiling_rays: Plücker rays of the ceiling boundary (fixed capacity).

@@ -15,7 +15,7 @@ def boundary_points_at(
 ) -> tuple[Float[Array, "n 2"], Bool[Array, " n"]]:
     """Where each ray meets the horizontal plane ``z = height``: plan points, and which rays reach it going forward.
 
-    The ray's nearest point to the origin ``p0`` (:func:`ncjax.closest_point_to_origin`) moves along its
+    The ray's nearest point to the origin ``p0`` (:func:`ncjax.geometry.closest_point_to_origin`) moves along its
     direction ``xi`` to ``p0 + s xi`` with ``s = (height - p0_z) / xi_z``; the ray leaves its optical centre
     in the plane ``z = 0``, so it reaches the plane ahead of it when ``xi_z`` has the sign of ``height``.
     """

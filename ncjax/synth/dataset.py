@@ -14,7 +14,7 @@ A dataset directory holds, per sample ``<name>``:
 The authors' release has only these. Ours adds, written last:
 
 - ``depth/<name>.png``: 16-bit depth along each pixel's ray, millimetres;
-- ``semantic/<name>.png``: 8-bit :class:`~ncjax.Semantic` classes;
+- ``semantic/<name>.png``: 8-bit :class:`~ncjax.synth.Semantic` classes;
 - ``json/<name>.json``: ``rc`` (metres; also in the name, ``..._R06101`` being
   0.6101 m, as the authors name their real images), heights, world type,
   per-column boundary rows, corner columns and 3D corners, the full room.
@@ -327,7 +327,7 @@ def labels_from_corners(
     reversed they are the counter-clockwise floor plan of the visible room (an
     occlusion's near and far points are joined by a segment along the corner's
     column ray, which no other column's ray meets), so
-    :func:`~ncjax.room_labels` gives the boundary rows of every column.
+    :func:`~ncjax.synth.room_labels` gives the boundary rows of every column.
     """
     n = len(ceiling_corners)
     if n < 3 or n > capacity or len(floor_corners) != n:

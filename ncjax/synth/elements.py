@@ -71,7 +71,7 @@ class Doorways(eqx.Module):
     Attributes:
         is_open: (D,) an open door (never a window).
         is_passage: (D,) a wide passage (open, with no leaf; see
-            :attr:`~ncjax.SceneConfig.passage_probability`).
+            :attr:`~ncjax.synth.SceneConfig.passage_probability`).
         wall_thickness, room_depth, room_ceiling, room_light: (D,) the room behind an open door.
         room_sides: (D, 2) how far the room behind reaches beyond the door's start and end.
     """

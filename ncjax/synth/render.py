@@ -306,7 +306,7 @@ def render(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = RenderC
 
     Args:
         scene: one scene (camera frame); its room's ``rc`` is NOT used: ``cam.rc`` is,
-            as in :func:`~ncjax.room_labels` (use ``scene.room.camera(W, H)``).
+            as in :func:`~ncjax.synth.room_labels` (use ``scene.room.camera(W, H)``).
         cam: the panorama (static width W and height H; traced rc and fields of view).
         config: static settings (supersampling, shadows).
 
@@ -351,7 +351,7 @@ class SynthConfig:
 
 
 def synthesize_scene(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, RoomLabels]:
-    """A random furnished room and its exact labels (:func:`~ncjax.room_labels`:
+    """A random furnished room and its exact labels (:func:`~ncjax.synth.room_labels`:
     furniture ignored, the layout a network must predict)."""
     key_room, key_scene = jax.random.split(key)
     room = random_room(key_room, config.room)

@@ -1,6 +1,6 @@
 """Furnished, lit scenes around a synthetic room (paper Section 5.1, dataset).
 
-A :class:`Scene` is a :class:`~ncjax.Room` plus what the paper's generator adds
+A :class:`Scene` is a :class:`~ncjax.synth.Room` plus what the paper's generator adds
 to it: furniture from a pool of types, placed either against a wall at a fixed
 orientation (beds, desks, wardrobes, TV units, shelves) or free-standing at
 any orientation (chairs, sofas, tables, carpets), never overlapping one
@@ -176,7 +176,7 @@ class Scene(eqx.Module):
     """A furnished, lit room (all fields traced; batch with ``jax.vmap``).
 
     Attributes:
-        room: the :class:`~ncjax.Room` (camera frame).
+        room: the :class:`~ncjax.synth.Room` (camera frame).
         boxes: furniture parts, then ceiling lights (then, with decor, door leaves), :class:`Boxes`.
         openings: doors and windows, :class:`Openings`.
         lights: :class:`Lights`.
@@ -363,7 +363,7 @@ def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfi
 
     Args:
         key: a ``jax.random`` key.
-        room: the room, e.g. from :func:`~ncjax.random_room` (camera frame).
+        room: the room, e.g. from :func:`~ncjax.synth.random_room` (camera frame).
         config: static settings (see :class:`SceneConfig`).
 
     Returns:

@@ -66,8 +66,8 @@ def paint_panorama(
 def painted_batch(key: PRNGKeyArray, batch_size: int, height: int, width: int) -> dict[str, Array]:
     """A batch of flat-coloured panoramas of random rooms with exact labels (a stand-in data source).
 
-    Rooms come from :func:`ncjax.random_room` (mixed Manhattan / Atlanta) and
-    labels from :func:`ncjax.room_labels`; the images are painted with
+    Rooms come from :func:`ncjax.synth.random_room` (mixed Manhattan / Atlanta) and
+    labels from :func:`ncjax.synth.room_labels`; the images are painted with
     :func:`paint_panorama` in random colours. Meant for tests and smoke runs
     until rendered data is wired in.
     """
@@ -309,7 +309,7 @@ def folder_batches(arrays: dict[str, np.ndarray], batch_size: int, seed: int) ->
 def evaluate_arrays(
     model: HorizonNet, arrays: dict[str, np.ndarray], batch_size: int = 8, views: int = 1
 ) -> dict[str, float]:
-    """Table netcorExp's row (:func:`~ncjax.network_table`) of a model on :func:`load_split` arrays.
+    """Table netcorExp's row (:func:`~ncjax.evaluation.network_table`) of a model on :func:`load_split` arrays.
 
     The corner output is compared in the labels' ``0.96**d`` encoding whatever
     the model's ``corner_base`` (:func:`~ncjax.synth.labels.reencode_corner_prob`).

@@ -13,7 +13,7 @@ Augmentations keep the labels exact (:func:`augment_sample`):
   to ``-varphi``. The circle of centres and its radial rays are symmetric
   about the x axis, so the flipped image is exactly the panorama of the room
   mirrored in y (same ``rc``, same rows per column): a valid non-central
-  panorama, labels flipped with it (tested with :func:`ncjax.room_labels`).
+  panorama, labels flipped with it (tested with :func:`ncjax.synth.room_labels`).
 - photometric: a random camera's rendition of the image
   (:func:`ncjax.synth.augment.random_augment`: exposure, colour, blur, vignetting,
   noise, stitching seams, black bands at the poles, JPEG); labels unchanged (near a

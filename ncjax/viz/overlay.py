@@ -106,7 +106,7 @@ def draw_overlay(
     - the network's ceiling and floor rows per column, if given, in
       ``NETWORK_COLOUR``;
     - the layout's ceiling and floor edges, sampled densely in 3D and
-      projected with :func:`ncjax.project` (the curves of a non-central
+      projected with :func:`ncjax.geometry.project` (the curves of a non-central
       camera), and the vertical edges at the corners, in ``LAYOUT_COLOUR``;
       inserted walls (occluded, not seen) in ``INSERTED_COLOUR``. Curves break
       at the image seam and where points are not visible;
