@@ -73,9 +73,9 @@ def jpeg(quality: int):
 # name -> (operation on an RGB uint8 image, inside the training augmentation's ranges)
 DEGRADATIONS = {
     "none": (lambda image: image, True),
-    "greyscale": (_float_op(ncjax.synth.to_greyscale), True),
-    "blur 1 px": (_float_op(lambda x: ncjax.synth.gaussian_blur(x, 1.0)), True),
-    "blur 2.5 px": (_float_op(lambda x: ncjax.synth.gaussian_blur(x, 2.5, radius=8)), False),
+    "greyscale": (_float_op(ncjax.network.to_greyscale), True),
+    "blur 1 px": (_float_op(lambda x: ncjax.network.gaussian_blur(x, 1.0)), True),
+    "blur 2.5 px": (_float_op(lambda x: ncjax.network.gaussian_blur(x, 2.5, radius=8)), False),
     "sensor noise 0.05": (
         _float_op(lambda x: ncjax.synth.augment.add_sensor_noise(jax.random.key(0), x, 0.05, 0.05)),
         False,

@@ -228,15 +228,15 @@ def test_neutral_augmentations_are_identities():
 
 
 def test_greyscale_and_blur():
-    grey = np.asarray(ncjax.synth.to_greyscale(_IMAGE))
+    grey = np.asarray(ncjax.network.to_greyscale(_IMAGE))
     assert np.allclose(grey[..., 0], grey[..., 1]) and np.allclose(grey[..., 1], grey[..., 2])
     np.testing.assert_allclose(grey[..., 0], np.asarray(_IMAGE) @ np.array([0.299, 0.587, 0.114]), atol=1e-6)
-    blurred = np.asarray(ncjax.synth.gaussian_blur(_IMAGE, 1.0))
+    blurred = np.asarray(ncjax.network.gaussian_blur(_IMAGE, 1.0))
     # Wrapping horizontally, a blur of a horizontally constant image keeps it;
     # the mean of each row is kept (the kernel is normalised).
     np.testing.assert_allclose(
         blurred.mean(1),
-        np.asarray(ncjax.synth.gaussian_blur(_IMAGE.mean(1, keepdims=True) * jnp.ones_like(_IMAGE), 1.0)).mean(1),
+        np.asarray(ncjax.network.gaussian_blur(_IMAGE.mean(1, keepdims=True) * jnp.ones_like(_IMAGE), 1.0)).mean(1),
         atol=1e-5,
     )
     assert blurred.std() < np.asarray(_IMAGE).std()
@@ -249,7 +249,7 @@ def test_blur_matches_scipy_wrapping_horizontally_and_clamping_vertically(sigma,
     image = np.asarray(jax.random.uniform(jax.random.key(3), (12, 20, 3)))
     expected = ndimage.gaussian_filter1d(image, sigma, axis=1, mode="wrap", truncate=radius / sigma)
     expected = ndimage.gaussian_filter1d(expected, sigma, axis=0, mode="nearest", truncate=radius / sigma)
-    np.testing.assert_allclose(ncjax.synth.gaussian_blur(jnp.asarray(image), sigma, radius), expected, atol=2e-6)
+    np.testing.assert_allclose(ncjax.network.gaussian_blur(jnp.asarray(image), sigma, radius), expected, atol=2e-6)
 
 
 @pytest.mark.slow
