@@ -185,6 +185,7 @@ def _saved_geometry(
     of the rows (B leading) that runs them.
     """
     rc, keys, prior, config = arguments
+    config = jax.tree.map(jnp.asarray, config)  # a saved program's arguments are arrays: the thresholds as scalars
     batch, image_height, width = image_shape
     walls_structure = []
     impl = jax.random.key_impl(keys)
