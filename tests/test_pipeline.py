@@ -1098,6 +1098,8 @@ def test_bad_arguments_raise():
         ncjax.reconstruct_batch(images, [0.5, 0.5], key=jax.random.split(jax.random.key(0), 3))
     with pytest.raises(ValueError, match="capacity"):
         ncjax.PipelineConfig(capacity=2)
+    with pytest.raises(TypeError, match="corner_threshold is now corners.threshold"):
+        ncjax.PipelineConfig(corner_threshold=0.4)  # a setting's name before the settings were grouped by stage
     with pytest.raises(ValueError, match="stride"):
         ncjax.PipelineConfig().replace(adjustment={"stride": 0})
     with pytest.raises(ValueError, match="noise_factor"):
