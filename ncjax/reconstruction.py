@@ -204,7 +204,7 @@ def _saved_geometry(
         layout = _finished(jax.tree.unflatten(walls_structure[0], walls_leaves), prior, config, world)
         return {field.name: getattr(layout, field.name) for field in dataclasses.fields(Layout)}
 
-    rows_like = Rows(*(jax.ShapeDtypeStruct((batch, width), jnp.float32),) * 3)
+    rows_like = jax.eval_shape(lambda: Rows(*(jnp.zeros((batch, width), jnp.float32),) * 3))
     walls_arguments = (rc, jax.random.key_data(keys), prior, config)
     settings = (image_height, str(impl), world)
     walls_key, layouts_key = repr(("walls", *settings)), repr(("layouts", *settings))

@@ -115,3 +115,18 @@ def test_the_import_reader_resolves_relative_and_absolute_imports():
     } <= IMPORTS["ncjax.evaluation.panorama_scores"]
     assert "ncjax.geometry.camera" in IMPORTS["ncjax"]
     assert all(floor_name(module) for module in MODULES)
+
+
+def test_every_import_of_the_package_names_one_of_its_modules():
+    """A relative import that names no module (``from .synth import x`` in a subpackage without one) fails only when
+    it runs: inside a function, late."""
+    dangling = []
+    for module, path in MODULES.items():
+        package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and node.level:
+                anchor = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{anchor}.{node.module}" if node.module else anchor
+                if base not in MODULES:
+                    dangling.append(f"{module}: from {'.' * node.level}{node.module or ''} import ...")
+    assert not dangling, "imports of modules that do not exist:\n" + "\n".join(dangling)

@@ -200,7 +200,14 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it(tmp_
     The geometry's layouts stand in as the prior's scaled by 1.1 (what a geometry with a wrong scale would give),
     with the status the scale test gave: one compiled pipeline, the prior's.
     """
-    from ncjax.reconstruction import GEOMETRY, PRIOR_FALLBACK, SCALE_FAILURES, Reconstruction, _with_prior_fallback
+    from ncjax.reconstruction import (
+        GEOMETRY,
+        PRIOR_FALLBACK,
+        SCALE_FAILURES,
+        Reconstruction,
+        _Geometry,
+        _with_prior_fallback,
+    )
 
     batch, labels = rooms("manhattan", (0.02, 0.05))
     rc = np.asarray(batch.rc)
@@ -218,7 +225,9 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it(tmp_
     np.testing.assert_allclose(from_prior.floor_height, batch.floor_height, rtol=1e-5)
     for status, expected in [(ncjax.LayoutStatus.OK, GEOMETRY)] + [(s, PRIOR_FALLBACK) for s in SCALE_FAILURES]:
         measured = dataclasses.replace(scale_layout(from_prior, 1.1), status=jnp.full(rc.shape, int(status)))
-        result = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, keys, "manhattan", config)
+        result = _with_prior_fallback(
+            Reconstruction(measured, *rows, None), _Geometry(rc, keys, prior, config), "manhattan"
+        )
         assert np.all(np.asarray(result.scale_source) == expected), status
         assert result.geometry is measured
         chosen = from_prior if expected == PRIOR_FALLBACK else measured
@@ -231,8 +240,12 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it(tmp_
     )
     np.testing.assert_allclose(jax.vmap(scale_conflict)(measured, prior), np.log(1.1) / PRIOR_RELATIVE_SIGMA, rtol=0.02)
     strict = config.replace(prior={"max_scale_conflict": 0.5})
-    jitted = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, keys, "manhattan", strict)
-    saved = _with_prior_fallback(Reconstruction(measured, *rows, None), rc, prior, keys, "manhattan", strict, tmp_path)
+    jitted = _with_prior_fallback(
+        Reconstruction(measured, *rows, None), _Geometry(rc, keys, prior, strict), "manhattan"
+    )
+    saved = _with_prior_fallback(
+        Reconstruction(measured, *rows, None), _Geometry(rc, keys, prior, strict), "manhattan", tmp_path
+    )
     assert np.all(np.asarray(jitted.layout.status) == ncjax.LayoutStatus.SCALE_CONFLICT)
     np.testing.assert_array_equal(saved.layout.status, jitted.layout.status)
     np.testing.assert_allclose(saved.layout.floor_corners, from_prior.floor_corners, atol=1e-4)

@@ -41,7 +41,7 @@ def layout_arrays(layout: Any) -> tuple[np.ndarray, np.ndarray]:
         ceiling, floor = layout.ceiling_corners, layout.floor_corners
         mask = getattr(layout, "mask", getattr(layout, "corner_mask", None))
     elif hasattr(layout, "corners") and hasattr(layout, "ceiling_height"):
-        from .synth.rooms import room_corners_3d
+        from ..synth.rooms import room_corners_3d
 
         # Rooms are counter-clockwise; layouts run in image order (decreasing azimuth).
         ceiling, floor = (np.asarray(c)[np.asarray(layout.mask)][::-1] for c in room_corners_3d(layout))
