@@ -276,7 +276,7 @@ def test_boundary_residuals_fast_jvp_matches_autodiff():
         (column_directions(cam, jnp.arange(4.0) + 10), jnp.full(4, 40.0), jnp.full(4, 90.0)),
     )
     expected = jax.vmap(jax.jacrev(boundary_residuals, argnums=argnums), in_axes=(0, 0, None, None, None, 0))
-    for got, want in zip(jacobian(*batched), expected(*batched), strict=True):
+    for got, want in zip(jax.tree.leaves(jacobian(*batched)), jax.tree.leaves(expected(*batched)), strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4)
 
 
