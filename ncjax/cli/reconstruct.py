@@ -3,7 +3,7 @@
 ``reconstruct`` reads panoramas (files, or folders of them), groups them by size into
 fixed-size batches (the last one padded, so each size compiles once), runs
 :func:`~ncjax.reconstruction.reconstruct_batch` and writes per image
-``<name>.json``, ``<name>.obj/.ply/.glb`` (when a layout was found),
+``<name>.json``, ``<name>.obj/.ply/.glb`` and the 3D viewer ``<name>.html`` (when a layout was found),
 ``<name>_overlay.png`` and ``<name>_plan.png``, and at the end ``summary.csv``
 (one line per image: its result, heights, area, or why it failed; the lines of other
 images of an earlier summary in the folder are kept).
@@ -69,6 +69,7 @@ class ReconstructSettings:
     out: str
     export: tuple[str, ...]
     prior: object
+    texture_size: int | None = None
 
 
 def program_key(shape: tuple[int, ...], settings: ReconstructSettings, central: bool) -> str:
@@ -141,6 +142,7 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
                     settings.world,
                     export=settings.export,
                     prior=settings.prior,
+                    texture_size=settings.texture_size,
                 )
             except (OSError, ValueError) as error:  # nothing of this image was written (write_outputs)
                 on_error(path, f"{path}: its outputs could not be written ({one_line(error)})")
@@ -304,7 +306,16 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     # fewer images than --batch: a smaller program, not one padded with copies to compute for nothing
     batch_size = max(1, min(args.batch, len(images)))
     settings = ReconstructSettings(
-        model, batch_size, args.world, config, args.views, args.edge_snap, args.out, args.export, prior
+        model,
+        batch_size,
+        args.world,
+        config,
+        args.views,
+        args.edge_snap,
+        args.out,
+        args.export,
+        prior,
+        args.texture_size,
     )
     ledger = CompileLedger(enable_compilation_cache())
     tally = RunTally(images, args.out, tqdm(total=len(images), unit="image", desc="ncjax reconstruct"))
@@ -381,6 +392,7 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         "lines and undone before the network (the JSON records them)",
     )
     add_export_argument(parser)
+    add_texture_argument(parser)
     add_boundary_arguments(parser)
     add_pipeline_arguments(parser)
 
@@ -425,6 +437,32 @@ def add_export_argument(parser: argparse.ArgumentParser) -> None:
         help="also write the layout for central-panorama tools, a comma list of label_cor (HorizonNet's corner "
         "pixels), horizonnet (HorizonNet's inference json), mp3d (PanoAnnotator / MatterportLayout / LGT-Net "
         "json) and zind (ZInD json): <name>.label_cor.txt, <name>.horizonnet.json, ... (default: none)",
+    )
+
+
+def parse_texture_size(text: str) -> int:
+    """``--texture-size``: texels on a side of the textured room's texture, at least MIN_TEXTURE_SIZE."""
+    from ..viz.room_texture import MIN_TEXTURE_SIZE
+
+    try:
+        size = int(text)
+    except ValueError:
+        size = 0
+    if size < MIN_TEXTURE_SIZE:
+        raise argparse.ArgumentTypeError(
+            f"the texture size must be a whole number of texels >= {MIN_TEXTURE_SIZE}, got {text!r}"
+        )
+    return size
+
+
+def add_texture_argument(parser: argparse.ArgumentParser) -> None:
+    """``--texture-size``: the side of the square texture of ``<name>.glb`` and ``<name>.html``."""
+    parser.add_argument(
+        "--texture-size",
+        type=parse_texture_size,
+        metavar="TEXELS",
+        help="side of the square texture that carries the panorama onto the room's walls, floor and ceiling "
+        "in <name>.glb and <name>.html (default: the panorama's width)",
     )
 
 
