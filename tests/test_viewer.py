@@ -41,12 +41,15 @@ def direction_panorama(width=WIDTH, height=HEIGHT):
     return np.round(np.stack([red, green, blue], axis=-1)).astype(np.uint8)
 
 
-def panorama_colour(image, cam, point):
-    """The panorama's colour (bilinear) where ``point`` projects."""
-    u, v = (float(x) for x in project(cam, np.asarray(point, np.float32)))
-    left, top = math.floor(u), math.floor(v)
-    a, b = u - left, v - top
-    pixel = lambda row, column: image[row, column % image.shape[1]].astype(float)  # noqa: E731
+def panorama_colour(image, cam, points):
+    """The panorama's colour (bilinear, the columns wrapping around) where each of ``points`` (..., 3) projects."""
+    u, v = (np.asarray(x, np.float64) for x in project(cam, np.asarray(points, np.float32)))
+    left, top = np.floor(u).astype(int), np.floor(v).astype(int)
+    a, b = (u - left)[..., None], (v - top)[..., None]
+
+    def pixel(row, column):
+        return image[row, column % image.shape[1]].astype(float)
+
     upper = (1 - a) * pixel(top, left) + a * pixel(top, left + 1)
     lower = (1 - a) * pixel(top + 1, left) + a * pixel(top + 1, left + 1)
     return (1 - b) * upper + b * lower
@@ -206,11 +209,13 @@ def test_a_flagged_layout_says_so_in_its_viewer(status):
 # --- the files of a result --------------------------------------------------------------------------------
 
 
-def write_result(folder, name, layout, image=None):
+def write_result(folder, name, layout, image=None, rc=RC, texture_size=128):
+    """Every output of one image whose reconstruction gave ``layout``; returns its record."""
     image = direction_panorama() if image is None else image
-    rows = np.full(WIDTH, 60.0), np.full(WIDTH, 190.0), np.zeros(WIDTH), 0, None
-    reconstructed = ReconstructedImage(name, image, (layout, *rows), RC)
-    return write_outputs(str(folder), reconstructed, "auto", texture_size=128)
+    height, width = image.shape[:2]
+    rows = np.full(width, 0.25 * height), np.full(width, 0.75 * height), np.zeros(width), 0, None
+    reconstructed = ReconstructedImage(name, image, (layout, *rows), rc)
+    return write_outputs(str(folder), reconstructed, "auto", texture_size=texture_size)
 
 
 def test_the_glb_and_the_viewer_are_outputs_like_the_others(tmp_path):

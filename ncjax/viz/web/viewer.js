@@ -14,7 +14,8 @@ const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x20232a);
 const camera = new THREE.PerspectiveCamera(60, 1, 0.01, 500);
 const controls = new OrbitControls(camera, canvas);
-const viewer = { ready: false, camera, distance: null };
+// what a script driving the page (a test) reads and calls
+const viewer = { ready: false, camera, controls, distance: null };
 window.ncjaxViewer = viewer;
 
 // --- the room ---------------------------------------------------------------------------------------------
@@ -167,11 +168,11 @@ function pick(x, y, snap) {
 }
 
 function mark(point) {
-  const dot = new THREE.Mesh(
-    new THREE.SphereGeometry(0.03, 12, 8),
-    new THREE.MeshBasicMaterial({ color: 0x00e5ff, depthTest: false }),
+  // a dot of the same size on the screen at any distance, drawn over the room
+  const dot = new THREE.Points(
+    new THREE.BufferGeometry().setFromPoints([point]),
+    new THREE.PointsMaterial({ color: 0x00e5ff, size: 9, sizeAttenuation: false, depthTest: false }),
   );
-  dot.position.copy(point);
   dot.renderOrder = 2;
   marks.add(dot);
 }
@@ -226,5 +227,6 @@ controls.addEventListener("change", render);
 window.addEventListener("resize", resize);
 viewer.overview = overview;
 viewer.eyeAtCamera = eyeAtCamera;
+viewer.render = render;
 overview();
 resize();
