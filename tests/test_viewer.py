@@ -228,6 +228,23 @@ def test_the_glb_and_the_viewer_are_outputs_like_the_others(tmp_path):
     assert sorted(path.name for path in tmp_path.iterdir()) == ["room.json", "room_overlay.png", "room_plan.png"]
 
 
+def test_the_texture_size_is_an_option(tmp_path, monkeypatch, capsys):
+    from test_cli_files import FakeReconstruction, panoramas, reconstruct_cli
+
+    import ncjax.reconstruction
+
+    monkeypatch.setattr(ncjax.reconstruction, "reconstruct_batch", FakeReconstruction(make_layout(L_SHAPE)))
+    images = panoramas(tmp_path / "in", "room")
+    for size, texels in ((None, 128), ("96", 96)):  # the stand-in panoramas are 128 pixels wide
+        options = [] if size is None else ["--texture-size", size]
+        assert reconstruct_cli(images, tmp_path / "out", *options) == 0
+        mesh = trimesh.load(tmp_path / "out" / "room.glb").geometry["floor"]
+        assert mesh.visual.material.baseColorTexture.size == (texels, texels)
+    with pytest.raises(SystemExit):
+        cli.main(["demo", "--texture-size", "32"])
+    assert "the texture size must be a whole number of texels >= 64, got '32'" in capsys.readouterr().err
+
+
 @pytest.fixture
 def results(tmp_path):
     """A folder of three results: one ok, one flagged, one failed."""

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..io.images import read_panorama
 from ..pipeline.config import DEFAULT_WORLD, WORLDS
+from .arguments import add_texture_argument
 from .compilation import CompileLedger, enable_compilation_cache, program_directory
 from .inputs import check_output_folder, model_weights_option, radius_of
 from .outputs import ReconstructedImage, write_outputs
@@ -23,7 +24,6 @@ from .reconstruct import (
     add_boundary_arguments,
     add_export_argument,
     add_pipeline_arguments,
-    add_texture_argument,
     pipeline_config,
     program_key,
 )

@@ -35,6 +35,7 @@ from ..network.edges import EdgeSnap
 from ..network.model import check_views
 from ..network.predict import DEFAULT_VIEWS
 from ..pipeline.config import DEFAULT_WORLD, RENAMED, WORLDS
+from .arguments import add_texture_argument
 from .compilation import CompileLedger, enable_compilation_cache, program_directory, settings_key
 from .inputs import (
     PANORAMA_SUFFIXES,
@@ -437,32 +438,6 @@ def add_export_argument(parser: argparse.ArgumentParser) -> None:
         help="also write the layout for central-panorama tools, a comma list of label_cor (HorizonNet's corner "
         "pixels), horizonnet (HorizonNet's inference json), mp3d (PanoAnnotator / MatterportLayout / LGT-Net "
         "json) and zind (ZInD json): <name>.label_cor.txt, <name>.horizonnet.json, ... (default: none)",
-    )
-
-
-def parse_texture_size(text: str) -> int:
-    """``--texture-size``: texels on a side of the textured room's texture, at least MIN_TEXTURE_SIZE."""
-    from ..viz.room_texture import MIN_TEXTURE_SIZE
-
-    try:
-        size = int(text)
-    except ValueError:
-        size = 0
-    if size < MIN_TEXTURE_SIZE:
-        raise argparse.ArgumentTypeError(
-            f"the texture size must be a whole number of texels >= {MIN_TEXTURE_SIZE}, got {text!r}"
-        )
-    return size
-
-
-def add_texture_argument(parser: argparse.ArgumentParser) -> None:
-    """``--texture-size``: the side of the square texture of ``<name>.glb`` and ``<name>.html``."""
-    parser.add_argument(
-        "--texture-size",
-        type=parse_texture_size,
-        metavar="TEXELS",
-        help="side of the square texture that carries the panorama onto the room's walls, floor and ceiling "
-        "in <name>.glb and <name>.html (default: the panorama's width)",
     )
 
 

@@ -83,12 +83,11 @@ def textured_room(
         else:
             hidden = _hidden(points, cam, plan, own, scale)
         _paint(texture, unseen, corners[index], *_colours(image, *pixels, hidden))
-    counter_clockwise = signed_area(plan) > 0
     surfaces = []
     for k in range(n):
         rows, columns = shapes[k]
         uv = _uv(corners[k], np.array([0.0, 0, rows, rows]), np.array([0.0, columns, 0, columns]), texture_size)
-        surfaces.append(_wall_surface(k, plan[k], plan[(k + 1) % n], top, bottom, counter_clockwise, uv))
+        surfaces.append(_wall_surface(k, plan, top, bottom, uv))
     triangles = triangulate_polygon(plan)
     along = (local - low) / (high - low)
     for chart, (name, height, faces) in enumerate(
@@ -259,9 +258,10 @@ def _uv(corner: tuple[int, int], rows: Float[np.ndarray, " V"], columns: Float[n
     return np.stack([(corner[1] + PADDING + columns) / size, 1.0 - (corner[0] + PADDING + rows) / size], axis=-1)
 
 
-def _wall_surface(k: int, start, end, top: float, bottom: float, counter_clockwise: bool, uv) -> SurfaceMesh:
-    """Wall ``k`` as two triangles, its vertices ceiling-start, ceiling-end, floor-start, floor-end."""
+def _wall_surface(k: int, plan, top: float, bottom: float, uv) -> SurfaceMesh:
+    """Wall ``k`` of ``plan`` as two triangles, its vertices ceiling-start, ceiling-end, floor-start, floor-end."""
+    start, end = plan[k], plan[(k + 1) % len(plan)]
     vertices = np.array([[*start, top], [*end, top], [*start, bottom], [*end, bottom]])
     # as room_mesh: from corner i to corner j the room is on the left, so the normals point out of it
-    faces = [[2, 3, 1], [2, 1, 0]] if counter_clockwise else [[3, 2, 0], [3, 0, 1]]
+    faces = [[2, 3, 1], [2, 1, 0]] if signed_area(plan) > 0 else [[3, 2, 0], [3, 0, 1]]
     return SurfaceMesh(f"wall {k}", vertices, np.array(faces, np.int64), uv)
