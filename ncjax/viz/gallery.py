@@ -15,12 +15,13 @@ PAGE = """<!doctype html>
 <head>
 <meta charset="utf-8">
 <meta name="generator" content="ncjax">
+<link rel="icon" href="data:,">
 <title>{title}</title>
 <style>
   body {{ margin: 16px; font: 14px/1.4 system-ui, sans-serif; color: #1b1d22; }}
   table {{ border-collapse: collapse; }}
   th, td {{ padding: 6px 10px; border-bottom: 1px solid #ddd; text-align: left; vertical-align: middle; }}
-  td.number {{ text-align: right; font-variant-numeric: tabular-nums; }}
+  td.number {{ text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }}
   img {{ display: block; width: 256px; height: 128px; object-fit: cover; background: #eee; }}
   .ok {{ color: #1a7f37; }} .flagged {{ color: #9a6700; }} .failed {{ color: #cf222e; }}
 </style>
