@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import threading
 
 import numpy as np
 import PIL.Image
@@ -16,11 +17,12 @@ import pytest
 import shapely
 import trimesh
 from _browser import Browser
-from test_export import RECTANGLE, make_layout
+from test_export import RECTANGLE, failed_layout, make_layout
 from test_viewer import panorama_colour, texel_at, write_result
 
 from ncjax import cli
 from ncjax.cli.demo import DEMO_DIR
+from ncjax.cli.view import results_server
 from ncjax.geometry.camera import NonCentralPanorama, project
 from ncjax.io.images import read_panorama
 from ncjax.pipeline.types import LayoutStatus
@@ -56,9 +58,10 @@ def demo_room(tmp_path_factory):
     return folder, record, image, cam
 
 
-def open_viewer(browser, path):
+def open_viewer(browser, path, url=None):
+    """Open the viewer's page ``path`` (or ``url``) and wait until it has drawn the textured room."""
     browser.errors.clear()
-    browser.open(path.as_uri())
+    browser.open(path.as_uri() if url is None else url)
     browser.wait_for(lambda: browser.evaluate("window.ncjaxViewer !== undefined && window.ncjaxViewer.ready"))
 
 
@@ -215,6 +218,28 @@ def test_a_flagged_layout_says_so_in_the_viewer(browser, tmp_path):
     shown, text = browser.evaluate("(f => [f.offsetParent !== null, f.textContent])(document.getElementById('flag'))")
     assert shown and text.startswith("LOW CONFIDENCE: ")
     assert browser.evaluate("document.getElementById('status').textContent") == "LOW_CONFIDENCE (flagged)"
+    assert browser.errors == []
+
+
+def test_the_index_of_a_served_folder_shows_every_result(browser, demo_room):
+    folder, _, _, _ = demo_room
+    write_result(folder, "flagged", make_layout(RECTANGLE, status=int(LayoutStatus.UNCERTAIN_SCALE)))
+    write_result(folder, "failed", failed_layout())
+    server = results_server(str(folder))
+    thread = threading.Thread(target=server.serve_forever)
+    thread.start()
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}/"
+        browser.errors.clear()
+        browser.open(url)
+        browser.wait_for(lambda: browser.evaluate("Array.from(document.images).every(image => image.complete)"))
+        assert browser.evaluate("document.querySelectorAll('tr').length") == 4  # the header and 3 results
+        widths = browser.evaluate("Array.from(document.images).map(image => image.naturalWidth)")
+        assert len(widths) == 3 and min(widths) > 0  # every thumbnail loaded
+        open_viewer(browser, None, url=url + "room.html")
+    finally:
+        server.shutdown()
+        thread.join()
     assert browser.errors == []
 
 
