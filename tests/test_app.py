@@ -201,7 +201,7 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
         for suffix in ("_overlay.png", "_plan.png"):
             assert (out / f"{name}{suffix}").stat().st_size > 0
         has_layout = status_has_geometry(record["ok"], ncjax.LayoutStatus[record["status"]])
-        for suffix in (".obj", ".ply", ".glb"):
+        for suffix in (".obj", ".ply", ".glb", ".html"):
             assert (out / f"{name}{suffix}").exists() == has_layout
         if has_layout:
             assert record["room_height"] > 0 and len(record["ceiling_corners"]) >= 3

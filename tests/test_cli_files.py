@@ -116,9 +116,9 @@ def test_the_outputs_of_an_image_appear_together_or_not_at_all(tmp_path, fake, m
     monkeypatch.setattr(ncjax.io.export, "write_png", full_disk_for_b)
     out = tmp_path / "out"
     assert reconstruct_cli(panoramas(tmp_path / "in", "a", "b", "c"), out, "--export", "label_cor") == 1
-    assert files_of(out, "a") == sorted([*outputs.output_names("a")[:6], "a.label_cor.txt"])
+    assert files_of(out, "a") == sorted([*outputs.output_names("a")[:7], "a.label_cor.txt"])
     assert files_of(out, "b") == [] and not [name for name in os.listdir(out) if name.startswith(".")]
-    assert files_of(out, "c") == sorted([*outputs.output_names("c")[:6], "c.label_cor.txt"])
+    assert files_of(out, "c") == sorted([*outputs.output_names("c")[:7], "c.label_cor.txt"])
     rows = {row["name"]: row for row in summary_rows(out)}
     assert [rows[name]["result"] for name in "abc"] == ["ok", "error", "ok"]
     assert rows["b"]["message"].startswith("its outputs could not be written (")
@@ -161,8 +161,8 @@ def test_a_rerun_removes_the_outputs_the_new_layout_does_not_have(tmp_path, fake
     out = tmp_path / "out"
     assert reconstruct_cli(images, out, "--export", "label_cor,zind") == 0
     assert files_of(out, "room") == sorted(
-        ["room.json", "room.obj", "room.ply", "room.glb", "room.label_cor.txt", "room.zind.json", "room_overlay.png"]
-        + ["room_plan.png"]
+        ["room.json", "room.obj", "room.ply", "room.glb", "room.html", "room.label_cor.txt", "room.zind.json"]
+        + ["room_overlay.png", "room_plan.png"]
     )
     fake.layout = failed_layout()
     assert reconstruct_cli(images, out, "--export", "label_cor,zind") == 1

@@ -242,10 +242,19 @@ def test_triangulation_of_star_and_collinear_polygons():
     for polygon in (star, star[::-1], collinear, collinear[::-1]):
         triangles = ncjax.io.mesh.triangulate_polygon(polygon)
         assert triangles.shape == (len(polygon) - 2, 3)
-        area = ncjax.io.mesh._cross(polygon[triangles[:, 0]], polygon[triangles[:, 1]], polygon[triangles[:, 2]]) / 2
+        area = np.array([ncjax.io.export.signed_area(polygon[triangle]) for triangle in triangles])
         assert np.all(area > 1e-9)  # counter-clockwise and non-degenerate
         assert area.sum() == pytest.approx(abs(ncjax.io.export.signed_area(polygon)))
     check_room_mesh(*ncjax.io.mesh.room_mesh(make_layout(collinear[::-1] - 1.5)), collinear[::-1] - 1.5)
+
+
+def test_a_self_intersecting_plan_still_gives_a_closed_mesh():
+    """Best effort: n - 2 triangles that use each edge of the plan once, so the room's mesh stays closed."""
+    crossing = np.array([(-2.0, -2.0), (2.0, -2.0), (2.0, 1.0), (0.0, -3.0), (-2.0, 1.0)])
+    triangles = ncjax.io.mesh.triangulate_polygon(crossing)
+    assert triangles.shape == (3, 3) and sorted(np.unique(triangles)) == [0, 1, 2, 3, 4]
+    vertices, faces = ncjax.io.mesh.room_mesh(make_layout(crossing))
+    assert trimesh.Trimesh(vertices, faces, process=False).is_watertight
 
 
 def test_no_mesh_for_a_failed_layout(tmp_path):
@@ -290,19 +299,19 @@ def test_glb_layout_and_axis_conversion(tmp_path):
     bin_length, bin_type = struct.unpack_from("<II", data, 20 + json_length)
     assert bin_type == 0x004E4942 and bin_length % 4 == 0 and 28 + json_length + bin_length == len(data)
     binary = data[28 + json_length :]
-    position, index = gltf["accessors"]
     primitive = gltf["meshes"][0]["primitives"][0]
-    assert primitive["attributes"]["POSITION"] == 0 and primitive["indices"] == 1 and gltf["asset"]["version"] == "2.0"
+    position, index = gltf["accessors"][primitive["attributes"]["POSITION"]], gltf["accessors"][primitive["indices"]]
+    assert gltf["asset"]["version"] == "2.0" and primitive.get("mode", 4) == 4  # triangles
     view = gltf["bufferViews"][position["bufferView"]]
-    positions = np.frombuffer(binary, "<f4", position["count"] * 3, view["byteOffset"]).reshape(-1, 3)
+    offset = view["byteOffset"] + position.get("byteOffset", 0)
+    positions = np.frombuffer(binary, "<f4", position["count"] * 3, offset).reshape(-1, 3)
     expected = np.stack([vertices[:, 0], vertices[:, 2], -vertices[:, 1]], -1)  # z up -> y up
     np.testing.assert_allclose(positions, expected, atol=1e-6)
     assert position["min"] == positions.min(0).tolist() and position["max"] == positions.max(0).tolist()
     view = gltf["bufferViews"][index["bufferView"]]
     assert index["componentType"] == 5125
-    np.testing.assert_array_equal(
-        np.frombuffer(binary, "<u4", index["count"], view["byteOffset"]).reshape(-1, 3), faces
-    )
+    offset = view["byteOffset"] + index.get("byteOffset", 0)
+    np.testing.assert_array_equal(np.frombuffer(binary, "<u4", index["count"], offset).reshape(-1, 3), faces)
     # An independent reader agrees.
     mesh = trimesh.load(path, force="mesh", process=False)
     np.testing.assert_allclose(mesh.vertices, expected, atol=1e-6)

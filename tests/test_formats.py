@@ -399,7 +399,7 @@ def test_reconstruct_outputs_write_and_remove_the_formats(tmp_path):
     write_outputs(str(tmp_path), ReconstructedImage("room", image, result, 0.3), "auto", export=FORMATS)
     written = sorted(path.name for path in tmp_path.iterdir() if path.name.startswith("room."))
     assert written == sorted(
-        ["room.json", "room.obj", "room.ply", "room.glb", *(f"room{s}" for s in SUFFIXES.values())]
+        ["room.json", "room.obj", "room.ply", "room.glb", "room.html", *(f"room{s}" for s in SUFFIXES.values())]
     )
     corners = read_layout(tmp_path / "room.label_cor.txt", 128, 64, rc=0.3)
     np.testing.assert_allclose(corners.floor, read_layout(tmp_path / "room.json").floor, atol=0.01)

@@ -1,4 +1,5 @@
-"""What the ``ncjax`` commands' parsers share: the ``--help`` formatter and the ``--size HxW`` option."""
+"""What the ``ncjax`` commands' parsers share: the ``--help`` formatter and the ``--size HxW`` and
+``--texture-size`` options."""
 
 from __future__ import annotations
 
@@ -35,3 +36,29 @@ def parse_size(text: str) -> tuple[int, int]:
     if height < 4 or width < 8 or width % 2 or height % 2:
         raise ValueError(f"--size must be even sizes of at least 4x8 (HxW), got {text!r}")
     return height, width
+
+
+def parse_texture_size(text: str) -> int:
+    """``--texture-size``: texels on a side of the textured room's texture, at least MIN_TEXTURE_SIZE."""
+    from ..viz.room_texture import MIN_TEXTURE_SIZE
+
+    try:
+        size = int(text)
+    except ValueError:
+        size = 0
+    if size < MIN_TEXTURE_SIZE:
+        raise argparse.ArgumentTypeError(
+            f"the texture size must be a whole number of texels >= {MIN_TEXTURE_SIZE}, got {text!r}"
+        )
+    return size
+
+
+def add_texture_argument(parser: argparse.ArgumentParser) -> None:
+    """``--texture-size``: the side of the square texture of ``<name>.glb`` and ``<name>.html``."""
+    parser.add_argument(
+        "--texture-size",
+        type=parse_texture_size,
+        metavar="TEXELS",
+        help="side of the square texture that carries the panorama onto the room's walls, floor and ceiling "
+        "in <name>.glb and <name>.html (default: the panorama's width)",
+    )

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..io.images import read_panorama
 from ..pipeline.config import DEFAULT_WORLD, WORLDS
+from .arguments import add_texture_argument
 from .compilation import CompileLedger, enable_compilation_cache, program_directory
 from .inputs import check_output_folder, model_weights_option, radius_of
 from .outputs import ReconstructedImage, write_outputs
@@ -73,7 +74,8 @@ def run_demo(args: argparse.Namespace) -> int:
         )
     one = jax.tree.map(lambda x: x[0], tuple(result))
     name = pathlib.Path(truth["image"]).stem
-    record = write_outputs(args.out, ReconstructedImage(name, image, one, rc), args.world, export=args.export)
+    reconstructed = ReconstructedImage(name, image, one, rc)
+    record = write_outputs(args.out, reconstructed, args.world, export=args.export, texture_size=args.texture_size)
     elapsed = time.perf_counter() - start
     if not record["ok"]:
         print(failure_message(record), file=sys.stderr)
@@ -97,7 +99,10 @@ def run_demo(args: argparse.Namespace) -> int:
         f"error against the ground truth: {corner_error}, 3D IoU {100 * scores['iou3d']:.1f}%, "
         f"2D IoU {100 * scores['iou2d']:.1f}%, height error {scores['height_error']:.3f} m"
     )
-    print(f"outputs in {os.path.abspath(args.out)}/ (json, obj/ply/glb mesh, overlay and plan png); {elapsed:.0f} s")
+    print(
+        f"outputs in {os.path.abspath(args.out)}/ (json, obj/ply/glb mesh, html 3D viewer, overlay and plan png); "
+        f"{elapsed:.0f} s"
+    )
     return 0
 
 
@@ -105,5 +110,6 @@ def add_demo_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="ncjax_demo", help="output folder (default ./ncjax_demo)")
     parser.add_argument("--world", choices=WORLDS, default=DEFAULT_WORLD, help=WORLD_HELP)
     add_export_argument(parser)
+    add_texture_argument(parser)
     add_boundary_arguments(parser)
     add_pipeline_arguments(parser)

@@ -207,7 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     reconstruct = commands.add_parser(
         "reconstruct",
-        help="metric layouts of panoramas: json, mesh (obj/ply/glb), overlay and floor-plan png",
+        help="metric layouts of panoramas: json, mesh (obj/ply/glb), 3D viewer (html), overlay and floor-plan png",
         formatter_class=DefaultsHelpFormatter,
     )
     add_reconstruct_arguments(reconstruct)
@@ -219,6 +219,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_demo_arguments(demo)
     demo.set_defaults(run=run_demo)
+    from .view import add_view_arguments, run_view
+
+    view = commands.add_parser(
+        "view",
+        help="serve a folder of results on this machine: an index (thumbnails, status, height, area) linking "
+        "each room's 3D viewer, opened in the browser",
+        formatter_class=DefaultsHelpFormatter,
+    )
+    add_view_arguments(view)
+    view.set_defaults(run=run_view)
     return parser
 
 

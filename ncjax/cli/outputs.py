@@ -1,4 +1,4 @@
-"""The files of one reconstructed image (JSON, meshes, overlay, plan, layout formats), written together."""
+"""The files of one reconstructed image (JSON, meshes, 3D viewer, overlay, plan, layout formats), written together."""
 
 from __future__ import annotations
 
@@ -47,6 +47,7 @@ def output_names(name: str) -> tuple[str, ...]:
     return (
         f"{name}.json",
         *(f"{name}.{suffix}" for suffix in MESH_SUFFIXES),
+        f"{name}.html",
         f"{name}_overlay.png",
         f"{name}_plan.png",
         *(f"{name}{SUFFIXES[format]}" for format in FORMATS),
@@ -73,15 +74,22 @@ class ReconstructedImage(NamedTuple):
 
 
 def write_outputs(
-    out: str, reconstructed: ReconstructedImage, world: str, export: tuple[str, ...] = (), prior=None
+    out: str,
+    reconstructed: ReconstructedImage,
+    world: str,
+    export: tuple[str, ...] = (),
+    prior=None,
+    texture_size: int | None = None,
 ) -> dict:
     """All files of one image, which appear together or not at all; returns the JSON record.
 
     The files are written into a hidden staging folder inside ``out`` and renamed into
     ``out`` at the end, ``<name>.json`` last (:func:`ncjax.io.files.replace_together`):
     an error or a Ctrl-C before the renames leaves nothing of this run in ``out``. Every
-    earlier output of ``name`` is replaced or removed: the meshes and the layout formats
-    exist only when the layout has geometry, and a format only when ``export`` names it.
+    earlier output of ``name`` is replaced or removed: the meshes, the viewer and the layout
+    formats exist only when the layout has geometry, and a format only when ``export`` names it.
+    The GLB is the room with the panorama on its walls, floor and ceiling (a square texture of
+    ``texture_size`` texels a side, None: the image's width), and ``<name>.html`` shows it in a browser.
 
     ``export`` names layout formats (:data:`ncjax.io.formats.FORMATS`) written beside the
     JSON when the layout has geometry. ``reconstructed.gravity`` says how the image was
@@ -95,6 +103,8 @@ def write_outputs(
     from ..io.mesh import write_mesh
     from ..viz.overlay import draw_overlay
     from ..viz.plan import draw_plan
+    from ..viz.room_texture import textured_room
+    from ..viz.viewer import write_viewer
 
     name, image, result, rc, gravity = reconstructed
     layout, ceiling_v, floor_v, corner_prob, *_ = result
@@ -105,7 +115,9 @@ def write_outputs(
         stem = os.path.join(staging, name)
         write_json(f"{stem}.json", record)
         if has_geometry(layout):
-            write_mesh(stem, layout)
+            room = textured_room(layout, image, cam, texture_size)
+            write_mesh(stem, layout, room)
+            write_viewer(f"{stem}.html", room, record)
             try:
                 if export:
                     rotation = None if gravity is None or gravity["rotation"] is None else np.array(gravity["rotation"])

@@ -3,7 +3,7 @@
 ``reconstruct`` reads panoramas (files, or folders of them), groups them by size into
 fixed-size batches (the last one padded, so each size compiles once), runs
 :func:`~ncjax.reconstruction.reconstruct_batch` and writes per image
-``<name>.json``, ``<name>.obj/.ply/.glb`` (when a layout was found),
+``<name>.json``, ``<name>.obj/.ply/.glb`` and the 3D viewer ``<name>.html`` (when a layout was found),
 ``<name>_overlay.png`` and ``<name>_plan.png``, and at the end ``summary.csv``
 (one line per image: its result, heights, area, or why it failed; the lines of other
 images of an earlier summary in the folder are kept).
@@ -35,6 +35,7 @@ from ..network.edges import EdgeSnap
 from ..network.model import check_views
 from ..network.predict import DEFAULT_VIEWS
 from ..pipeline.config import DEFAULT_WORLD, RENAMED, WORLDS
+from .arguments import add_texture_argument
 from .compilation import CompileLedger, enable_compilation_cache, program_directory, settings_key
 from .inputs import (
     PANORAMA_SUFFIXES,
@@ -69,6 +70,7 @@ class ReconstructSettings:
     out: str
     export: tuple[str, ...]
     prior: object
+    texture_size: int | None = None
 
 
 def program_key(shape: tuple[int, ...], settings: ReconstructSettings, central: bool) -> str:
@@ -141,6 +143,7 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
                     settings.world,
                     export=settings.export,
                     prior=settings.prior,
+                    texture_size=settings.texture_size,
                 )
             except (OSError, ValueError) as error:  # nothing of this image was written (write_outputs)
                 on_error(path, f"{path}: its outputs could not be written ({one_line(error)})")
@@ -304,7 +307,16 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     # fewer images than --batch: a smaller program, not one padded with copies to compute for nothing
     batch_size = max(1, min(args.batch, len(images)))
     settings = ReconstructSettings(
-        model, batch_size, args.world, config, args.views, args.edge_snap, args.out, args.export, prior
+        model,
+        batch_size,
+        args.world,
+        config,
+        args.views,
+        args.edge_snap,
+        args.out,
+        args.export,
+        prior,
+        args.texture_size,
     )
     ledger = CompileLedger(enable_compilation_cache())
     tally = RunTally(images, args.out, tqdm(total=len(images), unit="image", desc="ncjax reconstruct"))
@@ -381,6 +393,7 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         "lines and undone before the network (the JSON records them)",
     )
     add_export_argument(parser)
+    add_texture_argument(parser)
     add_boundary_arguments(parser)
     add_pipeline_arguments(parser)
 

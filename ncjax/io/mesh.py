@@ -1,78 +1,56 @@
-"""The room as a closed triangle mesh: OBJ, PLY and binary glTF (GLB), written atomically."""
+"""The room as triangle meshes: the closed solid as OBJ, PLY and binary glTF (GLB), and the textured room as
+GLB; written with trimesh, atomically."""
 
 from __future__ import annotations
 
 import io
-import json
 import os
 import pathlib
-import struct
+from typing import NamedTuple
 
 import numpy as np
-from jaxtyping import ArrayLike, Float, Int
+from jaxtyping import ArrayLike, Bool, Float, Int, UInt8
 
 from ..pipeline.types import Layout
 from .export import PathLike, has_geometry, signed_area, status_name, valid_corners
 from .files import write_atomic
 
+# trimesh takes seconds to import (it loads scipy): the functions that write or triangulate import it, so that
+# this module's types and the commands that do not write meshes stay quick to import.
+
+HEADER = "ncjax room layout: metres, camera frame, z up; normals point out of the room"
+
 # --- mesh ------------------------------------------------------------------------------------------------
 
 
-def _cross(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """z of (a - o) x (b - o); broadcasts over leading axes."""
-    return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (b[..., 0] - o[..., 0])
-
-
 def triangulate_polygon(xy: Float[np.ndarray, "n 2"]) -> Int[np.ndarray, "n_minus_2 3"]:
-    """Ear-clipping triangulation of a simple polygon, convex or not (O(n^2) ears, n small).
+    """Triangulation of a simple polygon, convex or not, by trimesh's Manifold engine.
+
+    Manifold keeps every vertex (a corner in the middle of a wall included), unlike earcut, which
+    drops the vertices of a self-intersecting polygon and so leaves a hole in the room's mesh.
 
     Args:
         xy: the polygon's vertices in order, either orientation, no repeated
             closing vertex.
 
     Returns:
-        ``(n - 2, 3)`` vertex indices, every triangle counter-clockwise. A
-        vertex collinear with its neighbours is never cut off alone (that
-        triangle would be degenerate). For a self-intersecting polygon the
-        result is best effort: still n - 2 triangles using each polygon edge
-        once, but they may overlap.
+        ``(n - 2, 3)`` vertex indices, every triangle counter-clockwise. For a
+        self-intersecting polygon the result is best effort: still n - 2
+        triangles using each polygon edge once, but they may overlap.
 
     Raises:
         ValueError: for fewer than 3 vertices.
     """
+    import shapely
+    import trimesh
+
     xy = np.asarray(xy, np.float64)
     if xy.ndim != 2 or xy.shape[1] != 2 or len(xy) < 3:
         raise ValueError(f"a polygon needs (n >= 3, 2) vertices, got shape {xy.shape}")
-    # Work counter-clockwise: then an ear tip is a vertex with a left turn.
-    order = list(range(len(xy))) if signed_area(xy) >= 0 else list(range(len(xy)))[::-1]
-    scale = float(np.max(np.ptp(xy, axis=0))) or 1.0
-    tolerance = 1e-12 * scale**2
-    triangles = []
-    while len(order) > 3:
-        points = xy[order]
-        previous, following = np.roll(points, 1, axis=0), np.roll(points, -1, axis=0)
-        turn = _cross(previous, points, following)
-        ear = None
-        for i in np.argsort(-turn):  # most convex first: better shaped triangles
-            if turn[i] <= tolerance:
-                break
-            a, b, c = previous[i], points[i], following[i]
-            others = np.delete(points, [(i - 1) % len(order), i, (i + 1) % len(order)], axis=0)
-            # A vertex on the triangle's boundary blocks the ear too (it would leave a T-junction).
-            inside = (
-                (_cross(a, b, others) >= -tolerance)
-                & (_cross(b, c, others) >= -tolerance)
-                & (_cross(c, a, others) >= -tolerance)
-            )
-            if not np.any(inside):
-                ear = i
-                break
-        if ear is None:  # self-intersecting or degenerate input: cut the most convex vertex
-            ear = int(np.argmax(turn))
-        triangles.append([order[(ear - 1) % len(order)], order[ear], order[(ear + 1) % len(order)]])
-        del order[ear]
-    triangles.append(order)
-    return np.asarray(triangles, np.int64)
+    vertices, triangles = trimesh.creation.triangulate_polygon(shapely.Polygon(xy), engine="manifold")
+    # The engine returns the ring counter-clockwise, reversed when it was not: name its vertices by their index in xy.
+    index = np.argmax(np.all(np.asarray(vertices)[:, None] == xy[None], axis=-1), axis=1)
+    return index[np.asarray(triangles, np.int64)]
 
 
 def room_mesh(layout: Layout) -> tuple[Float[np.ndarray, "V 3"], Int[np.ndarray, "F 3"]]:
@@ -83,7 +61,7 @@ def room_mesh(layout: Layout) -> tuple[Float[np.ndarray, "V 3"], Int[np.ndarray,
     signed volume is positive (floor area times room height). A renderer that
     culls back faces shows the room as a closed box from outside; to look
     around from within, turn culling off or flip the faces. The floor and ceiling are
-    triangulated by ear clipping, so non-convex (L-, U-shaped) plans are exact.
+    triangulated as polygons (:func:`triangulate_polygon`), so non-convex (L-, U-shaped) plans are exact.
     Inserted walls are walls like the others. The mesh is watertight: every
     edge is shared by exactly two faces, in opposite directions.
 
@@ -131,43 +109,28 @@ def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     return vertices, faces.astype(np.int64)
 
 
+def _trimesh(vertices, faces, visual=None):
+    """trimesh's mesh of our arrays as they are (no merging or reordering of vertices or faces)."""
+    import trimesh
+
+    return trimesh.Trimesh(*_check_mesh(vertices, faces), visual=visual, process=False, validate=False)
+
+
 def write_obj(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[ArrayLike, "F 3"]) -> None:
     """Write a triangle mesh as Wavefront OBJ (1-based indices; metres, z up, camera frame), atomically."""
-    vertices, faces = _check_mesh(vertices, faces)
-    lines = ["# ncjax room layout: metres, camera frame, z up; normals point out of the room"]
-    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices]
-    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
-    write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
+    import trimesh
+
+    text = trimesh.exchange.obj.export_obj(
+        _trimesh(vertices, faces), include_normals=False, include_color=False, include_texture=False, header=HEADER
+    )
+    write_atomic(path, text.encode("ascii"))
 
 
 def write_ply(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[ArrayLike, "F 3"]) -> None:
     """Write a triangle mesh as ASCII PLY (metres, z up, camera frame), atomically."""
-    vertices, faces = _check_mesh(vertices, faces)
-    header = [
-        "ply",
-        "format ascii 1.0",
-        "comment ncjax room layout: metres, camera frame, z up; normals point out of the room",
-        f"element vertex {len(vertices)}",
-        "property float x",
-        "property float y",
-        "property float z",
-        f"element face {len(faces)}",
-        "property list uchar int vertex_indices",
-        "end_header",
-    ]
-    lines = header + [f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices] + [f"3 {a} {b} {c}" for a, b, c in faces]
-    write_atomic(path, ("\n".join(lines) + "\n").encode("ascii"))
+    import trimesh
 
-
-# glTF 2.0 constants (Khronos specification).
-_GLB_MAGIC = 0x46546C67  # "glTF"
-_CHUNK_JSON = 0x4E4F534A  # "JSON"
-_CHUNK_BIN = 0x004E4942  # "BIN\0"
-_FLOAT = 5126
-_UNSIGNED_INT = 5125
-_ARRAY_BUFFER = 34962
-_ELEMENT_ARRAY_BUFFER = 34963
-_TRIANGLES = 4
+    write_atomic(path, trimesh.exchange.ply.export_ply(_trimesh(vertices, faces), encoding="ascii"))
 
 
 def z_up_to_y_up(xyz: Float[ArrayLike, "*batch 3"]) -> Float[np.ndarray, "*batch 3"]:
@@ -176,64 +139,88 @@ def z_up_to_y_up(xyz: Float[ArrayLike, "*batch 3"]) -> Float[np.ndarray, "*batch
     return np.stack([xyz[..., 0], xyz[..., 2], -xyz[..., 1]], axis=-1)
 
 
-def _pad(payload: bytes, fill: bytes) -> bytes:
-    """Pad a GLB chunk to a multiple of 4 bytes (JSON with spaces, binary with zeros)."""
-    return payload + fill * (-len(payload) % 4)
-
-
 def write_glb(path: PathLike, vertices: Float[ArrayLike, "V 3"], faces: Int[ArrayLike, "F 3"]) -> None:
     """Write a triangle mesh as binary glTF 2.0 (GLB), atomically.
 
-    One mesh of one triangle primitive: float32 POSITION (with the min/max the
-    specification requires) and uint32 indices. glTF is y-up, so the vertices
-    are rotated from our z-up frame by (x, y, z) -> (x, z, -y) (:func:`z_up_to_y_up`);
-    glTF's counter-clockwise front faces then face out of the room.
+    glTF is y-up, so the vertices are rotated from our z-up frame by (x, y, z) -> (x, z, -y)
+    (:func:`z_up_to_y_up`); glTF's counter-clockwise front faces then face out of the room.
     """
+    import trimesh
+
     vertices, faces = _check_mesh(vertices, faces)
-    positions = z_up_to_y_up(vertices).astype("<f4")
-    indices = faces.astype("<u4")
-    position_bytes, index_bytes = positions.tobytes(), indices.tobytes()  # both multiples of 4 bytes
-    gltf = {
-        "asset": {"version": "2.0", "generator": "ncjax"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0, "name": "room"}],
-        "meshes": [{"name": "room", "primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "mode": _TRIANGLES}]}],
-        "buffers": [{"byteLength": len(position_bytes) + len(index_bytes)}],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": len(position_bytes), "target": _ARRAY_BUFFER},
-            {
-                "buffer": 0,
-                "byteOffset": len(position_bytes),
-                "byteLength": len(index_bytes),
-                "target": _ELEMENT_ARRAY_BUFFER,
-            },
-        ],
-        "accessors": [
-            {
-                "bufferView": 0,
-                "componentType": _FLOAT,
-                "count": len(positions),
-                "type": "VEC3",
-                # Bounds of the float32 values actually stored, as validators compare them.
-                "min": positions.min(axis=0).astype(float).tolist(),
-                "max": positions.max(axis=0).astype(float).tolist(),
-            },
-            {"bufferView": 1, "componentType": _UNSIGNED_INT, "count": indices.size, "type": "SCALAR"},
-        ],
-    }
-    json_chunk = _pad(json.dumps(gltf, separators=(",", ":")).encode("utf-8"), b" ")
-    bin_chunk = _pad(position_bytes + index_bytes, b"\x00")
-    total = 12 + 8 + len(json_chunk) + 8 + len(bin_chunk)
-    glb = io.BytesIO()
-    glb.write(struct.pack("<III", _GLB_MAGIC, 2, total))
-    glb.write(struct.pack("<II", len(json_chunk), _CHUNK_JSON) + json_chunk)
-    glb.write(struct.pack("<II", len(bin_chunk), _CHUNK_BIN) + bin_chunk)
-    write_atomic(path, glb.getvalue())
+    write_atomic(path, trimesh.exchange.gltf.export_glb(_trimesh(z_up_to_y_up(vertices), faces)))
 
 
-def write_mesh(stem: PathLike, layout: Layout) -> tuple[pathlib.Path, pathlib.Path, pathlib.Path]:
-    """Write the room mesh (:func:`room_mesh`) as ``stem.obj``, ``stem.ply`` and ``stem.glb``.
+class SurfaceMesh(NamedTuple):
+    """One textured surface of the room (a wall, the floor or the ceiling).
+
+    Attributes:
+        name: what it is, e.g. ``wall 3`` (the node's name in the GLB).
+        vertices: (V, 3) metres, camera frame, z up.
+        faces: (F, 3) vertex indices, normals out of the room.
+        uv: (V, 2) texture coordinates, (0, 0) at the texture's bottom-left corner and (1, 1) at its top-right.
+    """
+
+    name: str
+    vertices: Float[np.ndarray, "V 3"]
+    faces: Int[np.ndarray, "F 3"]
+    uv: Float[np.ndarray, "V 2"]
+
+
+class TexturedRoom(NamedTuple):
+    """The room's surfaces and the texture they share (:func:`ncjax.viz.room_texture.textured_room`).
+
+    Attributes:
+        surfaces: the walls in image order, then the floor and the ceiling.
+        texture: (N, N, 3) RGB, the panorama resampled onto every surface.
+        unseen: (N, N) the texels that no ray of the panorama sees, in the texture's marker colour.
+    """
+
+    surfaces: tuple[SurfaceMesh, ...]
+    texture: UInt8[np.ndarray, "N N 3"]
+    unseen: Bool[np.ndarray, "N N"]
+
+
+def texture_jpeg(texture: UInt8[np.ndarray, "H W 3"]) -> bytes:
+    """The texture as the JPEG that :func:`write_textured_glb` stores (PIL's encoder at its default quality)."""
+    import PIL.Image
+
+    with io.BytesIO() as buffer:
+        PIL.Image.fromarray(texture).save(buffer, format="JPEG")
+        return buffer.getvalue()
+
+
+def write_textured_glb(path: PathLike, room: TexturedRoom) -> None:
+    """Write the textured room as binary glTF 2.0 (GLB), a node per surface, atomically.
+
+    Every surface shares one material (no metal, full roughness), double-sided so that the
+    room is seen from inside too, whose base colour is the room's texture, stored as the
+    JPEG of :func:`texture_jpeg`. The vertices are rotated to glTF's y-up frame (:func:`z_up_to_y_up`).
+    """
+    import PIL.Image
+    import trimesh
+
+    image = PIL.Image.fromarray(room.texture)
+    # trimesh stores an image whose format is JPEG as JPEG (any other as PNG, several times larger)
+    image.format = "JPEG"
+    material = trimesh.visual.material.PBRMaterial(
+        name="panorama", baseColorTexture=image, metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True
+    )
+    scene = trimesh.Scene()
+    for surface in room.surfaces:
+        visual = trimesh.visual.TextureVisuals(uv=surface.uv, material=material)
+        mesh = _trimesh(z_up_to_y_up(surface.vertices), surface.faces, visual=visual)
+        scene.add_geometry(mesh, node_name=surface.name, geom_name=surface.name)
+    write_atomic(path, trimesh.exchange.gltf.export_glb(scene))
+
+
+def write_mesh(
+    stem: PathLike, layout: Layout, textured: TexturedRoom | None = None
+) -> tuple[pathlib.Path, pathlib.Path, pathlib.Path]:
+    """Write the room as ``stem.obj``, ``stem.ply`` and ``stem.glb``.
+
+    The OBJ and PLY are the closed solid of :func:`room_mesh`; the GLB is the ``textured`` room
+    (:func:`write_textured_glb`) where it is given, the solid otherwise.
 
     Returns:
         The three paths written.
@@ -242,7 +229,11 @@ def write_mesh(stem: PathLike, layout: Layout) -> tuple[pathlib.Path, pathlib.Pa
         ValueError: for a failed layout (nothing is written).
     """
     vertices, faces = room_mesh(layout)
-    paths = tuple(pathlib.Path(f"{os.fspath(stem)}.{suffix}") for suffix in ("obj", "ply", "glb"))
-    for path, writer in zip(paths, (write_obj, write_ply, write_glb), strict=True):
-        writer(path, vertices, faces)
-    return paths
+    obj, ply, glb = (pathlib.Path(f"{os.fspath(stem)}.{suffix}") for suffix in ("obj", "ply", "glb"))
+    write_obj(obj, vertices, faces)
+    write_ply(ply, vertices, faces)
+    if textured is None:
+        write_glb(glb, vertices, faces)
+    else:
+        write_textured_glb(glb, textured)
+    return obj, ply, glb
