@@ -12,11 +12,12 @@ import time
 
 import numpy as np
 
-from ..io.images import read_panorama
+from ..io.images import read_panorama_file
 from ..pipeline.config import DEFAULT_WORLD, WORLDS
+from ..pipeline.types import LayoutStatus
 from .arguments import add_texture_argument
 from .compilation import CompileLedger, enable_compilation_cache, program_directory
-from .inputs import check_output_folder, model_weights_option, radius_of
+from .inputs import check_output_folder, make_output_folder, model_weights_option, radius_of
 from .outputs import ReconstructedImage, write_outputs
 from .reconstruct import (
     WORLD_HELP,
@@ -42,19 +43,19 @@ def run_demo(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     config = pipeline_config(args)
     check_output_folder(args.out)
+    model = model_weights_option(None)
+    make_output_folder(args.out)
     ledger = CompileLedger(enable_compilation_cache())
     with open(DEMO_DIR / "ground_truth.json") as file:
         truth = json.load(file)
     path = DEMO_DIR / truth["image"]
-    image = read_panorama(path)
+    image, file_size = read_panorama_file(path)
     rc = radius_of(str(path), None)
     print(
         f"ncjax demo: {truth['image']} ({image.shape[1]} x {image.shape[0]}, rc = {rc} m from its name, "
         f"a {truth['world']} room rendered by ncjax synth and never seen in training)"
     )
-    settings = ReconstructSettings(
-        model_weights_option(None), 1, args.world, config, args.views, args.edge_snap, args.out, (), None
-    )
+    settings = ReconstructSettings(model, 1, args.world, config, args.views, args.edge_snap, args.out, (), None)
     key = program_key((1, *image.shape), settings, central=False)
     with ledger.compiling(
         key,
@@ -74,11 +75,11 @@ def run_demo(args: argparse.Namespace) -> int:
         )
     one = jax.tree.map(lambda x: x[0], tuple(result))
     name = pathlib.Path(truth["image"]).stem
-    reconstructed = ReconstructedImage(name, image, one, rc)
+    reconstructed = ReconstructedImage(name, image, one, rc, file_size=file_size)
     record = write_outputs(args.out, reconstructed, args.world, export=args.export, texture_size=args.texture_size)
     elapsed = time.perf_counter() - start
     if not record["ok"]:
-        print(failure_message(record), file=sys.stderr)
+        print(f"{failure_message(record)}: {LayoutStatus[record['status']].reason}", file=sys.stderr)
         return 1
     scores = metrics.evaluate_layout(one[0], truth)
     true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]

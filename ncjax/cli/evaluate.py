@@ -14,6 +14,7 @@ import pathlib
 import sys
 
 from .arguments import parse_size
+from .inputs import PANORAMA_SUFFIXES
 
 # (title, metric, factor, decimals) of the printed columns
 COLUMNS = (
@@ -27,11 +28,15 @@ COLUMNS = (
 CELL = 7
 
 
+LAYOUT_FILES = "label_cor .txt, or HorizonNet, PanoAnnotator, ZInD or ncjax .json"
+
+
 def layout_pairs(pred: str, gt: str) -> tuple[list[tuple[str, pathlib.Path, pathlib.Path]], list[str], list[str]]:
     """The (name, prediction file, ground-truth file) to compare, and the stems found on one side only.
 
     Raises:
-        ValueError: for a file and a folder, or two folders without a common image stem.
+        ValueError: for a file and a folder, an image given as a layout file, or two folders without a common
+            image stem.
         FileNotFoundError: for a path that does not exist.
     """
     from ..io.formats_read import layout_files, split_layout_name
@@ -43,6 +48,11 @@ def layout_pairs(pred: str, gt: str) -> tuple[list[tuple[str, pathlib.Path, path
     if pred_path.is_dir() != gt_path.is_dir():
         raise ValueError("PRED and GT must be two layout files or two folders")
     if not pred_path.is_dir():
+        for role, path in (("PRED", pred_path), ("GT", gt_path)):
+            if path.suffix.lower() in PANORAMA_SUFFIXES:
+                raise ValueError(
+                    f"{role} {path} is an image: give its layout file ({LAYOUT_FILES}), or a folder of them"
+                )
         parts = split_layout_name(gt_path.name)
         return [(parts[0] if parts else gt_path.stem, pred_path, gt_path)], [], []
     predictions, truths = layout_files(pred_path), layout_files(gt_path)
@@ -52,6 +62,22 @@ def layout_pairs(pred: str, gt: str) -> tuple[list[tuple[str, pathlib.Path, path
     only_pred = sorted(set(predictions) - set(truths))
     only_gt = sorted(set(truths) - set(predictions))
     return [(stem, predictions[stem], truths[stem]) for stem in common], only_pred, only_gt
+
+
+def read_pair(pred_file: pathlib.Path, gt_file: pathlib.Path, size: tuple[int, int] | None):
+    """The prediction and the ground truth of one image (:func:`~ncjax.io.formats_read.read_layout`).
+
+    A file that records no image size (label_cor) is read at ``size`` (``--size``, as (W, H)), else at the size
+    the other file records, else at 1024 x 512: the labels of a panorama ncjax resized before its reconstruction
+    are in the pixels of the file as given, as its exports are.
+    """
+    from ..io.formats_read import read_layout, recorded_size
+
+    if size is not None:
+        return read_layout(pred_file, *size), read_layout(gt_file, *size)
+    pred_size, gt_size = recorded_size(pred_file), recorded_size(gt_file)
+    pred = read_layout(pred_file, *(pred_size or gt_size or (None, None)))
+    return pred, read_layout(gt_file, *(gt_size or pred_size or (None, None)))
 
 
 def _cells(row: dict) -> str:
@@ -70,9 +96,8 @@ def run_layout_evaluation(args: argparse.Namespace) -> int:
         0, or 1 when some image could not be evaluated (its line says why).
     """
     from ..evaluation.central_metrics import aggregate_central, evaluate_corners
-    from ..io.formats_read import read_layout
 
-    height, width = parse_size(args.size) if args.size else (None, None)
+    size = parse_size(args.size)[::-1] if args.size else None
     pairs, only_pred, only_gt = layout_pairs(args.pred, args.gt)
     name_width = max(12, *(len(name) for name, *_ in pairs))
     header = " ".join(f"{title:>{CELL}}" for title, *_ in COLUMNS)
@@ -80,8 +105,7 @@ def run_layout_evaluation(args: argparse.Namespace) -> int:
     results, failures = {}, {}
     for name, pred_file, gt_file in pairs:
         try:
-            gt = read_layout(gt_file, width, height)
-            pred = read_layout(pred_file, width, height)
+            pred, gt = read_pair(pred_file, gt_file, size)
             row = evaluate_corners(pred, gt)
         except (ValueError, FileNotFoundError) as error:
             failures[name] = str(error)

@@ -7,8 +7,12 @@ import math
 import os
 import pathlib
 import tempfile
+import warnings
+from typing import NamedTuple
 
-from ..io.images import PanoramaError
+import numpy as np
+
+from ..io.images import PanoramaError, PanoramaResizeWarning, read_panorama_file
 from ..synth.dataset import rc_from_name
 
 MAX_RC = 3.0  # metres; the capture rigs have radii of tens of centimetres
@@ -68,6 +72,44 @@ def radius_of(path: str, rc: float | None) -> float:
     if not 0.0 < from_name <= MAX_RC:
         raise PanoramaError(f"{path}: the radius in the file name, {from_name} m, is not in (0, {MAX_RC}] m")
     return from_name
+
+
+def read_image(path: str, rc: float | None, say_resized) -> tuple[np.ndarray, float, tuple[int, int]]:
+    """The panorama of ``path``, its radius (``--rc``, or from its name) and the (W, H) of its file;
+    ``say_resized`` reports a resize.
+
+    Raises:
+        PanoramaError: the file cannot be used (the message says why).
+    """
+    with warnings.catch_warnings(record=True) as notes:
+        warnings.simplefilter("always", PanoramaResizeWarning)
+        image, file_size = read_panorama_file(path)
+    for note in notes:
+        if issubclass(note.category, PanoramaResizeWarning):
+            say_resized(str(note.message))
+        else:
+            warnings.showwarning(note.message, note.category, note.filename, note.lineno)
+    return image, radius_of(path, rc), file_size
+
+
+class PendingImage(NamedTuple):
+    """An image read and waiting for its batch.
+
+    Attributes:
+        path: its file as given.
+        name: the stem of its outputs.
+        image: the panorama to reconstruct (resized and levelled where needed), RGB uint8.
+        rc: its radius, metres.
+        gravity: how it was levelled (:func:`~.outputs.align_to_gravity`), or None.
+        file_size: (W, H) of its file, whose pixels the exports give.
+    """
+
+    path: str
+    name: str
+    image: np.ndarray
+    rc: float
+    gravity: dict | None
+    file_size: tuple[int, int]
 
 
 def one_line(error: BaseException) -> str:
@@ -134,13 +176,31 @@ def expand_inputs(paths: list[str], recursive: bool = False, out: str | None = N
 
 
 def check_output_folder(out: str) -> None:
+    """Check, creating nothing, that the output folder can be written in or created: it is a writable folder, or
+    the nearest folder above it that exists is (the checks before any work; :func:`make_output_folder` then
+    makes sure).
+
+    Raises:
+        ValueError: ``out`` is a file, or it cannot be created or written in (one line).
+    """
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise ValueError(f"--out {out} exists and is not a folder")
+    existing = os.path.abspath(out)
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise ValueError(f"--out {out} is not a folder ncjax can write in ({existing} is a file)")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {out} is not a folder ncjax can write in (Permission denied)")
+
+
+def make_output_folder(out: str) -> None:
     """Create the output folder if needed and check that files can be written in it (a probe file, removed).
 
     Raises:
         ValueError: ``out`` is a file, cannot be created or is not writable (one line).
     """
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise ValueError(f"--out {out} exists and is not a folder")
+    check_output_folder(out)
     try:
         os.makedirs(out, exist_ok=True)
         descriptor, probe = tempfile.mkstemp(prefix=".ncjax-probe-", dir=out)

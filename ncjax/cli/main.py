@@ -26,7 +26,17 @@ def _info(args: argparse.Namespace) -> int:
 
     import ncjax
 
+    from ..network.checkpoint import shipped_models
+    from ..network.predict import DEFAULT_MODEL_PATH
+    from ..programs import SHIPPED_DIRECTORY
+    from .compilation import cache_directory, program_directory
+
     print(f"ncjax {ncjax.__version__}, jax {jax.__version__}, devices: {', '.join(str(d) for d in jax.devices())}")
+    others = ", ".join(name for name in shipped_models() if name != DEFAULT_MODEL_PATH.stem)
+    also = f"; also shipped: {others}" if others else ""
+    print(f"model      {DEFAULT_MODEL_PATH.stem} (the default, {DEFAULT_MODEL_PATH}){also}")
+    print(f"programs   {program_directory()} (traced programs kept; the package's own: {SHIPPED_DIRECTORY})")
+    print(f"compiled   {cache_directory()} (XLA's compilation cache)")
     print(CONVENTIONS, end="")
     return 0
 
@@ -129,7 +139,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"ncjax {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
     info = commands.add_parser(
-        "info", help="versions, devices and the camera conventions", formatter_class=DefaultsHelpFormatter
+        "info",
+        help="versions, devices, the default model, the cache folders and the camera conventions",
+        formatter_class=DefaultsHelpFormatter,
     )
     info.set_defaults(run=_info)
     synth = commands.add_parser(
@@ -181,7 +193,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("pred", nargs="?", help="predicted layout file, or a folder of them")
     evaluate.add_argument("gt", nargs="?", help="ground-truth layout file, or a folder of them")
     evaluate.add_argument(
-        "--size", help="HxW of the images, for layout files that do not record it (default: the file's, or 512x1024)"
+        "--size",
+        help="HxW of the images, for layout files that record none, as label_cor (default: the size the image's "
+        "other file records, else 512x1024)",
     )
     evaluate.add_argument(
         "--data",

@@ -100,7 +100,12 @@ def add_config_options(
 
 
 def config_from_options(args: argparse.Namespace, defaults: Any, *, prefix: str = "") -> Any:
-    """``defaults`` with the fields given on the command line replaced (the dataclass validates them)."""
+    """``defaults`` with the fields given on the command line replaced.
+
+    Raises:
+        ValueError: a value the dataclass refuses, its message naming the option (``--corners-threshold``)
+            where it names the field (``CornerConfig.threshold``, or the field's name first).
+    """
     given = {}
     for field in dataclasses.fields(defaults):
         inner = getattr(defaults, field.name)
@@ -111,7 +116,25 @@ def config_from_options(args: argparse.Namespace, defaults: Any, *, prefix: str 
             value = getattr(args, f"{prefix.replace('-', '_')}{field.name}", None)
         if value is not None:
             given[field.name] = tuple(value) if isinstance(value, list) else value  # a range comes as a list
-    return dataclasses.replace(defaults, **given) if given else defaults
+    if not given:
+        return defaults
+    try:
+        return dataclasses.replace(defaults, **given)
+    except ValueError as error:
+        raise ValueError(_option_message(str(error), type(defaults).__name__, list(given), prefix)) from None
+
+
+def _option_message(message: str, class_name: str, names: list[str], prefix: str) -> str:
+    """A configuration's error message with the fields ``names`` it names as options: ``CornerConfig.threshold``,
+    a part's ``corners.min_corners`` and a leading ``capacity`` become ``--corners-threshold``,
+    ``--corners-min-corners`` and ``--capacity``."""
+    for name in names:
+        message = message.replace(f"{class_name}.{name}", _option(prefix, name))
+        message = re.sub(
+            rf"(?<![\w.-]){name}((?:\.\w+)+)", lambda match: _option(prefix, name + match[1].replace(".", "-")), message
+        )
+        message = re.sub(rf"^{name}(?= )", _option(prefix, name), message)
+    return message
 
 
 class _Renamed(argparse.Action):

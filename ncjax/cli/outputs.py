@@ -64,6 +64,8 @@ class ReconstructedImage(NamedTuple):
             and floor rows, the corner probability, the scale source and the geometry's own layout.
         rc: the radius of its circle of optical centres, metres.
         gravity: how it was levelled (:func:`align_to_gravity`), or None.
+        file_size: (W, H) of the image file as given, when it was resized to ``image`` (None: ``image``'s size):
+            the pixels of the exports (:func:`write_outputs`).
     """
 
     name: str
@@ -71,6 +73,7 @@ class ReconstructedImage(NamedTuple):
     result: tuple
     rc: float
     gravity: dict | None = None
+    file_size: tuple[int, int] | None = None
 
 
 def write_outputs(
@@ -94,7 +97,9 @@ def write_outputs(
     ``export`` names layout formats (:data:`ncjax.io.formats.FORMATS`) written beside the
     JSON when the layout has geometry. ``reconstructed.gravity`` says how the image was
     levelled: the JSON, the mesh and the metric formats are in the levelled frame (z up), the
-    corner pixels of label_cor and HorizonNet's json in the input image's.
+    corner pixels of label_cor and HorizonNet's json in the input image's. Every pixel the JSON and the
+    formats give is one of the image file as given (``reconstructed.file_size``), also for a file that was
+    resized before the reconstruction; the overlay shows the panorama at the size it was reconstructed at.
     """
     from ..geometry.camera import NonCentralPanorama
     from ..io.export import has_geometry, layout_record, write_json, write_png
@@ -106,11 +111,12 @@ def write_outputs(
     from ..viz.room_texture import textured_room
     from ..viz.viewer import write_viewer
 
-    name, image, result, rc, gravity = reconstructed
+    name, image, result, rc, gravity, file_size = reconstructed
     layout, ceiling_v, floor_v, corner_prob, *_ = result
     cam = NonCentralPanorama(image.shape[1], image.shape[0], rc=rc)
+    file_cam = cam if file_size is None else NonCentralPanorama(*file_size, rc=rc)
     extra = scale_fields(result, prior) | {"gravity": gravity}
-    record = layout_record(layout, cam, name=name, world=world, extra=extra)
+    record = layout_record(layout, cam, name=name, world=world, extra=extra, image_size=file_size)
     with replace_together(out, owned=output_names(name), last=f"{name}.json") as staging:
         stem = os.path.join(staging, name)
         write_json(f"{stem}.json", record)
@@ -121,7 +127,7 @@ def write_outputs(
             try:
                 if export:
                     rotation = None if gravity is None or gravity["rotation"] is None else np.array(gravity["rotation"])
-                    write_layout_formats(stem, record, cam, export, rotation=rotation)
+                    write_layout_formats(stem, record, file_cam, export, rotation=rotation)
             except ValueError as error:  # a corner no ray sees: the other outputs still describe the layout
                 print(f"{name}: layout formats not written ({error})", file=sys.stderr)
         overlay = draw_overlay(image, layout, cam, ceiling_v=ceiling_v, floor_v=floor_v, corner_prob=corner_prob)

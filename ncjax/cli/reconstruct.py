@@ -26,11 +26,10 @@ import pathlib
 import signal
 import sys
 import threading
-import warnings
 
 import numpy as np
 
-from ..io.images import PanoramaError, PanoramaResizeWarning, read_panorama
+from ..io.images import PanoramaError
 from ..network.edges import EdgeSnap
 from ..network.model import check_views
 from ..network.predict import DEFAULT_VIEWS
@@ -39,13 +38,15 @@ from .arguments import add_texture_argument
 from .compilation import CompileLedger, enable_compilation_cache, program_directory, settings_key
 from .inputs import (
     PANORAMA_SUFFIXES,
+    PendingImage,
     check_output_folder,
     expand_inputs,
     height_prior,
+    make_output_folder,
     model_weights_option,
     one_line,
     parse_rc,
-    radius_of,
+    read_image,
 )
 from .options import add_config_options, add_renamed_options, config_from_options
 from .outputs import ReconstructedImage, align_to_gravity, write_outputs
@@ -87,7 +88,9 @@ def program_key(shape: tuple[int, ...], settings: ReconstructSettings, central: 
     return settings_key(shape, *parts, central)
 
 
-def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, ledger: CompileLedger, say):
+def _reconstruct_group(
+    settings: ReconstructSettings, items: list[PendingImage], on_done, on_error, ledger: CompileLedger, say
+):
     """Reconstruct same-size images in fixed-size batches.
 
     Calls ``on_done(path, record)`` after each image, or ``on_error(path, message)``
@@ -108,8 +111,8 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
     for start in range(0, len(items), batch_size):
         chunk = items[start : start + batch_size]
         padding = [chunk[-1]] * (batch_size - len(chunk))
-        images = np.stack([image for _, _, image, _, _ in chunk + padding])
-        radii = np.array([rc for _, _, _, rc, _ in chunk + padding], np.float32)
+        images = np.stack([item.image for item in chunk + padding])
+        radii = np.array([item.rc for item in chunk + padding], np.float32)
         central = settings.prior is not None and not np.any(radii > 0)
         key = program_key(images.shape, settings, central)
         try:
@@ -131,15 +134,17 @@ def _reconstruct_group(settings: ReconstructSettings, items, on_done, on_error, 
         except RuntimeError as error:  # XLA's errors (out of memory, ...): reported per image, the next batch goes on
             first_line = (str(error).strip().splitlines() or [""])[0]
             hint = "; try a smaller --batch" if "RESOURCE_EXHAUSTED" in first_line and batch_size > 1 else ""
-            for path, *_ in chunk:
-                on_error(path, f"{path}: the reconstruction failed ({type(error).__name__}: {first_line}){hint}")
+            for item in chunk:
+                on_error(
+                    item.path, f"{item.path}: the reconstruction failed ({type(error).__name__}: {first_line}){hint}"
+                )
             continue
-        for index, (path, name, image, rc, gravity) in enumerate(chunk):
+        for index, (path, name, image, rc, gravity, file_size) in enumerate(chunk):
             one = jax.tree.map(lambda x: x[index], tuple(result))
             try:
                 record = write_outputs(
                     settings.out,
-                    ReconstructedImage(name, image, one, float(rc), gravity),
+                    ReconstructedImage(name, image, one, float(rc), gravity, file_size),
                     settings.world,
                     export=settings.export,
                     prior=settings.prior,
@@ -201,23 +206,6 @@ def image_names(images: list[str]) -> list[str]:
     return names
 
 
-def read_image(path: str, rc: float | None, say_resized) -> tuple[np.ndarray, float]:
-    """The panorama of ``path`` and its radius (``--rc``, or from its name); ``say_resized`` reports a resize.
-
-    Raises:
-        PanoramaError: the file cannot be used (the message says why).
-    """
-    with warnings.catch_warnings(record=True) as notes:
-        warnings.simplefilter("always", PanoramaResizeWarning)
-        image = read_panorama(path)
-    for note in notes:
-        if issubclass(note.category, PanoramaResizeWarning):
-            say_resized(str(note.message))
-        else:
-            warnings.showwarning(note.message, note.category, note.filename, note.lineno)
-    return image, radius_of(path, rc)
-
-
 class RunTally:
     """What ``ncjax reconstruct`` has done: each image's ``summary.csv`` row, the failures, and the progress bar.
 
@@ -276,7 +264,9 @@ class RunTally:
             f"(one line per image: {SUMMARY_FILE})"
         )
         if self.failures:
-            print(f"{len(self.failures)} failed:", file=sys.stderr)
+            statuses = any(row["reason"] and row["result"] != "skipped" for row in self.summary.values())
+            hint = f" (what each status means: {SUMMARY_FILE}'s reason column)" if statuses else ""
+            print(f"{len(self.failures)} failed{hint}:", file=sys.stderr)
             for reason in self.failures:
                 print(f"  {reason}", file=sys.stderr)
             return 1
@@ -304,6 +294,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     # an earlier summary.csv that cannot be merged stops the run before any work
     read_summary(os.path.join(args.out, SUMMARY_FILE))
     model = model_weights_option(args.model)
+    make_output_folder(args.out)  # only now that the inputs and the model are good
     # fewer images than --batch: a smaller program, not one padded with copies to compute for nothing
     batch_size = max(1, min(args.batch, len(images)))
     settings = ReconstructSettings(
@@ -332,7 +323,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                     tally.skipped(path, name)
                     continue
                 try:
-                    image, radius = read_image(path, rc, lambda line: tally.bar.write(line, file=sys.stderr))
+                    image, radius, file_size = read_image(path, rc, lambda line: tally.bar.write(line, file=sys.stderr))
                 except PanoramaError as error:
                     tally.failed(path, str(error))
                     stop.check()
@@ -340,7 +331,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                 # a tilted non-central rig cannot be levelled by resampling its image: only central panoramas are
                 image, gravity = align_to_gravity(image) if radius == 0 and args.align else (image, None)
                 group = groups[image.shape[:2]]
-                group.append((path, name, image, radius, gravity))
+                group.append(PendingImage(path, name, image, radius, gravity, file_size))
                 if len(group) == batch_size:
                     reconstruct(group)
                     group.clear()

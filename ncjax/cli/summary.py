@@ -12,14 +12,15 @@ from ..pipeline.types import FLAGGED_STATUSES, LayoutStatus
 
 
 def failure_message(record: dict) -> str:
-    """Why the layout of a JSON record is not ok, for the person who ran the reconstruction."""
+    """Why the layout of a JSON record is not ok, in one short line for the console: whether a layout was
+    written, the status and the room height. What the status means (:attr:`~ncjax.LayoutStatus.reason`, a
+    sentence or two) is summary.csv's ``reason`` column."""
     status = record["status"]
-    message = f"{status}: {LayoutStatus[status].reason}"
     if not record["floor_corners"]:
-        return f"no layout found ({message})"
+        return f"no layout found ({status})"
     sigma = record["room_height_sigma"]
     height = f"room height {record['room_height']:.2f} ± {sigma or math.inf:.2f} m"
-    return f"layout of {FLAGGED_STATUSES[LayoutStatus[status]]} written ({message}; {height})"
+    return f"layout of {FLAGGED_STATUSES[LayoutStatus[status]]} written ({status}; {height})"
 
 
 SUMMARY_FILE = "summary.csv"
@@ -41,6 +42,7 @@ SUMMARY_COLUMNS = (
     "rc_m",
     "scale_source",
     "message",
+    "reason",
 )
 # summary.csv's columns taken from the JSON record's keys
 
@@ -63,13 +65,14 @@ def summary_row(path: str, record: dict | None, message: str = "") -> dict:
         path: the input file as given.
         record: its JSON record (:func:`write_outputs`), or None when it has none (unreadable file,
             missing radius, failed batch).
-        message: why the image has no ok layout ("" when it has one).
+        message: why the image has no ok layout, in short ("" when it has one).
 
     Returns:
         The row, keyed by ``SUMMARY_COLUMNS``. ``result`` is "ok", "uncertain scale", "low confidence" or
         "scale conflict" (geometry written, flagged: :data:`~ncjax.pipeline.types.FLAGGED_STATUSES`), "no layout" (the
         pipeline found none) or "error" (no record);
-        :func:`skipped_row` makes the rows of "skipped" images.
+        :func:`skipped_row` makes the rows of "skipped" images. ``reason`` is what a status other than OK means
+        (:attr:`~ncjax.LayoutStatus.reason`).
         Figures have 4 decimals; a layout's room-height sigma that the fit leaves open (JSON null)
         is "inf", as the CLI prints it; empty cells are figures the image does not have.
     """
@@ -93,6 +96,7 @@ def summary_row(path: str, record: dict | None, message: str = "") -> dict:
             "corners": len(record["floor_corners"]) if written else "",
             "branch": record["branch"] if written else "",
             "scale_source": record.get("scale_source", "") if written else "",
+            "reason": "" if record["ok"] else LayoutStatus[record["status"]].reason,
         }
     )
 

@@ -56,7 +56,7 @@ import shapely
 from jaxtyping import Float, Int8
 from scipy.optimize import linear_sum_assignment
 
-from ..io.layout_corners import LayoutCorners, back_project, pixel_angles
+from ..io.layout_corners import LayoutCorners, back_project, pixel_angles, resized_pixels
 
 __all__ = [
     "RoomGeometry",
@@ -98,11 +98,11 @@ def rescaled(corners: LayoutCorners, width: int, height: int) -> LayoutCorners:
     """The corners' pixels in a W x H image of the same panorama (pixel centres at integers)."""
     if (corners.width, corners.height) == (width, height):
         return corners
-    scale = np.array([width / corners.width, height / corners.height])
+    size, new_size = (corners.width, corners.height), (width, height)
     return dataclasses.replace(
         corners,
-        ceiling=(corners.ceiling + 0.5) * scale - 0.5,
-        floor=(corners.floor + 0.5) * scale - 0.5,
+        ceiling=resized_pixels(corners.ceiling, size, new_size),
+        floor=resized_pixels(corners.floor, size, new_size),
         width=width,
         height=height,
     )

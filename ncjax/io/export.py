@@ -19,9 +19,12 @@ failed layout are ``null`` and its lists empty, except for a flagged layout (``U
     (requested: manhattan/atlanta/auto), branch (manhattan/atlanta),
     explained_fraction (share of the boundary pixels the layout reprojects within
     the inlier threshold, a quality indicator; added in ncjax 0.1.0, same schema version), rc,
-    image_size [W, H], units, frame, ceiling_height, floor_height, room_height,
+    image_size [W, H] (the image file as given: the record's pixels are its pixels),
+    reconstructed_size [W, H] (the size the panorama was reconstructed at, the rows' and the
+    overlay's: image_size unless the file was resized, :mod:`ncjax.io.images`; added in ncjax
+    0.1.0, same schema version), units, frame, ceiling_height, floor_height, room_height,
     floor_area (m^2), perimeter, ceiling_corners / floor_corners [[x, y, z], ...]
-    (valid corners, image order), corner_columns (image column of each corner),
+    (valid corners, image order), corner_columns (image column of each corner, pixels of image_size),
     walls [{direction, distance, length, inserted, ceiling_line, floor_line}, ...],
     then the caller's extra keys.
 
@@ -59,6 +62,7 @@ from ..pipeline.types import FLAGGED_STATUSES, Layout, LayoutStatus
 from ..pipeline.uncertainty import room_height_sigma
 from .files import write_atomic
 from .images import check_rgb
+from .layout_corners import resized_pixels
 
 SCHEMA_VERSION = 1
 DECIMALS = 6
@@ -157,7 +161,15 @@ def _significant(x) -> float | None:
     return float(f"{x:.{DECIMALS}g}") + 0.0 if math.isfinite(x) else None
 
 
-def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: str, extra: dict | None = None) -> dict:
+def layout_record(
+    layout: Layout,
+    cam: NonCentralPanorama,
+    *,
+    name: str,
+    world: str,
+    extra: dict | None = None,
+    image_size: tuple[int, int] | None = None,
+) -> dict:
     """The JSON record of a layout (schema version 1, see the module docstring).
 
     A failed layout (``ok`` False) still gets a record: ``ok`` false, its
@@ -166,11 +178,13 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
 
     Args:
         layout: one unbatched layout.
-        cam: the camera of the panorama (its ``rc`` and image size are recorded).
+        cam: the camera the panorama was reconstructed with (its ``rc`` and image size are recorded).
         name: the panorama's name (e.g. the image file stem).
         world: the world model that was requested: "manhattan", "atlanta" or "auto".
         extra: more JSON-serialisable keys to add (e.g. the image path); they
             may not replace the schema's keys.
+        image_size: (W, H) of the image file as given, when it was resized to ``cam``'s size before the
+            reconstruction: ``image_size`` and ``corner_columns`` are then in its pixels (None: ``cam``'s size).
 
     Returns:
         A dict that ``json.dumps(..., allow_nan=False)`` accepts.
@@ -182,6 +196,7 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
         raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
     ceiling, floor = valid_corners(layout)
     ok = bool(np.asarray(layout.ok))
+    file_width, file_height = (cam.width, cam.height) if image_size is None else image_size
     record = {
         "name": name,
         "schema_version": SCHEMA_VERSION,
@@ -192,7 +207,8 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
         "branch": "manhattan" if bool(np.asarray(layout.manhattan)) else "atlanta",
         "explained_fraction": _number(np.asarray(layout.explained_fraction)),
         "rc": _number(np.asarray(cam.rc)),
-        "image_size": [cam.width, cam.height],
+        "image_size": [file_width, file_height],
+        "reconstructed_size": [cam.width, cam.height],
         "units": "metres",
         "frame": FRAME,
         "ceiling_height": None,
@@ -244,7 +260,7 @@ def layout_record(layout: Layout, cam: NonCentralPanorama, *, name: str, world: 
             perimeter=_number(np.sum(lengths)),
             ceiling_corners=_numbers(ceiling),
             floor_corners=_numbers(floor),
-            corner_columns=_numbers(np.asarray(layout.corner_columns)[mask]),
+            corner_columns=_numbers(resized_pixels(np.asarray(layout.corner_columns)[mask], cam.width, file_width)),
             corner_sigma=_numbers(np.sqrt(np.trace(covariance, axis1=-2, axis2=-1))),
             corner_covariance=_numbers(covariance, _significant),
             ceiling_height_sigma=_number(np.sqrt(height_variance[0])),

@@ -52,11 +52,17 @@ FOLDER_SUFFIXES = (
 FOLDER_PRIORITY = (".json", SUFFIXES["mp3d"], SUFFIXES["zind"], SUFFIXES["horizonnet"], SUFFIXES["label_cor"], ".txt")
 
 
+def _stored_size(data: Any) -> Any:
+    """The image size a parsed JSON layout records (``image_size``, or in the ncjax key), or None."""
+    if not isinstance(data, Mapping):
+        return None
+    extra = data.get(EXTRA_KEY)
+    return data.get("image_size") or (extra.get("image_size") if isinstance(extra, Mapping) else None)
+
+
 def _size(data: Mapping[str, Any] | None, width: int | None, height: int | None) -> tuple[int, int]:
     """The image size: the caller's, else the file's (``image_size`` or the ncjax key), else 1024 x 512."""
-    stored = None
-    if data is not None:
-        stored = data.get("image_size") or (data.get(EXTRA_KEY) or {}).get("image_size")
+    stored = None if data is None else _stored_size(data)
     stored_width, stored_height = stored if stored else DEFAULT_SIZE
     size = (int(width or stored_width), int(height or stored_height))
     if min(size) <= 0:
@@ -104,16 +110,22 @@ def read_label_cor(path: PathLike, width: int | None = None, height: int | None 
 
     Blank lines are skipped and only the first two numbers of a line are read.
     """
+    try:
+        with open(path, encoding="utf-8") as file:
+            lines = file.readlines()
+    except UnicodeDecodeError:
+        raise ValueError(
+            f"{path}: not a layout file: a label_cor is text ('x y' lines) and this file is not (an image?)"
+        ) from None
     rows = []
-    with open(path, encoding="utf-8") as file:
-        for number, line in enumerate(file, 1):
-            fields = line.split()
-            if not fields:
-                continue
-            try:
-                rows.append((float(fields[0]), float(fields[1])))
-            except (ValueError, IndexError):
-                raise ValueError(f"{path}:{number}: expected 'x y' pixel coordinates, got {line.strip()!r}") from None
+    for number, line in enumerate(lines, 1):
+        fields = line.split()
+        if not fields:
+            continue
+        try:
+            rows.append((float(fields[0]), float(fields[1])))
+        except (ValueError, IndexError):
+            raise ValueError(f"{path}:{number}: expected 'x y' pixel coordinates, got {line.strip()!r}") from None
     if len(rows) < 6:
         raise ValueError(f"{path}: a label_cor needs at least 3 corners (6 lines), got {len(rows)} lines")
     points = np.asarray(rows, np.float64)
@@ -304,6 +316,21 @@ def read_layout(
     except ValueError as error:
         message = str(error)
         raise ValueError(message if message.startswith(str(path)) else f"{path}: {message}") from None
+
+
+def recorded_size(path: PathLike) -> tuple[int, int] | None:
+    """The (W, H) of the image that a layout file records (the JSON formats' ``image_size``, ncjax's key), or None:
+    a ``label_cor`` file records none, and neither does a file that cannot be read (:func:`read_layout` says why)."""
+    path = pathlib.Path(path)
+    if path.suffix.lower() != ".json":
+        return None
+    try:
+        with open(path, encoding="utf-8") as file:
+            stored = _stored_size(json.load(file))
+        width, height = (int(value) for value in stored)
+    except (OSError, ValueError, TypeError):
+        return None
+    return (width, height) if width > 0 and height > 0 else None
 
 
 def split_layout_name(name: str) -> tuple[str, str] | None:

@@ -15,7 +15,8 @@ network reads 1024 x 512 anyway, 4096 columns gave no measurably smaller
 room-height error than 2048 on our renders (``experiments/resolution.py``),
 and memory and time grow with the image (a batch of four 4096 x 2048
 panoramas peaks at 5.6 GB, four 2048 x 1024 at 2.4 GB; 4096 columns take
-2.2-2.5 times as long).
+2.2-2.5 times as long). A resized panorama's layout is still exported in the
+pixels of the file as given: :func:`read_panorama_file` returns the file's size.
 """
 
 from __future__ import annotations
@@ -118,7 +119,15 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
 
 
 def read_panorama(path: str | os.PathLike) -> np.ndarray:
-    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H.
+    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H (:func:`read_panorama_file` without the file's size)."""
+    return read_panorama_file(path)[0]
+
+
+def read_panorama_file(path: str | os.PathLike) -> tuple[np.ndarray, tuple[int, int]]:
+    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H, and the (W, H) of the file as given.
+
+    The two sizes differ when the file was resized (below): the file's is the one whose pixels the
+    layout's exports give, the array's the one the panorama is reconstructed at.
 
     Warns:
         PanoramaResizeWarning: the file is within :data:`ASPECT_TOLERANCE` of
@@ -130,7 +139,8 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
             unsupported pixel format, or not 2:1.
     """
     image = read_rgb(path)
-    resize = working_size(*image.shape[1::-1])
+    file_size = (image.shape[1], image.shape[0])
+    resize = working_size(*file_size)
     if resize is not None:
         width, reason = resize
         resized = cv2.resize(image, (width, width // 2), interpolation=cv2.INTER_AREA)
@@ -144,7 +154,7 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
     size_error = panorama_size_error(*image.shape[1::-1])
     if size_error:
         raise PanoramaError(f"{path}: {size_error}")
-    return image
+    return image, file_size
 
 
 def check_rgb(image) -> np.ndarray:

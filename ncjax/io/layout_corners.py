@@ -147,6 +147,16 @@ def back_project(
     return (rc + distance)[:, None] * np.stack([np.cos(azimuth), np.sin(azimuth)], -1)
 
 
+def resized_pixels(pixels: Float[np.ndarray, "*shape"], size, new_size) -> Float[np.ndarray, "*shape"]:
+    """Pixel coordinates of a panorama of ``size`` pixels in the same panorama resized to ``new_size``.
+
+    Pixel centres are at integers, so the image's edges (-0.5 and ``size - 0.5``) keep their places.
+    ``size`` and ``new_size`` broadcast against ``pixels``: a width each for columns, (W, H) for (u, v) points.
+    """
+    scale = np.asarray(new_size, np.float64) / np.asarray(size, np.float64)
+    return (np.asarray(pixels, np.float64) + 0.5) * scale - 0.5
+
+
 def leftmost_first(*arrays: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, ...]:
     """The arrays rolled along their first axis so that the corner of the smallest column comes first."""
     shift = int(np.argmin(columns))

@@ -173,7 +173,7 @@ def model_weights(model: HorizonNet | ModelWeights | str | os.PathLike) -> Model
 
     Raises:
         FileNotFoundError: neither a file nor a shipped model's name.
-        ValueError: the file is not an ncjax model (one line).
+        ValueError: a folder, or a file that is not an ncjax model (one line).
     """
     if isinstance(model, ModelWeights):
         return model
@@ -251,8 +251,11 @@ def model_file(name_or_path: str | os.PathLike) -> pathlib.Path:
 
     Raises:
         FileNotFoundError: neither a file nor a shipped model's name.
+        ValueError: a folder.
     """
     path = pathlib.Path(name_or_path)
+    if path.is_dir():
+        raise ValueError(f"{path} is a folder, not a model file (.safetensors)")
     if path.exists():
         return path
     shipped = SHIPPED_MODELS_DIR / f"{name_or_path}.safetensors"

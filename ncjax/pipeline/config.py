@@ -64,8 +64,10 @@ class CornerConfig:
     exact_target_tolerance: float = 0.01
 
     def __post_init__(self):
+        check_fraction(self, "threshold")  # probabilities
+        check_fraction(self, "fallback_threshold")
         check_positive(self, "nms_radius")
-        check_non_negative(self, "fallback_threshold", "exact_target_tolerance")
+        check_non_negative(self, "exact_target_tolerance")
 
     def radius(self, width: int) -> int:
         """``nms_radius`` in whole columns of a ``width``-column panorama."""
@@ -91,6 +93,7 @@ class OcclusionConfig:
 
     def __post_init__(self):
         check_positive(self, "threshold", "merge_fraction")
+        check_fraction(self, "merge_fraction")
         check_non_negative(self, "noise_factor")
 
 
@@ -227,7 +230,8 @@ class ChecksConfig:
     min_explained_fraction: float = 0.0
 
     def __post_init__(self):
-        check_positive(self, "max_height_uncertainty")
+        check_fraction(self, "min_finite_fraction")
+        check_positive(self, "max_room_height", "max_corner_distance", "max_height_uncertainty")
         check_fraction(self, "min_height_fraction", 0.5, closed=False)
         check_fraction(self, "min_explained_fraction")
 

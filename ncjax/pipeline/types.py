@@ -62,6 +62,10 @@ class LayoutStatus(enum.IntEnum):
     LOW_CONFIDENCE = 10
     SCALE_CONFLICT = 11
 
+    def __str__(self) -> str:
+        # its name, as the JSON's "status" and summary.csv give it (an IntEnum's str() is its number's)
+        return self.name
+
     @property
     def reason(self) -> str:
         """What the status means, in words for the person who ran the reconstruction."""
