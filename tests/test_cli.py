@@ -8,10 +8,15 @@ import pytest
 from ncjax import cli
 
 
-def test_info_prints_versions_and_conventions(capsys):
+def test_info_prints_versions_model_cache_folders_and_conventions(capsys):
+    from ncjax.cli.compilation import cache_directory, program_directory
+    from ncjax.network.predict import DEFAULT_MODEL_PATH
+
     assert cli.main(["info"]) == 0
     out = capsys.readouterr().out
     assert "ncjax 0.1.0" in out and "azimuth" in out
+    assert f"model      lite0-1024 (the default, {DEFAULT_MODEL_PATH}); also shipped: compact1024" in out
+    assert f"programs   {program_directory()} " in out and f"compiled   {cache_directory()} " in out
 
 
 def test_unknown_command_fails_cleanly():
@@ -148,11 +153,22 @@ def test_options_replace_only_the_settings_given(capsys):
     assert train_config == ncjax.TrainConfig(photometric=False, augment=augment)
 
 
-def test_a_bad_setting_is_one_line_before_any_work(tmp_path, capsys):
+@pytest.mark.parametrize(
+    ("option", "message"),
+    [
+        (["--ransac-sample-size", "2"], "--ransac-sample-size must be >= 3"),
+        (["--corners-threshold", "2"], "--corners-threshold must be in [0, 1"),
+        (["--corners-threshold", "-1"], "--corners-threshold must be in [0, 1"),
+        (["--corners-fallback-threshold", "1.5"], "--corners-fallback-threshold must be in [0, 1"),
+        (["--checks-min-finite-fraction", "2"], "--checks-min-finite-fraction must be in [0, 1"),
+        (["--checks-max-room-height", "0"], "--checks-max-room-height must be > 0"),
+        (["--corners-min-corners", "40"], "--corners-min-corners must be in [0, 16]"),
+        (["--capacity", "2"], "--capacity must be >= 4"),
+    ],
+)
+def test_a_bad_setting_is_one_line_naming_its_option_before_any_work(tmp_path, capsys, option, message):
     out = tmp_path / "out"
-    code = cli.main(
-        ["reconstruct", str(tmp_path / "missing.png"), "--rc", "0.5", "--out", str(out), "--ransac-sample-size", "2"]
-    )
+    code = cli.main(["reconstruct", str(tmp_path / "missing.png"), "--rc", "0.5", "--out", str(out), *option])
     err = capsys.readouterr().err
-    assert code == 2 and "sample_size must be >= 3" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and err.startswith(f"ncjax reconstruct: error: {message}") and err.count("\n") == 1, err
     assert not out.exists()

@@ -17,6 +17,7 @@ import pytest
 from test_app import write_png
 from test_export import L_SHAPE, RECTANGLE, failed_layout, make_layout
 
+import ncjax
 import ncjax.io.export
 import ncjax.network.predict
 import ncjax.reconstruction
@@ -256,6 +257,54 @@ def test_a_folder_without_panoramas_is_one_line_before_any_work(tmp_path, fake, 
     assert not out.exists() and fake.calls == []
 
 
+def test_a_resized_panorama_is_exported_in_the_pixels_of_its_file(tmp_path, fake, capsys):
+    """A file wider than 2048 pixels is reconstructed at 2048 x 1024, and its outputs give the file's pixels:
+    the JSON's image_size and corner_columns, label_cor and HorizonNet's json, which ncjax evaluate reads so."""
+    from ncjax.io.formats_read import read_layout
+    from ncjax.io.layout_corners import project_points
+
+    file_size = (4100, 2050)
+    (tmp_path / "in").mkdir()
+    image = write_png(tmp_path / "in" / "wide.png", np.full((file_size[1], file_size[0], 3), 90, np.uint8))
+    out = tmp_path / "out"
+    assert reconstruct_cli([image], out, "--export", "label_cor,horizonnet", "--texture-size", "64") == 0
+    record = json.loads((out / "wide.json").read_text())
+    assert record["image_size"] == list(file_size) and record["reconstructed_size"] == [2048, 1024]
+    mask = np.asarray(fake.layout.mask)
+    columns = np.asarray(fake.layout.corner_columns, np.float64)[mask]
+    np.testing.assert_allclose(record["corner_columns"], (columns + 0.5) * file_size[0] / 2048 - 0.5, atol=1e-4)
+    # the corners projected into the file's image (label_cor starts at the leftmost: compare by column)
+    cam = ncjax.NonCentralPanorama(*file_size, rc=0.5)
+    expected = project_points(cam, np.asarray(record["ceiling_corners"]))
+    label = read_layout(out / "wide.label_cor.txt", *file_size)
+    np.testing.assert_allclose(
+        label.ceiling[np.argsort(label.ceiling[:, 0])], expected[np.argsort(expected[:, 0])], atol=1e-3
+    )
+    assert label.ceiling[:, 0].max() > 2048  # not the 2048-wide image's pixels
+    assert json.loads((out / "wide.horizonnet.json").read_text())["ncjax"]["image_size"] == list(file_size)
+    # ncjax evaluate reads the label_cor, which records no size, at the size the record gives: the same layout
+    scores = tmp_path / "scores.json"
+    assert cli.main(["evaluate", str(out / "wide.label_cor.txt"), str(out / "wide.json"), "--json", str(scores)]) == 0
+    (row,) = json.loads(scores.read_text())["images"].values()
+    assert row["iou2d"] > 0.999 and row["iou3d"] > 0.999 and row["corner_error"] < 1e-3, row
+
+
+def test_a_flagged_layout_is_one_short_line_and_its_reason_is_in_the_summary(tmp_path, fake, capsys):
+    fake.layout = make_layout(RECTANGLE, status=int(ncjax.LayoutStatus.LOW_CONFIDENCE))
+    image = panoramas(tmp_path / "in", "room")
+    out = tmp_path / "out"
+    assert reconstruct_cli(image, out) == 1
+    lines = error_lines(capsys.readouterr().err)
+    assert lines == [
+        "1 failed (what each status means: summary.csv's reason column):",
+        f"  {image[0]}: layout of low confidence written (LOW_CONFIDENCE; room height 2.50 ± 0.02 m); "
+        "see room_overlay.png",
+    ]
+    (row,) = summary_rows(out)
+    assert row["result"] == "low confidence" and row["message"] == lines[1].removeprefix(f"  {image[0]}: ")
+    assert row["reason"] == ncjax.LayoutStatus.LOW_CONFIDENCE.reason
+
+
 # ----------------------------------------------------------------------------- Ctrl-C
 
 
@@ -316,6 +365,20 @@ def test_an_unwritable_output_folder_is_one_line_before_the_model_loads(tmp_path
         error = capsys.readouterr().err
         assert len(error.strip().splitlines()) == 1 and f"--out {out} is not a folder ncjax can write in" in error
     assert fake.calls == []
+
+
+@pytest.mark.parametrize("model", ["folder", "missing", "not a model"])
+def test_a_model_that_does_not_load_is_one_line_and_creates_no_output_folder(tmp_path, fake, capsys, model):
+    path = {"folder": tmp_path, "missing": tmp_path / "missing.safetensors", "not a model": tmp_path / "m.txt"}[model]
+    (tmp_path / "m.txt").write_text("not a model")
+    out = tmp_path / "new" / "out"
+    assert reconstruct_cli(panoramas(tmp_path / "in", "room"), out, "--model", str(path)) == 2
+    error = capsys.readouterr().err
+    assert error.startswith(f"ncjax reconstruct: error: --model {path}")
+    assert len(error.strip().splitlines()) == 1 and "os error" not in error
+    if model == "folder":
+        assert f"{path} is a folder, not a model file" in error
+    assert not (tmp_path / "new").exists() and fake.calls == []
 
 
 @pytest.mark.parametrize(

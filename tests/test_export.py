@@ -104,7 +104,8 @@ def test_record_of_a_rectangle(tmp_path):
         "manhattan",
     )
     assert record["explained_fraction"] == pytest.approx(0.9)
-    assert record["image_size"] == [1024, 512] and record["units"] == "metres" and record["image"] == "room.png"
+    assert record["image_size"] == record["reconstructed_size"] == [1024, 512]
+    assert record["units"] == "metres" and record["image"] == "room.png"
     assert record["rc"] == pytest.approx(0.6)
     assert (record["ceiling_height"], record["floor_height"], record["room_height"]) == (1.0, -1.5, 2.5)
     assert record["floor_area"] == 12.0 and record["perimeter"] == 14.0
@@ -164,6 +165,24 @@ def test_flagged_layout_keeps_its_geometry_marked_not_ok(tmp_path, status):
     marked = ncjax.viz.overlay.draw_overlay(image, uncertain, cam)
     assert (drawn != image).any() and (marked[:30] != drawn[:30]).any()  # the layout, then the label above it
     assert not np.array_equal(ncjax.viz.plan.draw_plan(uncertain), ncjax.viz.plan.draw_plan(make_layout(RECTANGLE)))
+
+
+def test_a_record_of_a_resized_file_gives_the_file_s_size_and_columns():
+    """Reconstructed at 1024 x 512 from a 2050 x 1025 file: image_size and corner_columns are the file's (the
+    image's edges, not its first and last pixel centres, keep their places), reconstructed_size the camera's."""
+    layout = make_layout(RECTANGLE)
+    record = ncjax.io.export.layout_record(layout, CAM, name="room", world="auto", image_size=(2050, 1025))
+    assert record["image_size"] == [2050, 1025] and record["reconstructed_size"] == [1024, 512]
+    columns = np.asarray(layout.corner_columns, np.float64)[np.asarray(layout.mask)]
+    np.testing.assert_allclose(record["corner_columns"], (columns + 0.5) * 2050 / 1024 - 0.5, atol=1e-5)
+    same = ncjax.io.export.layout_record(layout, CAM, name="room", world="auto")
+    assert {key: value for key, value in record.items() if key not in ("image_size", "corner_columns")} == same
+
+
+def test_a_status_prints_as_its_name():
+    status = ncjax.LayoutStatus.LOW_CONFIDENCE
+    assert str(ncjax.LayoutStatus.OK) == "OK" and f"{status}" == "LOW_CONFIDENCE"
+    assert int(status) == 10 and json.dumps({"status": status}) == '{"status": 10}'  # a number where one is read
 
 
 def test_the_plan_is_framed_on_the_room_not_on_its_corner_ellipses():

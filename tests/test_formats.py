@@ -260,6 +260,9 @@ def test_bad_files_are_one_line_errors(tmp_path):
         with pytest.raises(ValueError) as error:
             read_layout(tmp_path / name)
         assert "\n" not in str(error.value) and name in str(error.value)
+    (tmp_path / "binary.txt").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))  # not text, as an image
+    with pytest.raises(ValueError, match="binary.txt: not a layout file: a label_cor is text"):
+        read_layout(tmp_path / "binary.txt")
     with pytest.raises(FileNotFoundError):
         read_layout(tmp_path / "missing.txt")
 
@@ -379,6 +382,43 @@ def test_evaluate_two_files_and_two_folders(tmp_path, capsys):
     scores = json.loads(out.read_text())
     assert scores["images"]["room"]["iou2d"] == pytest.approx(0.81, abs=1e-4) and scores["failures"] == {}
     assert cli.main(["evaluate", str(predictions), str(truths / "room.label_cor.txt")]) == 2
+
+
+def test_evaluate_refuses_an_image_as_a_layout_file_in_one_line(tmp_path, capsys):
+    import cv2
+
+    label = write_one(tmp_path, record_of(SQUARE), CENTRAL, "label_cor")
+    image = tmp_path / "room.png"
+    cv2.imwrite(str(image), np.zeros((8, 16, 3), np.uint8))
+    for pred, gt, role in ((label, image, "GT"), (image, label, "PRED")):
+        assert cli.main(["evaluate", str(pred), str(gt)]) == 2
+        error = capsys.readouterr().err
+        assert error.startswith(f"ncjax evaluate: error: {role} {image} is an image: give its layout file (label_cor")
+        assert error.count("\n") == 1
+
+
+def test_evaluate_reads_a_label_cor_at_the_size_the_other_file_records(tmp_path, capsys):
+    """A label_cor records no image size: beside a file that records one (ncjax's JSON, the JSON formats) it is
+    read at that size, else at --size, else 1024 x 512. Labels of a 4096 x 2048 panorama, scored against the
+    same layout's record, are a perfect match without --size."""
+    big = ncjax.NonCentralPanorama(4096, 2048, rc=0.0)
+    truth = write_one(tmp_path, record_of(L_SHAPE, cam=big), big, "label_cor")
+    record = tmp_path / "room.json"
+    record.write_text(json.dumps(record_of(L_SHAPE, cam=big)))
+    scores = tmp_path / "scores.json"
+
+    def score(*argv):
+        assert cli.main(["evaluate", *map(str, argv), "--json", str(scores)]) == 0
+        return next(iter(json.loads(scores.read_text())["images"].values()))
+
+    for pred, gt in ((record, truth), (truth, record)):
+        row = score(pred, gt)
+        assert row["iou2d"] == pytest.approx(1.0, abs=1e-6) and row["corner_error"] < 1e-4, row
+    assert score(truth, record, "--size", "2048x4096")["iou2d"] == pytest.approx(1.0, abs=1e-6)
+    # at 1024 x 512 the label's pixels are off the image: a bad score or no score, not a perfect one
+    assert cli.main(["evaluate", str(truth), str(record), "--size", "512x1024", "--json", str(scores)]) in (0, 1)
+    result = json.loads(scores.read_text())
+    assert result["failures"] or next(iter(result["images"].values()))["iou2d"] < 0.9
 
 
 def test_unknown_export_format_stops_before_any_work(tmp_path, capsys):

@@ -843,7 +843,8 @@ def test_scale_test_fails_layouts_whose_height_sigma_exceeds_the_threshold():
     assert int(flagged.status) == ncjax.LayoutStatus.LOW_CONFIDENCE and not bool(flagged.ok)
     np.testing.assert_allclose(flagged.ceiling_corners, kept.ceiling_corners, atol=1e-5)
     # thresholds are traced: another value reuses the compiled pipeline, and acts
-    blind = ncjax.PipelineConfig().replace(corners={"threshold": 1.5, "fallback_threshold": 1.5})
+    assert float(jnp.max(rows[2])) < 1.0
+    blind = ncjax.PipelineConfig().replace(corners={"threshold": 1.0, "fallback_threshold": 1.0})
     assert (
         int(ncjax.layout_from_boundaries(*rows, cam, config=blind, world="manhattan").status)
         == ncjax.LayoutStatus.NO_CORNERS
@@ -1113,6 +1114,21 @@ def test_bad_arguments_raise():
     assert ncjax.PipelineConfig(compact_capacity=0).replace(corners={"min_corners": 20}).corners.min_corners == 20
     with pytest.raises(ValueError, match="fallback_threshold"):
         ncjax.PipelineConfig().replace(corners={"fallback_threshold": -0.1})
+    # probabilities and fractions in [0, 1], limits positive (NaN refused by each)
+    for part, field, values in (
+        ("corners", "threshold", (2.0, -1.0, math.nan)),
+        ("corners", "fallback_threshold", (1.5,)),
+        ("occlusion", "merge_fraction", (1.2, 0.0)),
+        ("checks", "min_finite_fraction", (1.5, -0.1)),
+        ("checks", "max_room_height", (0.0, math.nan)),
+        ("checks", "max_corner_distance", (-1.0,)),
+    ):
+        for value in values:
+            with pytest.raises(ValueError, match=f"{field} must be"):
+                ncjax.PipelineConfig().replace(**{part: {field: value}})
+    assert (
+        ncjax.PipelineConfig().replace(corners={"threshold": 1.0, "fallback_threshold": 0.0}).corners.threshold == 1.0
+    )
 
 
 @pytest.mark.extended

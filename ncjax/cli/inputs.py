@@ -218,17 +218,17 @@ def load_model_option(path: str):
 
 
 def model_weights_option(path: str | None):
-    """The weights of ``--model PATH`` or of the shipped model (:func:`~ncjax.network.checkpoint.model_weights`,
+    """The weights of ``--model PATH`` or of the default model (:func:`~ncjax.network.checkpoint.model_weights`,
     no network built), or a one-line ValueError."""
     from ..network.checkpoint import model_weights
     from ..network.predict import DEFAULT_MODEL_PATH
 
-    return _model_option(model_weights, DEFAULT_MODEL_PATH if path is None else path)
+    return model_weights(DEFAULT_MODEL_PATH) if path is None else _model_option(model_weights, path)
 
 
 def _model_option(read, path):
-    """``read(path)``, its one-line ValueError said to be about ``--model``."""
+    """``read(path)``, its one-line ValueError (a missing file too) said to be about ``--model``."""
     try:
         return read(path)
-    except ValueError as error:
+    except (ValueError, FileNotFoundError) as error:
         raise ValueError(f"--model {one_line(error)}") from None
