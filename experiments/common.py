@@ -30,12 +30,12 @@ from tqdm import tqdm
 
 import ncjax
 from ncjax.evaluation import layout_metrics
-from ncjax.evaluation.central_metrics import evaluate_corners
+from ncjax.evaluation.central_metrics import evaluate_corners, rescaled
 from ncjax.evaluation.panorama_labels import labelled_image_paths
 from ncjax.io.export import status_has_geometry
 from ncjax.io.formats import format_path, write_layout_formats
 from ncjax.io.formats_read import read_layout
-from ncjax.io.images import read_panorama
+from ncjax.io.images import read_panorama_file
 from ncjax.io.layout_corners import LayoutCorners
 from ncjax.network.checkpoint import load_model
 from ncjax.network.predict import DEFAULT_MODEL_PATH, default_model, predict_boundaries
@@ -325,13 +325,15 @@ def corner_calibration(layout, truth, shift: int) -> tuple[np.ndarray, np.ndarra
 
 
 def labelled_rows(folder: Path, model) -> Iterator[tuple[Path, ncjax.NonCentralPanorama, LayoutCorners, tuple]]:
-    """Per labelled panorama of ``folder``: its path, its central camera, its label and ``model``'s
-    ``(ceiling_v, floor_v, corner_prob)`` (4 views, edge snap)."""
+    """Per labelled panorama of ``folder``: its path, its central camera, its label (in the camera's pixels: the
+    file's brought to the size it is reconstructed at) and ``model``'s ``(ceiling_v, floor_v, corner_prob)`` (4 views,
+    edge snap)."""
     for image_path, label_path in labelled_image_paths(folder):
-        image = read_panorama(image_path)
+        image, file_size = read_panorama_file(image_path)
         height, width = image.shape[:2]
         cam = ncjax.NonCentralPanorama(width, height, rc=0.0)
-        yield image_path, cam, read_layout(label_path, width, height), ncjax.predict_boundaries(image, model)
+        label = rescaled(read_layout(label_path, *file_size), width, height)
+        yield image_path, cam, label, ncjax.predict_boundaries(image, model)
 
 
 def central_layout(ceiling_v, floor_v, corner_prob, cam: ncjax.NonCentralPanorama) -> ncjax.Layout:
