@@ -75,28 +75,35 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=11)
     parser.add_argument("--batches", type=int, nargs="*", default=[64, 256])
     parser.add_argument("--worlds", nargs="*", default=list(WORLDS), choices=WORLDS)
+    defaults = PipelineConfig()
     parser.add_argument(
         "--adjustment-stride",
         type=int,
-        default=PipelineConfig.adjustment_stride,
-        help="PipelineConfig.adjustment_stride: the final adjustment fits every n-th column",
+        default=defaults.adjustment.stride,
+        help="adjustment.stride: the final adjustment fits every n-th column",
     )
     parser.add_argument(
         "--compact-capacity",
         type=int,
-        default=PipelineConfig.compact_capacity,
-        help="PipelineConfig.compact_capacity (0: every room with all the slots)",
+        default=defaults.compact_capacity,
+        help="compact_capacity (0: every room with all the slots)",
     )
     parser.add_argument(
         "--chunk-size",
         type=int,
-        default=PipelineConfig.chunk_size,
-        help="PipelineConfig.chunk_size: panoramas per vmap inside a batch (0: all)",
+        default=defaults.chunk_size,
+        help="chunk_size: panoramas per vmap inside a batch (0: all)",
+    )
+    parser.add_argument(
+        "--outlier-rate",
+        type=float,
+        default=defaults.ransac.outlier_rate,
+        help="ransac.outlier_rate: RANSAC's epsilon, which sets its number of random hypotheses",
     )
     parser.add_argument("--sigma", type=float, default=0.0, help="white noise on the boundary rows, pixels")
     args = parser.parse_args(argv)
     config = PipelineConfig(compact_capacity=args.compact_capacity, chunk_size=args.chunk_size).replace(
-        adjustment={"stride": args.adjustment_stride}
+        adjustment={"stride": args.adjustment_stride}, ransac={"outlier_rate": args.outlier_rate}
     )
     print(
         f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "

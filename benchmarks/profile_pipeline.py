@@ -58,8 +58,7 @@ STAGES = [
     "jacobian_product",
     "solve_wall",
     "sample_columns",
-    "inlier_rows",
-    "elevation_band",
+    "boundary_angles",
     "scaled_null_space",
     "constrained_null_vector",
     "_jacobi_svd",
@@ -117,11 +116,11 @@ def main(argv=None):
     parser.add_argument(
         "--adjustment-stride",
         type=int,
-        default=ncjax.pipeline.config.PipelineConfig.adjustment_stride,
-        help="PipelineConfig.adjustment_stride",
+        default=ncjax.pipeline.config.PipelineConfig().adjustment.stride,
+        help="PipelineConfig's adjustment.stride",
     )
     parser.add_argument(
-        "--capacity", type=int, default=ncjax.pipeline.config.PipelineConfig.capacity, help="PipelineConfig.capacity"
+        "--capacity", type=int, default=ncjax.pipeline.config.PipelineConfig().capacity, help="PipelineConfig.capacity"
     )
     args = parser.parse_args(argv)
     # every module that holds a stage's function (its own, and those that import it) calls the scoped one

@@ -4,7 +4,7 @@
 boundary rows' noise as the fit's residuals show it. A network's rows also
 share an error along whole walls (a skirting board or a furniture edge
 followed for a whole wall), which the fit absorbs into the wall and its
-residuals cannot show; ``PipelineConfig.wall_offset_ratio`` and
+residuals cannot show; ``UncertaintyConfig.wall_offset_ratio`` and
 ``wall_offset_noise`` give that offset a standard deviation, and
 ``corner_column_noise`` the detected corner columns' error, which the fit
 also absorbs (:func:`ncjax.pipeline.uncertainty.layout_uncertainty`).
@@ -41,7 +41,6 @@ without the offsets (scale test off), with the chosen setting and with
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import itertools
 import math
 import time
@@ -128,7 +127,7 @@ SETTING = ("wall_offset_ratio", "wall_offset_noise", "corner_column_noise")
 
 def with_setting(setting: tuple[float, float, float], scale_test: bool) -> ncjax.PipelineConfig:
     """``NETWORK_PIPELINE_CONFIG`` with the three error sources of ``setting``, its scale test on or off."""
-    config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **dict(zip(SETTING, setting, strict=True)))
+    config = NETWORK_PIPELINE_CONFIG.replace(uncertainty=dict(zip(SETTING, setting, strict=True)))
     return config if scale_test else config.replace(checks={"max_height_uncertainty": math.inf})
 
 

@@ -53,6 +53,7 @@ from .pipeline.prior import HeightPrior, flag_scale_conflicts
 from .pipeline.run import FittedWalls, finish, fit_walls
 from .pipeline.types import Layout, LayoutStatus, Rows
 from .programs import call_saved, load_saved, result_like
+from .solvers.ransac import RansacConfig
 
 # The pipeline's settings for the shipped network's rows, chosen on tuning renders, never the test renders (the
 # figures behind each value: experiments/RESULTS.md, "The network configuration, chosen on the tuning renders" and the
@@ -60,9 +61,12 @@ from .programs import call_saved, load_saved, result_like
 # (threshold 0.4, +-4 columns), occlusion jumps of 8 px beside corners where two walls' edges mix, floor rows more than
 # 2 px off their ceiling's replaced (step 0), UNCERTAIN_SCALE beyond 15% of the room height, LOW_CONFIDENCE below 60%
 # of the rows explained, SCALE_CONFLICT beyond 3 sigmas from a height prior, and the covariances' share of the errors
-# the fit absorbs (experiments/calibrate_uncertainty.py).
+# the fit absorbs (experiments/calibrate_uncertainty.py). RANSAC assumes half of a wall's rows may be outliers (69
+# random hypotheses besides the 16 deterministic ones): a photograph's rows follow furniture and doorways for long
+# stretches, and more hypotheses make the answer depend less on the key (experiments/key_stability.py).
 NETWORK_PIPELINE_CONFIG = PipelineConfig(
     floor_check=FloorCheckConfig(threshold=2.0),
+    ransac=RansacConfig(outlier_rate=0.5),
     corners=CornerConfig(threshold=0.4, nms_radius=4.0),
     occlusion=OcclusionConfig(threshold=8.0),
     uncertainty=UncertaintyConfig(wall_offset_ratio=2.0, wall_offset_noise=1.0, corner_column_noise=2.0),

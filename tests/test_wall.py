@@ -581,6 +581,44 @@ def test_ransac_at_known_heights_ignores_outlier_rows():
     np.testing.assert_allclose(wall.distance, room["distances"][1], atol=1e-3)
 
 
+def test_ransac_gives_one_wall_whatever_the_key():
+    """A non-central wall's rows with 0.2 px of noise and a desk's edge along a third of its floor: every key ends at
+    the same wall (the deterministic hypotheses and the refits to a fixed point), and it is the true one."""
+    from ncjax.geometry.reprojection import column_directions
+    from ncjax.solvers.ransac import RansacConfig, WallColumns, ransac_wall
+
+    room = box_room([[-2.0, -1.5], [3.0, -1.5], [3.0, 2.5], [-2.0, 2.5]], rc=0.3)
+    cam, columns = room["cam"], jnp.flatnonzero(room["wall_index"] == 1, size=48)
+    noise = np.random.default_rng(3).normal(0.0, 0.2, (2, columns.size))
+    desk = jnp.arange(columns.size) >= 2 * columns.size // 3
+    ceiling_v = room["ceiling_v"][columns] + noise[0]
+    floor_v = room["floor_v"][columns] + noise[1] - jnp.where(desk, 30.0, 0.0)
+    wall_columns = WallColumns(
+        column_directions(cam, columns.astype(float)),
+        ncjax.geometry.pixel_to_ray(cam, columns.astype(float), ceiling_v),
+        ncjax.geometry.pixel_to_ray(cam, columns.astype(float), floor_v),
+        jnp.ones(columns.size, bool),
+    )
+    walls = jax.vmap(lambda key: ransac_wall(key, cam, wall_columns, RansacConfig()))(
+        jax.random.split(jax.random.key(7), 16)
+    )
+    assert bool(jnp.all(walls.ok))
+    for field in (walls.distance, walls.ceiling_height, walls.floor_height):
+        assert float(jnp.max(field) - jnp.min(field)) < 1e-4
+    assert float(jnp.max(direction_error_deg(walls.direction, room["directions"][1]))) < 0.5
+    # one wall's parallax fixes its scale loosely (the pipeline takes the heights from all walls at once)
+    np.testing.assert_allclose(walls.distance, room["distances"][1], rtol=0.15)
+    np.testing.assert_allclose(walls.ceiling_height, room["h_c"], rtol=0.15)
+
+
+def test_spread_columns_span_a_window_of_the_candidates():
+    from ncjax.solvers.ransac import spread_columns
+
+    candidates = jnp.asarray(np.isin(np.arange(20), [1, 2, 4, 7, 8, 9, 12, 15, 16, 19]))
+    np.testing.assert_array_equal(spread_columns(candidates, (0.0, 1.0), 3), [1, 8, 19])
+    np.testing.assert_array_equal(spread_columns(candidates, (0.5, 1.0), 3), [8, 15, 19])
+
+
 def test_a_wall_at_heights_has_finite_gradients_even_where_it_fails():
     """Too few points leave a zero scatter; its angle must not poison the gradient of a result that is masked out."""
     room = box_room([[-2.0, -1.5], [3.0, -1.5], [3.0, 2.5], [-2.0, 2.5]], rc=0.0)

@@ -1,12 +1,18 @@
 """Per-wall RANSAC with the single-wall solver (paper Section 4.4).
 
 Each hypothesis is :func:`~.wall.solve_wall` on ``k`` sampled columns (one ceiling and one floor ray each: the paper's
-``k = 3``; with a height prior's known heights :func:`~.wall_at_heights.solve_wall_at_heights`); it is scored by the
-number of boundary pixels it reprojects within a threshold (pixels, the closed form of
-:mod:`ncjax.geometry.reprojection`, tested as directions: :func:`inlier_rows`), and the best one is refitted on its
-inliers. Hypotheses are scored and refitted on at most ``G`` columns of the wall (:func:`wall_columns`), so the cost
-does not grow with the image width. The number of hypotheses is the paper's
-``n_hyp = log(1 - P) / log(1 - (1 - eps)^k)``, a static integer, so all hypotheses are solved at once with ``jax.vmap``.
+``k = 3``; with a height prior's known heights :func:`~.wall_at_heights.solve_wall_at_heights`). The paper counts
+the boundary pixels a hypothesis reprojects within a threshold; here each candidate row costs its squared error in
+thresholds, capped at 1 (MSAC, Torr and Zisserman 2000: the inlier count with the inliers' errors as tie-breaker,
+so that among the many hypotheses that explain a clean wall the closest wins, not the first sampled). Errors are
+angles in the column's half-plane (:func:`boundary_angles`, the closed form of :mod:`ncjax.geometry.reprojection`).
+The ``optimised`` best hypotheses are each refitted on their inliers, whose inliers are found again and refitted,
+``refits`` times (local optimisation, Chum et al. 2003), and the least cost after that wins: hypotheses in the basin
+of one wall end at that wall, and two walls of similar support are compared at their optima, so the answer depends
+little on the RANSAC key. Hypotheses are scored and refitted on at most ``G`` columns of the wall
+(:func:`wall_columns`), so the cost does not grow with the image width. The random hypotheses number the paper's
+``n_hyp = log(1 - P) / log(1 - (1 - eps)^k)``, a static integer; 16 more, the same for every key, span windows of
+the wall (:data:`WINDOWS`, :func:`spread_columns`). All are solved at once with ``jax.vmap``.
 """
 
 from __future__ import annotations
@@ -18,7 +24,7 @@ from typing import NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.reprojection import boundary_rows_along, range_along
@@ -27,7 +33,7 @@ from .wall import Wall, solve_wall
 from .wall_at_heights import solve_wall_at_heights
 
 
-@settings(static=("success_probability", "outlier_rate", "sample_size", "columns"))
+@settings(static=("success_probability", "outlier_rate", "sample_size", "columns", "refits", "optimised"))
 class RansacConfig:
     """Step 2 of the pipeline: one RANSAC wall per pair of corners (:func:`ransac_wall`).
 
@@ -39,6 +45,9 @@ class RansacConfig:
             along the wall (all of them for a narrower wall); the cost grows with it, not with the width.
         inlier_threshold: row error of an inlier, pixels (also the rows a layout explains, step 5).
         corner_margin: columns this close to a corner are not used to fit walls.
+        refits: times a hypothesis is refitted on its inliers and its inliers found again (local
+            optimisation: hypotheses near the same wall end at the same one).
+        optimised: hypotheses of least cost that are refitted; the one of least cost after its refits wins.
     """
 
     success_probability: float = 0.9999
@@ -47,6 +56,8 @@ class RansacConfig:
     columns: int = 64
     inlier_threshold: float = 3.0
     corner_margin: float = 2.0
+    refits: int = 3
+    optimised: int = 8
 
     def __post_init__(self):
         if self.sample_size < 3:
@@ -58,6 +69,8 @@ class RansacConfig:
             raise ValueError(f"RansacConfig.columns must be >= 2 * sample_size, got {self.columns}")
         check_positive(self, "inlier_threshold")
         check_non_negative(self, "corner_margin")
+        if self.refits < 1 or self.optimised < 1:
+            raise ValueError(f"RansacConfig.refits and optimised must be >= 1, got {self.refits}, {self.optimised}")
 
     @property
     def hypotheses(self) -> int:
@@ -126,6 +139,27 @@ def sample_columns(key: PRNGKeyArray, candidates: Bool[Array, " n"], sample_size
     return jax.lax.top_k(scores, sample_size)[1]
 
 
+# the windows of a wall's candidate columns (fractions of them in image order) that its deterministic hypotheses
+# span: the whole wall, and windows of a half, a third and a quarter of it overlapping by half (16 in all)
+WINDOWS = tuple(
+    (start * width / 2, start * width / 2 + width)
+    for width in (1.0, 1 / 2, 1 / 3, 1 / 4)
+    for start in range(round(2 / width) - 1)
+)
+
+
+def spread_columns(candidates: Bool[Array, " n"], window: tuple[float, float], sample_size: int) -> Int[Array, " k"]:
+    """``sample_size`` candidates evenly spread over ``window`` (fractions of the candidates in image order).
+
+    The window's ends are its farthest columns: the sample sees the wall under the widest angles it can, which
+    is what fixes a non-central wall's distance. A window of fewer candidates than ``sample_size`` repeats one,
+    a degenerate sample whose wall :func:`plausible_wall` rejects.
+    """
+    count = jnp.sum(candidates)
+    ranks = jnp.round(jnp.linspace(*window, sample_size) * (count - 1)).astype(jnp.int32)
+    return jnp.searchsorted(jnp.cumsum(candidates), ranks + 1)
+
+
 def boundary_errors(
     cam: NonCentralPanorama,
     wall: Wall,
@@ -146,58 +180,31 @@ def boundary_errors(
     return jnp.where(seen, jnp.abs(ceiling - ceiling_v), jnp.inf), jnp.where(seen, jnp.abs(floor - floor_v), jnp.inf)
 
 
-def elevation_band(
-    rays: Float[Array, "n 6"], azimuth: Float[Array, "n 2"], tolerance: Float[ArrayLike, ""]
-) -> Float[Array, "n 2 2"]:
-    """The in-plane directions ``tolerance`` radians below and above each boundary ray.
-
-    A boundary ray of elevation ``phi`` in the half-plane of its column's unit
-    azimuth ``a`` points along ``(cos phi, sin phi)`` in that half-plane
-    (``cos phi`` read as ``xi . a``, so that rows past the zenith or nadir keep
-    their sign). The result holds the lower and the upper edge of the band,
-    ``(cos, sin)`` of ``phi -+ tolerance``. Rows are an affine function of the
-    elevation, so ``tolerance = threshold * fov_vertical / height`` radians is
-    the band of rows within ``threshold`` pixels.
-    """
-    cosine, sine = jnp.cos(tolerance), jnp.sin(tolerance)
-    c, s = jnp.sum(rays[:, 0:2] * azimuth, -1), rays[:, 2]
-    lower = jnp.stack([c * cosine + s * sine, s * cosine - c * sine], -1)
-    upper = jnp.stack([c * cosine - s * sine, s * cosine + c * sine], -1)
-    return jnp.stack([lower, upper], 1)
-
-
-def inlier_rows(
+def boundary_angles(
     cam: NonCentralPanorama,
     wall: Wall,
     azimuth: Float[Array, "n 2"],
-    ceiling_band: Float[Array, "n 2 2"],
-    floor_band: Float[Array, "n 2 2"],
-) -> tuple[Bool[Array, " n"], Bool[Array, " n"]]:
-    """Which columns' ceiling and floor boundaries a wall reprojects inside their :func:`elevation_band`.
+    ceiling_rays: Float[Array, "n 6"],
+    floor_rays: Float[Array, "n 6"],
+) -> tuple[Float[Array, " n"], Float[Array, " n"]]:
+    """Per column, the angle (radians) between each boundary ray and the wall's line at that boundary's height.
 
-    The wall's line at height ``h`` is seen from the column's optical centre
-    in the in-plane direction ``(t, h)`` (range ``t > 0``,
-    :mod:`ncjax.geometry.reprojection`); it is inside the band when it lies
-    counter-clockwise of the lower edge and clockwise of the upper one. The
-    same test as ``boundary_errors(...) < threshold``, with two cross
-    products instead of an arctangent per (hypothesis, column) pair.
-
-    Args:
-        cam: the camera.
-        wall: one wall.
-        azimuth: unit horizontal direction ``a`` of each column.
-        ceiling_band: the ceiling rows' bands.
-        floor_band: the floor rows' bands.
+    Both lie in the column's vertical half-plane of unit azimuth ``a``: the ray of elevation ``phi`` along
+    ``(cos phi, sin phi)`` (``cos phi`` read as ``xi . a``, so that rows past the zenith or nadir keep their
+    sign), the wall's line at height ``h`` seen from the column's optical centre along ``(t, h)`` (range
+    ``t > 0``, :mod:`ncjax.geometry.reprojection`). Rows are an affine function of the elevation, so the
+    angle times ``height / fov_vertical`` is :func:`boundary_errors`' row error in pixels, with one
+    arctangent of two products per column. ``inf`` where the wall is not in front of the column.
     """
     t = range_along(cam, wall.direction, wall.distance, azimuth)
     seen = jnp.isfinite(t) & (t > 0)
     t = jnp.where(seen, t, 1.0)
 
-    def inside(height, band):
-        lower, upper = band[:, 0], band[:, 1]
-        return seen & (lower[:, 0] * height - lower[:, 1] * t > 0) & (t * upper[:, 1] - height * upper[:, 0] > 0)
+    def angle(height, rays):
+        c, s = jnp.sum(rays[:, 0:2] * azimuth, -1), rays[:, 2]
+        return jnp.where(seen, jnp.abs(jnp.arctan2(c * height - s * t, c * t + s * height)), jnp.inf)
 
-    return inside(wall.ceiling_height, ceiling_band), inside(wall.floor_height, floor_band)
+    return angle(wall.ceiling_height, ceiling_rays), angle(wall.floor_height, floor_rays)
 
 
 class WallColumns(NamedTuple):
@@ -241,34 +248,54 @@ def ransac_wall(
             of four, which rows a few pixels off fix far better than the scale of one wall's weak parallax.
 
     Returns:
-        The wall refitted on the inliers of the best hypothesis; ``ok`` is
-        False when fewer than ``sample_size`` candidates exist or no
-        hypothesis is valid.
+        The wall of the hypothesis of least MSAC cost after ``config.refits`` refits on its inliers; ``ok``
+        is False when fewer than ``sample_size`` candidates exist or no hypothesis is valid.
     """
     azimuth, ceiling_rays, floor_rays, candidates = columns
     sample_size, min_height = config.sample_size, MIN_WALL_HEIGHT
-    inlier_threshold = config.inlier_threshold * scaled(1.0, cam.height, 512)
-    samples = jax.vmap(sample_columns, in_axes=(0, None, None))(
+    tolerance = config.inlier_threshold * scaled(1.0, cam.height, 512) * cam.fov_vertical / cam.height
+    random_samples = jax.vmap(sample_columns, in_axes=(0, None, None))(
         jax.random.split(key, config.hypotheses), candidates, sample_size
     )
+    # the deterministic hypotheses span the wall whatever the key: each wall of the room has several, so that
+    # the answer rests on them unless a random sample finds a better wall
+    spread_samples = jnp.stack([spread_columns(candidates, window, sample_size) for window in WINDOWS])
+    samples = jnp.concatenate([spread_samples, random_samples])
     if heights is None:
         solve = solve_wall
     else:
         solve = functools.partial(solve_wall_at_heights, ceiling_height=heights[0], floor_height=heights[1])
+
+    def scored(wall: Wall) -> tuple[Float[Array, ""], tuple[Bool[Array, " G"], Bool[Array, " G"]]]:
+        """MSAC's cost of a wall (each candidate row's squared error in inlier thresholds, capped at 1;
+        inf for an implausible wall) and its inlier rows."""
+        angles = boundary_angles(cam, wall, azimuth, ceiling_rays, floor_rays)
+        cost = sum(jnp.sum(jnp.where(candidates, jnp.minimum(jnp.square(a / tolerance), 1.0), 0.0)) for a in angles)
+        inliers = tuple(candidates & (a < tolerance) for a in angles)
+        return jnp.where(plausible_wall(wall, min_height), cost, jnp.inf), inliers
+
     sure = jnp.ones(sample_size, bool)
     hypotheses = jax.vmap(lambda s: solve(ceiling_rays[s], floor_rays[s], sure, sure))(samples)
-    tolerance = inlier_threshold * cam.fov_vertical / cam.height
-    bands = elevation_band(ceiling_rays, azimuth, tolerance), elevation_band(floor_rays, azimuth, tolerance)
-    ceiling_in, floor_in = jax.vmap(inlier_rows, in_axes=(None, 0, None, None, None))(cam, hypotheses, azimuth, *bands)
-    ceiling_in, floor_in = candidates & ceiling_in, candidates & floor_in
-    valid = jax.vmap(plausible_wall, in_axes=(0, None))(hypotheses, min_height)
-    score = jnp.where(valid, jnp.sum(ceiling_in, 1) + jnp.sum(floor_in, 1), -1)
-    best = jnp.argmax(score)
-    refit = solve(ceiling_rays, floor_rays, ceiling_in[best], floor_in[best])
-    # the algebraic refit can slide to the degenerate tiny wall; keep the hypothesis then
-    wall = jax.tree.map(lambda r, h: jnp.where(plausible_wall(refit, min_height), r, h[best]), refit, hypotheses)
+    costs, inliers = jax.vmap(scored)(hypotheses)
+
+    def refitted(state, _):
+        # the algebraic refit can slide to the degenerate tiny wall; keep the wall it came from then
+        wall, cost, wall_inliers = state
+        refit = solve(ceiling_rays, floor_rays, *wall_inliers)
+        keep = plausible_wall(refit, min_height)
+        return jax.tree.map(lambda r, w: jnp.where(keep, r, w), (refit, *scored(refit)), state), None
+
+    def optimised(start):
+        return jax.lax.scan(refitted, start, length=config.refits)[0]
+
+    # the best few hypotheses are optimised, so that two structures of similar support (the floor line and a
+    # desk's edge) are compared at their optima, not by whichever of their samples happened to be closer
+    _, best = jax.lax.top_k(-costs, min(config.optimised, len(WINDOWS) + config.hypotheses))
+    walls, costs, _ = jax.vmap(optimised)(jax.tree.map(lambda x: x[best], (hypotheses, costs, inliers)))
+    chosen = jnp.argmin(costs)
+    wall, cost = jax.tree.map(lambda x: x[chosen], walls), costs[chosen]
     enough = jnp.sum(candidates) >= sample_size
-    ok = plausible_wall(wall, min_height) & enough & (score[best] >= 0)
+    ok = plausible_wall(wall, min_height) & enough & jnp.isfinite(cost)
     return eqx.tree_at(lambda w: w.ok, wall, ok)
 
 
