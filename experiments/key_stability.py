@@ -221,7 +221,11 @@ def table(summaries: list[dict], keys: int) -> str:
             f"{s['height_median']:.3f} / {s['height_worst']:.3f} | "
             f"{100 * s['height_within_goal']:.1f}% of {s['with_layouts']} | "
             f"{s['corner_median']:.3f} / {s['corner_worst']:.3f} | "
-            f"{s['corner_coverage']:.1f} / {s['height_coverage']:.1f} |"
+            + (
+                "- |"
+                if math.isnan(s["corner_coverage"])
+                else f"{s['corner_coverage']:.1f} / {s['height_coverage']:.1f} |"
+            )
         )
     return "\n".join(lines)
 
