@@ -100,10 +100,17 @@ def main(argv=None):
         default=defaults.ransac.outlier_rate,
         help="ransac.outlier_rate: RANSAC's epsilon, which sets its number of random hypotheses",
     )
+    parser.add_argument(
+        "--strata",
+        type=int,
+        default=defaults.ransac.strata,
+        help="ransac.strata: RANSAC's fixed stratified samples instead of random ones (0: random)",
+    )
     parser.add_argument("--sigma", type=float, default=0.0, help="white noise on the boundary rows, pixels")
     args = parser.parse_args(argv)
     config = PipelineConfig(compact_capacity=args.compact_capacity, chunk_size=args.chunk_size).replace(
-        adjustment={"stride": args.adjustment_stride}, ransac={"outlier_rate": args.outlier_rate}
+        adjustment={"stride": args.adjustment_stride},
+        ransac={"outlier_rate": args.outlier_rate, "strata": args.strata},
     )
     print(
         f"devices: {jax.devices()}, XLA_FLAGS={os.environ.get('XLA_FLAGS')}, "

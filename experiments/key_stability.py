@@ -122,10 +122,10 @@ def input_spread(layouts: ncjax.Layout) -> dict:
     return result
 
 
-def render_coverage(layouts: ncjax.Layout, truths: list) -> tuple[list, list]:
-    """Per true corner of every ok layout with the true corner count: inside its 95% ellipse? Per such layout:
-    the true room height within 1.96 sigma?"""
-    inside, heights = [], []
+def render_coverage(layouts: ncjax.Layout, truths: list) -> tuple[list, list, list, list]:
+    """Per true corner of every ok layout with the true corner count: inside its 95% ellipse? its plan error (m).
+    Per such layout: the true room height within 1.96 sigma? its error (m)."""
+    inside, heights, corner_errors, height_errors = [], [], [], []
     for index, truth in enumerate(truths):
         for key in range(layouts.ok.shape[1]):
             layout = jax.tree.map(lambda x: np.asarray(x[index, key]), layouts)
@@ -134,12 +134,15 @@ def render_coverage(layouts: ncjax.Layout, truths: list) -> tuple[list, list]:
             _, shift = metrics.corner_error(layout, truth)
             if shift is None:
                 continue
-            inside.extend(corner_calibration(layout, truth, shift)[0])
+            within, _, errors = corner_calibration(layout, truth, shift)
+            inside.extend(within)
+            corner_errors.extend(errors)
             true_height = truth["ceiling_corners"][0][2] - truth["floor_corners"][0][2]
             height = float(layout.ceiling_height) - float(layout.floor_height)
             sigma = float(room_height_sigma(np.asarray(layout.height_covariance, np.float64)))
             heights.append(abs(height - true_height) <= 1.96 * sigma)
-    return inside, heights
+            height_errors.append(abs(height - true_height))
+    return inside, heights, corner_errors, height_errors
 
 
 def set_summary(inputs: InputSet, layouts: ncjax.Layout) -> dict:
@@ -167,11 +170,15 @@ def set_summary(inputs: InputSet, layouts: ncjax.Layout) -> dict:
         "ok": float(np.mean(np.asarray(layouts.ok))),
         "corner_coverage": math.nan,
         "height_coverage": math.nan,
+        "corner_error": math.nan,
+        "height_error": math.nan,
     }
     if inputs.truth is not None:
-        inside, within = render_coverage(layouts, inputs.truth)
+        inside, within, corner_errors, height_errors = render_coverage(layouts, inputs.truth)
         summary["corner_coverage"] = 100 * float(np.mean(inside))
         summary["height_coverage"] = 100 * float(np.mean(within))
+        summary["corner_error"] = 100 * float(np.median(corner_errors))
+        summary["height_error"] = 100 * float(np.median(height_errors))
     return summary
 
 
@@ -212,8 +219,8 @@ def table(summaries: list[dict], keys: int) -> str:
     lines = [
         f"| set ({keys} keys) | status changes | ok | height: key sd / sigma, median / worst | "
         f"height ratio <= {HEIGHT_RATIO_GOAL} | corners: key sd / sigma, median / worst | "
-        "coverage: corners / heights (%) |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "coverage: corners / heights (%) | median error: corners / height (cm) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for s in summaries:
         lines.append(
@@ -222,9 +229,10 @@ def table(summaries: list[dict], keys: int) -> str:
             f"{100 * s['height_within_goal']:.1f}% of {s['with_layouts']} | "
             f"{s['corner_median']:.3f} / {s['corner_worst']:.3f} | "
             + (
-                "- |"
+                "- | - |"
                 if math.isnan(s["corner_coverage"])
-                else f"{s['corner_coverage']:.1f} / {s['height_coverage']:.1f} |"
+                else f"{s['corner_coverage']:.1f} / {s['height_coverage']:.1f} | "
+                f"{s['corner_error']:.1f} / {s['height_error']:.1f} |"
             )
         )
     return "\n".join(lines)
@@ -240,9 +248,14 @@ def main(argv=None):
         "--outlier-rate", type=float, default=ransac.outlier_rate, help="RANSAC's epsilon: sets the hypotheses"
     )
     parser.add_argument("--refits", type=int, default=ransac.refits, help="refits of RANSAC's chosen wall")
+    parser.add_argument(
+        "--strata", type=int, default=ransac.strata, help="RANSAC's fixed stratified samples (0: random ones)"
+    )
     args = parser.parse_args(argv)
-    config = NETWORK_PIPELINE_CONFIG.replace(ransac={"outlier_rate": args.outlier_rate, "refits": args.refits})
-    print(f"{config.ransac.hypotheses} hypotheses per wall, {config.ransac.refits} refits")
+    changes = {"outlier_rate": args.outlier_rate, "refits": args.refits, "strata": args.strata}
+    config = NETWORK_PIPELINE_CONFIG.replace(ransac=changes)
+    sampling = f"the fixed samples of {args.strata} strata" if args.strata else "random"
+    print(f"{config.ransac.hypotheses} {sampling} hypotheses per wall and 16 windows, {config.ransac.refits} refits")
     OUT.mkdir(parents=True, exist_ok=True)
     wanted = args.sets.split(",")
     loaders = {
@@ -260,6 +273,7 @@ def main(argv=None):
         layouts = layouts_over_keys(inputs, args.keys, config)
         summaries.append(set_summary(inputs, layouts))
         print(f"{inputs.name}: {len(inputs.rc)} x {args.keys} layouts in {time.perf_counter() - start:.0f} s")
+        print(table(summaries[-1:], args.keys).splitlines()[-1])
         if name == "rig":
             height = np.asarray(layouts.ceiling_height - layouts.floor_height)[0]
             sigma = np.asarray(room_height_sigma(np.asarray(layouts.height_covariance[0], np.float64)))

@@ -14,18 +14,16 @@ in the order the data flows (docs/architecture.md):
 - ``ncjax.synth``: synthetic rooms and their renders; ``ncjax.evaluation``: every metric; ``ncjax.training``.
 """
 
-# the namespaces, one per stage (``import x as x``: re-exported, not in ``__all__``)
+import importlib
+from typing import TYPE_CHECKING
+
+# the namespaces, one per stage (``import x as x``: re-exported, not in ``__all__``); those a reconstruction does
+# not need are imported on first use (:func:`__getattr__`), so that ``import ncjax`` costs a process less
 from . import geometry as geometry
 from . import solvers as solvers
 from . import pipeline as pipeline
 from . import network as network
-from . import io as io
-from . import viz as viz
-from . import synth as synth
-from . import evaluation as evaluation
-from . import training as training
 from .geometry.camera import NonCentralPanorama
-from .io.images import read_panorama
 from .network.checkpoint import load_model, save_model
 from .network.edges import EdgeSnap
 from .network.model import HorizonNet, HorizonNetConfig
@@ -36,9 +34,41 @@ from .pipeline.prior import HeightPrior
 from .pipeline.run import finish, fit_walls
 from .pipeline.types import Layout, LayoutStatus, Rows
 from .reconstruction import NETWORK_PIPELINE_CONFIG, Reconstruction, reconstruct, reconstruct_batch
-from .synth.render import SynthConfig, synthesize_batch
-from .synth.rooms import RoomConfig
-from .training.loop import TrainConfig, train
+
+# imported on first use: the namespace, or the module a name comes from
+_LAZY_NAMESPACES = ("io", "viz", "synth", "evaluation", "training")
+_LAZY_NAMES = {
+    "read_panorama": "io.images",
+    "SynthConfig": "synth.render",
+    "synthesize_batch": "synth.render",
+    "RoomConfig": "synth.rooms",
+    "TrainConfig": "training.loop",
+    "train": "training.loop",
+}
+
+if TYPE_CHECKING:
+    from . import evaluation as evaluation
+    from . import io as io
+    from . import synth as synth
+    from . import training as training
+    from . import viz as viz
+    from .io.images import read_panorama
+    from .synth.render import SynthConfig, synthesize_batch
+    from .synth.rooms import RoomConfig
+    from .training.loop import TrainConfig, train
+
+
+def __getattr__(name: str):
+    if name in _LAZY_NAMESPACES:
+        return importlib.import_module(f"{__name__}.{name}")
+    if name in _LAZY_NAMES:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY_NAMES[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY_NAMESPACES, *_LAZY_NAMES})
+
 
 __version__ = "0.1.0"
 

@@ -14,6 +14,9 @@ their tracing. :func:`load_saved` compiles (or loads) a program before its
 call, so that programs can be loaded in threads at once: XLA loads each on
 one core.
 
+By default (:func:`user_program_directory`) the programs live in the user's cache folder, beside XLA's
+compilation cache (``$NCJAX_CACHE``, default ``~/.cache/ncjax/xla``; ``NCJAX_CACHE=off`` switches both off).
+
 A saved program is named by the caller's key, the arguments' shapes, dtypes
 and tree, the versions of jax and jaxlib, the backend and a digest of
 ncjax's own sources, so that a program traced by other code is never reused.
@@ -41,6 +44,36 @@ SUFFIX = ".jaxexport"
 SHIPPED_DIRECTORY = pathlib.Path(__file__).parent / "data" / "programs"
 # what the shipped programs were exported from: jax's version and source_digest()
 SHIPPED_MANIFEST = SHIPPED_DIRECTORY / "manifest.json"
+# NCJAX_CACHE's values that switch the user's caches off
+CACHE_OFF = ("off", "none", "0", "false")
+
+
+def user_cache_directory() -> str | None:
+    """XLA's compilation cache of ncjax: ``$NCJAX_CACHE``, default ``~/.cache/ncjax/xla``; None when it says off."""
+    directory = os.environ.get("NCJAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "ncjax", "xla"))
+    return None if directory.strip().lower() in CACHE_OFF else directory
+
+
+def user_program_directory(enable_compilation_cache: bool = False) -> str | None:
+    """The traced programs' folder beside :func:`user_cache_directory` (None when the caches are off).
+
+    Args:
+        enable_compilation_cache: also keep XLA's compiled programs in :func:`user_cache_directory`, unless jax's
+            ``jax_compilation_cache_dir`` is already set (the user's own cache is kept).
+    """
+    directory = user_cache_directory()
+    if directory is None:
+        return None
+    if enable_compilation_cache and not jax.config.jax_compilation_cache_dir:
+        use_compilation_cache(directory)
+    return os.path.join(directory, "programs")
+
+
+def use_compilation_cache(directory: str) -> None:
+    """Keep XLA's compiled programs in ``directory`` across processes, the small ones too (compiling them again
+    costs a warm start more than reading them)."""
+    jax.config.update("jax_compilation_cache_dir", directory)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 @functools.cache
@@ -110,12 +143,36 @@ def load_saved(
         exported, out_tree = _exported_program(path, function, args)
         lowered = jax.jit(exported.call).lower(*exported.in_avals)
         _COMPILED[path, options] = lowered.compile(compiler_options=compiler_options), out_tree
+        if jax.config.jax_compilation_cache_dir:  # the compiled program outlives this process: say so
+            _save_marker(_compiled_marker(path, options))
     compiled, out_tree = _COMPILED[path, options]
 
     def call(*arguments: Any) -> Any:
         return jax.tree.unflatten(out_tree, compiled(*jax.tree.leaves(arguments)))
 
     return call
+
+
+def compiled_before(
+    directory: str | os.PathLike, key: str, *args: Any, compiler_options: dict[str, Any] | None = None
+) -> bool:
+    """Whether a process compiled :func:`load_saved`'s program of these arguments and options with XLA's
+    persistent cache on (a marker beside the saved programs; the cache itself may have been emptied since)."""
+    options = tuple(sorted((compiler_options or {}).items()))
+    return _compiled_marker(program_path(directory, key, args), options).exists()
+
+
+def _compiled_marker(path: pathlib.Path, options: tuple) -> pathlib.Path:
+    digest = hashlib.sha256(repr(options).encode()).hexdigest()[:8]
+    return path.with_name(f"{path.stem}.{digest}.compiled")
+
+
+def _save_marker(path: pathlib.Path) -> None:
+    try:
+        os.makedirs(path.parent, exist_ok=True)
+        path.touch()
+    except OSError:
+        pass  # a folder that cannot be written: a later process compiles in the background again
 
 
 def result_like(directory: str | os.PathLike, key: str, function: Callable[..., Any], *args: Any) -> Any:

@@ -1,14 +1,14 @@
 """``ncjax.reconstruction``: panorama -> Non-central HorizonNet -> geometric pipeline -> metric Layout.
 
-The two blocks of the paper's Fig. pipeline in ONE jitted function: the image
+The two blocks of the paper's Fig. pipeline as three programs: the network (each image
 is resized to the network's input size, the network's per-column outputs are
-brought back to the image's columns and rows (:func:`~ncjax.network.model.prediction_to_rows`)
-and snapped to the full image's edges (:func:`~ncjax.network.edges.snap_to_edges`), and the
-geometric pipeline (:func:`~ncjax.pipeline.run.fit_walls`, then :func:`~ncjax.pipeline.run.finish`)
-runs on them with each image's own camera radius. Nothing leaves the device
-between the two blocks, and a batch of images is one call. With a
-``program_cache`` the same computation runs as three saved programs (the
-network, the geometry's steps 0-4 and 5-6) that a later process loads at once.
+brought back to the image's columns and rows, :func:`~ncjax.network.model.prediction_to_rows`,
+and snapped to the full image's edges, :func:`~ncjax.network.edges.snap_to_edges`), and the
+geometric pipeline's two halves (:func:`~ncjax.pipeline.run.fit_walls`, then :func:`~ncjax.pipeline.run.finish`),
+on chunks of a fixed number of panoramas, each with its own camera radius. The network runs image by image and
+the geometry on padded chunks, so that every batch size, and central and non-central panoramas alike, run the
+same programs; by default they are saved in the user's cache (:mod:`ncjax.programs`), and a later process loads
+them instead of tracing and compiling them again.
 
 With a height prior (:class:`~ncjax.pipeline.prior.HeightPrior`) the scale of a
 central panorama (``rc = 0``) comes from it; a non-central one keeps the scale
@@ -20,7 +20,9 @@ cannot fix it (:data:`SCALE_FAILURES`); :class:`Reconstruction` says which
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import dataclasses
+import functools
 import os
 from collections.abc import Callable
 from typing import NamedTuple
@@ -49,10 +51,10 @@ from .pipeline.config import (
     PriorConfig,
     UncertaintyConfig,
 )
-from .pipeline.prior import HeightPrior, flag_scale_conflicts
+from .pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior, flag_scale_conflicts
 from .pipeline.run import FittedWalls, finish, fit_walls
 from .pipeline.types import Layout, LayoutStatus, Rows
-from .programs import call_saved, load_saved, result_like
+from .programs import compiled_before, load_saved, result_like, user_program_directory
 from .solvers.ransac import RansacConfig
 
 # The pipeline's settings for the shipped network's rows, chosen on tuning renders, never the test renders (the
@@ -61,12 +63,13 @@ from .solvers.ransac import RansacConfig
 # (threshold 0.4, +-4 columns), occlusion jumps of 8 px beside corners where two walls' edges mix, floor rows more than
 # 2 px off their ceiling's replaced (step 0), UNCERTAIN_SCALE beyond 15% of the room height, LOW_CONFIDENCE below 60%
 # of the rows explained, SCALE_CONFLICT beyond 3 sigmas from a height prior, and the covariances' share of the errors
-# the fit absorbs (experiments/calibrate_uncertainty.py). RANSAC assumes half of a wall's rows may be outliers (69
-# random hypotheses besides the 16 deterministic ones): a photograph's rows follow furniture and doorways for long
-# stretches, and more hypotheses make the answer depend less on the key (experiments/key_stability.py).
+# the fit absorbs (experiments/calibrate_uncertainty.py). RANSAC's samples are a fixed design, one sample from every
+# 3 of 7 stretches of a wall (35 besides the 16 windows), not random ones: a photograph's rows leave a wall for whole
+# stretches (furniture, doorways), some sample then lies on the clean ones, and the layout no longer depends on the
+# key; on the test renders it is as accurate as 69 random samples (experiments/key_stability.py).
 NETWORK_PIPELINE_CONFIG = PipelineConfig(
     floor_check=FloorCheckConfig(threshold=2.0),
-    ransac=RansacConfig(outlier_rate=0.5),
+    ransac=RansacConfig(strata=7),
     corners=CornerConfig(threshold=0.4, nms_radius=4.0),
     occlusion=OcclusionConfig(threshold=8.0),
     uncertainty=UncertaintyConfig(wall_offset_ratio=2.0, wall_offset_noise=1.0, corner_column_noise=2.0),
@@ -116,46 +119,60 @@ class Reconstruction(NamedTuple):
     geometry: Layout | None = None
 
 
-class _Geometry(NamedTuple):
-    """What the geometry of a batch takes besides its rows (B leading): each panorama's radius, RANSAC key and
-    height prior (or None), and the pipeline's configuration."""
-
-    rc: Float[Array, " B"]
-    keys: Key[Array, " B"]
-    prior: HeightPrior | None
-    config: PipelineConfig
+# Images per call of the geometry's programs: a batch is laid out in chunks of this many, the last one padded with
+# copies of its last image, so that every batch size runs the same programs. The network runs image by image (its
+# views are its batch: on a CPU a larger batch is no faster a panorama).
+DEFAULT_BATCH_SIZE = 4
 
 
-def _fitted_walls(rows: Rows, image_height: int, arguments: _Geometry, world: str) -> FittedWalls:
+class _Chunk(NamedTuple):
+    """What the geometry of a chunk takes besides its rows, on the host (B leading): each panorama's radius, the
+    data of its RANSAC key and the value of its height prior (a placeholder on the geometry's route)."""
+
+    rc: Float[np.ndarray, " B"]
+    key_data: UInt32[np.ndarray, "B 2"]
+    prior_value: Float[np.ndarray, " B"]
+
+
+class _Route(NamedTuple):
+    """The static settings of the geometry's programs: the rows' height, the RANSAC keys' implementation, the
+    world, and the height prior's kind, or None for the rows' own scale."""
+
+    image_height: int
+    key_impl: str
+    world: str
+    prior_kind: str | None
+
+
+def _fitted_walls(rows: Rows, chunk: _Chunk, config: PipelineConfig, route: _Route) -> FittedWalls:
     """Steps 0-4 of the geometric pipeline (:func:`~ncjax.pipeline.run.fit_walls`) on each panorama's rows
-    (B leading), with its own radius, key and prior."""
-    rc, keys, prior, config = arguments
+    (B leading), with its own radius and key, and its prior on a prior's route."""
+    key = jax.random.wrap_key_data(chunk.key_data, impl=route.key_impl)
 
-    def one(panorama_rows, radius, one_prior, key):
-        cam = NonCentralPanorama(panorama_rows.ceiling.shape[-1], image_height, rc=radius)
-        return fit_walls(panorama_rows, cam, one_prior, key, config, world)
+    def one(panorama_rows, radius, prior_value, panorama_key):
+        cam = NonCentralPanorama(panorama_rows.ceiling.shape[-1], route.image_height, rc=radius)
+        prior = None if route.prior_kind is None else HeightPrior(route.prior_kind, prior_value)
+        return fit_walls(panorama_rows, cam, prior, panorama_key, config, route.world)
 
-    return jax.vmap(one)(rows, rc, prior, keys)
-
-
-def _finished(walls: FittedWalls, prior: HeightPrior | None, config: PipelineConfig, world: str) -> Layout:
-    """Steps 5-6 (:func:`~ncjax.pipeline.run.finish`) of :func:`_fitted_walls`' walls."""
-    return jax.vmap(lambda w, p: finish(w, p, config, world))(walls, prior)
+    return jax.vmap(one)(rows, chunk.rc, chunk.prior_value, key)
 
 
-def _reconstruction(layouts: Layout, rows: Rows, prior: HeightPrior | None) -> Reconstruction:
-    """A batch's layouts and rows, each scale from the geometry or, with a prior, from the prior."""
-    source = jnp.full(rows.ceiling.shape[:1], GEOMETRY if prior is None else PRIOR)
-    return Reconstruction(layouts, rows.ceiling, rows.floor, rows.corner_prob, source)
+def _finished(walls: FittedWalls, prior_value: Float[Array, " B"], config: PipelineConfig, route: _Route) -> Layout:
+    """Steps 5-6 (:func:`~ncjax.pipeline.run.finish`) of :func:`_fitted_walls`' walls, on the same route."""
+
+    def one(panorama_walls, value):
+        prior = None if route.prior_kind is None else HeightPrior(route.prior_kind, value)
+        return finish(panorama_walls, prior, config, route.world)
+
+    return jax.vmap(one)(walls, prior_value)
 
 
-def _geometry_body(rows: Rows, image_height: int, arguments: _Geometry, world: str) -> Layout:
-    """The geometric pipeline (steps 0-6) on a batch's rows: :func:`_fitted_walls`, then :func:`_finished`."""
-    walls = _fitted_walls(rows, image_height, arguments, world)
-    return _finished(walls, arguments.prior, arguments.config, world)
+def _geometry_body(rows: Rows, chunk: _Chunk, config: PipelineConfig, route: _Route) -> Layout:
+    """The geometric pipeline (steps 0-6) on a chunk's rows: :func:`_fitted_walls`, then :func:`_finished`."""
+    return _finished(_fitted_walls(rows, chunk, config, route), chunk.prior_value, config, route)
 
 
-_geometry = jax.jit(_geometry_body, static_argnames=("image_height", "world"))
+_geometry = jax.jit(_geometry_body, static_argnames=("route",))
 
 
 class _Network(NamedTuple):
@@ -165,122 +182,177 @@ class _Network(NamedTuple):
     edge_snap: EdgeSnap | None
 
 
-def _reconstruct_body(
-    model: HorizonNet,
-    images: Shaped[Array, "B H W 3"],
-    arguments: _Geometry,
-    world: str,
-    network: _Network,
-) -> Reconstruction:
-    rows = Rows(*image_boundaries(model, images, network.views, network.edge_snap))
-    layouts = _geometry_body(rows, images.shape[1], arguments, world)
-    return _reconstruction(layouts, rows, arguments.prior)
+def _rows_body(model: HorizonNet, images: Shaped[Array, "B H W 3"], network: _Network) -> Rows:
+    return Rows(*image_boundaries(model, images, *network))
 
 
-_reconstruct = nnx.jit(_reconstruct_body, static_argnames=("world", "network"))
+_rows = nnx.jit(_rows_body, static_argnames=("network",))
 
 
-def _saved_geometry(
-    directory: str | os.PathLike, image_shape: tuple[int, int, int], arguments, world: str
-) -> Callable[[Rows], Layout]:
-    """:func:`_geometry_body` for a batch of ``image_shape`` (B, H, W) through two programs saved in ``directory``
-    (:mod:`ncjax.programs`): its steps 0-4 and 5-6, loaded in two threads from this call on, while the caller
-    goes on (XLA loads a compiled program on one core, and these are most of the loading). Returns the function
-    of the rows (B leading) that runs them.
+class _SavedGeometry:
+    """:func:`_geometry_body` for chunks of ``shape`` (B, W) through two programs per route saved in ``directory``
+    (:mod:`ncjax.programs`): its steps 0-4 and 5-6. :meth:`load` loads (or compiles) a route's two in two
+    threads while the caller goes on (XLA loads a compiled program on one core, and these are most of the
+    loading); calling runs them. A route's programs are separate, so that a process loads only the route it
+    runs; :meth:`prepare_others` compiles, in the background, the routes this machine never compiled, so that
+    a later process finds them in XLA's cache.
     """
-    rc, keys, prior, config = arguments
-    config = jax.tree.map(jnp.asarray, config)  # a saved program's arguments are arrays: the thresholds as scalars
-    batch, image_height, width = image_shape
-    walls_structure = []
-    impl = jax.random.key_impl(keys)
 
-    def walls(rows, rc, key_data, prior, config):
-        key = jax.random.wrap_key_data(key_data, impl=impl)
-        leaves, structure = jax.tree.flatten(
-            _fitted_walls(rows, image_height, _Geometry(rc, key, prior, config), world)
+    def __init__(self, directory, shape: tuple[int, int], config: PipelineConfig, route: _Route):
+        batch, width = shape
+        self.directory, self.route = directory, route
+        self.config = jax.tree.map(np.asarray, config)  # a saved program's thresholds are arguments
+        self.rows_like = jax.eval_shape(lambda: Rows(*(jnp.zeros((batch, width), jnp.float32),) * 3))
+        self.chunk_like = _Chunk(
+            jax.ShapeDtypeStruct((batch,), jnp.float32),
+            jax.ShapeDtypeStruct((batch, 2), jnp.uint32),
+            jax.ShapeDtypeStruct((batch,), jnp.float32),
         )
-        walls_structure.append(structure)
-        return leaves  # a saved program returns plain containers (a pickled result tree)
+        self.programs: dict[str | None, tuple[concurrent.futures.Future, concurrent.futures.Future]] = {}
 
-    def layouts(walls_leaves, prior, config):
-        if not walls_structure:  # the walls' program was loaded, not traced: trace its shapes alone
-            jax.eval_shape(walls, rows_like, *walls_arguments)
-        layout = _finished(jax.tree.unflatten(walls_structure[0], walls_leaves), prior, config, world)
-        return {field.name: getattr(layout, field.name) for field in dataclasses.fields(Layout)}
+    def _functions(self, prior_kind: str | None):
+        route = self.route._replace(prior_kind=prior_kind)
+        walls_structure = []
 
-    rows_like = jax.eval_shape(lambda: Rows(*(jnp.zeros((batch, width), jnp.float32),) * 3))
-    walls_arguments = (rc, jax.random.key_data(keys), prior, config)
-    settings = (image_height, str(impl), world)
-    walls_key, layouts_key = repr(("walls", *settings)), repr(("layouts", *settings))
-    walls_like = result_like(directory, walls_key, walls, rows_like, *walls_arguments)
-    cheap = {"compiler_options": GEOMETRY_COMPILER_OPTIONS}
-    pool = concurrent.futures.ThreadPoolExecutor(2)
-    walls_program = pool.submit(load_saved, directory, walls_key, walls, rows_like, *walls_arguments, **cheap)
-    layouts_program = pool.submit(load_saved, directory, layouts_key, layouts, walls_like, prior, config, **cheap)
-    pool.shutdown(wait=False)  # the two loads go on; the pool takes no more
+        def walls(rows, chunk, config):
+            leaves, structure = jax.tree.flatten(_fitted_walls(rows, _Chunk(*chunk), config, route))
+            walls_structure.append(structure)
+            return leaves  # a saved program returns plain containers (a pickled result tree)
 
-    def run(rows):
-        walls_leaves = walls_program.result()(rows, *walls_arguments)
-        return Layout(**layouts_program.result()(walls_leaves, prior, config))
+        def layouts(walls_leaves, prior_value, config):
+            if not walls_structure:  # the walls' program was loaded, not traced: trace its shapes alone
+                jax.eval_shape(walls, self.rows_like, tuple(self.chunk_like), self.config)
+            layout = _finished(jax.tree.unflatten(walls_structure[0], walls_leaves), prior_value, config, route)
+            return {field.name: getattr(layout, field.name) for field in dataclasses.fields(Layout)}
 
-    return run
+        return walls, layouts, repr(("walls", *route)), repr(("layouts", *route))
+
+    def _walls_arguments(self) -> tuple:
+        return self.rows_like, tuple(self.chunk_like), self.config
+
+    def load(self, prior_kind: str | None, background: bool = False) -> None:
+        """Start loading the programs of the route of ``prior_kind`` (None: the rows' own scale), once; in
+        ``background`` at the least CPU priority, so that they give way to the process's own work."""
+        if prior_kind in self.programs:
+            return
+        walls, layouts, walls_key, layouts_key = self._functions(prior_kind)
+        walls_like = result_like(self.directory, walls_key, walls, *self._walls_arguments())
+        layouts_arguments = (walls_like, self.chunk_like.prior_value, self.config)
+        cheap = {"compiler_options": GEOMETRY_COMPILER_OPTIONS}
+        pool = concurrent.futures.ThreadPoolExecutor(2, initializer=_lowest_priority if background else None)
+        self.programs[prior_kind] = (
+            pool.submit(load_saved, self.directory, walls_key, walls, *self._walls_arguments(), **cheap),
+            pool.submit(load_saved, self.directory, layouts_key, layouts, *layouts_arguments, **cheap),
+        )
+        pool.shutdown(wait=False)  # the two loads go on; the pool takes no more
+
+    def __call__(self, rows: Rows, chunk: _Chunk, prior_kind: str | None) -> Layout:
+        self.load(prior_kind)
+        walls_program, layouts_program = (future.result() for future in self.programs[prior_kind])
+        walls_leaves = walls_program(rows, tuple(chunk), self.config)
+        return Layout(**layouts_program(walls_leaves, chunk.prior_value, self.config))
+
+    def prepare_others(self, prior_kinds: tuple[str | None, ...]) -> None:
+        """Compile in the background the routes of ``prior_kinds`` this machine has not compiled (none without
+        XLA's persistent cache, where a compilation would not outlive the process). The process waits for them
+        before it exits."""
+        if not jax.config.jax_compilation_cache_dir:
+            return
+        for prior_kind in prior_kinds:
+            walls, _, walls_key, _ = self._functions(prior_kind)
+            options = GEOMETRY_COMPILER_OPTIONS
+            if not compiled_before(self.directory, walls_key, *self._walls_arguments(), compiler_options=options):
+                self.load(prior_kind, background=True)
 
 
-def _reconstruct_saved(
-    directory, weights: ModelWeights, images, arguments, world: str, network: _Network
-) -> Reconstruction:
-    """:func:`_reconstruct` through three programs saved in ``directory`` (:mod:`ncjax.programs`): the
-    network's and the geometry's two (:func:`_saved_geometry`, loading while the network's loads and runs).
-    A later process skips the tracing, and building the network too. The weights are arguments, the
-    architecture part of the key; the network's program serves every world and pipeline setting.
-    """
-    geometry = _saved_geometry(directory, images.shape[:3], arguments, world)
+def _lowest_priority() -> None:
+    """Give the calling thread the least CPU priority (Linux: a thread's own nice value; elsewhere nothing)."""
+    with contextlib.suppress(AttributeError, OSError):
+        os.setpriority(os.PRIO_PROCESS, 0, 19)
+
+
+def _saved_rows(directory: str | os.PathLike, weights: ModelWeights, image_shape: tuple, network: _Network):
+    """The network's rows of one image of ``image_shape`` (1, H, W, 3) through its program saved in ``directory``.
+    The weights are arguments, the architecture part of the key: a later process builds no network."""
     views, edge_snap = network
 
     def boundaries(tensors, images):
         return image_boundaries(model_from_weights(weights._replace(tensors=tensors)), images, views, edge_snap)
 
+    image_like = jax.ShapeDtypeStruct(image_shape, jnp.uint8)
     network_key = repr(("network", weights.config, views, edge_snap))
-    saved_rows = call_saved(directory, network_key, boundaries, weights.tensors, images)
-    rows = Rows(*(row.astype(jnp.float32) for row in saved_rows))
-    return _reconstruction(geometry(rows), rows, arguments.prior)
+    program = load_saved(directory, network_key, boundaries, weights.tensors, image_like)
+    return lambda image: Rows(*program(weights.tensors, image))
 
 
-def _with_prior_fallback(
-    result: Reconstruction,
-    arguments: _Geometry,
-    world: str,
-    program_cache: str | os.PathLike | None = None,
-) -> Reconstruction:
-    """``result`` (the geometry's) with the prior's layout where ``rc = 0`` or the status is a :data:`SCALE_FAILURES`.
+def _chunks(count: int, size: int) -> list[np.ndarray]:
+    """The indices of each chunk of ``size`` of ``count`` items, the last padded with its last index."""
+    return [np.minimum(np.arange(start, start + size), count - 1) for start in range(0, count, size)]
 
-    ``arguments``: the batch's ``rc`` (numpy), keys, the prior to fall back on and the configuration. The prior's
-    pipeline runs on the same rows and RANSAC keys, for the whole batch (one program per batch size), and only
-    when some panorama needs it: the central route's programs (saved in ``program_cache`` if given, as
-    :func:`_saved_geometry`), flagged where the two scales conflict
-    (:func:`~ncjax.pipeline.prior.flag_scale_conflicts`).
+
+def _on_host(layout: Layout) -> Layout:
+    return jax.tree.map(np.asarray, jax.device_get(layout))
+
+
+def _chunk_layouts(
+    rows: Rows,
+    chunk: _Chunk,
+    geometry: Callable[[Rows, _Chunk, str | None], Layout],
+    route: str,
+    prior: tuple[str | None, float],
+) -> tuple[Layout, Layout | None]:
+    """One chunk's layouts (on the host) and, on the fallback route, the geometry's own.
+
+    ``route``: "geometry" (the rows' non-central scale), "prior" (the height prior's scale: a central batch) or
+    "fallback" (the geometry's, replaced by the prior's where ``rc = 0`` or the status is a :data:`SCALE_FAILURES`,
+    flagged where the two scales conflict: :func:`~ncjax.pipeline.prior.flag_scale_conflicts`; the prior's route
+    runs only when some panorama of the chunk needs it). ``prior``: the height prior's kind and conflict threshold.
     """
-    rc, keys, prior, config = arguments
-    status = np.asarray(result.layout.status)
-    needs = (rc == 0) | np.isin(status, np.asarray(SCALE_FAILURES))
-    source = np.where(rc == 0, PRIOR, np.where(needs, PRIOR_FALLBACK, GEOMETRY))
+    kind, max_conflict = prior
+    if route != "fallback":
+        return _on_host(geometry(rows, chunk, kind if route == "prior" else None)), None
+    own = _on_host(geometry(rows, chunk, None))
+    needs = _needs_prior(chunk.rc, own.status)
     if not needs.any():
-        return result._replace(scale_source=jnp.asarray(source), geometry=result.layout)
-    rows = Rows(result.ceiling_v, result.floor_v, result.corner_prob)
-    batch, width = result.ceiling_v.shape
-    height = width // 2  # full panoramas: H = W / 2 (check_panorama)
-    if program_cache is None:
-        from_prior = _geometry(rows, height, _Geometry(jnp.asarray(rc), keys, prior, config), world)
-    else:
-        geometry = _Geometry(jnp.asarray(rc), keys, prior, config)
-        from_prior = _saved_geometry(program_cache, (batch, height, width), geometry, world)(rows)
+        return own, own
+    from_prior = _on_host(geometry(rows, chunk, kind))
     chosen = jax.tree.map(
-        lambda a, b: jnp.where(jnp.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, result.layout
+        lambda a, b: np.where(np.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, own
     )
-    chosen = flag_scale_conflicts(chosen, result.layout, prior, config.prior.max_scale_conflict)
-    return Reconstruction(
-        chosen, result.ceiling_v, result.floor_v, result.corner_prob, jnp.asarray(source), result.layout
-    )
+    flagged = flag_scale_conflicts(chosen, own, HeightPrior(kind, chunk.prior_value), max_conflict)
+    return _on_host(flagged), own
+
+
+def _scale_sources(route: str, rc: np.ndarray, own: Layout | None) -> np.ndarray:
+    """Each layout's :data:`SCALE_SOURCES` index on ``route`` (:func:`_chunk_layouts`)."""
+    if route != "fallback":
+        return np.full(rc.shape, GEOMETRY if route == "geometry" else PRIOR)
+    needs = _needs_prior(rc, np.asarray(own.status))
+    return np.where(rc == 0, PRIOR, np.where(needs, PRIOR_FALLBACK, GEOMETRY))
+
+
+def _needs_prior(rc: np.ndarray, status: np.ndarray) -> np.ndarray:
+    """Where a layout takes its prior's scale beside a non-central one: central, or the geometry's scale failed."""
+    return (rc == 0) | np.isin(status, np.asarray(SCALE_FAILURES))
+
+
+def _image_key_data(key, count: int) -> tuple[UInt32[np.ndarray, "B 2"], str]:
+    """Each image's RANSAC key, as its data and the keys' implementation: one key gives every image the key a
+    batch of one gets, so that an image's samples depend neither on its batch nor on its place in it; one key
+    per image is kept."""
+    key = jax.random.key(0) if key is None else key
+    if not jax.dtypes.issubdtype(jnp.asarray(key).dtype, jax.dtypes.prng_key):
+        key = jax.random.wrap_key_data(jnp.asarray(key, jnp.uint32))
+    keys = jnp.broadcast_to(panorama_keys(key, (1,)), (count,)) if key.shape == () else panorama_keys(key, (count,))
+    return np.asarray(jax.random.key_data(keys)), str(jax.random.key_impl(keys))
+
+
+def _program_folder(program_cache: str | os.PathLike | bool | None) -> str | os.PathLike | None:
+    """The folder of the saved programs ``program_cache`` asks for (True: the user's, XLA's cache switched on
+    beside it; None where ``NCJAX_CACHE=off``), or None for none."""
+    if program_cache is True:
+        return user_program_directory(enable_compilation_cache=True)
+    return program_cache or None
 
 
 def _model_of(model: HorizonNet | ModelWeights | str | os.PathLike | None) -> HorizonNet:
@@ -317,9 +389,13 @@ def reconstruct_batch(
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
     prior: HeightPrior | None = None,
-    program_cache: str | os.PathLike | None = None,
+    program_cache: str | os.PathLike | bool | None = True,
+    batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> Reconstruction:
     """Metric layouts of a batch of panoramas of one size, each with its own radius.
+
+    The network reads each image (its views are its batch), then the geometry lays out chunks of ``batch_size``
+    rows; both run as programs saved in the user's cache by default, so that a later process starts in seconds.
 
     Args:
         images: RGB uint8 (B, H, W, 3), W = 2 H.
@@ -333,8 +409,10 @@ def reconstruct_batch(
         config: :class:`~ncjax.PipelineConfig`, thresholds traced, the rest static (default:
             :data:`NETWORK_PIPELINE_CONFIG`, the pipeline's defaults with the corner and occlusion settings for
             the network's output).
-        key: RANSAC key (default ``jax.random.key(0)``; typed or raw): one key, split over the batch, or one
-            key per image (shape (B,)): an image's RANSAC samples then do not depend on the batch it is in.
+        key: RANSAC key (default ``jax.random.key(0)``; typed or raw): one key, which every image gets as a batch
+            of one would, or one key per image (shape (B,)). An image's layout depends neither on its batch nor
+            on its place in it. The default configuration's RANSAC samples do not depend on the key at all
+            (:attr:`~ncjax.solvers.ransac.RansacConfig.strata`).
         views: static, rolled and mirrored views the network's output is
             averaged over (1 or even, :func:`ncjax.predict_boundaries`).
         edge_snap: static; how the network's rows are moved onto the image's
@@ -343,10 +421,18 @@ def reconstruct_batch(
         prior: a :class:`~ncjax.HeightPrior` (value scalar or (B,)): the scale of the
             central panoramas (``rc = 0``), and of the non-central ones whose geometry
             fails with one of :data:`SCALE_FAILURES`. None: metric scale from the geometry only.
-        program_cache: a folder where the traced programs are kept (:mod:`ncjax.programs`): a later
-            process with the same settings and shapes skips the tracing (about 10 s on 2 CPU
-            cores; with XLA's persistent compilation cache the compiler too). None: traced in
-            each process, as any jitted function.
+        program_cache: where the traced programs are kept (:mod:`ncjax.programs`), so that a later process
+            with the same settings and image size skips the tracing and, with XLA's persistent compilation cache,
+            the compiler. True (default): the user's cache folder (:func:`~ncjax.programs.user_cache_directory`,
+            ``~/.cache/ncjax/xla``), and XLA's cache switched on there unless jax's
+            ``jax_compilation_cache_dir`` is already set; the environment variable ``NCJAX_CACHE=off`` switches
+            both off. The first call on a machine also compiles, in the background, the other route's programs
+            (central against non-central, the default camera-height prior), so that a later process finds them
+            compiled; the process waits for them before it exits. A folder: the programs there (XLA's cache as
+            it is set, nothing compiled in the background). False or None: traced in each
+            process, as any jitted function.
+        batch_size: images per call of the geometry's programs: the batch runs in chunks of this many, the last
+            one padded, so that any number of images runs the same programs (the network runs image by image).
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).
@@ -365,6 +451,8 @@ def reconstruct_batch(
     if world not in WORLDS:
         raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
     check_views(views)
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     rc = np.broadcast_to(np.asarray(rc, np.float32), images.shape[:1])
     if not np.all(np.isfinite(rc)) or np.any(rc < 0):
         raise ValueError(f"rc must be finite radii >= 0 in metres, got {rc}")
@@ -372,18 +460,42 @@ def reconstruct_batch(
         if np.ndim(prior.value) not in (0, 1) or np.size(prior.value) not in (1, images.shape[0]):
             raise ValueError(f"the prior's value must be a scalar or one per image ({images.shape[0]})")
         prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
-    keys = panorama_keys(jax.random.key(0) if key is None else key, images.shape[:1])
-    central = prior is not None and not np.any(rc > 0)
-    arguments = _Geometry(jnp.asarray(rc), keys, prior if central else None, config)
+    count, image_height, width = images.shape[:3]
+    key_data, key_impl = _image_key_data(key, count)
+    # without a prior the programs still take a value (a placeholder the geometry's route never reads)
+    prior_value = np.broadcast_to(np.float32(DEFAULT_CAMERA_HEIGHT if prior is None else prior.value), (count,))
+    arguments = _Chunk(rc, key_data, np.asarray(prior_value, np.float32))
+    prior_kind = None if prior is None else prior.kind
+    route = "geometry" if prior is None else ("prior" if not np.any(rc > 0) else "fallback")
+    settings = _Route(image_height, key_impl, world, None)
     network = _Network(views, edge_snap)
-    if program_cache is None:
-        result = _reconstruct(_model_of(model), jnp.asarray(images), arguments, world, network)
-    else:
+    directory = _program_folder(program_cache)
+    if directory is None:
+        network_model = _model_of(model)
+        rows_of = functools.partial(_rows, network_model, network=network)
+
+        def geometry(rows, chunk, kind):
+            return _geometry(rows, chunk, config, settings._replace(prior_kind=kind))
+    else:  # the geometry's programs load while the network's loads and runs
+        geometry = _SavedGeometry(directory, (batch_size, width), config, settings)
+        geometry.load(prior_kind if route == "prior" else None)
         weights = model_weights(DEFAULT_MODEL_PATH if model is None else model)
-        result = _reconstruct_saved(program_cache, weights, jnp.asarray(images), arguments, world, network)
-    if prior is None or central:
-        return result
-    return _with_prior_fallback(result, _Geometry(rc, keys, prior, config), world, program_cache)
+        rows_of = _saved_rows(directory, weights, (1, *images.shape[1:]), network)
+    image_rows = [jax.device_get(rows_of(images[i : i + 1])) for i in range(count)]
+    rows = jax.tree.map(lambda *r: np.concatenate(r).astype(np.float32), *image_rows)
+    prior_settings = (prior_kind, float(config.prior.max_scale_conflict))
+    laid_out = []
+    for indices in _chunks(count, batch_size):
+        chunk_rows, chunk = (jax.tree.map(lambda x, i=indices: x[i], tree) for tree in (rows, arguments))
+        laid_out.append(_chunk_layouts(chunk_rows, _Chunk(*chunk), geometry, route, prior_settings))
+    layouts, own = (
+        jax.tree.map(lambda *x: jnp.asarray(np.concatenate(x)[:count]), *parts) for parts in zip(*laid_out, strict=True)
+    )
+    if program_cache is True and directory is not None:  # a later process may need the routes this one did not run
+        geometry.prepare_others((None, "camera_height"))
+    source = jnp.asarray(_scale_sources(route, rc, own))
+    ceiling, floor, corner_prob = (jnp.asarray(x) for x in (rows.ceiling, rows.floor, rows.corner_prob))
+    return Reconstruction(layouts, ceiling, floor, corner_prob, source, own)
 
 
 def reconstruct(
@@ -397,7 +509,7 @@ def reconstruct(
     views: int = DEFAULT_VIEWS,
     edge_snap: EdgeSnap | None = EdgeSnap(),
     prior: HeightPrior | None = None,
-    program_cache: str | os.PathLike | None = None,
+    program_cache: str | os.PathLike | bool | None = True,
 ) -> Layout:
     """Metric room layout of one RGB panorama: network, then geometry (paper Fig. pipeline).
 
@@ -413,8 +525,8 @@ def reconstruct(
         edge_snap: rows snapped to the image's edges (None: the network's rows).
         prior: a :class:`~ncjax.HeightPrior` for the scale (needed when ``cam.rc`` is 0; see
             :func:`reconstruct_batch`).
-        program_cache: a folder that keeps the traced programs for later processes (see
-            :func:`reconstruct_batch`).
+        program_cache: where the traced programs are kept for later processes (default: the user's cache folder;
+            see :func:`reconstruct_batch`).
 
     Returns:
         An unbatched :class:`~ncjax.Layout`; check ``ok`` / ``status``.

@@ -425,3 +425,29 @@ def test_a_lost_saved_program_of_the_geometry_is_traced_again_alone(tmp_path):
     assert adjustment.exists() and {path: path.stat().st_mtime_ns for path in others} == others  # not traced
     np.testing.assert_array_equal(again.layout.status, first.layout.status)
     np.testing.assert_allclose(again.layout.floor_corners, first.layout.floor_corners, atol=1e-5)
+
+
+@pytest.mark.slow
+def test_an_image_s_layout_depends_neither_on_its_batch_size_nor_on_its_place(tmp_path):
+    """Every batch size runs the same programs (the network per image, the geometry on padded chunks): an image's
+    layout is the same to 1 mm wherever it is in whatever batch. Central panoramas run the prior's route."""
+    from ncjax import programs
+
+    image = demo_image(SMALL)
+    other = np.roll(image, SMALL[0] // 3, axis=1)
+    rc = 0.6825
+    alone = ncjax.reconstruct_batch(image[None], np.array([rc], np.float32), program_cache=tmp_path)
+    saved = sorted(tmp_path.glob(f"*{programs.SUFFIX}"))
+    assert len(saved) == 3  # the network's, and the geometry's two halves
+    batch = np.stack([other, other, image, other, other])  # a chunk of 4 and a padded one, the image third
+    among = ncjax.reconstruct_batch(batch, np.array([0.3, 0.5, rc, 0.5, 0.3], np.float32), program_cache=tmp_path)
+    assert sorted(tmp_path.glob(f"*{programs.SUFFIX}")) == saved  # no other program was traced
+    for field in ("floor_corners", "ceiling_corners"):
+        np.testing.assert_allclose(getattr(among.layout, field)[2], getattr(alone.layout, field)[0], atol=1e-3)
+    np.testing.assert_array_equal(among.layout.status[2], alone.layout.status[0])
+    np.testing.assert_array_equal(among.layout.mask[2], alone.layout.mask[0])
+    prior = ncjax.HeightPrior("camera_height", 1.6)
+    central = ncjax.reconstruct_batch(image[None], np.zeros(1, np.float32), prior=prior, program_cache=tmp_path)
+    assert len(list(tmp_path.glob(f"*{programs.SUFFIX}"))) == 5  # the prior's route: its two halves
+    assert int(central.scale_source[0]) == ncjax.reconstruction.PRIOR
+    assert np.isclose(-float(central.layout.floor_height[0]), 1.6, atol=1e-3)

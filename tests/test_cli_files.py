@@ -40,8 +40,8 @@ class FakeReconstruction:
 
     Attributes:
         layout: the unbatched layout every image gets.
-        calls: the number of images of each call, padding included.
-        keys: the RANSAC keys of each call (``key_data``), one per image.
+        calls: the number of images of each call.
+        batch_sizes: the ``batch_size`` of each call (the programs' chunk).
         interrupt_on_call: raise KeyboardInterrupt on this call (1-based), None never.
         signal_on_call: send this process SIGINT (a Ctrl-C) during this call, None never.
     """
@@ -49,13 +49,13 @@ class FakeReconstruction:
     def __init__(self, layout=None, interrupt_on_call=None, signal_on_call=None):
         self.layout = make_layout(RECTANGLE) if layout is None else layout
         self.calls: list[int] = []
-        self.keys: list[np.ndarray] = []
+        self.batch_sizes: list[int] = []
         self.interrupt_on_call = interrupt_on_call
         self.signal_on_call = signal_on_call
 
     def __call__(self, images, rc, world, **options):
         self.calls.append(len(images))
-        self.keys.append(np.asarray(jax.random.key_data(options["key"])))
+        self.batch_sizes.append(options["batch_size"])
         if len(self.calls) == self.interrupt_on_call:
             raise KeyboardInterrupt
         if len(self.calls) == self.signal_on_call:
@@ -211,14 +211,25 @@ def test_skip_existing_resumes_a_batch(tmp_path, fake, capsys):
     assert "1 of 3 images reconstructed" in printed and "2 skipped" in printed
 
 
-def test_every_image_gets_the_key_it_gets_alone_whatever_the_batch(tmp_path, fake):
-    alone = np.asarray(jax.random.key_data(jax.random.split(jax.random.key(0), 1)[0]))
+def test_batches_are_the_images_and_the_programs_take_the_batch_size(tmp_path, fake):
     for batch in ("1", "2"):
-        fake.keys.clear()
+        fake.calls.clear()
+        fake.batch_sizes.clear()
         assert reconstruct_cli(panoramas(tmp_path / "in", "a", "b", "c"), tmp_path / batch, "--batch", batch) == 0
-        keys = np.concatenate(fake.keys)
-        assert keys.shape == (3 if batch == "1" else 4, *alone.shape)  # the last batch of two is padded
-        np.testing.assert_array_equal(keys, np.broadcast_to(alone, keys.shape))
+        assert fake.calls == ([1, 1, 1] if batch == "1" else [2, 1])  # reconstruct_batch pads the last one
+        assert set(fake.batch_sizes) == {int(batch)}
+
+
+def test_one_key_gives_every_image_the_key_of_a_batch_of_one():
+    from ncjax.reconstruction import _image_key_data
+
+    alone = np.asarray(jax.random.key_data(jax.random.split(jax.random.key(0), 1)[0]))
+    for key in (None, jax.random.key(0), jax.random.PRNGKey(0)):
+        data, impl = _image_key_data(key, 3)
+        np.testing.assert_array_equal(data, np.broadcast_to(alone, (3, *alone.shape)))
+        assert impl == "threefry2x32"
+    per_image = jax.random.split(jax.random.key(7), 3)
+    np.testing.assert_array_equal(_image_key_data(per_image, 3)[0], jax.random.key_data(per_image))
 
 
 @pytest.mark.slow
@@ -487,7 +498,10 @@ def test_help_shows_every_default():
             text = formatter._get_help_string(action)
             assert "default" in text or text.startswith("required"), (name, action.option_strings)
     reconstruct_help = " ".join(subcommands()["reconstruct"].format_help().split())
-    assert "--batch BATCH images per jitted call (at most the number of images) (default: 4)" in reconstruct_help
+    assert (
+        "--batch BATCH panoramas per call of the geometry's programs (a smaller last batch is padded: any number "
+        "of images runs the same programs) (default: 4)"
+    ) in reconstruct_help
     train_help = " ".join(subcommands()["train"].format_help().split())
     assert "--batch N, --batch-size N images per step (default: 4)" in train_help
     assert "--checkpoint-every CHECKPOINT_EVERY steps between checkpoints (default: 250)" in train_help

@@ -26,29 +26,32 @@ LEDGER_FILE = "ncjax-compiled.json"
 FIRST_RUN_GUESS = "20 s to a minute on 2 CPU cores"
 
 
-def cache_directory() -> str:
-    """``$NCJAX_CACHE``, default ``~/.cache/ncjax/xla``."""
-    return os.environ.get("NCJAX_CACHE", os.path.join(os.path.expanduser("~"), ".cache", "ncjax", "xla"))
+def cache_directory() -> str | None:
+    """XLA's cache folder (:func:`~ncjax.programs.user_cache_directory`); None when ``NCJAX_CACHE=off``."""
+    from ..programs import user_cache_directory
+
+    return user_cache_directory()
 
 
-def program_directory() -> str:
+def program_directory() -> str | None:
     """Where the CLI keeps its traced programs (:mod:`ncjax.programs`): beside XLA's cache."""
-    return os.path.join(cache_directory(), "programs")
+    from ..programs import user_program_directory
+
+    return user_program_directory()
 
 
-def enable_compilation_cache() -> str:
-    """Keep XLA's compiled programs in :func:`cache_directory` across runs; returns the directory.
+def enable_compilation_cache() -> str | None:
+    """Keep XLA's compiled programs in :func:`cache_directory` across runs; returns the directory (None: off).
 
     Compilation is most of a first run's time; the persistent cache spares later runs with the same
     image size, batch and settings the compilation; the programs saved in :func:`program_directory`
-    spare them the tracing. Small programs are kept too (the outputs' projections, say): compiling
-    them again costs a warm run more than reading them.
+    spare them the tracing.
     """
-    import jax
+    from ..programs import use_compilation_cache
 
     directory = cache_directory()
-    jax.config.update("jax_compilation_cache_dir", directory)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    if directory is not None:
+        use_compilation_cache(directory)
     return directory
 
 
@@ -69,9 +72,11 @@ class CompileLedger:
     A missing or unreadable ledger is an empty one: it only decides what the CLI says.
     """
 
-    def __init__(self, directory: str):
-        self.path = os.path.join(directory, LEDGER_FILE)
+    def __init__(self, directory: str | None):
+        self.path = None if directory is None else os.path.join(directory, LEDGER_FILE)
         try:
+            if self.path is None:
+                raise OSError("the caches are off")
             with open(self.path, encoding="utf-8") as file:
                 self.seconds = {str(k): float(v) for k, v in json.load(file).items()}
         except (OSError, ValueError, AttributeError):
@@ -101,6 +106,8 @@ class CompileLedger:
         if key in self.seconds:
             return
         self.seconds[key] = round(seconds, 1)
+        if self.path is None:
+            return
         try:
             os.makedirs(os.path.dirname(self.path), exist_ok=True)
             write_atomic(self.path, json.dumps(self.seconds, indent=1).encode())

@@ -16,9 +16,9 @@ from ..io.images import read_panorama_file
 from ..pipeline.config import DEFAULT_WORLD, WORLDS
 from ..pipeline.types import LayoutStatus
 from .arguments import add_texture_argument
-from .compilation import CompileLedger, enable_compilation_cache, program_directory
+from .compilation import CompileLedger, enable_compilation_cache
 from .inputs import check_output_folder, make_output_folder, model_weights_option, radius_of
-from .outputs import ReconstructedImage, write_outputs
+from .outputs import ReconstructedImage, import_mesh_modules_in_background, write_outputs
 from .reconstruct import (
     WORLD_HELP,
     ReconstructSettings,
@@ -38,7 +38,7 @@ def run_demo(args: argparse.Namespace) -> int:
     import jax
 
     from ..evaluation import layout_metrics as metrics
-    from ..reconstruction import reconstruct_batch
+    from ..reconstruction import DEFAULT_BATCH_SIZE, reconstruct_batch
 
     start = time.perf_counter()
     config = pipeline_config(args)
@@ -46,6 +46,7 @@ def run_demo(args: argparse.Namespace) -> int:
     model = model_weights_option(None)
     make_output_folder(args.out)
     ledger = CompileLedger(enable_compilation_cache())
+    import_mesh_modules_in_background()
     with open(DEMO_DIR / "ground_truth.json") as file:
         truth = json.load(file)
     path = DEMO_DIR / truth["image"]
@@ -55,8 +56,11 @@ def run_demo(args: argparse.Namespace) -> int:
         f"ncjax demo: {truth['image']} ({image.shape[1]} x {image.shape[0]}, rc = {rc} m from its name, "
         f"a {truth['world']} room rendered by ncjax synth and never seen in training)"
     )
-    settings = ReconstructSettings(model, 1, args.world, config, args.views, args.edge_snap, args.out, (), None)
-    key = program_key((1, *image.shape), settings, central=False)
+    # the programs of `ncjax reconstruct`'s default --batch: one run of either serves the other
+    settings = ReconstructSettings(
+        model, DEFAULT_BATCH_SIZE, args.world, config, args.views, args.edge_snap, args.out, (), None
+    )
+    key = program_key((DEFAULT_BATCH_SIZE, *image.shape), settings)
     with ledger.compiling(
         key,
         f"the network and the geometry for {image.shape[1]} x {image.shape[0]}",
@@ -70,7 +74,7 @@ def run_demo(args: argparse.Namespace) -> int:
                 config=config,
                 views=args.views,
                 edge_snap=args.edge_snap,
-                program_cache=program_directory(),
+                program_cache=True,
             )
         )
     one = jax.tree.map(lambda x: x[0], tuple(result))

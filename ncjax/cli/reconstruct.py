@@ -1,7 +1,8 @@
 """The user-facing command ``ncjax reconstruct``.
 
 ``reconstruct`` reads panoramas (files, or folders of them), groups them by size into
-fixed-size batches (the last one padded, so each size compiles once), runs
+batches of ``--batch`` (the last one padded by :func:`~ncjax.reconstruction.reconstruct_batch`, so each size
+compiles once), runs
 :func:`~ncjax.reconstruction.reconstruct_batch` and writes per image
 ``<name>.json``, ``<name>.obj/.ply/.glb`` and the 3D viewer ``<name>.html`` (when a layout was found),
 ``<name>_overlay.png`` and ``<name>_plan.png``, and at the end ``summary.csv``
@@ -34,8 +35,9 @@ from ..network.edges import EdgeSnap
 from ..network.model import check_views
 from ..network.predict import DEFAULT_VIEWS
 from ..pipeline.config import DEFAULT_WORLD, RENAMED, WORLDS
+from ..reconstruction import DEFAULT_BATCH_SIZE
 from .arguments import add_texture_argument
-from .compilation import CompileLedger, enable_compilation_cache, program_directory, settings_key
+from .compilation import CompileLedger, enable_compilation_cache, settings_key
 from .inputs import (
     PANORAMA_SUFFIXES,
     PendingImage,
@@ -49,7 +51,7 @@ from .inputs import (
     read_image,
 )
 from .options import add_config_options, add_renamed_options, config_from_options
-from .outputs import ReconstructedImage, align_to_gravity, write_outputs
+from .outputs import ReconstructedImage, align_to_gravity, import_mesh_modules_in_background, write_outputs
 from .summary import SUMMARY_FILE, failure_message, read_summary, skipped_row, summary_row, update_summary
 
 WORLD_HELP = (
@@ -74,8 +76,9 @@ class ReconstructSettings:
     texture_size: int | None = None
 
 
-def program_key(shape: tuple[int, ...], settings: ReconstructSettings, central: bool) -> str:
-    """:func:`~.compilation.settings_key` of the program that reconstructs a batch of ``shape`` with ``settings``."""
+def program_key(shape: tuple[int, ...], settings: ReconstructSettings) -> str:
+    """:func:`~.compilation.settings_key` of the programs that reconstruct a batch of ``shape`` (its images'
+    (batch, H, W, 3)) with ``settings``, central or not (they share them)."""
     from ..pipeline.config import static_structure
 
     parts = (
@@ -85,7 +88,7 @@ def program_key(shape: tuple[int, ...], settings: ReconstructSettings, central: 
         settings.edge_snap,
         static_structure(settings.config),
     )
-    return settings_key(shape, *parts, central)
+    return settings_key(shape, *parts)
 
 
 def _reconstruct_group(
@@ -101,20 +104,14 @@ def _reconstruct_group(
     """
     import jax
 
-    from ..pipeline.batch import panorama_keys
     from ..reconstruction import reconstruct_batch
 
     batch_size = settings.batch_size
-    # Each image gets the RANSAC key that reconstruct gives one image alone (the default key's for a batch
-    # of one), so its RANSAC samples do not depend on --batch or on the image's place in its batch.
-    keys = jax.numpy.broadcast_to(panorama_keys(jax.random.key(0), (1,)), (batch_size,))
     for start in range(0, len(items), batch_size):
         chunk = items[start : start + batch_size]
-        padding = [chunk[-1]] * (batch_size - len(chunk))
-        images = np.stack([item.image for item in chunk + padding])
-        radii = np.array([item.rc for item in chunk + padding], np.float32)
-        central = settings.prior is not None and not np.any(radii > 0)
-        key = program_key(images.shape, settings, central)
+        images = np.stack([item.image for item in chunk])
+        radii = np.array([item.rc for item in chunk], np.float32)
+        key = program_key((batch_size, *images.shape[1:]), settings)
         try:
             with ledger.compiling(key, f"the network and the geometry for {images.shape[2]} x {images.shape[1]}", say):
                 result = jax.device_get(
@@ -125,10 +122,10 @@ def _reconstruct_group(
                         model=settings.model,
                         config=settings.config,
                         views=settings.views,
-                        key=keys,
                         edge_snap=settings.edge_snap,
                         prior=settings.prior,
-                        program_cache=program_directory(),
+                        program_cache=True,
+                        batch_size=batch_size,
                     )
                 )
         except RuntimeError as error:  # XLA's errors (out of memory, ...): reported per image, the next batch goes on
@@ -295,11 +292,9 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     read_summary(os.path.join(args.out, SUMMARY_FILE))
     model = model_weights_option(args.model)
     make_output_folder(args.out)  # only now that the inputs and the model are good
-    # fewer images than --batch: a smaller program, not one padded with copies to compute for nothing
-    batch_size = max(1, min(args.batch, len(images)))
     settings = ReconstructSettings(
         model,
-        batch_size,
+        args.batch,
         args.world,
         config,
         args.views,
@@ -310,6 +305,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         args.texture_size,
     )
     ledger = CompileLedger(enable_compilation_cache())
+    import_mesh_modules_in_background()
     tally = RunTally(images, args.out, tqdm(total=len(images), unit="image", desc="ncjax reconstruct"))
 
     def reconstruct(group):
@@ -332,7 +328,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                 image, gravity = align_to_gravity(image) if radius == 0 and args.align else (image, None)
                 group = groups[image.shape[:2]]
                 group.append(PendingImage(path, name, image, radius, gravity, file_size))
-                if len(group) == batch_size:
+                if len(group) == settings.batch_size:
                     reconstruct(group)
                     group.clear()
                 stop.check()
@@ -374,7 +370,13 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         "--model",
         help="network weights (.safetensors) or a shipped model's name, e.g. compact1024 (default: the default model)",
     )
-    parser.add_argument("--batch", type=int, default=4, help="images per jitted call (at most the number of images)")
+    parser.add_argument(
+        "--batch",
+        type=int,
+        default=DEFAULT_BATCH_SIZE,
+        help="panoramas per call of the geometry's programs (a smaller last batch is padded: any number of "
+        "images runs the same programs)",
+    )
     add_prior_arguments(parser)
     parser.add_argument(
         "--no-align",

@@ -54,7 +54,6 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 import shapely
 from jaxtyping import Float, Int8
-from scipy.optimize import linear_sum_assignment
 
 from ..io.layout_corners import LayoutCorners, back_project, pixel_angles, resized_pixels
 
@@ -173,6 +172,8 @@ def corner_error_percent(pred: LayoutCorners, gt: LayoutCorners) -> float:
     difference = np.abs(pred_points[:, None] - gt_points[None])  # (n_pred, n_gt, 2, 2)
     difference[..., 0] = np.minimum(difference[..., 0], width - difference[..., 0])
     distance = np.linalg.norm(difference, axis=-1).mean(-1)  # (n_pred, n_gt)
+    from scipy.optimize import linear_sum_assignment  # here: scipy.optimize costs every ncjax command 0.4 s to import
+
     rows, columns = linear_sum_assignment(distance)
     return float(100.0 * distance[rows, columns].mean() / math.hypot(width, height))
 

@@ -12,18 +12,23 @@ of one wall end at that wall, and two walls of similar support are compared at t
 little on the RANSAC key. Hypotheses are scored and refitted on at most ``G`` columns of the wall
 (:func:`wall_columns`), so the cost does not grow with the image width. The random hypotheses number the paper's
 ``n_hyp = log(1 - P) / log(1 - (1 - eps)^k)``, a static integer; 16 more, the same for every key, span windows of
-the wall (:data:`WINDOWS`, :func:`spread_columns`). All are solved at once with ``jax.vmap``.
+the wall (:data:`WINDOWS`, :func:`spread_columns`). With ``strata`` set, a fixed design replaces the random samples
+(:func:`stratified_fractions`): one sample from every ``k`` of ``strata`` equal stretches of the wall, so that
+whenever ``k`` stretches are free of outliers (a photograph's rows leave a wall for whole stretches, along furniture
+and doorways) one sample is too, and the wall no longer depends on the key. All are solved at once with ``jax.vmap``.
 """
 
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
@@ -33,7 +38,7 @@ from .wall import Wall, solve_wall
 from .wall_at_heights import solve_wall_at_heights
 
 
-@settings(static=("success_probability", "outlier_rate", "sample_size", "columns", "refits", "optimised"))
+@settings(static=("success_probability", "outlier_rate", "sample_size", "columns", "refits", "optimised", "strata"))
 class RansacConfig:
     """Step 2 of the pipeline: one RANSAC wall per pair of corners (:func:`ransac_wall`).
 
@@ -48,6 +53,8 @@ class RansacConfig:
         refits: times a hypothesis is refitted on its inliers and its inliers found again (local
             optimisation: hypotheses near the same wall end at the same one).
         optimised: hypotheses of least cost that are refitted; the one of least cost after its refits wins.
+        strata: 0 draws the random hypotheses with the key (the paper's); ``S > 0`` replaces them with the
+            ``C(S, sample_size)`` samples of :func:`stratified_fractions`, the same for every key.
     """
 
     success_probability: float = 0.9999
@@ -58,6 +65,7 @@ class RansacConfig:
     corner_margin: float = 2.0
     refits: int = 3
     optimised: int = 8
+    strata: int = 0
 
     def __post_init__(self):
         if self.sample_size < 3:
@@ -71,10 +79,14 @@ class RansacConfig:
         check_non_negative(self, "corner_margin")
         if self.refits < 1 or self.optimised < 1:
             raise ValueError(f"RansacConfig.refits and optimised must be >= 1, got {self.refits}, {self.optimised}")
+        if self.strata and self.strata < self.sample_size:
+            raise ValueError(f"RansacConfig.strata must be 0 or >= sample_size, got {self.strata}")
 
     @property
     def hypotheses(self) -> int:
-        """RANSAC hypotheses per wall (paper's n_hyp)."""
+        """Sampled hypotheses per wall besides :data:`WINDOWS`': the paper's n_hyp, or the stratified design's."""
+        if self.strata:
+            return math.comb(self.strata, self.sample_size)
         return num_hypotheses(self.success_probability, self.outlier_rate, self.sample_size)
 
 
@@ -148,16 +160,38 @@ WINDOWS = tuple(
 )
 
 
+def columns_at(candidates: Bool[Array, " n"], fractions: Float[Array, " k"]) -> Int[Array, " k"]:
+    """The candidates at ``fractions`` (in [0, 1]) of the candidates in image order.
+
+    Fractions closer than one candidate apart pick the same one: a degenerate sample whose wall
+    :func:`plausible_wall` rejects.
+    """
+    ranks = jnp.round(fractions * (jnp.sum(candidates) - 1)).astype(jnp.int32)
+    return jnp.searchsorted(jnp.cumsum(candidates), ranks + 1)
+
+
 def spread_columns(candidates: Bool[Array, " n"], window: tuple[float, float], sample_size: int) -> Int[Array, " k"]:
     """``sample_size`` candidates evenly spread over ``window`` (fractions of the candidates in image order).
 
     The window's ends are its farthest columns: the sample sees the wall under the widest angles it can, which
-    is what fixes a non-central wall's distance. A window of fewer candidates than ``sample_size`` repeats one,
-    a degenerate sample whose wall :func:`plausible_wall` rejects.
+    is what fixes a non-central wall's distance.
     """
-    count = jnp.sum(candidates)
-    ranks = jnp.round(jnp.linspace(*window, sample_size) * (count - 1)).astype(jnp.int32)
-    return jnp.searchsorted(jnp.cumsum(candidates), ranks + 1)
+    return columns_at(candidates, jnp.linspace(*window, sample_size))
+
+
+def stratified_fractions(strata: int, sample_size: int) -> np.ndarray:
+    """The fixed samples of :attr:`RansacConfig.strata`: (C(S, k), k) fractions of a wall's candidates.
+
+    The wall's candidates are cut into ``strata`` equal stretches; sample ``i`` takes one point in each stretch
+    of the ``i``-th combination of ``sample_size`` of them. Within its stretch the point moves from sample to
+    sample along an additive recurrence of irrational steps (the square roots of primes), so that the samples
+    use many columns, not the same ``strata``: a stray row at one column spoils few of them.
+    """
+    combinations = np.array(list(itertools.combinations(range(strata), sample_size)), np.float64)
+    steps = np.sqrt([2.0, 3.0, 5.0, 7.0, 11.0, 13.0, 17.0, 19.0, 23.0, 29.0])[:sample_size] % 1.0
+    steps = np.resize(steps, sample_size)  # samples of more than 10 columns reuse the steps
+    within = (np.arange(1, len(combinations) + 1)[:, None] * steps[None, :]) % 1.0
+    return (combinations + within) / strata
 
 
 def boundary_errors(
@@ -237,7 +271,7 @@ def ransac_wall(
     """The wall that best explains the boundaries of the candidate columns.
 
     Args:
-        key: PRNG key.
+        key: PRNG key of the random samples (unused with ``config.strata``).
         cam: the camera.
         columns: the wall's columns.
         config: the static number of hypotheses (:attr:`RansacConfig.hypotheses`) and columns per hypothesis
@@ -254,13 +288,17 @@ def ransac_wall(
     azimuth, ceiling_rays, floor_rays, candidates = columns
     sample_size, min_height = config.sample_size, MIN_WALL_HEIGHT
     tolerance = config.inlier_threshold * scaled(1.0, cam.height, 512) * cam.fov_vertical / cam.height
-    random_samples = jax.vmap(sample_columns, in_axes=(0, None, None))(
-        jax.random.split(key, config.hypotheses), candidates, sample_size
-    )
+    if config.strata:
+        fractions = jnp.asarray(stratified_fractions(config.strata, sample_size), jnp.float32)
+        sampled = jax.vmap(columns_at, in_axes=(None, 0))(candidates, fractions)
+    else:
+        sampled = jax.vmap(sample_columns, in_axes=(0, None, None))(
+            jax.random.split(key, config.hypotheses), candidates, sample_size
+        )
     # the deterministic hypotheses span the wall whatever the key: each wall of the room has several, so that
     # the answer rests on them unless a random sample finds a better wall
     spread_samples = jnp.stack([spread_columns(candidates, window, sample_size) for window in WINDOWS])
-    samples = jnp.concatenate([spread_samples, random_samples])
+    samples = jnp.concatenate([spread_samples, sampled])
     if heights is None:
         solve = solve_wall
     else:
