@@ -4,9 +4,10 @@ A first ``ncjax reconstruct`` traces the network and both worlds' geometry
 (about 10 s on 2 CPU cores) before XLA compiles them. The package carries the
 traced programs (``jax.export``, :data:`ncjax.programs.SHIPPED_DIRECTORY`: the
 network's for one image, and the geometry's two halves for a batch of 4 twice: without a height prior, and with
-the default camera-height prior for central panoramas and the fallback) of the default settings (shipped model, world auto,
-4 views, edge snap, ``--batch 4``) for 1024 x 512 panoramas, so that a user's first run only compiles. Other sizes
-and settings are traced on their first run (the network's program serves every world and pipeline setting).
+the default camera-height prior for central panoramas and the fallback) of the default settings (shipped model,
+world auto, 4 views, edge snap, ``--batch 4``) for 1024 x 512 panoramas, so that a user's first run only compiles.
+Other sizes and settings are traced on their first run (the network's program serves every world and pipeline
+setting).
 
 A program's name holds the digest of ncjax's sources and jax's version: a
 program exported from other sources is never used, it only stops sparing the
@@ -47,7 +48,7 @@ def main() -> int:
                 raise SystemExit(f"ncjax reconstruct --rc {rc} failed with exit code {code}")
         exported = sorted(pathlib.Path(work, "cache", "programs").glob(f"*{programs.SUFFIX}"))
         if len(exported) != 5:
-            raise SystemExit(f"expected five saved programs (the network, and walls and layouts of both routes), found {exported}")
+            raise SystemExit(f"expected five saved programs (network; walls, layouts of 2 routes), got {exported}")
         programs.SHIPPED_DIRECTORY.mkdir(parents=True, exist_ok=True)
         shipped = [programs.SHIPPED_DIRECTORY / path.name for path in exported]
         for source, destination in zip(exported, shipped, strict=True):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import concurrent.futures
 import importlib
 import os
 import sys
@@ -134,8 +135,19 @@ def write_outputs(
     file_cam = cam if file_size is None else NonCentralPanorama(*file_size, rc=rc)
     extra = scale_fields(result, prior) | {"gravity": gravity}
     record = layout_record(layout, cam, name=name, world=world, extra=extra, image_size=file_size)
-    with replace_together(out, owned=output_names(name), last=f"{name}.json") as staging:
+
+    def write_pictures(stem: str) -> None:
+        overlay = draw_overlay(image, layout, cam, ceiling_v=ceiling_v, floor_v=floor_v, corner_prob=corner_prob)
+        write_png(f"{stem}_overlay.png", overlay)
+        write_png(f"{stem}_plan.png", draw_plan(layout, title=name, rc=rc))
+
+    with (
+        replace_together(out, owned=output_names(name), last=f"{name}.json") as staging,
+        concurrent.futures.ThreadPoolExecutor(1) as pictures,
+    ):
         stem = os.path.join(staging, name)
+        # the pictures are drawn beside the room's texture and meshes (both mostly outside the interpreter)
+        drawn = pictures.submit(write_pictures, stem)
         write_json(f"{stem}.json", record)
         if has_geometry(layout):
             room = textured_room(layout, image, cam, texture_size)
@@ -147,9 +159,7 @@ def write_outputs(
                     write_layout_formats(stem, record, file_cam, export, rotation=rotation)
             except ValueError as error:  # a corner no ray sees: the other outputs still describe the layout
                 print(f"{name}: layout formats not written ({error})", file=sys.stderr)
-        overlay = draw_overlay(image, layout, cam, ceiling_v=ceiling_v, floor_v=floor_v, corner_prob=corner_prob)
-        write_png(f"{stem}_overlay.png", overlay)
-        write_png(f"{stem}_plan.png", draw_plan(layout, title=name, rc=rc))
+        drawn.result()  # its error, if any, is this image's: nothing is renamed into out
     return record
 
 
