@@ -319,7 +319,9 @@ def _chunk_layouts(
     chosen = jax.tree.map(
         lambda a, b: np.where(np.reshape(needs, needs.shape + (1,) * (a.ndim - 1)), a, b), from_prior, own
     )
-    flagged = flag_scale_conflicts(chosen, own, HeightPrior(kind, chunk.prior_value), max_conflict)
+    on_device = functools.partial(jax.tree.map, jnp.asarray)
+    prior = HeightPrior(kind, chunk.prior_value)
+    flagged = flag_scale_conflicts(on_device(chosen), on_device(own), prior, max_conflict)
     return _on_host(flagged), own
 
 

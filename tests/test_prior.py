@@ -204,13 +204,16 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it(tmp_
         GEOMETRY,
         PRIOR_FALLBACK,
         SCALE_FAILURES,
-        Reconstruction,
-        _Geometry,
-        _with_prior_fallback,
+        _Chunk,
+        _chunk_layouts,
+        _geometry,
+        _Route,
+        _SavedGeometry,
+        _scale_sources,
     )
 
     batch, labels = rooms("manhattan", (0.02, 0.05))
-    rc = np.asarray(batch.rc)
+    rc = np.asarray(batch.rc, np.float32)
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=jnp.asarray(rc))
     prior = HeightPrior("camera_height", -batch.floor_height)
     key = jax.random.key(0)
@@ -223,33 +226,43 @@ def test_the_prior_replaces_the_scale_only_where_the_geometry_cannot_fix_it(tmp_
     per_panorama = ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, key=keys, prior=prior)
     np.testing.assert_array_equal(per_panorama.floor_corners, from_prior.floor_corners)
     np.testing.assert_allclose(from_prior.floor_height, batch.floor_height, rtol=1e-5)
+    host_rows = jax.tree.map(lambda x: np.asarray(x, np.float32), ncjax.Rows(*(jnp.asarray(x) for x in rows)))
+    chunk = _Chunk(rc, np.asarray(jax.random.key_data(keys)), np.asarray(prior.value, np.float32))
     for status, expected in [(ncjax.LayoutStatus.OK, GEOMETRY)] + [(s, PRIOR_FALLBACK) for s in SCALE_FAILURES]:
         measured = dataclasses.replace(scale_layout(from_prior, 1.1), status=jnp.full(rc.shape, int(status)))
-        result = _with_prior_fallback(
-            Reconstruction(measured, *rows, None), _Geometry(rc, keys, prior, config), "manhattan"
-        )
-        assert np.all(np.asarray(result.scale_source) == expected), status
-        assert result.geometry is measured
+
+        def stand_in(rows, chunk, kind, measured=measured):
+            return from_prior if kind else measured
+
+        prior_settings = ("camera_height", config.prior.max_scale_conflict)
+        layout, own = _chunk_layouts(host_rows, chunk, stand_in, "fallback", prior_settings)
+        assert np.all(_scale_sources("fallback", rc, own) == expected), status
+        np.testing.assert_array_equal(own.floor_corners, measured.floor_corners)
         chosen = from_prior if expected == PRIOR_FALLBACK else measured
-        # one run with all the slots here, a compact run first in layout_from_boundaries: the same to 1e-4
-        np.testing.assert_allclose(result.layout.floor_corners, chosen.floor_corners, atol=1e-4)
-        np.testing.assert_array_equal(result.layout.status, chosen.status)
+        np.testing.assert_allclose(layout.floor_corners, chosen.floor_corners, atol=1e-6)
+        np.testing.assert_array_equal(layout.status, chosen.status)
     # The geometry 1.1 times too large: log(1.1) / 0.15 = 0.64 sigmas from the prior (exact rows: a tiny covariance).
     measured = dataclasses.replace(
         scale_layout(from_prior, 1.1), status=jnp.full(rc.shape, int(ncjax.LayoutStatus.UNCERTAIN_SCALE))
     )
     np.testing.assert_allclose(jax.vmap(scale_conflict)(measured, prior), np.log(1.1) / PRIOR_RELATIVE_SIGMA, rtol=0.02)
     strict = config.replace(prior={"max_scale_conflict": 0.5})
-    jitted = _with_prior_fallback(
-        Reconstruction(measured, *rows, None), _Geometry(rc, keys, prior, strict), "manhattan"
-    )
-    saved = _with_prior_fallback(
-        Reconstruction(measured, *rows, None), _Geometry(rc, keys, prior, strict), "manhattan", tmp_path
-    )
-    assert np.all(np.asarray(jitted.layout.status) == ncjax.LayoutStatus.SCALE_CONFLICT)
-    np.testing.assert_array_equal(saved.layout.status, jitted.layout.status)
-    np.testing.assert_allclose(saved.layout.floor_corners, from_prior.floor_corners, atol=1e-4)
-    np.testing.assert_array_equal(saved.scale_source, jitted.scale_source)
+    route = _Route(HEIGHT, str(jax.random.key_impl(keys)), "manhattan", None)
+    saved_geometry = _SavedGeometry(tmp_path, (len(rc), WIDTH), strict, route)
+
+    def jitted(rows, chunk, kind):  # the prior's route of the pipeline; the geometry's stands in as measured
+        return _geometry(rows, chunk, strict, route._replace(prior_kind=kind)) if kind else measured
+
+    def saved(rows, chunk, kind):  # the same through the saved programs (the CLI's and the API's default)
+        return saved_geometry(rows, chunk, kind) if kind else measured
+
+    from_jitted, _ = _chunk_layouts(host_rows, chunk, jitted, "fallback", ("camera_height", 0.5))
+    from_saved, _ = _chunk_layouts(host_rows, chunk, saved, "fallback", ("camera_height", 0.5))
+    assert np.all(from_jitted.status == ncjax.LayoutStatus.SCALE_CONFLICT)
+    np.testing.assert_array_equal(from_saved.status, from_jitted.status)
+    # one run with all the slots here, a compact run first in layout_from_boundaries: the same to 1e-4
+    np.testing.assert_allclose(from_saved.floor_corners, from_prior.floor_corners, atol=1e-4)
+    np.testing.assert_allclose(from_jitted.floor_corners, from_prior.floor_corners, atol=1e-4)
 
 
 @pytest.mark.slow
