@@ -245,6 +245,8 @@ class _SavedGeometry:
             pool.submit(load_saved, self.directory, layouts_key, layouts, *layouts_arguments, **cheap),
         )
         pool.shutdown(wait=False)  # the two loads go on; the pool takes no more
+        if background:
+            _BACKGROUND.extend(self.programs[prior_kind])
 
     def __call__(self, rows: Rows, chunk: _Chunk, prior_kind: str | None) -> Layout:
         self.load(prior_kind)
@@ -263,6 +265,20 @@ class _SavedGeometry:
             options = GEOMETRY_COMPILER_OPTIONS
             if not compiled_before(self.directory, walls_key, *self._walls_arguments(), compiler_options=options):
                 self.load(prior_kind, background=True)
+
+
+# the compilations :meth:`_SavedGeometry.prepare_others` started: Python waits for them before it exits, a process
+# that ends with ``os._exit`` (the CLI) must call :func:`finish_background_compilations` first
+_BACKGROUND: list[concurrent.futures.Future] = []
+
+
+def finish_background_compilations() -> bool:
+    """Wait for the programs this process compiles in the background for later processes; returns whether any
+    was still compiling (their errors are dropped: a later process only compiles them again)."""
+    pending = [future for future in _BACKGROUND if not future.done()]
+    concurrent.futures.wait(_BACKGROUND)
+    _BACKGROUND.clear()
+    return bool(pending)
 
 
 def _lowest_priority() -> None:

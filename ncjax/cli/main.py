@@ -283,9 +283,14 @@ def console_script() -> NoReturn:
 
     Every file is written and closed when :func:`main` returns, so Python's teardown has nothing
     left to do but free what the process loaded: on 2 CPU cores, unloading XLA's compiled programs
-    and running the libraries' exit hooks add 0.5-0.9 s to every command.
+    and running the libraries' exit hooks add 0.5-0.9 s to every command. The programs a first run compiles in
+    the background for later runs (:func:`~ncjax.reconstruction.finish_background_compilations`) are waited for.
     """
     code = main()
+    reconstruction = sys.modules.get("ncjax.reconstruction")  # not imported by the commands that reconstruct nothing
+    if reconstruction is not None and any(not future.done() for future in reconstruction._BACKGROUND):
+        print("ncjax: finishing the programs of the other route (central or not) for later runs", file=sys.stderr)
+        reconstruction.finish_background_compilations()
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)
