@@ -117,3 +117,24 @@ def test_the_shipped_program_is_exported_from_these_sources():
     assert manifest["jax"] == jax.__version__, stale
     shipped = sorted(path.name for path in programs.SHIPPED_DIRECTORY.glob(f"*{programs.SUFFIX}"))
     assert shipped == sorted(manifest["programs"]) and len(shipped) == 5
+
+
+def test_the_background_compilations_are_waited_for_before_the_process_ends():
+    """What ``ncjax``'s console script waits for before ``os._exit``: the compilations a first run started for later
+    runs (a compilation cut short leaves no marker, and every later run would start it again)."""
+    import concurrent.futures
+    import threading
+    import time
+
+    from ncjax import reconstruction
+
+    assert reconstruction.finish_background_compilations() is False  # nothing started
+    release = threading.Event()
+    pool = concurrent.futures.ThreadPoolExecutor(1)
+    compiling = pool.submit(lambda: release.wait(5.0))
+    reconstruction._BACKGROUND.append(compiling)
+    threading.Timer(0.2, release.set).start()
+    started = time.perf_counter()
+    assert reconstruction.finish_background_compilations() is True
+    assert compiling.done() and time.perf_counter() - started >= 0.15 and not reconstruction._BACKGROUND
+    pool.shutdown()
