@@ -9,14 +9,14 @@ from ncjax import cli
 
 
 def test_info_prints_versions_model_cache_folders_and_conventions(capsys):
-    from ncjax.cli.compilation import cache_directory, program_directory
     from ncjax.network.predict import DEFAULT_MODEL_PATH
+    from ncjax.programs import user_cache_directory, user_program_directory
 
     assert cli.main(["info"]) == 0
     out = capsys.readouterr().out
     assert "ncjax 0.1.0" in out and "azimuth" in out
     assert f"model      lite0-1024 (the default, {DEFAULT_MODEL_PATH}); also shipped: compact1024" in out
-    assert f"programs   {program_directory()} " in out and f"compiled   {cache_directory()} " in out
+    assert f"programs   {user_program_directory()} " in out and f"compiled   {user_cache_directory()} " in out
 
 
 def test_unknown_command_fails_cleanly():

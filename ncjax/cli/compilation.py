@@ -26,30 +26,17 @@ LEDGER_FILE = "ncjax-compiled.json"
 FIRST_RUN_GUESS = "20 s to a minute on 2 CPU cores"
 
 
-def cache_directory() -> str | None:
-    """XLA's cache folder (:func:`~ncjax.programs.user_cache_directory`); None when ``NCJAX_CACHE=off``."""
-    from ..programs import user_cache_directory
-
-    return user_cache_directory()
-
-
-def program_directory() -> str | None:
-    """Where the CLI keeps its traced programs (:mod:`ncjax.programs`): beside XLA's cache."""
-    from ..programs import user_program_directory
-
-    return user_program_directory()
-
-
 def enable_compilation_cache() -> str | None:
-    """Keep XLA's compiled programs in :func:`cache_directory` across runs; returns the directory (None: off).
+    """Keep XLA's compiled programs in :func:`~ncjax.programs.user_cache_directory` across runs, even where jax's
+    cache folder was set otherwise; returns the directory (None: ``NCJAX_CACHE=off``).
 
     Compilation is most of a first run's time; the persistent cache spares later runs with the same
-    image size, batch and settings the compilation; the programs saved in :func:`program_directory`
+    image size, batch and settings the compilation; the programs saved in :func:`~ncjax.programs.user_program_directory`
     spare them the tracing.
     """
-    from ..programs import use_compilation_cache
+    from ..programs import use_compilation_cache, user_cache_directory
 
-    directory = cache_directory()
+    directory = user_cache_directory()
     if directory is not None:
         use_compilation_cache(directory)
     return directory

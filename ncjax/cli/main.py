@@ -28,15 +28,14 @@ def _info(args: argparse.Namespace) -> int:
 
     from ..network.checkpoint import shipped_models
     from ..network.predict import DEFAULT_MODEL_PATH
-    from ..programs import SHIPPED_DIRECTORY
-    from .compilation import cache_directory, program_directory
+    from ..programs import SHIPPED_DIRECTORY, user_cache_directory, user_program_directory
 
     print(f"ncjax {ncjax.__version__}, jax {jax.__version__}, devices: {', '.join(str(d) for d in jax.devices())}")
     others = ", ".join(name for name in shipped_models() if name != DEFAULT_MODEL_PATH.stem)
     also = f"; also shipped: {others}" if others else ""
     print(f"model      {DEFAULT_MODEL_PATH.stem} (the default, {DEFAULT_MODEL_PATH}){also}")
-    print(f"programs   {program_directory()} (traced programs kept; the package's own: {SHIPPED_DIRECTORY})")
-    print(f"compiled   {cache_directory()} (XLA's compilation cache)")
+    print(f"programs   {user_program_directory()} (traced programs kept; the package's own: {SHIPPED_DIRECTORY})")
+    print(f"compiled   {user_cache_directory()} (XLA's compilation cache)")
     print(CONVENTIONS, end="")
     return 0
 
