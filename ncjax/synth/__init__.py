@@ -6,6 +6,8 @@
 - ``decor``: the realistic scenes' decor (``SceneConfig(decor=True)``): ceiling lights and panels, decals,
   sunlight, open doors; ``elements``: the scenes' containers.
 - ``render``, ``raycast``, ``render_details``: ray-cast non-central panoramas (RGB, depth, semantics).
+- ``pathtrace``, ``pathtrace_scene``, ``pathtrace_bsdf``: path-traced panoramas of the same scenes (linear
+  radiance: interreflections, area lights, the environment through openings, a rough-glossy floor).
 - ``augment``: photometric and sensor effects; ``dataset``: the dataset folders on disk.
 """
 
@@ -24,6 +26,7 @@ from .dataset import (
 from .elements import Boxes, Lights, Openings
 from .labels import RoomLabels, room_labels
 from .materials import Material, Pattern
+from .pathtrace import PathTraceConfig, path_trace
 from .render import (
     RenderConfig,
     Rendering,
@@ -51,6 +54,8 @@ __all__ = [
     "list_samples",
     "Material",
     "Openings",
+    "path_trace",
+    "PathTraceConfig",
     "Pattern",
     "random_augment",
     "random_room",

@@ -1,0 +1,269 @@
+"""A Monte Carlo path tracer for the synthetic scenes, in pure JAX: linear radiance panoramas with
+interreflections, soft shadows and a rough-glossy floor, for the scenes :mod:`ncjax.synth.scene` builds.
+
+The ray caster (:mod:`ncjax.synth.render`) shades each hit locally; here every pixel averages light paths:
+
+- Geometry: :func:`~ncjax.synth.pathtrace_scene.intersect` (the room's prism, the boxes, holes in the walls
+  where windows and open doors are), with the ray caster's materials and colours.
+- Light: the scene's ceiling lights become small area lights, discs of radius ``light_radius`` facing down
+  at the lights' positions, whose radiance ``colour / (pi r^2)`` gives them the point light's intensity
+  ``colour`` straight down (and ``colour cos`` at an angle, as any Lambertian emitter). They are sampled by
+  area at every path vertex (next-event estimation with a shadow ray); they are not in the geometry, so a
+  path's own bounces never meet them and no light is counted twice. Emissive boxes (the lamps' shades)
+  and the environment, seen through the holes, light the scene through the bounces: a path that meets
+  them adds their radiance.
+- Surfaces: Lambertian with the material's albedo; the room's floor has a GGX lobe over its diffuse base
+  (:mod:`ncjax.synth.pathtrace_bsdf`). Directions are drawn by importance (cosine, visible normals).
+- Paths have a fixed number of bounces (static), so every path of a batch does the same work in lock-step;
+  with ``bounces = n`` the image holds all light that reached the camera after at most n reflections.
+
+Each function is written for ONE ray or pixel and batched with ``jax.vmap``; :func:`path_trace` renders
+a panorama chunk by chunk (``jax.lax.map``) so that memory stays bounded. Random numbers come only from the
+key, one stream per pixel (``fold_in`` of its index), so an image does not depend on the chunk size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from ..geometry.camera import NonCentralPanorama, angles_to_pixel, optical_centre, pixel_to_ray
+from ..geometry.fastmath import arctan2
+from .pathtrace_bsdf import glossy_brdf, sample_cosine, sample_glossy, tangent_frame
+from .pathtrace_scene import Hit, SurfaceKind, intersect, surface_appearance
+from .scene import Scene
+
+# How far a new ray starts off the surface it leaves (metres): clear of float32 rounding at room scale.
+_OFFSET = 1e-4
+# Uniform numbers a path draws: 2 for the pixel position, then per bounce 3 for the light sample and 3 for
+# the reflection.
+_PER_BOUNCE = 6
+
+
+@dataclasses.dataclass(frozen=True)
+class PathTraceConfig:
+    """Static settings of :func:`path_trace` (hashable: a jit static argument).
+
+    Attributes:
+        samples_per_pixel: paths averaged per pixel.
+        bounces: reflections per path (0: only what emits is seen).
+        pixels_per_chunk: pixels traced together (bounds memory: a chunk holds
+            ``pixels_per_chunk * samples_per_pixel`` paths, each testing every wall and box).
+        light_radius: radius of the ceiling lights' discs, metres.
+        floor_roughness: GGX ``alpha`` of the floor's glossy lobe.
+        floor_specular: weight of that lobe over the diffuse base, in [0, 1] (0: a Lambertian floor).
+        jitter: spread each pixel's paths uniformly over its area (antialiasing); False traces its centre.
+    """
+
+    samples_per_pixel: int = 16
+    bounces: int = 4
+    pixels_per_chunk: int = 1024
+    light_radius: float = 0.05
+    floor_roughness: float = 0.3
+    floor_specular: float = 0.1
+    jitter: bool = True
+
+    def __post_init__(self):
+        for name in ("samples_per_pixel", "pixels_per_chunk"):
+            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
+                raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
+        if int(self.bounces) != self.bounces or self.bounces < 0:
+            raise ValueError(f"bounces must be an integer >= 0, got {self.bounces!r}")
+        if not self.light_radius >= 0:
+            raise ValueError(f"light_radius must be >= 0, got {self.light_radius}")
+        if not 0 < self.floor_roughness <= 1:
+            raise ValueError(f"floor_roughness must be in (0, 1], got {self.floor_roughness}")
+        if not 0 <= self.floor_specular <= 1:
+            raise ValueError(f"floor_specular must be in [0, 1], got {self.floor_specular}")
+
+
+def environment_radiance(
+    environment: Float[Array, "He We 3"] | Float[Array, 3], direction: Float[Array, 3]
+) -> Float[Array, 3]:
+    """Radiance arriving from far away along ``-direction`` (a ray travelling along ``direction``).
+
+    Args:
+        environment: an equirectangular map (He, We, 3) in the panorama's own pixel<->angle convention
+            (:func:`~ncjax.geometry.camera.angles_to_pixel` of a full central panorama of that size: azimuth
+            decreasing to the right, the top row looking up), read bilinearly, wrapping around in azimuth;
+            or a constant colour (3,).
+        direction: (3,) unit direction of the ray.
+    """
+    if environment.ndim == 1:
+        return environment
+    rows, columns = environment.shape[:2]
+    azimuth = arctan2(direction[1], direction[0])
+    elevation = arctan2(direction[2], jnp.sqrt(direction[0] ** 2 + direction[1] ** 2))
+    u, v = angles_to_pixel(NonCentralPanorama(width=columns, height=rows), azimuth, elevation)
+    u0, v0 = jnp.floor(u), jnp.floor(v)
+    fu, fv = u - u0, v - v0
+    column = (u0.astype(jnp.int32) + jnp.arange(2)) % columns
+    row = jnp.clip(v0.astype(jnp.int32) + jnp.arange(2), 0, rows - 1)
+    texels = environment[row[:, None], column[None, :]]  # (2, 2, 3)
+    weights = jnp.stack([1 - fv, fv])[:, None] * jnp.stack([1 - fu, fu])[None, :]
+    return jnp.sum(weights[..., None] * texels, (0, 1))
+
+
+def sample_light(
+    scene: Scene, point: Float[Array, 3], uniform: Float[Array, 3], radius: float
+) -> tuple[Float[Array, 3], Float[Array, ""], Float[Array, 3]]:
+    """Next-event estimation towards the ceiling lights: one light chosen in proportion to its power, a
+    point of its disc (facing down) chosen uniformly by area.
+
+    Returns:
+        ``(direction, distance, intensity)``: the unit direction from ``point`` to the light's point, its
+        distance, and the light's contribution before the receiver's BRDF, cosine and visibility:
+        ``Le cos_light / distance^2 / pdf_area / P(light)`` with ``Le = colour / (pi r^2)`` and
+        ``pdf_area = 1 / (pi r^2)``, i.e. ``colour cos_light / (distance^2 P(light))``. Zero without lights.
+    """
+    lights = scene.lights
+    power = jnp.where(lights.mask, jnp.sum(lights.colour, -1), 0.0)
+    total = jnp.sum(power)
+    cumulative = jnp.cumsum(power) / jnp.maximum(total, 1e-30)
+    index = jnp.minimum(jnp.sum(cumulative <= uniform[0]), power.shape[0] - 1)
+    chance = power[index] / jnp.maximum(total, 1e-30)
+    offset_radius, angle = radius * jnp.sqrt(uniform[1]), 2.0 * math.pi * uniform[2]
+    target = lights.position[index] + jnp.stack([offset_radius * jnp.cos(angle), offset_radius * jnp.sin(angle), 0.0])
+    offset = target - point
+    distance = jnp.maximum(jnp.linalg.norm(offset), 1e-6)
+    direction = offset / distance
+    # The disc faces down: the light leaves it at angle theta from -z, and cos(theta) is the direction's z.
+    cos_light = jnp.maximum(direction[2], 0.0)
+    scale = jnp.where(chance > 0, cos_light / (distance**2 * jnp.maximum(chance, 1e-30)), 0.0)
+    return direction, distance, scale * lights.colour[index]
+
+
+def _emitted(
+    scene: Scene, hit: Hit, direction: Float[Array, 3], environment: Float[Array, "He We 3"] | Float[Array, 3]
+) -> Float[Array, 3]:
+    """What a path adds where it arrives: an emissive box's radiance, or the environment's through a hole."""
+    box = jnp.where(hit.kind == SurfaceKind.BOX, scene.boxes.emission[hit.index], 0.0)
+    return box + jnp.where(hit.kind == SurfaceKind.ESCAPE, environment_radiance(environment, direction), 0.0)
+
+
+def _reflect(scene: Scene, hit: Hit, direction: Float[Array, 3], uniform: Float[Array, 6], config: PathTraceConfig):
+    """One path vertex: the light sampled towards the lights (before the path's throughput), and the next
+    ray's direction with the throughput factor ``f cos / pdf`` of the reflection."""
+    albedo, is_floor = surface_appearance(scene, hit)
+    frame = tangent_frame(hit.normal)
+    outgoing = frame @ -direction
+    start = hit.point + _OFFSET * hit.normal
+
+    to_light, light_distance, intensity = sample_light(scene, hit.point, uniform[:3], config.light_radius)
+    incoming = frame @ to_light
+    lambert = jnp.where((incoming[2] > 0) & (outgoing[2] > 0), albedo / math.pi, 0.0)
+    reflectance = lambert
+    if config.floor_specular > 0:
+        glossy = glossy_brdf(outgoing, incoming, albedo, config.floor_roughness, config.floor_specular)
+        reflectance = jnp.where(is_floor, glossy, lambert)
+    visible = intersect(scene, start, to_light).distance > light_distance - 1e-3
+    direct = jnp.where(visible, reflectance * jnp.maximum(incoming[2], 0.0), 0.0) * intensity
+
+    reflected = sample_cosine(uniform[3:5])
+    factor = jnp.where(outgoing[2] > 0, albedo, 0.0)
+    if config.floor_specular > 0:
+        glossy_direction, glossy_factor = sample_glossy(
+            outgoing, albedo, config.floor_roughness, config.floor_specular, uniform[3:6]
+        )
+        reflected = jnp.where(is_floor, glossy_direction, reflected)
+        factor = jnp.where(is_floor, glossy_factor, factor)
+    return direct, start, frame.T @ reflected, factor
+
+
+def trace_path(
+    scene: Scene,
+    origin: Float[Array, 3],
+    direction: Float[Array, 3],
+    uniform: Float[Array, "bounces 6"],
+    config: PathTraceConfig,
+    environment: Float[Array, "He We 3"] | Float[Array, 3],
+) -> Float[Array, 3]:
+    """The radiance one light path brings back along a ray (ONE ray; batch with ``jax.vmap``).
+
+    Args:
+        scene: the scene (camera frame).
+        origin, direction: (3,) the ray's start (inside the room) and unit direction.
+        uniform: (bounces, 6) uniform numbers in [0, 1), all the randomness of the path.
+        config: static settings; ``config.bounces`` must equal ``uniform``'s first axis.
+        environment: see :func:`environment_radiance`.
+
+    Returns:
+        (3,) an unbiased estimate of the radiance (paths of at most ``bounces`` reflections).
+    """
+    hit = intersect(scene, origin, direction)
+
+    def bounce(carry, numbers):
+        hit, direction, throughput, radiance = carry
+        alive = hit.kind != SurfaceKind.ESCAPE
+        direct, start, reflected, factor = _reflect(scene, hit, direction, numbers, config)
+        radiance = radiance + jnp.where(alive, throughput * direct, 0.0)
+        throughput = jnp.where(alive, throughput * factor, 0.0)
+        hit = intersect(scene, start, reflected)
+        radiance = radiance + throughput * _emitted(scene, hit, reflected, environment)
+        return (hit, reflected, throughput, radiance), None
+
+    carry = (hit, direction, jnp.ones(3), _emitted(scene, hit, direction, environment))
+    (_, _, _, radiance), _ = jax.lax.scan(bounce, carry, uniform)
+    return radiance
+
+
+def camera_ray(
+    cam: NonCentralPanorama, u: Float[Array, ""], v: Float[Array, ""]
+) -> tuple[Float[Array, 3], Float[Array, 3]]:
+    """The ray of pixel (u, v): its column's optical centre and the unit direction of its Plücker ray
+    (:func:`~ncjax.geometry.camera.pixel_to_ray`), so that non-central rays (rc > 0) are exact."""
+    return optical_centre(cam, u), pixel_to_ray(cam, u, v)[:3]
+
+
+def _pixel(scene, cam, key, index, config: PathTraceConfig, environment) -> Float[Array, 3]:
+    """The mean radiance of the paths of pixel ``index`` (row-major), from its own stream of ``key``."""
+    row, column = index // cam.width, index % cam.width
+    uniform = jax.random.uniform(
+        jax.random.fold_in(key, index), (config.samples_per_pixel, 2 + _PER_BOUNCE * config.bounces)
+    )
+
+    def sample(numbers):
+        jitter = numbers[:2] - 0.5 if config.jitter else jnp.zeros(2)
+        origin, direction = camera_ray(cam, column + jitter[0], row + jitter[1])
+        return trace_path(
+            scene, origin, direction, numbers[2:].reshape(config.bounces, _PER_BOUNCE), config, environment
+        )
+
+    return jnp.mean(jax.vmap(sample)(uniform), 0)
+
+
+def path_trace(
+    scene: Scene,
+    cam: NonCentralPanorama,
+    key: PRNGKeyArray,
+    config: PathTraceConfig = PathTraceConfig(),
+    environment: Float[Array, "He We 3"] | Float[Array, 3] | None = None,
+) -> Float[Array, "H W 3"]:
+    """Path-trace the panorama of ``scene`` seen by ``cam``: linear radiance, no tone curve.
+
+    Args:
+        scene: one scene (camera frame); as in :func:`~ncjax.synth.render`, ``cam.rc`` is used, not the
+            room's.
+        cam: the panorama (static width W and height H; traced rc and fields of view).
+        key: a ``jax.random`` key, the only source of randomness: same key, same image.
+        config: static settings (:class:`PathTraceConfig`).
+        environment: what is seen through windows and open doors, and lights the room through them: an
+            equirectangular map (He, We, 3) or a constant colour (3,), see :func:`environment_radiance`;
+            None is black.
+
+    Returns:
+        (H, W, 3) radiance. Jit with ``config`` static; vmap over scenes (and keys, cameras' rc).
+    """
+    if environment is None:
+        environment = jnp.zeros(3)
+    count = cam.width * cam.height
+    image = jax.lax.map(
+        lambda index: _pixel(scene, cam, key, index, config, environment),
+        jnp.arange(count),
+        batch_size=min(config.pixels_per_chunk, count),
+    )
+    return image.reshape(cam.height, cam.width, 3)

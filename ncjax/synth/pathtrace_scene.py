@@ -1,0 +1,230 @@
+"""Ray-scene intersection and surface appearance for the path tracer (:mod:`ncjax.synth.pathtrace`).
+
+Unlike the ray caster (:mod:`ncjax.synth.raycast`), whose rays all leave a column's optical centre in its
+vertical plane, a path's rays go anywhere, so each ray is intersected in 3D with the whole scene: the room's
+prism (the wall polygon from :func:`~ncjax.synth.rooms.ray_hits`, the floor and ceiling planes) and the boxes
+(the footprint slab test :func:`~ncjax.synth.raycast.box_interval_2d` with a vertical slab). Everything is
+written for ONE ray and batched with ``jax.vmap``.
+
+Doors and windows stay rectangles on the wall planes, as in the ray caster, so a hit's albedo matches its
+colours there; where the ray caster shows the sky through a window's glass, and (with decor) inside an open
+door or passage, the wall has a hole: the ray leaves the room (:attr:`SurfaceKind.ESCAPE`) and reads the
+environment. Nothing outside is modelled (no wall thickness, no room behind a door, no re-entry into the
+room through another wall).
+"""
+
+from __future__ import annotations
+
+import enum
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ..geometry.polygon import perpendicular
+from .elements import FRAME_WIDTH
+from .materials import material_albedo
+from .raycast import box_interval_2d
+from .render_details import in_span, opening_appearance
+from .rooms import ray_hits, room_walls
+from .scene import Scene
+
+# Far distance given to rays that meet nothing (only in rooms whose polygon is invalid): finite, so that no
+# NaN comes out of the arithmetic on their (discarded) hit points.
+_FAR = 1e3
+
+
+class SurfaceKind(enum.IntEnum):
+    """What a ray meets (:attr:`Hit.kind`)."""
+
+    ESCAPE = 0  # left the room through a hole in a wall (or met nothing): the environment
+    FLOOR = 1
+    CEILING = 2
+    WALL = 3
+    BOX = 4  # furniture, lamps, door leaves
+
+
+class Hit(eqx.Module):
+    """Where one ray first meets the scene (all fields traced).
+
+    Attributes:
+        distance: along the (unit) ray, metres; for an escape through a hole, to the wall plane.
+        point: (3,) the hit point, camera frame.
+        normal: (3,) unit normal of the surface, on the ray's side.
+        kind: a :class:`SurfaceKind`.
+        index: the wall's slot (walls and escapes through holes) or the box's slot (boxes), else 0.
+        along: distance along the wall from its first corner (walls and holes).
+    """
+
+    distance: Float[Array, ""]
+    point: Float[Array, 3]
+    normal: Float[Array, 3]
+    kind: Int[Array, ""]
+    index: Int[Array, ""]
+    along: Float[Array, ""]
+
+
+def box_interval_3d(
+    origin: Float[Array, 3],
+    direction: Float[Array, 3],
+    centre: Float[Array, 3],
+    half_size: Float[Array, 3],
+    rotation: Float[Array, 2],
+) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, 3]]:
+    """Slab test of a 3D ray against a box rotated about z: the footprint's interval
+    (:func:`~ncjax.synth.raycast.box_interval_2d`, which holds for the horizontal part of any ray) cut by the
+    vertical slab.
+
+    Returns:
+        ``(t_in, t_out, normal)``: the ray parameters where it enters and leaves the box (empty when
+        ``t_in >= t_out``) and the outward normal of the entry face.
+    """
+    t_in, t_out, normal_2d = box_interval_2d(origin[:2], direction[:2], centre[:2], half_size[:2], rotation)
+    dz = jnp.where(jnp.abs(direction[2]) > 1e-12, direction[2], 1e-12)
+    t_a, t_b = (centre[2] - half_size[2] - origin[2]) / dz, (centre[2] + half_size[2] - origin[2]) / dz
+    near, far = jnp.minimum(t_a, t_b), jnp.maximum(t_a, t_b)
+    normal = jnp.where(near > t_in, jnp.stack([0.0, 0.0, -jnp.sign(dz)]), jnp.append(normal_2d, 0.0))
+    return jnp.maximum(t_in, near), jnp.minimum(t_out, far), normal
+
+
+def _opening_at(scene: Scene, wall: Int[Array, ""], along: Float[Array, ""], z: Float[Array, ""]):
+    """The door or window at a point of a wall: whether the point is inside one's rectangle, whether it is a
+    hole there (glass, or with decor an open door's aperture), and the ray caster's albedo of the rectangle."""
+    openings = scene.openings
+    present, slot = in_span(openings.wall, openings.span, openings.mask, wall[None], along[None])
+    present, slot = present[0], slot[0]
+    fields = dict(
+        start=openings.span[slot, 0],
+        width=openings.span[slot, 1] - openings.span[slot, 0],
+        bottom=openings.z_range[slot, 0],
+        tall=openings.z_range[slot, 1] - openings.z_range[slot, 0],
+        is_window=openings.is_window[slot],
+        colour=openings.colour[slot],
+        frame_colour=openings.frame_colour[slot],
+    )
+    inside = present & (z >= fields["bottom"]) & (z <= fields["bottom"] + fields["tall"])
+    albedo, emission = opening_appearance(fields, along, z)
+    # The ray caster draws the sky where a window's glass is (it glows there): that is where light comes in.
+    hole = inside & fields["is_window"] & jnp.any(emission > 0)
+    if scene.decor is not None:
+        x = along - fields["start"]
+        aperture = (
+            scene.decor.doorways.is_open[slot]
+            & (x > FRAME_WIDTH)
+            & (x < fields["width"] - FRAME_WIDTH)
+            & (z < fields["bottom"] + fields["tall"] - FRAME_WIDTH)
+        )
+        hole = hole | (inside & aperture)
+    return inside, hole, albedo
+
+
+def intersect(scene: Scene, origin: Float[Array, 3], direction: Float[Array, 3]) -> Hit:
+    """The first surface a ray meets (ONE ray; batch with ``jax.vmap``).
+
+    Args:
+        scene: the scene (camera frame); the ray starts inside its room, outside its boxes.
+        origin: (3,) the ray's start, metres.
+        direction: (3,) its unit direction.
+
+    Returns:
+        The :class:`Hit`. Surfaces at parameter ``t <= 0`` are ignored, so a ray that leaves a surface
+        should start a little off it (e.g. 1e-4 m along the normal).
+    """
+    room, boxes = scene.room, scene.boxes
+    # The prism: the wall polygon seen along the horizontal part of the ray (its parameter is the 3D one),
+    # capped by the floor and ceiling planes.
+    wall_hits = ray_hits(origin[:2], direction[:2], room.corners, room.mask)
+    wall = jnp.argmin(wall_hits)
+    t_wall = wall_hits[wall]
+    dz = jnp.where(jnp.abs(direction[2]) > 1e-12, direction[2], 1e-12)
+    height = jnp.where(direction[2] < 0, room.floor_height, room.ceiling_height)
+    t_flat = jnp.where(direction[2] != 0, (height - origin[2]) / dz, jnp.inf)
+    t_flat = jnp.where(t_flat > 0, t_flat, jnp.inf)
+    t_in, t_out, box_normals = jax.vmap(box_interval_3d, in_axes=(None, None, 0, 0, 0))(
+        origin, direction, boxes.centre, boxes.half_size, boxes.rotation
+    )
+    t_box = jnp.where(boxes.mask & (t_in < t_out) & (t_in > 0), t_in, jnp.inf)
+    box = jnp.argmin(t_box)
+    t_box = t_box[box]
+
+    on_box = t_box < jnp.minimum(t_wall, t_flat)
+    on_wall = ~on_box & (t_wall <= t_flat) & jnp.isfinite(t_wall)
+    on_flat = ~on_box & ~on_wall & jnp.isfinite(t_flat)
+    distance = jnp.minimum(jnp.minimum(t_box, t_wall), t_flat)
+    distance = jnp.where(jnp.isfinite(distance), distance, _FAR)
+    point = origin + distance * direction
+    wall_direction, _, _, _ = room_walls(room)
+    along = jnp.sum((point[:2] - room.corners[wall]) * wall_direction[wall])
+    _, hole, _ = _opening_at(scene, wall, along, point[2])
+    flat_kind = jnp.where(direction[2] < 0, SurfaceKind.FLOOR, SurfaceKind.CEILING)
+    kind = jnp.where(
+        on_box,
+        SurfaceKind.BOX,
+        jnp.where(on_wall & ~hole, SurfaceKind.WALL, jnp.where(on_flat, flat_kind, SurfaceKind.ESCAPE)),
+    )
+    normal = jnp.where(
+        on_box,
+        box_normals[box],
+        jnp.where(on_wall, jnp.append(perpendicular(wall_direction[wall]), 0.0), jnp.stack([0.0, 0.0, -jnp.sign(dz)])),
+    )
+    # Facing the ray, whatever side it came from (a ray that started inside a box sees its faces from within).
+    normal = jnp.where(jnp.dot(normal, direction) > 0, -normal, normal)
+    return Hit(
+        distance=distance,
+        point=point,
+        normal=normal,
+        kind=kind.astype(jnp.int32),
+        index=jnp.where(on_box, box, jnp.where(on_wall, wall, 0)).astype(jnp.int32),
+        along=along,
+    )
+
+
+def _box_coordinates(scene: Scene, hit: Hit):
+    """The ray caster's texture coordinates on a box: along the face and up it on a side face, the box's own
+    axes on its top and bottom."""
+    boxes = scene.boxes
+    centre, rotation = boxes.centre[hit.index], boxes.rotation[hit.index]
+    offset = hit.point[:2] - centre[:2]
+    local_x = offset[0] * rotation[0] + offset[1] * rotation[1]
+    local_y = offset[1] * rotation[0] - offset[0] * rotation[1]
+    side_face = jnp.abs(hit.normal[2]) < 0.5
+    facing_x = jnp.abs(hit.normal[0] * rotation[0] + hit.normal[1] * rotation[1]) > 0.5
+    return jnp.where(side_face & facing_x, local_y, local_x), jnp.where(side_face, hit.point[2], local_y)
+
+
+def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Array, ""]]:
+    """The albedo at a hit, as the ray caster colours it (the same materials, seeds and texture coordinates;
+    skirting boards, doors and window frames), and whether it is the room's floor (glossy).
+
+    Details of realistic scenes that are not geometry (decals, light panels, sunlight) are not drawn.
+    """
+    room, boxes, kind = scene.room, scene.boxes, hit.kind
+    x, y, z = hit.point[0] + room.camera_position[0], hit.point[1] + room.camera_position[1], hit.point[2]
+    plan_a, plan_b = x, y
+    if scene.decor is not None:
+        # Floors and ceilings are textured along the room's main axis, as boards and tiles are laid.
+        axis = scene.decor.plan_axis
+        plan_a, plan_b = x * axis[0] + y * axis[1], y * axis[0] - x * axis[1]
+    box_a, box_b = _box_coordinates(scene, hit)
+    is_box, is_floor, is_ceiling = kind == SurfaceKind.BOX, kind == SurfaceKind.FLOOR, kind == SurfaceKind.CEILING
+    height_above_floor = z - room.floor_height
+    a = jnp.where(is_box, box_a, jnp.where(is_floor | is_ceiling, plan_a, hit.along))
+    b = jnp.where(is_box, box_b, jnp.where(is_floor | is_ceiling, plan_b, height_above_floor))
+
+    def select(condition, first, second):
+        return jax.tree.map(lambda p, q: jnp.where(condition, p, q), first, second)
+
+    box_material = jax.tree.map(lambda field: field[hit.index], boxes.material)
+    material = select(
+        is_box, box_material, select(is_floor, scene.floor, select(is_ceiling, scene.ceiling, scene.walls))
+    )
+    seed = scene.seed + jnp.where(is_box, 100 + 13 * hit.index, jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3)))
+    albedo = material_albedo(material, seed, a, b, decor=scene.decor is not None)
+
+    on_wall = kind == SurfaceKind.WALL
+    in_opening, _, opening_albedo = _opening_at(scene, hit.index, hit.along, z)
+    skirting = on_wall & ~in_opening & (height_above_floor < scene.skirting_height)
+    lip = height_above_floor > scene.skirting_height - 0.012
+    albedo = jnp.where(skirting, scene.skirting_colour * jnp.where(lip, 0.7, 1.0), albedo)
+    return jnp.where(on_wall & in_opening, opening_albedo, albedo), is_floor
