@@ -250,9 +250,10 @@ class _SavedGeometry:
 
     def __call__(self, rows: Rows, chunk: _Chunk, prior_kind: str | None) -> Layout:
         self.load(prior_kind)
-        walls_program, layouts_program = (future.result() for future in self.programs[prior_kind])
-        walls_leaves = walls_program(rows, tuple(chunk), self.config)
-        return Layout(**layouts_program(walls_leaves, chunk.prior_value, self.config))
+        walls_program, layouts_program = self.programs[prior_kind]
+        # the walls run while the layouts' program may still be loading (XLA runs them asynchronously)
+        walls_leaves = walls_program.result()(rows, tuple(chunk), self.config)
+        return Layout(**layouts_program.result()(walls_leaves, chunk.prior_value, self.config))
 
     def prepare_others(self, prior_kinds: tuple[str | None, ...]) -> None:
         """Compile in the background the routes of ``prior_kinds`` this machine has not compiled (none without

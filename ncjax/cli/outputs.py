@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import concurrent.futures
+import functools
 import importlib
 import os
 import sys
@@ -12,6 +13,17 @@ from typing import NamedTuple
 import numpy as np
 
 from ..pipeline.types import LayoutStatus
+
+
+@functools.cache
+def _scale_conflict():
+    """:func:`~ncjax.pipeline.prior.scale_conflict` as one compiled program (kept in the CLI's compilation cache),
+    not a compilation per operation."""
+    import jax
+
+    from ..pipeline.prior import scale_conflict
+
+    return jax.jit(scale_conflict)
 
 
 def scale_fields(result, prior) -> dict:
@@ -34,9 +46,7 @@ def scale_fields(result, prior) -> dict:
             "room_height": round(ceiling - floor, 4),
         }
         # the geometry's own layout is kept only where a prior was given (Reconstruction.geometry)
-        from ..pipeline.prior import scale_conflict
-
-        fields["geometry_measured"]["prior_conflict_sigmas"] = round(float(scale_conflict(geometry, prior)), 2)
+        fields["geometry_measured"]["prior_conflict_sigmas"] = round(float(_scale_conflict()(geometry, prior)), 2)
     return fields
 
 

@@ -1,8 +1,8 @@
 """The user-facing command ``ncjax reconstruct``.
 
 ``reconstruct`` reads panoramas (files, or folders of them), groups them by size into
-batches of ``--batch`` (the last one padded by :func:`~ncjax.reconstruction.reconstruct_batch`, so each size
-compiles once), runs
+batches of ``--batch`` (the run's first image alone, so that its files come soonest; a batch short of
+``--batch`` padded by :func:`~ncjax.reconstruction.reconstruct_batch`, so each size compiles once), runs
 :func:`~ncjax.reconstruction.reconstruct_batch` and writes per image
 ``<name>.json``, ``<name>.obj/.ply/.glb`` and the 3D viewer ``<name>.html`` (when a layout was found),
 ``<name>_overlay.png`` and ``<name>_plan.png``, and at the end ``summary.csv``
@@ -312,6 +312,9 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         _reconstruct_group(settings, group, tally.done, tally.failed, ledger, tally.bar.write)
 
     groups: dict[tuple[int, int], list] = collections.defaultdict(list)
+    # the run's first image goes alone (padded: the same programs), so that its files appear after one image's
+    # work, not a whole batch's
+    batch_size = 1
     try:
         with StopRequest(on_request=tally.stopping) as stop:
             for path, name in zip(images, names, strict=True):
@@ -328,9 +331,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                 image, gravity = align_to_gravity(image) if radius == 0 and args.align else (image, None)
                 group = groups[image.shape[:2]]
                 group.append(PendingImage(path, name, image, radius, gravity, file_size))
-                if len(group) == settings.batch_size:
+                if len(group) == batch_size:
                     reconstruct(group)
                     group.clear()
+                    batch_size = settings.batch_size
                 stop.check()
             for group in groups.values():
                 if group:

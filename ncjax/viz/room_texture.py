@@ -76,12 +76,16 @@ def textured_room(
     charts += [_plan_points(axes, low, high, bottom, shapes[n]), _plan_points(axes, low, high, top, shapes[n + 1])]
     texture = np.zeros((texture_size, texture_size, 3), np.uint8)
     unseen = np.zeros((texture_size, texture_size), bool)
+    # the plan decides what a wall hides (_hidden): a wall's texels of one column share their plan point, and the
+    # floor's and the ceiling's texels the same plan points
+    plan_hidden = _hidden(charts[n], cam, plan, None, scale)
     for index, (points, pixels) in enumerate(zip(charts, _project_charts(cam, charts, texture_size), strict=True)):
-        own = index if index < n else None  # the wall the points lie on
-        if own is not None and inserted[own]:
+        if index >= n:
+            hidden = plan_hidden
+        elif inserted[index]:
             hidden = np.ones(points.shape[:2], bool)
         else:
-            hidden = _hidden(points, cam, plan, own, scale)
+            hidden = np.broadcast_to(_hidden(points[:1], cam, plan, index, scale), points.shape[:2])
         _paint(texture, unseen, corners[index], *_colours(image, *pixels, hidden))
     surfaces = []
     for k in range(n):
@@ -228,9 +232,13 @@ def _colours(
     right_weight, bottom_weight = (u - left)[..., None], (v - top)[..., None]
     columns = left.astype(np.int64) % image.shape[1], (left.astype(np.int64) + 1) % image.shape[1]
     rows = top.astype(np.int64), top.astype(np.int64) + 1
-    pixels = image.astype(np.float64)
-    upper = pixels[rows[0], columns[0]] * (1 - right_weight) + pixels[rows[0], columns[1]] * right_weight
-    lower = pixels[rows[1], columns[0]] * (1 - right_weight) + pixels[rows[1], columns[1]] * right_weight
+    right_weight, bottom_weight = right_weight.astype(np.float32), bottom_weight.astype(np.float32)
+
+    def pixel(row, column):  # only the pixels used are converted, in float32 (8 bits need no more)
+        return image[row, column].astype(np.float32)
+
+    upper = pixel(rows[0], columns[0]) * (1 - right_weight) + pixel(rows[0], columns[1]) * right_weight
+    lower = pixel(rows[1], columns[0]) * (1 - right_weight) + pixel(rows[1], columns[1]) * right_weight
     colours = np.round(upper * (1 - bottom_weight) + lower * bottom_weight).astype(np.uint8)
     colours[unseen] = UNSEEN_COLOUR
     return colours, unseen
