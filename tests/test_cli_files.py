@@ -216,7 +216,9 @@ def test_batches_are_the_images_and_the_programs_take_the_batch_size(tmp_path, f
         fake.calls.clear()
         fake.batch_sizes.clear()
         assert reconstruct_cli(panoramas(tmp_path / "in", "a", "b", "c"), tmp_path / batch, "--batch", batch) == 0
-        assert fake.calls == ([1, 1, 1] if batch == "1" else [2, 1])  # reconstruct_batch pads the last one
+        # the run's first image alone (its files come soonest), then batches of --batch (reconstruct_batch pads a
+        # short one: the programs take the batch size whatever the images)
+        assert fake.calls == ([1, 1, 1] if batch == "1" else [1, 2])
         assert set(fake.batch_sizes) == {int(batch)}
 
 
@@ -322,29 +324,29 @@ def test_a_flagged_layout_is_one_short_line_and_its_reason_is_in_the_summary(tmp
 def test_ctrl_c_writes_the_summary_of_the_images_done(tmp_path, fake, capsys):
     images = panoramas(tmp_path / "in", "a", "b", "c", "d")
     out = tmp_path / "out"
-    fake.interrupt_on_call = 2
+    fake.interrupt_on_call = 3  # after a (alone, the run's first image) and the batch of b and c
     assert reconstruct_cli(images, out, "--batch", "2") == 130
     stderr = capsys.readouterr().err
-    assert error_lines(stderr) == [f"interrupted: 2 of 4 images done; {out / 'summary.csv'} lists them"]
+    assert error_lines(stderr) == [f"interrupted: 3 of 4 images done; {out / 'summary.csv'} lists them"]
     assert "Traceback" not in stderr
-    assert [row["name"] for row in summary_rows(out)] == ["a", "b"]
-    assert (out / "a.json").exists() and (out / "b.json").exists()
-    assert not any(name.startswith(("c", "d", ".")) for name in os.listdir(out))
+    assert [row["name"] for row in summary_rows(out)] == ["a", "b", "c"]
+    assert all((out / f"{name}.json").exists() for name in "abc")
+    assert not any(name.startswith(("d", ".")) for name in os.listdir(out))
 
 
 def test_ctrl_c_lets_the_batch_in_progress_finish(tmp_path, fake, capsys):
     images = panoramas(tmp_path / "in", "a", "b", "c", "d")
     out = tmp_path / "out"
-    fake.signal_on_call = 1  # Ctrl-C while the first batch is computed
+    fake.signal_on_call = 2  # Ctrl-C while the batch of b and c is computed (a, the run's first image, went alone)
     handler = signal.getsignal(signal.SIGINT)
     assert reconstruct_cli(images, out, "--batch", "2") == 130
     assert signal.getsignal(signal.SIGINT) is handler
-    assert fake.calls == [2]
+    assert fake.calls == [1, 2]
     assert error_lines(capsys.readouterr().err) == [
-        f"interrupted: 2 of 4 images done; {out / 'summary.csv'} lists them"
+        f"interrupted: 3 of 4 images done; {out / 'summary.csv'} lists them"
     ]
-    assert [row["result"] for row in summary_rows(out)] == ["ok", "ok"]
-    assert (out / "b.json").exists() and not (out / "c.json").exists()
+    assert [row["result"] for row in summary_rows(out)] == ["ok", "ok", "ok"]
+    assert (out / "c.json").exists() and not (out / "d.json").exists()
 
 
 def test_ctrl_c_elsewhere_is_one_line(monkeypatch, capsys):
