@@ -236,6 +236,31 @@ def test_environment_is_seen_through_a_window_and_lights_the_room():
     np.testing.assert_allclose(environment_radiance(sky_map, jnp.asarray(centre)), sky_map[row, column], atol=1e-5)
 
 
+@pytest.mark.slow
+def test_sampling_the_holes_estimates_the_light_that_paths_find_by_chance():
+    """The light through a window, sampled at every vertex or left to paths that leave through it by chance:
+    the same mean radiance, with less noise; emissive boxes that do not light the room are still seen."""
+    window = (0, -1.2, 1.2, -0.8, 0.9)
+    box = ((-1.2, 0.0, CEILING - 0.05), (0.3, 0.3, 0.05), 0.0)
+    scene = _scene(albedo=(0.6, 0.6, 0.6), windows=[window], boxes=[box], box_albedo=0.0, box_emission=3.0)
+    cam = _camera(0.0)
+    sky = jnp.array([1.0, 1.0, 1.0])
+    config = PathTraceConfig(
+        samples_per_pixel=64, bounces=2, floor_specular=0.0, jitter=False, emissive_boxes_light=False
+    )
+    sampled = [np.asarray(_trace(scene, cam, jax.random.key(k), config, sky)) for k in (0, 1)]
+    chance = np.asarray(_trace(scene, cam, jax.random.key(0), dataclasses.replace(config, hole_sampling=False), sky))
+    origin, direction = _pixel_rays(cam)
+    hits = jax.vmap(jax.vmap(intersect, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))(scene, origin, direction)
+    room = (np.asarray(hits.kind) != SurfaceKind.ESCAPE) & (np.asarray(hits.kind) != SurfaceKind.BOX)
+    np.testing.assert_allclose(chance[room].mean(), sampled[0][room].mean(), rtol=0.05)
+    # Two sampled images differ less than a chance image and a sampled one: the sampled noise is the lower.
+    assert np.std(sampled[0][room] - sampled[1][room]) < np.std(chance[room] - sampled[1][room])
+    seen = np.asarray(hits.kind) == SurfaceKind.BOX
+    assert seen.any()
+    np.testing.assert_allclose(sampled[0][seen], 3.0, rtol=1e-6)  # a black box: its emission alone
+
+
 # ------------------------------------------------------------------ geometry
 
 

@@ -7,7 +7,9 @@
   sunlight, open doors; ``elements``: the scenes' containers.
 - ``render``, ``raycast``, ``render_details``: ray-cast non-central panoramas (RGB, depth, semantics).
 - ``pathtrace``, ``pathtrace_scene``, ``pathtrace_bsdf``: path-traced panoramas of the same scenes (linear
-  radiance: interreflections, area lights, the environment through openings, a rough-glossy floor).
+  radiance: interreflections, area lights, the environment through openings, a rough-glossy floor);
+  ``photograph``: a consumer 360-degree camera's photograph of such radiance; ``pathtrace_reference``: the same
+  scenes in Mitsuba 3, the reference renderer (a development dependency, imported on use).
 - ``augment``: photometric and sensor effects; ``dataset``: the dataset folders on disk.
 """
 
@@ -27,6 +29,7 @@ from .elements import Boxes, Lights, Openings
 from .labels import RoomLabels, room_labels
 from .materials import Material, Pattern
 from .pathtrace import PathTraceConfig, path_trace
+from .photograph import PhotographConfig, photograph
 from .render import (
     RenderConfig,
     Rendering,
@@ -57,6 +60,8 @@ __all__ = [
     "path_trace",
     "PathTraceConfig",
     "Pattern",
+    "photograph",
+    "PhotographConfig",
     "random_augment",
     "random_room",
     "random_scene",

@@ -9,9 +9,13 @@ The ray caster (:mod:`ncjax.synth.render`) shades each hit locally; here every p
   at the lights' positions, whose radiance ``colour / (pi r^2)`` gives them the point light's intensity
   ``colour`` straight down (and ``colour cos`` at an angle, as any Lambertian emitter). They are sampled by
   area at every path vertex (next-event estimation with a shadow ray); they are not in the geometry, so a
-  path's own bounces never meet them and no light is counted twice. Emissive boxes (the lamps' shades)
-  and the environment, seen through the holes, light the scene through the bounces: a path that meets
-  them adds their radiance.
+  path's own bounces never meet them and no light is counted twice. The environment lights the room
+  through the holes (windows' glass; with decor, open doors), also sampled at every vertex (a uniform point
+  of a hole, by area, and the environment's radiance in its direction); a path that leaves the room after a
+  reflection then adds nothing. Emissive
+  surfaces (the lamps' shades; with decor, the light panels) are seen, and light the scene through the
+  bounces unless ``PathTraceConfig.emissive_boxes_light`` is False: the ceiling light under each of them
+  then stands for its light alone, and paths that find a small bright shade by chance make no speckle.
 - Surfaces: Lambertian with the material's albedo; the room's floor has a GGX lobe over its diffuse base
   (:mod:`ncjax.synth.pathtrace_bsdf`). Directions are drawn by importance (cosine, visible normals).
 - Paths have a fixed number of bounces (static), so every path of a batch does the same work in lock-step;
@@ -33,15 +37,18 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, optical_centre, pixel_to_ray
 from ..geometry.fastmath import arctan2
+from ..geometry.polygon import perpendicular
+from .elements import FRAME_WIDTH
 from .pathtrace_bsdf import glossy_brdf, sample_cosine, sample_glossy, tangent_frame
-from .pathtrace_scene import Hit, SurfaceKind, intersect, surface_appearance
+from .pathtrace_scene import Hit, SurfaceKind, intersect, surface_appearance, surface_emission
+from .rooms import room_walls
 from .scene import Scene
 
 # How far a new ray starts off the surface it leaves (metres): clear of float32 rounding at room scale.
 _OFFSET = 1e-4
-# Uniform numbers a path draws: 2 for the pixel position, then per bounce 3 for the light sample and 3 for
-# the reflection.
-_PER_BOUNCE = 6
+# Uniform numbers a path draws: 2 for the pixel position, then per bounce 3 for the light sample, 3 for the
+# hole sample and 3 for the reflection.
+_PER_BOUNCE = 9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,6 +64,10 @@ class PathTraceConfig:
         floor_roughness: GGX ``alpha`` of the floor's glossy lobe.
         floor_specular: weight of that lobe over the diffuse base, in [0, 1] (0: a Lambertian floor).
         jitter: spread each pixel's paths uniformly over its area (antialiasing); False traces its centre.
+        hole_sampling: sample the environment's light through the holes (windows' glass, open doors) at every
+            path vertex (next-event estimation); False leaves it to the paths that leave the room by chance.
+        emissive_boxes_light: emissive surfaces light the scene through the paths' bounces; False: they are
+            only seen (by camera rays), and the ceiling lights alone light the room.
     """
 
     samples_per_pixel: int = 16
@@ -66,6 +77,8 @@ class PathTraceConfig:
     floor_roughness: float = 0.3
     floor_specular: float = 0.1
     jitter: bool = True
+    hole_sampling: bool = True
+    emissive_boxes_light: bool = True
 
     def __post_init__(self):
         for name in ("samples_per_pixel", "pixels_per_chunk"):
@@ -137,37 +150,102 @@ def sample_light(
     return direction, distance, scale * lights.colour[index]
 
 
+def sample_hole(
+    scene: Scene, point: Float[Array, 3], uniform: Float[Array, 3]
+) -> tuple[Float[Array, 3], Float[Array, ""], Float[Array, ""]]:
+    """Next-event estimation towards the holes in the walls: one hole (a window's glass inside its frame;
+    with decor, an open door's aperture) chosen in proportion to its area, a point of it chosen uniformly
+    by area.
+
+    Returns:
+        ``(direction, distance, scale)``: the unit direction from ``point`` to the hole's point, its distance,
+        and the factor on the environment's radiance in that direction before the receiver's BRDF, cosine and
+        visibility: ``cos_hole / distance^2 / pdf_area / P(hole)``, i.e. ``cos_hole A / distance^2`` with
+        ``A`` the area of all holes. Zero without holes.
+    """
+    openings = scene.openings
+    wall_direction, _, _, _ = room_walls(scene.room)
+    width = jnp.maximum(openings.span[:, 1] - openings.span[:, 0] - 2 * FRAME_WIDTH, 0.0)
+    # A window's glass is inside its frame on all four sides, a door's aperture on three (none at the sill).
+    sill = jnp.where(openings.is_window, FRAME_WIDTH, 0.0)
+    tall = jnp.maximum(openings.z_range[:, 1] - openings.z_range[:, 0] - FRAME_WIDTH - sill, 0.0)
+    is_hole = openings.is_window
+    if scene.decor is not None:
+        is_hole = is_hole | scene.decor.doorways.is_open
+    area = jnp.where(openings.mask & is_hole, width * tall, 0.0)
+    total = jnp.sum(area)
+    cumulative = jnp.cumsum(area) / jnp.maximum(total, 1e-30)
+    index = jnp.minimum(jnp.sum(cumulative <= uniform[0]), area.shape[0] - 1)
+    wall = openings.wall[index]
+    along = openings.span[index, 0] + FRAME_WIDTH + uniform[1] * width[index]
+    target = jnp.append(
+        scene.room.corners[wall] + along * wall_direction[wall],
+        openings.z_range[index, 0] + sill[index] + uniform[2] * tall[index],
+    )
+    offset = target - point
+    distance = jnp.maximum(jnp.linalg.norm(offset), 1e-6)
+    direction = offset / distance
+    cos_hole = jnp.abs(jnp.dot(direction[:2], perpendicular(wall_direction[wall])))
+    return direction, distance, jnp.where(total > 0, cos_hole * total / distance**2, 0.0)
+
+
 def _emitted(
-    scene: Scene, hit: Hit, direction: Float[Array, 3], environment: Float[Array, "He We 3"] | Float[Array, 3]
+    scene: Scene,
+    hit: Hit,
+    direction: Float[Array, 3],
+    environment: Float[Array, "He We 3"] | Float[Array, 3],
+    config: PathTraceConfig,
+    seen: bool,
 ) -> Float[Array, 3]:
-    """What a path adds where it arrives: an emissive box's radiance, or the environment's through a hole."""
-    box = jnp.where(hit.kind == SurfaceKind.BOX, scene.boxes.emission[hit.index], 0.0)
-    return box + jnp.where(hit.kind == SurfaceKind.ESCAPE, environment_radiance(environment, direction), 0.0)
+    """What a path adds where it arrives: an emissive surface's radiance, or the environment's through a hole.
+    After a reflection (``seen`` False) what the sampling at the vertex already counted is left out."""
+    emitted = surface_emission(scene, hit)
+    if not (seen or config.emissive_boxes_light):
+        emitted = jnp.zeros(3)
+    if config.hole_sampling and not seen:
+        return emitted
+    return emitted + jnp.where(hit.kind == SurfaceKind.ESCAPE, environment_radiance(environment, direction), 0.0)
 
 
-def _reflect(scene: Scene, hit: Hit, direction: Float[Array, 3], uniform: Float[Array, 6], config: PathTraceConfig):
-    """One path vertex: the light sampled towards the lights (before the path's throughput), and the next
-    ray's direction with the throughput factor ``f cos / pdf`` of the reflection."""
+def _reflect(
+    scene: Scene,
+    hit: Hit,
+    direction: Float[Array, 3],
+    uniform: Float[Array, 9],
+    config: PathTraceConfig,
+    environment: Float[Array, "He We 3"] | Float[Array, 3],
+):
+    """One path vertex: the light sampled towards the lights and the holes (before the path's throughput),
+    and the next ray's direction with the throughput factor ``f cos / pdf`` of the reflection."""
     albedo, is_floor = surface_appearance(scene, hit)
     frame = tangent_frame(hit.normal)
     outgoing = frame @ -direction
     start = hit.point + _OFFSET * hit.normal
 
-    to_light, light_distance, intensity = sample_light(scene, hit.point, uniform[:3], config.light_radius)
-    incoming = frame @ to_light
-    lambert = jnp.where((incoming[2] > 0) & (outgoing[2] > 0), albedo / math.pi, 0.0)
-    reflectance = lambert
-    if config.floor_specular > 0:
-        glossy = glossy_brdf(outgoing, incoming, albedo, config.floor_roughness, config.floor_specular)
-        reflectance = jnp.where(is_floor, glossy, lambert)
-    visible = intersect(scene, start, to_light).distance > light_distance - 1e-3
-    direct = jnp.where(visible, reflectance * jnp.maximum(incoming[2], 0.0), 0.0) * intensity
+    def reflectance_cosine(world_direction):
+        incoming = frame @ world_direction
+        reflectance = jnp.where((incoming[2] > 0) & (outgoing[2] > 0), albedo / math.pi, 0.0)
+        if config.floor_specular > 0:
+            glossy = glossy_brdf(outgoing, incoming, albedo, config.floor_roughness, config.floor_specular)
+            reflectance = jnp.where(is_floor, glossy, reflectance)
+        return reflectance * jnp.maximum(incoming[2], 0.0)
 
-    reflected = sample_cosine(uniform[3:5])
+    to_light, light_distance, intensity = sample_light(scene, hit.point, uniform[:3], config.light_radius)
+    visible = intersect(scene, start, to_light).distance > light_distance - 1e-3
+    direct = jnp.where(visible, reflectance_cosine(to_light), 0.0) * intensity
+    if config.hole_sampling:
+        to_hole, hole_distance, scale = sample_hole(scene, hit.point, uniform[3:6])
+        through = intersect(scene, start, to_hole)
+        # The shadow ray must leave through the hole it aimed at (not hit a mullion or the door's frame).
+        visible = (through.kind == SurfaceKind.ESCAPE) & (jnp.abs(through.distance - hole_distance) < 1e-3)
+        sky = environment_radiance(environment, to_hole)
+        direct = direct + jnp.where(visible, reflectance_cosine(to_hole), 0.0) * scale * sky
+
+    reflected = sample_cosine(uniform[6:8])
     factor = jnp.where(outgoing[2] > 0, albedo, 0.0)
     if config.floor_specular > 0:
         glossy_direction, glossy_factor = sample_glossy(
-            outgoing, albedo, config.floor_roughness, config.floor_specular, uniform[3:6]
+            outgoing, albedo, config.floor_roughness, config.floor_specular, uniform[6:9]
         )
         reflected = jnp.where(is_floor, glossy_direction, reflected)
         factor = jnp.where(is_floor, glossy_factor, factor)
@@ -178,7 +256,7 @@ def trace_path(
     scene: Scene,
     origin: Float[Array, 3],
     direction: Float[Array, 3],
-    uniform: Float[Array, "bounces 6"],
+    uniform: Float[Array, "bounces 9"],
     config: PathTraceConfig,
     environment: Float[Array, "He We 3"] | Float[Array, 3],
 ) -> Float[Array, 3]:
@@ -187,7 +265,7 @@ def trace_path(
     Args:
         scene: the scene (camera frame).
         origin, direction: (3,) the ray's start (inside the room) and unit direction.
-        uniform: (bounces, 6) uniform numbers in [0, 1), all the randomness of the path.
+        uniform: (bounces, 9) uniform numbers in [0, 1), all the randomness of the path.
         config: static settings; ``config.bounces`` must equal ``uniform``'s first axis.
         environment: see :func:`environment_radiance`.
 
@@ -199,14 +277,14 @@ def trace_path(
     def bounce(carry, numbers):
         hit, direction, throughput, radiance = carry
         alive = hit.kind != SurfaceKind.ESCAPE
-        direct, start, reflected, factor = _reflect(scene, hit, direction, numbers, config)
+        direct, start, reflected, factor = _reflect(scene, hit, direction, numbers, config, environment)
         radiance = radiance + jnp.where(alive, throughput * direct, 0.0)
         throughput = jnp.where(alive, throughput * factor, 0.0)
         hit = intersect(scene, start, reflected)
-        radiance = radiance + throughput * _emitted(scene, hit, reflected, environment)
+        radiance = radiance + throughput * _emitted(scene, hit, reflected, environment, config, seen=False)
         return (hit, reflected, throughput, radiance), None
 
-    carry = (hit, direction, jnp.ones(3), _emitted(scene, hit, direction, environment))
+    carry = (hit, direction, jnp.ones(3), _emitted(scene, hit, direction, environment, config, seen=True))
     (_, _, _, radiance), _ = jax.lax.scan(bounce, carry, uniform)
     return radiance
 

@@ -26,7 +26,7 @@ from ..geometry.polygon import perpendicular
 from .elements import FRAME_WIDTH
 from .materials import material_albedo
 from .raycast import box_interval_2d
-from .render_details import in_span, opening_appearance
+from .render_details import ceiling_panels, decal_appearance, in_span, opening_appearance
 from .rooms import ray_hits, room_walls
 from .scene import Scene
 
@@ -195,9 +195,10 @@ def _box_coordinates(scene: Scene, hit: Hit):
 
 def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Array, ""]]:
     """The albedo at a hit, as the ray caster colours it (the same materials, seeds and texture coordinates;
-    skirting boards, doors and window frames), and whether it is the room's floor (glossy).
+    skirting boards, doors and window frames; with decor, posters and pictures and the light panels' diffusers),
+    and whether it is the room's floor (glossy).
 
-    Details of realistic scenes that are not geometry (decals, light panels, sunlight) are not drawn.
+    Sunlight, which the ray caster paints on as a detail, is not drawn: here the windows' light is traced.
     """
     room, boxes, kind = scene.room, scene.boxes, hit.kind
     x, y, z = hit.point[0] + room.camera_position[0], hit.point[1] + room.camera_position[1], hit.point[2]
@@ -227,4 +228,40 @@ def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Ar
     skirting = on_wall & ~in_opening & (height_above_floor < scene.skirting_height)
     lip = height_above_floor > scene.skirting_height - 0.012
     albedo = jnp.where(skirting, scene.skirting_colour * jnp.where(lip, 0.7, 1.0), albedo)
+    if scene.decor is not None:
+        in_decal, decal_albedo = _decal_at(scene, hit.index, hit.along, z)
+        albedo = jnp.where(on_wall & ~in_opening & in_decal, decal_albedo, albedo)
+        # The panels are placed in the camera frame, as the ray caster reads them.
+        in_panel, rim, _ = ceiling_panels(scene.decor.panels, hit.point[0][None], hit.point[1][None])
+        albedo = jnp.where(is_ceiling & in_panel[0], jnp.where(rim[0], 0.7, 0.95), albedo)
     return jnp.where(on_wall & in_opening, opening_albedo, albedo), is_floor
+
+
+def _decal_at(scene: Scene, wall: Int[Array, ""], along: Float[Array, ""], z: Float[Array, ""]):
+    """Whether a point of a wall is on a poster, picture or whiteboard, and the ray caster's albedo there."""
+    decals = scene.decor.decals
+    present, slot = in_span(decals.wall, decals.span, decals.mask, wall[None], along[None])
+    bottom, top = decals.z_range[slot[0], 0], decals.z_range[slot[0], 1]
+    fields = dict(
+        start=decals.span[slot, 0],
+        width=decals.span[slot, 1] - decals.span[slot, 0],
+        bottom=decals.z_range[slot, 0],
+        tall=decals.z_range[slot, 1] - decals.z_range[slot, 0],
+        kind=decals.kind[slot],
+        colour_a=decals.colour_a[slot],
+        colour_b=decals.colour_b[slot],
+        frame_colour=decals.frame_colour[slot],
+        frame_width=decals.frame_width[slot],
+    )
+    albedo = decal_appearance(fields, along[None], z[None], scene.seed + 200 + 7 * slot)[0]
+    return present[0] & (z > bottom) & (z < top), albedo
+
+
+def surface_emission(scene: Scene, hit: Hit) -> Float[Array, 3]:
+    """The radiance a hit surface emits itself: an emissive box's (lamp shades), or with decor a light panel's
+    in the ceiling (inside its rim)."""
+    emission = jnp.where(hit.kind == SurfaceKind.BOX, scene.boxes.emission[hit.index], 0.0)
+    if scene.decor is None:
+        return emission
+    _, _, panel = ceiling_panels(scene.decor.panels, hit.point[0][None], hit.point[1][None])
+    return jnp.where(hit.kind == SurfaceKind.CEILING, panel[0], emission)

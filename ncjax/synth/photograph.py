@@ -1,0 +1,203 @@
+"""A consumer 360-degree camera's photograph of a linear radiance panorama (pure jnp, jit/vmap-able).
+
+The path tracer (:mod:`ncjax.synth.pathtrace`) returns physical radiance, unbounded and in arbitrary units;
+a photograph is what a camera makes of it. :func:`photograph` does what the camera does, in its order:
+
+- metering: the exposure that maps a high percentile of the luminance to the tone curve's white point, so
+  that whatever is brighter (windows, lamps) blows out, as in real indoor panoramas;
+- white balance: part of the grey-world correction of an automatic white balance, and a small random error;
+- the lenses' vignetting and the stitcher's seams between the two lenses (a residual exposure and colour step,
+  a pixel of parallax), from :mod:`ncjax.synth.augment`;
+- a filmic tone curve (Hable's, with a shoulder that rolls highlights off to white) and the sRGB encoding;
+- the nadir patch that hides the tripod: the bottom rows smeared and darkened;
+- sensor noise, and the JPEG compression of the file (:func:`~ncjax.synth.augment.jpeg_compress`).
+
+Every function takes ONE image (batch with ``jax.vmap``); random numbers come only from the key of
+:func:`photograph`. The geometry is untouched (at most the seams' pixel of shift), so labels stay exact.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
+
+from ..network.denoise import gaussian_blur
+from .augment import add_sensor_noise, jpeg_compress, stitching_seams, vignette
+
+# Rec. 709 / sRGB luminance of linear RGB
+_LUMINANCE = jnp.array([0.2126, 0.7152, 0.0722])
+# Hable's filmic curve ("Uncharted 2"): shoulder strength, linear strength, linear angle, toe strength,
+# toe numerator and denominator.
+_HABLE = (0.15, 0.50, 0.10, 0.20, 0.02, 0.30)
+
+
+@dataclasses.dataclass(frozen=True)
+class PhotographConfig:
+    """Static settings of :func:`photograph` (hashable: a jit static argument).
+
+    Each range ``(low, high)`` is drawn uniformly per photograph from its key.
+
+    Attributes:
+        exposure_percentile: the luminance percentile (0 to 100) that the metering maps to the white point.
+        exposure_spread: the metering's error: a factor on the exposure, drawn log-uniformly.
+        white_point: the linear value the tone curve maps to 1 (brighter is clipped).
+        white_balance_strength: how much of the grey-world correction the camera applies (0: none, 1: all).
+        white_balance_error: per-channel gain of the remaining error.
+        vignetting_strength: the vignetting's darkening half-way between the two lenses (linear).
+        seam_exposure: the exposure step across each of the two stitching seams (factor on one side).
+        seam_shift: the vertical shift across a seam, pixels.
+        nadir_rows: the fraction of the rows, from the bottom, that the nadir patch covers.
+        nadir_blur: the patch's blur, as a fraction of the image width (its smear is wider at the pole).
+        nadir_darkening: the factor on the patch's brightness at the pole (the tripod's shadow).
+        read_noise: standard deviation of the sensor's read noise (encoded intensities).
+        shot_noise: standard deviation of its shot noise at intensity 1 (grows as the square root).
+        jpeg_quality: JPEG quality of the file (1 to 100).
+    """
+
+    exposure_percentile: float = 97.0
+    exposure_spread: tuple[float, float] = (0.8, 1.25)
+    white_point: float = 6.0
+    white_balance_strength: float = 0.6
+    white_balance_error: tuple[float, float] = (0.95, 1.05)
+    vignetting_strength: tuple[float, float] = (0.05, 0.2)
+    seam_exposure: tuple[float, float] = (0.95, 1.05)
+    seam_shift: tuple[float, float] = (-1.0, 1.0)
+    nadir_rows: tuple[float, float] = (0.06, 0.1)
+    nadir_blur: float = 0.006
+    nadir_darkening: tuple[float, float] = (0.4, 0.8)
+    read_noise: tuple[float, float] = (0.003, 0.008)
+    shot_noise: tuple[float, float] = (0.005, 0.015)
+    jpeg_quality: tuple[float, float] = (75.0, 92.0)
+
+    def __post_init__(self):
+        if not 0 < self.exposure_percentile <= 100:
+            raise ValueError(f"exposure_percentile must be in (0, 100], got {self.exposure_percentile}")
+        if not self.white_point > 0:
+            raise ValueError(f"white_point must be > 0, got {self.white_point}")
+        if not 0 <= self.white_balance_strength <= 1:
+            raise ValueError(f"white_balance_strength must be in [0, 1], got {self.white_balance_strength}")
+        if not 0 <= self.nadir_rows[0] <= self.nadir_rows[1] < 0.5:
+            raise ValueError(f"nadir_rows must be 0 <= low <= high < 0.5, got {self.nadir_rows}")
+
+
+def luminance(image: Float[Array, "*S 3"]) -> Float[Array, "*S"]:
+    """Rec. 709 luminance of linear RGB."""
+    return image @ _LUMINANCE
+
+
+def metered_exposure(
+    radiance: Float[Array, "H W 3"], percentile: Float[ArrayLike, ""], white_point: Float[ArrayLike, ""]
+) -> Float[Array, ""]:
+    """The factor on the radiance that puts the ``percentile`` of its luminance at ``white_point``.
+
+    A camera meters the scene it sees; mapping a high percentile, not the maximum, to white lets the few
+    brightest pixels (windows, lamps) clip as in real photographs. A black image gets the factor 1.
+    """
+    level = jnp.percentile(luminance(radiance), percentile)
+    return jnp.where(level > 0, white_point / jnp.maximum(level, 1e-30), 1.0)
+
+
+def grey_world_gains(radiance: Float[Array, "H W 3"], strength: Float[ArrayLike, ""]) -> Float[Array, 3]:
+    """Automatic white balance: per-channel gains that make the image's mean grey, raised to ``strength``
+    (cameras correct only part of a warm room's cast); the gains keep the mean luminance."""
+    mean = jnp.mean(radiance.reshape(-1, 3), 0)
+    grey = luminance(mean)
+    gains = (grey / jnp.maximum(mean, 1e-12 * grey + 1e-30)) ** strength
+    return jnp.where(grey > 0, gains / luminance(gains), 1.0)
+
+
+def _hable(x: Float[ArrayLike, "*S"]) -> Float[Array, "*S"]:
+    a, b, c, d, e, f = _HABLE
+    return (x * (a * x + c * b) + d * e) / (x * (a * x + b) + d * f) - e / f
+
+
+def filmic_tone_curve(linear: Float[Array, "*S"], white_point: Float[ArrayLike, ""]) -> Float[Array, "*S"]:
+    """Hable's filmic curve normalised to map ``white_point`` to 1 (display-linear, clipped to [0, 1]).
+
+    Monotonic: a toe that deepens the shadows, a nearly linear middle, a shoulder that compresses the
+    highlights smoothly up to the white point, where the film saturates.
+    """
+    return jnp.clip(_hable(jnp.maximum(linear, 0.0)) / _hable(white_point), 0.0, 1.0)
+
+
+def srgb_encode(linear: Float[Array, "*S"]) -> Float[Array, "*S"]:
+    """The sRGB transfer function (IEC 61966-2-1) of display-linear values in [0, 1]."""
+    linear = jnp.clip(linear, 0.0, 1.0)
+    curve = 1.055 * jnp.maximum(linear, 0.0031308) ** (1 / 2.4) - 0.055
+    return jnp.where(linear <= 0.0031308, 12.92 * linear, curve)
+
+
+def nadir_patch(
+    image: Float[Array, "H W 3"], rows: Float[ArrayLike, ""], blur: float, darkening: Float[ArrayLike, ""]
+) -> Float[Array, "H W 3"]:
+    """Hide the tripod as stitching software does: the bottom ``rows`` (a fraction of the height) replaced by
+    a blurred, darkened copy, fading in over the patch's top third and darkest at the pole.
+
+    Args:
+        image: encoded RGB in [0, 1].
+        rows: the patch's height as a fraction of the image height (may be traced).
+        blur: the blur's standard deviation as a fraction of the image width (static: it sizes the kernel).
+        darkening: the factor on the brightness at the bottom row.
+    """
+    height, width = image.shape[:2]
+    sigma = max(blur * width, 0.5)
+    blurred = gaussian_blur(image, sigma, radius=int(3 * sigma))
+    # Near the pole every column sees the same few centimetres of floor: the smear becomes each row's mean.
+    below = (jnp.arange(height) + 0.5) / height - (1 - rows)  # > 0 inside the patch
+    depth = jnp.clip(below / jnp.maximum(rows, 1e-6), 0.0, 1.0)[:, None, None]
+    smeared = depth * jnp.mean(blurred, 1, keepdims=True) + (1 - depth) * blurred
+    patch = smeared * (1 - (1 - darkening) * depth)
+    weight = jnp.clip(3 * depth, 0.0, 1.0) * (below > 0)[:, None, None]
+    return weight * patch + (1 - weight) * image
+
+
+def _between(u: Float[ArrayLike, "*S"], bounds: tuple[float, float]) -> Float[Array, "*S"]:
+    return bounds[0] + jnp.asarray(u) * (bounds[1] - bounds[0])
+
+
+def photograph(
+    key: PRNGKeyArray, radiance: Float[Array, "H W 3"], config: PhotographConfig = PhotographConfig()
+) -> Float[Array, "H W 3"]:
+    """The photograph a consumer 360-degree camera would take of a linear radiance panorama.
+
+    Args:
+        key: a ``jax.random`` key, the only source of randomness (the camera's errors, noise, JPEG quality).
+        radiance: (H, W, 3) linear RGB, any positive scale (the metering sets the exposure).
+        config: static settings (:class:`PhotographConfig`).
+
+    Returns:
+        (H, W, 3) sRGB-encoded RGB in [0, 1], multiples of 1/255 (a decoded 8-bit JPEG).
+        Jit with ``config`` static; vmap over keys and images.
+    """
+    height, width = radiance.shape[:2]
+    key_parameters, key_noise = jax.random.split(key)
+    u = jax.random.uniform(key_parameters, (16,))
+
+    log_low, log_high = jnp.log(config.exposure_spread[0]), jnp.log(config.exposure_spread[1])
+    error = jnp.exp(log_low + u[0] * (log_high - log_low))
+    exposed = radiance * error * metered_exposure(radiance, config.exposure_percentile, config.white_point)
+    gains = grey_world_gains(radiance, config.white_balance_strength) * _between(u[1:4], config.white_balance_error)
+    exposed = exposed * gains
+
+    # Two back-to-back lenses: their axes half a turn apart, the seams a quarter turn from each.
+    phase = 2 * jnp.pi * u[4]
+    image = srgb_encode(filmic_tone_curve(exposed, config.white_point))
+    image = vignette(image, _between(u[5], config.vignetting_strength), 2, phase, 0.0)
+    seam_columns = width * ((phase / (2 * jnp.pi) + 0.25 + jnp.array([0.0, 0.5])) % 1.0)
+    seam_gains = jnp.stack([_between(u[6], config.seam_exposure), 1 / _between(u[6], config.seam_exposure)])
+    image = stitching_seams(
+        image,
+        seam_columns,
+        jnp.broadcast_to(seam_gains[:, None], (2, 3)),
+        _between(u[7:9], config.seam_shift),
+        0.01 * width,
+        0.25 * width,
+    )
+    image = nadir_patch(
+        image, _between(u[9], config.nadir_rows), config.nadir_blur, _between(u[10], config.nadir_darkening)
+    )
+    image = add_sensor_noise(key_noise, image, _between(u[11], config.read_noise), _between(u[12], config.shot_noise))
+    return jpeg_compress(image, _between(u[13], config.jpeg_quality))

@@ -1,0 +1,123 @@
+"""The camera model (ncjax.synth.photograph): its tone curve and encoding against their definitions, the metering's
+normalisation, the white balance, the nadir patch, and the photograph's type, range, determinism and JPEG file."""
+
+import io
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from PIL import Image
+
+from ncjax.synth.photograph import (
+    PhotographConfig,
+    filmic_tone_curve,
+    grey_world_gains,
+    luminance,
+    metered_exposure,
+    nadir_patch,
+    photograph,
+    srgb_encode,
+)
+
+HEIGHT, WIDTH = 16, 32
+
+_photograph = jax.jit(photograph, static_argnames="config")
+
+
+def _radiance(seed: int = 0) -> np.ndarray:
+    """A small linear radiance panorama: a smooth room of warm light with a few very bright (window) pixels."""
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float32)
+    base = 0.05 + 0.1 * (1 + np.sin(2 * np.pi * u / WIDTH)) * (1 - v / HEIGHT)
+    image = base[..., None] * np.array([1.2, 1.0, 0.7], np.float32) * rng.uniform(0.9, 1.1, (HEIGHT, WIDTH, 3))
+    image[4:7, 10:14] = 30.0
+    return image.astype(np.float32)
+
+
+def test_tone_curve_is_monotonic_from_black_to_the_white_point():
+    x = jnp.linspace(0.0, 10.0, 2001)
+    curve = np.asarray(filmic_tone_curve(x, 6.0))
+    assert curve[0] == pytest.approx(0.0, abs=1e-6)
+    assert np.all(np.diff(curve) >= 0) and np.all(np.diff(curve[x <= 6.0]) > 0)
+    np.testing.assert_allclose(filmic_tone_curve(jnp.float32(6.0), 6.0), 1.0, rtol=1e-6)
+    assert np.all(curve[x >= 6.0] == 1.0)  # beyond the white point the film is saturated
+    assert 0.1 < float(filmic_tone_curve(jnp.float32(0.6), 6.0)) < 0.5  # a tenth of white is a mid tone
+
+
+def test_srgb_encoding_is_the_standards():
+    x = jnp.array([0.0, 0.002, 0.0031308, 0.18, 0.5, 1.0, 2.0])
+    expected = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.clip(x, 0, 1) ** (1 / 2.4) - 0.055)
+    np.testing.assert_allclose(srgb_encode(x), np.clip(expected, 0, 1), atol=1e-6)
+    assert float(srgb_encode(jnp.float32(0.18))) == pytest.approx(0.4613, abs=1e-3)
+
+
+def test_metering_puts_the_percentile_at_the_white_point_and_ignores_the_scale():
+    radiance = jnp.asarray(_radiance())
+    factor = metered_exposure(radiance, 90.0, 6.0)
+    np.testing.assert_allclose(np.percentile(np.asarray(luminance(radiance * factor)), 90.0), 6.0, rtol=1e-5)
+    np.testing.assert_allclose(metered_exposure(7.0 * radiance, 90.0, 6.0) * 7.0, factor, rtol=1e-5)
+    assert float(metered_exposure(jnp.zeros((HEIGHT, WIDTH, 3)), 90.0, 6.0)) == 1.0
+
+
+def test_grey_world_gains_make_the_mean_grey_and_keep_its_luminance():
+    radiance = jnp.asarray(_radiance())
+    mean = np.asarray(jnp.mean(radiance.reshape(-1, 3), 0))
+    gains = np.asarray(grey_world_gains(radiance, 1.0))
+    balanced = mean * gains
+    np.testing.assert_allclose(balanced, np.full(3, balanced[0]), rtol=1e-5)
+    np.testing.assert_allclose(luminance(jnp.asarray(gains)), 1.0, rtol=1e-5)
+    np.testing.assert_allclose(grey_world_gains(radiance, 0.0), np.ones(3), rtol=1e-6)
+    half = np.asarray(grey_world_gains(radiance, 0.5))
+    assert np.all((np.minimum(gains, 1) - 1e-6 <= half) & (half <= np.maximum(gains, 1) + 1e-6))
+
+
+def test_nadir_patch_covers_the_bottom_rows_only_and_darkens_the_pole():
+    image = jnp.asarray(np.clip(_radiance(1), 0, 1) ** (1 / 2.2))
+    patched = np.asarray(nadir_patch(image, 0.25, 0.05, 0.5))
+    np.testing.assert_array_equal(patched[: HEIGHT * 3 // 4], np.asarray(image)[: HEIGHT * 3 // 4])
+    assert patched[-1].mean() < 0.6 * np.asarray(image)[-1].mean()
+    # Towards the pole every column becomes the row's mean.
+    assert np.std(patched[-1], axis=0).max() < 0.25 * np.std(np.asarray(image)[-1], axis=0).max()
+
+
+@pytest.mark.slow
+def test_photograph_is_an_8_bit_image_deterministic_per_key():
+    radiance = jnp.asarray(_radiance())
+    image = np.asarray(_photograph(jax.random.key(0), radiance))
+    assert image.shape == (HEIGHT, WIDTH, 3) and image.dtype == np.float32
+    assert image.min() >= 0 and image.max() <= 1
+    np.testing.assert_allclose(image * 255, np.round(image * 255), atol=1e-3)  # a decoded 8-bit JPEG
+    np.testing.assert_array_equal(np.asarray(_photograph(jax.random.key(0), radiance)), image)
+    assert not np.array_equal(np.asarray(_photograph(jax.random.key(1), radiance)), image)
+    assert image[4:7, 10:14].mean() > 0.9  # the window blows out
+    # The metering normalises the exposure: ten times the light is the same photograph.
+    brighter = np.asarray(_photograph(jax.random.key(0), 10.0 * radiance))
+    assert np.abs(brighter - image).mean() < 2e-3 and np.abs(brighter - image).max() <= 3 / 255 + 1e-6
+    # A batch of photographs is the photographs of its images.
+    keys = jax.random.split(jax.random.key(2), 2)
+    batch = jnp.stack([radiance, 3.0 * radiance])
+    batched = jax.vmap(lambda key, x: photograph(key, x))(keys, batch)
+    np.testing.assert_allclose(batched[1], _photograph(keys[1], batch[1]), atol=1.5 / 255)
+
+
+@pytest.mark.slow
+def test_photograph_survives_a_real_jpeg_round_trip():
+    image = np.asarray(_photograph(jax.random.key(3), jnp.asarray(_radiance(2))))
+    buffer = io.BytesIO()
+    Image.fromarray(np.round(image * 255).astype(np.uint8)).save(buffer, format="JPEG", quality=90)
+    decoded = np.asarray(Image.open(io.BytesIO(buffer.getvalue())).convert("RGB"), np.float32) / 255
+    assert decoded.shape == image.shape
+    assert np.abs(decoded - image).mean() < 0.02
+
+
+def test_configuration_rejects_bad_values():
+    for bad in (
+        dict(exposure_percentile=0.0),
+        dict(exposure_percentile=101.0),
+        dict(white_point=0.0),
+        dict(white_balance_strength=1.5),
+        dict(nadir_rows=(0.2, 0.1)),
+    ):
+        with pytest.raises(ValueError):
+            PhotographConfig(**bad)
