@@ -355,10 +355,18 @@ def _needs_prior(rc: np.ndarray, status: np.ndarray) -> np.ndarray:
     return (rc == 0) | np.isin(status, np.asarray(SCALE_FAILURES))
 
 
+# the default key's panorama key, key_data(panorama_keys(key(0), (1,))), under jax's default PRNG settings: a new
+# process skips compiling jax's PRNG for it (a quarter of a second; the key tests check the value)
+_DEFAULT_PANORAMA_KEY = np.array([1797259609, 2579123966], np.uint32)
+_DEFAULT_KEY_CONFIG = ("threefry2x32", True)
+
+
 def _image_key_data(key, count: int) -> tuple[UInt32[np.ndarray, "B 2"], str]:
     """Each image's RANSAC key, as its data and the keys' implementation: one key gives every image the key a
     batch of one gets, so that an image's samples depend neither on its batch nor on its place in it; one key
     per image is kept."""
+    if key is None and _DEFAULT_KEY_CONFIG == (jax.config.jax_default_prng_impl, jax.config.jax_threefry_partitionable):
+        return np.tile(_DEFAULT_PANORAMA_KEY, (count, 1)), _DEFAULT_KEY_CONFIG[0]
     key = jax.random.key(0) if key is None else key
     if not jax.dtypes.issubdtype(jnp.asarray(key).dtype, jax.dtypes.prng_key):
         key = jax.random.wrap_key_data(jnp.asarray(key, jnp.uint32))
@@ -478,7 +486,7 @@ def reconstruct_batch(
     if prior is not None:
         if np.ndim(prior.value) not in (0, 1) or np.size(prior.value) not in (1, images.shape[0]):
             raise ValueError(f"the prior's value must be a scalar or one per image ({images.shape[0]})")
-        prior = jax.tree.map(lambda x: jnp.broadcast_to(x, rc.shape), prior)
+        prior = jax.tree.map(lambda x: jax.device_put(np.broadcast_to(np.asarray(x), rc.shape)), prior)
     count, image_height, width = images.shape[:3]
     key_data, key_impl = _image_key_data(key, count)
     # without a prior the programs still take a value (a placeholder the geometry's route never reads)
@@ -507,13 +515,16 @@ def reconstruct_batch(
     for indices in _chunks(count, batch_size):
         chunk_rows, chunk = (jax.tree.map(lambda x, i=indices: x[i], tree) for tree in (rows, arguments))
         laid_out.append(_chunk_layouts(chunk_rows, _Chunk(*chunk), geometry, route, prior_settings))
-    layouts, own = (
-        jax.tree.map(lambda *x: jnp.asarray(np.concatenate(x)[:count]), *parts) for parts in zip(*laid_out, strict=True)
-    )
+
+    def joined(*parts):
+        return jax.device_put(np.concatenate(parts)[:count])
+
+    layouts, own = (jax.tree.map(joined, *parts) for parts in zip(*laid_out, strict=True))
     if program_cache is True and directory is not None:  # a later process may need the routes this one did not run
         geometry.prepare_others((None, "camera_height"))
-    source = jnp.asarray(_scale_sources(route, rc, own))
-    ceiling, floor, corner_prob = (jnp.asarray(x) for x in (rows.ceiling, rows.floor, rows.corner_prob))
+    # device_put, not jnp.asarray: the latter compiles a copy per shape, a few milliseconds each in a new process
+    source = jax.device_put(_scale_sources(route, rc, own))
+    ceiling, floor, corner_prob = (jax.device_put(x) for x in (rows.ceiling, rows.floor, rows.corner_prob))
     return Reconstruction(layouts, ceiling, floor, corner_prob, source, own)
 
 

@@ -12,8 +12,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..io.images import PanoramaError, PanoramaResizeWarning, read_panorama_file
-from ..synth.dataset import rc_from_name
+from ..io.images import PanoramaError, PanoramaResizeWarning, rc_from_name, read_panorama_file
 
 MAX_RC = 3.0  # metres; the capture rigs have radii of tens of centimetres
 

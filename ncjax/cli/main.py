@@ -124,8 +124,13 @@ def _evaluate_network(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The parser of ``ncjax`` and its subcommands (each one's ``run`` is a default of its namespace)."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of ``ncjax`` and its subcommands (each one's ``run`` is a default of its namespace).
+
+    Args:
+        command: the subcommand the command line names, if known: ``train``'s options (which import the
+            training's modules, a tenth of a second) are only added for it or for None (all of them).
+    """
     from ncjax import __version__
 
     from ..network.predict import DEFAULT_VIEWS
@@ -171,14 +176,15 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")
     synth.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
     synth.set_defaults(run=_synth)
-    from .train import add_train_arguments
-
     train = commands.add_parser(
         "train",
         help="train Non-central HorizonNet (checkpoints, resume, validation)",
         formatter_class=DefaultsHelpFormatter,
     )
-    add_train_arguments(train)
+    if command in (None, "train"):
+        from .train import add_train_arguments
+
+        add_train_arguments(train)
     train.set_defaults(run=_train)
     evaluate = commands.add_parser(
         "evaluate",
@@ -258,7 +264,8 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from .inputs import one_line
 
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = build_parser(next((word for word in argv if not word.startswith("-")), None)).parse_args(argv)
     try:
         return args.run(args)
     except KeyboardInterrupt:

@@ -72,39 +72,50 @@ def _triangular_factor(a: Array) -> Array:
 
 
 _MAX_JACOBI_SWEEPS = 12
-# The unrolled sweep has n (n - 1) / 2 rotations: right for the 5-7 unknowns of a wall,
-# not for the 6 + K unknowns of a whole layout (compile time), which go to LAPACK.
+# A sweep is n - 1 rounds of n / 2 disjoint rotations (n even): right for the 5-7 unknowns of a wall, not for the
+# 6 + K unknowns of a whole layout, which go to LAPACK.
 _JACOBI_MAX_COLUMNS = 8
 
 
-def _jacobi_sweep(columns: tuple[Array, ...], vectors: tuple[Array, ...]) -> tuple[tuple, tuple, Array]:
-    """One cyclic sweep of one-sided (Hestenes) Jacobi over all column pairs.
+def _rotate_pairs(top: Array, bottom: Array) -> tuple[Array, Array, Array]:
+    """The Jacobi rotations that make each pair of columns ``(top[k], bottom[k])`` of ``R V`` orthogonal.
 
-    Each rotation makes columns ``p`` and ``q`` of ``R V`` orthogonal; the
-    columns are kept as separate vectors so that a ``vmap`` over a batch
-    stays elementwise (no scatter). Returns the largest cosine between two
-    columns BEFORE their rotation: the sweep that sees none above ``eps``
-    changed nothing.
+    Returns the cosines and sines (one per pair) and the pairs' largest cosine BEFORE the rotation: a sweep
+    whose rounds see none above ``eps`` changed nothing. A pair with a zero column (the padding of an odd ``n``)
+    is left as it is.
     """
-    columns, vectors = list(columns), list(vectors)
-    worst = jnp.zeros((), columns[0].dtype)
-    n = len(columns)
-    for p in range(n - 1):
-        for q in range(p + 1, n):
-            a_p, a_q = columns[p], columns[q]
-            alpha, beta, gamma = a_p @ a_p, a_q @ a_q, a_p @ a_q
-            scale = jnp.sqrt(alpha * beta)
-            worst = jnp.maximum(worst, jnp.where(scale > 0, jnp.abs(gamma) / jnp.where(scale > 0, scale, 1.0), 0.0))
-            rotate = gamma != 0
-            zeta = (beta - alpha) / (2.0 * jnp.where(rotate, gamma, 1.0))
-            tangent = jnp.where(zeta >= 0, 1.0, -1.0) / (jnp.abs(zeta) + jnp.sqrt(1.0 + zeta * zeta))
-            tangent = jnp.where(rotate, tangent, 0.0)
-            cosine = jax.lax.rsqrt(1.0 + tangent * tangent)
-            sine = cosine * tangent
-            columns[p], columns[q] = cosine * a_p - sine * a_q, sine * a_p + cosine * a_q
-            v_p, v_q = vectors[p], vectors[q]
-            vectors[p], vectors[q] = cosine * v_p - sine * v_q, sine * v_p + cosine * v_q
-    return tuple(columns), tuple(vectors), worst
+    alpha, beta = jnp.sum(top * top, -1), jnp.sum(bottom * bottom, -1)
+    gamma = jnp.sum(top * bottom, -1)
+    scale = jnp.sqrt(alpha * beta)
+    worst = jnp.max(jnp.where(scale > 0, jnp.abs(gamma) / jnp.where(scale > 0, scale, 1.0), 0.0))
+    rotate = gamma != 0
+    zeta = (beta - alpha) / (2.0 * jnp.where(rotate, gamma, 1.0))
+    tangent = jnp.where(zeta >= 0, 1.0, -1.0) / (jnp.abs(zeta) + jnp.sqrt(1.0 + zeta * zeta))
+    tangent = jnp.where(rotate, tangent, 0.0)
+    cosine = jax.lax.rsqrt(1.0 + tangent * tangent)
+    return cosine, cosine * tangent, worst
+
+
+def _jacobi_round(state: tuple) -> tuple:
+    """One round of one-sided (Hestenes) Jacobi: every pair ``(top[k], bottom[k])`` rotated at once, then the
+    round-robin move (``top[0]`` stays, the others turn one place), so that ``n - 1`` rounds rotate every pair of
+    columns once (Brent and Luk's parallel ordering, 1985).
+
+    ``state``: the columns of ``R V`` and of ``V`` (each as rows) and the columns' original indices, each split
+    into a top and a bottom half, and the largest cosine seen this sweep.
+    """
+    (top, bottom), (top_v, bottom_v), (top_i, bottom_i), worst = state
+    cosine, sine, seen = _rotate_pairs(top, bottom)
+    c, s = cosine[:, None], sine[:, None]
+    top, bottom = c * top - s * bottom, s * top + c * bottom
+    top_v, bottom_v = c * top_v - s * bottom_v, s * top_v + c * bottom_v
+
+    def turn(upper, lower):
+        if len(upper) == 1:  # one pair: nothing to turn
+            return upper, lower
+        return jnp.concatenate([upper[:1], lower[:1], upper[1:-1]]), jnp.concatenate([lower[1:], upper[-1:]])
+
+    return turn(top, bottom), turn(top_v, bottom_v), turn(top_i, bottom_i), jnp.maximum(worst, seen)
 
 
 def _jacobi_svd(r: Array) -> tuple[Array, Array]:
@@ -112,29 +123,42 @@ def _jacobi_svd(r: Array) -> tuple[Array, Array]:
 
     Sweeps until a sweep starts with no pair of columns of ``R V`` at a cosine
     above ``sqrt(eps)`` (at most ``_MAX_JACOBI_SWEEPS``): the convergence of
-    cyclic Jacobi is asymptotically quadratic, so that sweep leaves cosines of
+    Jacobi is asymptotically quadratic, so that sweep leaves cosines of
     order ``eps``, and the sweep that would confirm it is saved (one of the
-    usual seven for the walls' 7 x 7 factors). Plain vector operations: under ``vmap`` a
-    batch is decomposed in lock-step (LAPACK's SVD is one call per matrix),
-    and one-sided Jacobi computes the small singular values, hence the null
-    space, to high relative accuracy.
+    usual seven for the walls' 7 x 7 factors). A sweep is a loop of rounds of
+    disjoint rotations (:func:`_jacobi_round`): a program of a few dozen
+    operations whatever ``n`` (the unrolled cyclic sweep has ``n (n - 1) / 2``
+    rotations, which made most of the walls' program). Plain vector operations:
+    under ``vmap`` a batch is decomposed in lock-step (LAPACK's SVD is one call
+    per matrix), and one-sided Jacobi computes the small singular values, hence
+    the null space, to high relative accuracy.
     """
     n = r.shape[1]
+    even = n + n % 2  # an odd n gets a zero column, which no rotation touches
+    half = even // 2
     threshold = math.sqrt(jnp.finfo(r.dtype).eps)
+    columns = jnp.zeros((even, n), r.dtype).at[:n].set(r.T)
+    vectors = jnp.zeros((even, n), r.dtype).at[:n].set(jnp.eye(n, dtype=r.dtype))
+    indices = jnp.arange(even)
 
     def not_converged(state):
-        sweep, _, _, worst = state
+        sweep, _, worst = state
         return (sweep < _MAX_JACOBI_SWEEPS) & (worst > threshold)
 
-    def body(state):
-        sweep, columns, vectors, _ = state
-        columns, vectors, worst = _jacobi_sweep(columns, vectors)
-        return sweep + 1, columns, vectors, worst
+    def sweep_body(state):
+        sweep, halves, _ = state
+        halves = jax.lax.fori_loop(0, even - 1, lambda _, x: _jacobi_round(x), (*halves, jnp.zeros((), r.dtype)))
+        return sweep + 1, halves[:3], halves[3]
 
-    start = (0, tuple(r.T), tuple(jnp.eye(n, dtype=r.dtype)), jnp.ones((), r.dtype))
-    _, columns, vectors, _ = jax.lax.while_loop(not_converged, body, start)
-    squared = jnp.stack([c @ c for c in columns])
-    return squared, jnp.stack(vectors, 1)
+    def split(x):
+        return x[:half], x[half:]
+
+    start = (0, (split(columns), split(vectors), split(indices)), jnp.ones((), r.dtype))
+    _, halves, _ = jax.lax.while_loop(not_converged, sweep_body, start)
+    columns, vectors, indices = (jnp.concatenate(pair) for pair in halves)
+    order = jnp.argsort(indices)[:n]  # the columns back in their original order, the padding last
+    columns, vectors = columns[order], vectors[order]
+    return jnp.sum(columns * columns, -1), vectors.T
 
 
 def _sorted_svd(a: Array) -> tuple[Array, Array]:

@@ -22,6 +22,7 @@ pixels of the file as given: :func:`read_panorama_file` returns the file's size.
 from __future__ import annotations
 
 import os
+import re
 import warnings
 
 import cv2
@@ -33,6 +34,7 @@ ASPECT_TOLERANCE = 0.005  # relative departure of width / height from 2 that is 
 MAX_WIDTH = 2048  # the widest panorama ncjax reconstruct works at
 _JPEG_END = b"\xff\xd9"
 _PNG_END = b"IEND\xaeB`\x82"
+_RC_IN_NAME = re.compile(r"_R(\d{5})(?:\D|$)")  # the rig's radius in a file name, 0.1 mm
 
 
 class PanoramaError(ValueError):
@@ -163,3 +165,9 @@ def check_rgb(image) -> np.ndarray:
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise ValueError(f"expected an RGB uint8 image (H, W, 3), got {image.dtype} {image.shape}")
     return image
+
+
+def rc_from_name(name: str) -> float | None:
+    """The rc the authors encode in file names (``L101_R06101`` -> 0.6101 m), or None."""
+    match = _RC_IN_NAME.search(os.path.basename(name))
+    return int(match.group(1)) / 1e4 if match else None

@@ -41,6 +41,7 @@ import functools
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
@@ -76,12 +77,16 @@ class HeightPrior(eqx.Module):
         if kind not in PRIOR_KINDS:
             raise ValueError(f"the height prior must be one of {PRIOR_KINDS}, got {kind!r}")
         self.kind = kind
-        self.value = jnp.asarray(value, jnp.float32)
+        if isinstance(value, jax.Array):  # a tracer too
+            self.value = jnp.asarray(value, jnp.float32)
+        else:  # copied as float32: jnp.asarray would compile a conversion, in every new process
+            self.value = jax.device_put(np.float32(value))
 
     def __check_init__(self):
         if isinstance(self.value, jax.core.Tracer):  # traced (inside jit or vmap): the caller's job
             return
-        if not float(jnp.min(self.value)) > 0 or not bool(jnp.all(jnp.isfinite(self.value))):
+        value = np.asarray(self.value)
+        if not value.min() > 0 or not np.all(np.isfinite(value)):
             raise ValueError(f"the {self.kind.replace('_', ' ')} must be a finite height > 0 in metres")
 
 

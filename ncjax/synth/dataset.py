@@ -32,7 +32,6 @@ import hashlib
 import io
 import json
 import os
-import re
 from collections.abc import Callable, Iterable, Iterator
 
 import cv2
@@ -42,6 +41,7 @@ import numpy as np
 
 from ..geometry.camera import NonCentralPanorama, project
 from ..io.files import write_atomic
+from ..io.images import rc_from_name
 from .labels import RoomLabels, room_labels
 from .render import Rendering, SynthConfig, synthesize_batch
 from .rooms import Room, RoomStatus
@@ -50,18 +50,11 @@ from .scene import Scene
 SCHEMA_VERSION = 1
 FOLDERS = ("img", "label_cor", "3D_gt", "cam_pose", "depth", "semantic", "json")
 SPLITS = {"train": 0.65, "valid": 0.15, "test": 0.20}  # about the paper's 1677 / 399 / 499
-_RC_IN_NAME = re.compile(r"_R(\d{5})(?:\D|$)")
 
 
 def sample_name(world: str, index: int, rc: float) -> str:
     """``<world>_<index>_R<rc in 1e-4 m>``, e.g. ``atlanta_000012_R06101``."""
     return f"{world}_{index:06d}_R{int(round(rc * 1e4)):05d}"
-
-
-def rc_from_name(name: str) -> float | None:
-    """The rc the authors encode in file names (``L101_R06101`` -> 0.6101 m), or None."""
-    match = _RC_IN_NAME.search(os.path.basename(name))
-    return int(match.group(1)) / 1e4 if match else None
 
 
 def split_of(layout_id: int, seed: int) -> str:

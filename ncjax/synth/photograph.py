@@ -28,7 +28,7 @@ from ..network.denoise import gaussian_blur
 from .augment import add_sensor_noise, jpeg_compress, stitching_seams, vignette
 
 # Rec. 709 / sRGB luminance of linear RGB
-_LUMINANCE = jnp.array([0.2126, 0.7152, 0.0722])
+_LUMINANCE = (0.2126, 0.7152, 0.0722)
 # Hable's filmic curve ("Uncharted 2"): shoulder strength, linear strength, linear angle, toe strength,
 # toe numerator and denominator.
 _HABLE = (0.15, 0.50, 0.10, 0.20, 0.02, 0.30)
@@ -85,7 +85,7 @@ class PhotographConfig:
 
 def luminance(image: Float[Array, "*S 3"]) -> Float[Array, "*S"]:
     """Rec. 709 luminance of linear RGB."""
-    return image @ _LUMINANCE
+    return image @ jnp.asarray(_LUMINANCE, image.dtype)
 
 
 def metered_exposure(
