@@ -81,7 +81,11 @@ NETWORK_PIPELINE_CONFIG = PipelineConfig(
 # The saved geometry programs (ncjax.programs, the CLI's) compile with XLA's cheaper backend settings: the geometry runs
 # in tens of milliseconds a panorama either way, and its compilation is most of a first run's (experiments/RESULTS.md,
 # "Speed"). The network keeps the full optimisation: it is most of a run's time.
-GEOMETRY_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
+GEOMETRY_COMPILER_OPTIONS = {
+    "xla_backend_optimization_level": 0,
+    "xla_llvm_disable_expensive_passes": True,
+    "xla_cpu_use_fusion_emitters": False,
+}
 
 
 # Where a layout's scale came from (Reconstruction.scale_source): the rows' non-central parallax, the height
