@@ -24,10 +24,8 @@ from . import solvers as solvers
 from . import pipeline as pipeline
 from . import network as network
 from .geometry.camera import NonCentralPanorama
-from .network.checkpoint import load_model, save_model
+from .network.config import HorizonNetConfig
 from .network.edges import EdgeSnap
-from .network.model import HorizonNet, HorizonNetConfig
-from .network.predict import predict_boundaries
 from .pipeline.batch import layout_from_boundaries
 from .pipeline.config import DEFAULT_WORLD, PipelineConfig
 from .pipeline.prior import HeightPrior
@@ -38,6 +36,10 @@ from .reconstruction import NETWORK_PIPELINE_CONFIG, Reconstruction, reconstruct
 # imported on first use: the namespace, or the module a name comes from
 _LAZY_NAMESPACES = ("io", "viz", "synth", "evaluation", "training")
 _LAZY_NAMES = {
+    "HorizonNet": "network.model",  # Flax's: a reconstruction through saved programs builds no network
+    "load_model": "network.checkpoint",
+    "save_model": "network.checkpoint",
+    "predict_boundaries": "network.predict",
     "read_panorama": "io.images",
     "SynthConfig": "synth.render",
     "synthesize_batch": "synth.render",
@@ -53,6 +55,9 @@ if TYPE_CHECKING:
     from . import training as training
     from . import viz as viz
     from .io.images import read_panorama
+    from .network.checkpoint import load_model, save_model
+    from .network.model import HorizonNet
+    from .network.predict import predict_boundaries
     from .synth.render import SynthConfig, synthesize_batch
     from .synth.rooms import RoomConfig
     from .training.loop import TrainConfig, train

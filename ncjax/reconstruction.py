@@ -30,15 +30,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import nnx
 from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
 
 from .geometry.camera import NonCentralPanorama
 from .geometry.gravity import panorama_size_error
-from .network.checkpoint import ModelWeights, load_model, model_from_weights, model_weights
+from .network.config import DEFAULT_VIEWS, Network, check_views
 from .network.edges import EdgeSnap
-from .network.model import HorizonNet, check_views
-from .network.predict import DEFAULT_MODEL_PATH, DEFAULT_VIEWS, default_model, image_boundaries
+from .network.weights import DEFAULT_MODEL_PATH, ModelWeights, read_weights
 from .pipeline.batch import panorama_keys
 from .pipeline.config import (
     DEFAULT_WORLD,
@@ -186,11 +184,17 @@ class _Network(NamedTuple):
     edge_snap: EdgeSnap | None
 
 
-def _rows_body(model: HorizonNet, images: Shaped[Array, "B H W 3"], network: _Network) -> Rows:
-    return Rows(*image_boundaries(model, images, *network))
+@functools.cache
+def _rows() -> Callable[..., Rows]:
+    """The network's rows of a batch, jitted (Flax's ``nnx.jit``; Flax imported on the first call)."""
+    from flax import nnx
 
+    from .network.predict import image_boundaries
 
-_rows = nnx.jit(_rows_body, static_argnames=("network",))
+    def rows(model: Network, images: Shaped[Array, "B H W 3"], network: _Network) -> Rows:
+        return Rows(*image_boundaries(model, images, *network))
+
+    return nnx.jit(rows, static_argnames=("network",))
 
 
 class _SavedGeometry:
@@ -297,7 +301,10 @@ def _saved_rows(directory: str | os.PathLike, weights: ModelWeights, image_shape
     The weights are arguments, the architecture part of the key: a later process builds no network."""
     views, edge_snap = network
 
-    def boundaries(tensors, images):
+    def boundaries(tensors, images):  # traced only when no process saved the program (Flax imported then)
+        from .network.checkpoint import model_from_weights
+        from .network.predict import image_boundaries
+
         return image_boundaries(model_from_weights(weights._replace(tensors=tensors)), images, views, edge_snap)
 
     image_like = jax.ShapeDtypeStruct(image_shape, jnp.uint8)
@@ -386,8 +393,22 @@ def _program_folder(program_cache: str | os.PathLike | bool | None) -> str | os.
     return program_cache or None
 
 
-def _model_of(model: HorizonNet | ModelWeights | str | os.PathLike | None) -> HorizonNet:
+def _weights_of(model: Network | ModelWeights | str | os.PathLike) -> ModelWeights:
+    """The :class:`~ncjax.network.weights.ModelWeights` that ``model`` is, holds or names (Flax imported only for a
+    built network)."""
+    if isinstance(model, ModelWeights | str | os.PathLike):
+        return read_weights(model)
+    from .network.checkpoint import model_weights
+
+    return model_weights(model)
+
+
+def _model_of(model: Network | ModelWeights | str | os.PathLike | None) -> Network:
     """The :class:`~ncjax.HorizonNet` that ``model`` is, holds or names (None: the shipped one), in eval mode."""
+    from .network.checkpoint import load_model, model_from_weights
+    from .network.model import HorizonNet
+    from .network.predict import default_model
+
     if model is None:
         model = default_model()
     elif isinstance(model, ModelWeights):
@@ -414,7 +435,7 @@ def reconstruct_batch(
     rc: Float[ArrayLike, " B"],
     world: str = DEFAULT_WORLD,
     *,
-    model: HorizonNet | ModelWeights | str | os.PathLike | None = None,
+    model: Network | ModelWeights | str | os.PathLike | None = None,
     config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
     key: PRNGKeyArray | Key[Array, " B"] | UInt32[Array, "B 2"] | None = None,
     views: int = DEFAULT_VIEWS,
@@ -503,14 +524,14 @@ def reconstruct_batch(
     directory = _program_folder(program_cache)
     if directory is None:
         network_model = _model_of(model)
-        rows_of = functools.partial(_rows, network_model, network=network)
+        rows_of = functools.partial(_rows(), network_model, network=network)
 
         def geometry(rows, chunk, kind):
             return _geometry(rows, chunk, config, settings._replace(prior_kind=kind))
     else:  # the geometry's programs load while the network's loads and runs
         geometry = _SavedGeometry(directory, (batch_size, width), config, settings)
         geometry.load(prior_kind if route == "prior" else None)
-        weights = model_weights(DEFAULT_MODEL_PATH if model is None else model)
+        weights = _weights_of(DEFAULT_MODEL_PATH if model is None else model)
         rows_of = _saved_rows(directory, weights, (1, *images.shape[1:]), network)
     image_rows = [jax.device_get(rows_of(images[i : i + 1])) for i in range(count)]
     rows = jax.tree.map(lambda *r: np.concatenate(r).astype(np.float32), *image_rows)
@@ -537,7 +558,7 @@ def reconstruct(
     cam: NonCentralPanorama,
     world: str = DEFAULT_WORLD,
     *,
-    model: HorizonNet | ModelWeights | str | os.PathLike | None = None,
+    model: Network | ModelWeights | str | os.PathLike | None = None,
     config: PipelineConfig = NETWORK_PIPELINE_CONFIG,
     key: PRNGKeyArray | None = None,
     views: int = DEFAULT_VIEWS,

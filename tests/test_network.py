@@ -107,7 +107,7 @@ def params_of(model):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("backbone", ncjax.network.model.BACKBONES)
+@pytest.mark.parametrize("backbone", ncjax.network.config.BACKBONES)
 @pytest.mark.parametrize("height, width", [(32, 64), (64, 128), (96, 160), (64, 256)])
 def test_output_shapes_follow_input_shape(height, width, backbone):
     config = ncjax.HorizonNetConfig(
@@ -415,7 +415,7 @@ def test_model_weights_are_the_files_tensors_and_rebuild_the_same_network(tmp_pa
 
 
 def test_a_half_precision_model_file_is_half_the_size_and_reads_back_as_float32(tmp_path):
-    from ncjax.network.checkpoint import model_weights, read_metadata
+    from ncjax.network.weights import read_metadata, read_weights
 
     model = tiny_model()
     ncjax.save_model(model, tmp_path / "full.safetensors")
@@ -428,7 +428,7 @@ def test_a_half_precision_model_file_is_half_the_size_and_reads_back_as_float32(
     for name, value in original.items():
         assert restored[name].dtype == value.dtype == np.float32, name
         np.testing.assert_array_equal(restored[name], value.astype(np.float16).astype(np.float32), err_msg=name)
-    assert all(v.dtype == np.float32 for v in model_weights(tmp_path / "half.safetensors").tensors.values())
+    assert all(v.dtype == np.float32 for v in read_weights(tmp_path / "half.safetensors").tensors.values())
     with pytest.raises(ValueError, match="weights_dtype must be one of float32, float16"):
         ncjax.save_model(model, tmp_path / "bad.safetensors", dtype="int8")
     too_large = ncjax.load_model(tmp_path / "full.safetensors")  # a copy: ``model`` is shared
@@ -440,7 +440,7 @@ def test_a_half_precision_model_file_is_half_the_size_and_reads_back_as_float32(
 
 
 def test_shipped_models_load_by_name_and_an_unknown_name_says_what_ships():
-    from ncjax.network.checkpoint import shipped_models
+    from ncjax.network.weights import shipped_models
 
     assert "compact1024" in shipped_models()
     assert "efficientnet_lite0_imagenet" not in shipped_models()  # a backbone's weights, not a layout network

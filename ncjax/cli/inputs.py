@@ -217,12 +217,11 @@ def load_model_option(path: str):
 
 
 def model_weights_option(path: str | None):
-    """The weights of ``--model PATH`` or of the default model (:func:`~ncjax.network.checkpoint.model_weights`,
+    """The weights of ``--model PATH`` or of the default model (:func:`~ncjax.network.weights.read_weights`,
     no network built), or a one-line ValueError."""
-    from ..network.checkpoint import model_weights
-    from ..network.predict import DEFAULT_MODEL_PATH
+    from ..network.weights import DEFAULT_MODEL_PATH, read_weights
 
-    return model_weights(DEFAULT_MODEL_PATH) if path is None else _model_option(model_weights, path)
+    return read_weights(DEFAULT_MODEL_PATH) if path is None else _model_option(read_weights, path)
 
 
 def _model_option(read, path):

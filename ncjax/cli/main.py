@@ -26,8 +26,7 @@ def _info(args: argparse.Namespace) -> int:
 
     import ncjax
 
-    from ..network.checkpoint import shipped_models
-    from ..network.predict import DEFAULT_MODEL_PATH
+    from ..network.weights import DEFAULT_MODEL_PATH, shipped_models
     from ..programs import SHIPPED_DIRECTORY, user_cache_directory, user_program_directory
 
     print(f"ncjax {ncjax.__version__}, jax {jax.__version__}, devices: {', '.join(str(d) for d in jax.devices())}")
@@ -133,7 +132,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """
     from ncjax import __version__
 
-    from ..network.predict import DEFAULT_VIEWS
+    from ..network.config import DEFAULT_VIEWS
 
     parser = argparse.ArgumentParser(
         prog="ncjax",

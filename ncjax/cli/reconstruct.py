@@ -31,9 +31,8 @@ import threading
 import numpy as np
 
 from ..io.images import PanoramaError
+from ..network.config import DEFAULT_VIEWS, check_views
 from ..network.edges import EdgeSnap
-from ..network.model import check_views
-from ..network.predict import DEFAULT_VIEWS
 from ..pipeline.config import DEFAULT_WORLD, RENAMED, WORLDS
 from ..reconstruction import DEFAULT_BATCH_SIZE
 from .arguments import add_texture_argument

@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from ..network.checkpoint import WEIGHTS_DTYPES, check_warm_start
-from ..network.model import PRESETS, HorizonNetConfig
+from ..network.config import PRESETS, HorizonNetConfig
 from ..training.data import evaluate_arrays, folder_batches, painted_batches, training_data
 from ..training.loop import TrainConfig, train
 from .arguments import DefaultsHelpFormatter

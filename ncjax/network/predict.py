@@ -21,14 +21,12 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Float, Shaped
 
-from .checkpoint import SHIPPED_MODELS_DIR, load_model
+from .checkpoint import load_model
+from .config import DEFAULT_VIEWS, check_views
 from .denoise import denoise_for_network
 from .edges import EdgeSnap, snap_to_edges
-from .model import HorizonNet, check_views, predict_views, prediction_to_rows
-
-DEFAULT_MODEL_PATH = SHIPPED_MODELS_DIR / "lite0-1024.safetensors"
-# views averaged by default (predict_boundaries, reconstruct): 4 cut the shipped model's boundary error by a tenth
-DEFAULT_VIEWS = 4
+from .model import HorizonNet, predict_views, prediction_to_rows
+from .weights import DEFAULT_MODEL_PATH
 
 
 @functools.cache

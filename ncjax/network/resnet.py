@@ -11,9 +11,10 @@ import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Float
 
+from .config import RESNET_STAGES
+
 # Blocks per stage of the ResNets of He et al. (2016); 10 is the one-block-per-stage
 # basic-block variant (cheap to compile: tests and small models).
-RESNET_STAGES = {10: (1, 1, 1, 1), 18: (2, 2, 2, 2), 34: (3, 4, 6, 3), 50: (3, 4, 6, 3)}
 
 
 def circular_pad_width(x: Float[Array, "*batch H W C"], pad: int) -> Float[Array, "*batch H _ C"]:
