@@ -130,3 +130,31 @@ def test_every_import_of_the_package_names_one_of_its_modules():
                 if base not in MODULES:
                     dangling.append(f"{module}: from {'.' * node.level}{node.module or ''} import ...")
     assert not dangling, "imports of modules that do not exist:\n" + "\n".join(dangling)
+
+
+def test_a_reconstruction_s_imports_leave_out_the_network_s_and_the_training_s_libraries():
+    """What a new process imports before its first layout through saved programs: neither Flax (the network is built
+    only to trace its program) nor the training, synthetic-data or evaluation code; checked in a new interpreter."""
+    import subprocess
+    import sys
+
+    script = """
+import sys
+import ncjax
+from ncjax.cli.main import build_parser
+build_parser("reconstruct")
+ncjax.reconstruct_batch, ncjax.HorizonNetConfig, ncjax.EdgeSnap
+from ncjax.network.weights import DEFAULT_MODEL_PATH, read_weights
+read_weights(DEFAULT_MODEL_PATH)
+left_out = ("flax", "optax", "ncjax.training", "ncjax.synth", "ncjax.evaluation")
+print(sorted(name for name in left_out if name in sys.modules))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]", done.stdout
+    lazy = subprocess.run(
+        [sys.executable, "-c", "import sys, ncjax; ncjax.HorizonNet; print('flax' in sys.modules)"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert lazy.stdout.strip() == "True"  # the network's names are there, imported on first use
