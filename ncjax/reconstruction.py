@@ -453,7 +453,7 @@ def reconstruct_batch(
         images: RGB uint8 (B, H, W, 3), W = 2 H.
         rc: (B,) radius of each panorama's circle of optical centres, metres.
         world: static: "manhattan", "atlanta" or "auto".
-        model: a :class:`~ncjax.HorizonNet`, its :class:`~ncjax.network.checkpoint.ModelWeights`, or the
+        model: a :class:`~ncjax.HorizonNet`, its :class:`~ncjax.network.weights.ModelWeights`, or the
             name of a shipped model or a model file (:func:`~ncjax.load_model`'s argument; default: the shipped
             model). With ``program_cache`` a named model's weights are only read (no network is built once its
             program is saved); without it, a named model is loaded at every call: load it once with

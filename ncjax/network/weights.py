@@ -30,13 +30,15 @@ DEFAULT_MODEL_PATH = SHIPPED_MODELS_DIR / "lite0-1024.safetensors"
 class ModelWeights(NamedTuple):
     """A network as its file holds it: the architecture and the named tensors, no module built.
 
-    Building the :class:`HorizonNet` (:func:`model_from_weights`) traces its constructor, seconds on a CPU;
-    a program that takes the weights as arguments (:mod:`ncjax.programs`) needs it only when it is traced.
+    Building the :class:`~ncjax.network.model.HorizonNet` (:func:`~ncjax.network.checkpoint.model_from_weights`)
+    traces its constructor, seconds on a CPU; a program that takes the weights as arguments (:mod:`ncjax.programs`)
+    needs it only when it is traced.
 
     Attributes:
         config: the architecture.
         tensors: ``"model/<state path>"`` -> array, the parameters and batch-norm statistics
-            (:func:`save_checkpoint`'s names; a training checkpoint's optimizer state left out).
+            (:func:`~ncjax.network.checkpoint.save_checkpoint`'s names; a training checkpoint's optimizer state left
+            out).
     """
 
     config: HorizonNetConfig
@@ -107,7 +109,7 @@ def read_tensors(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 def shipped_models() -> tuple[str, ...]:
-    """Names of the layout networks that ship with ncjax (:func:`load_model` takes them)."""
+    """Names of the layout networks that ship with ncjax (:func:`~ncjax.network.checkpoint.load_model` takes them)."""
     return tuple(sorted(path.stem for path in SHIPPED_MODELS_DIR.glob("*.safetensors") if _is_layout_network(path)))
 
 
