@@ -104,18 +104,19 @@ def _jacobi_round(state: tuple) -> tuple:
     ``state``: the columns of ``R V`` and of ``V`` (each as rows) and the columns' original indices, each split
     into a top and a bottom half, and the largest cosine seen this sweep.
     """
-    (top, bottom), (top_v, bottom_v), (top_i, bottom_i), worst = state
-    cosine, sine, seen = _rotate_pairs(top, bottom)
+    columns, vectors, indices, worst = state
+    cosine, sine, seen = _rotate_pairs(*columns)
     c, s = cosine[:, None], sine[:, None]
-    top, bottom = c * top - s * bottom, s * top + c * bottom
-    top_v, bottom_v = c * top_v - s * bottom_v, s * top_v + c * bottom_v
+
+    def rotate(upper, lower):
+        return c * upper - s * lower, s * upper + c * lower
 
     def turn(upper, lower):
         if len(upper) == 1:  # one pair: nothing to turn
             return upper, lower
         return jnp.concatenate([upper[:1], lower[:1], upper[1:-1]]), jnp.concatenate([lower[1:], upper[-1:]])
 
-    return turn(top, bottom), turn(top_v, bottom_v), turn(top_i, bottom_i), jnp.maximum(worst, seen)
+    return turn(*rotate(*columns)), turn(*rotate(*vectors)), turn(*indices), jnp.maximum(worst, seen)
 
 
 def _jacobi_svd(r: Array) -> tuple[Array, Array]:
