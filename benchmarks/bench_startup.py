@@ -1,12 +1,13 @@
 """How long a user waits for a first layout: new processes of ``ncjax reconstruct`` and of the API, cold and warm.
 
 Every run is a new Python process on the shipped demo panorama (1024 x 512), default settings (the shipped model,
-4 views, world auto, edge snap, ``--batch 4``), with the caches in a new folder (``NCJAX_CACHE``):
+4 views, world auto, edge snap, one image a geometry call), with the caches in a new folder (``NCJAX_CACHE``):
 
 1. cold: the first run on a machine, ``ncjax reconstruct --rc auto`` with empty caches;
-2. then, warm, each once: the CLI central (``--rc 0``), the CLI on 3 and on 5 copies (a padded batch, and a full
-   one and a remainder), the API (``ncjax.reconstruct_batch``, its caches on by default) non-central, central
-   and on 3 copies.
+2. then, warm: the CLI central (``--rc 0``), the CLI on 5 copies, the API (``ncjax.reconstruct_batch``, its caches
+   on by default) non-central, central and on 3 copies;
+3. a batch size of the user's, ``--batch 4``: its first run on 5 copies (it compiles that size's programs), then,
+   warm, 3 copies (a padded batch) and 5 (a full one and a remainder).
 
 Per run: the seconds from starting the process to its first layout (the CLI: the first image's files on disk;
 the API: ``reconstruct_batch`` returned) and to its end. The processes write and reuse Python's bytecode as a
@@ -53,11 +54,11 @@ def environment(cache: str) -> dict:
     return variables
 
 
-def run_cli(images: list[str], rc: str, out: str, cache: str) -> tuple[float, float]:
+def run_cli(images: list[str], rc: str, out: str, cache: str, *options: str) -> tuple[float, float]:
     """Seconds of one ``ncjax reconstruct`` process to its first image's files and to its end (raises if it fails)."""
     shutil.rmtree(out, ignore_errors=True)
     first = pathlib.Path(out) / f"{pathlib.Path(images[0]).stem}.json"
-    command = [sys.executable, "-m", "ncjax.cli", "reconstruct", *images, "--rc", rc, "--out", out]
+    command = [sys.executable, "-m", "ncjax.cli", "reconstruct", *images, "--rc", rc, "--out", out, *options]
     start = time.perf_counter()
     process = subprocess.Popen(command, env=environment(cache), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     first_layout = None
@@ -98,8 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         warm_cases = [
             ("warm: ncjax reconstruct, non-central", lambda: run_cli([image], "auto", out, cache)),
             ("warm: ncjax reconstruct, central (--rc 0)", lambda: run_cli([image], "0", out, cache)),
-            ("warm: ncjax reconstruct, 3 images (a padded batch)", lambda: run_cli(copies[:3], "auto", out, cache)),
-            ("warm: ncjax reconstruct, 5 images (4 + a remainder)", lambda: run_cli(copies, "auto", out, cache)),
+            ("warm: ncjax reconstruct, 5 images", lambda: run_cli(copies, "auto", out, cache)),
             ("warm: API, new process, non-central", lambda: run_api(image, 1, rc, cache)),
             ("warm: API, new process, central", lambda: run_api(image, 1, 0.0, cache)),
             ("warm: API, new process, 3 images", lambda: run_api(image, 3, rc, cache)),
@@ -107,11 +107,17 @@ def main(argv: list[str] | None = None) -> int:
         for name, case in warm_cases:
             runs = [case() for _ in range(args.repeats)]
             rows.append((name, WARM_GOAL, min(runs)))
+        # a batch size of the user's: its first run compiles its programs, the runs after it are warm
+        batch = ("--batch", "4")
+        rows.append(("first run of --batch 4 (5 images)", None, run_cli(copies, "auto", out, cache, *batch)))
+        for name, count in (("3 images (a padded batch)", 3), ("5 images (4 + a remainder)", 5)):
+            runs = [run_cli(copies[:count], "auto", out, cache, *batch) for _ in range(args.repeats)]
+            rows.append((f"warm: --batch 4, {name}", WARM_GOAL, min(runs)))
     print(f"{DEMO_IMAGE.name}, default settings, each run a new process (best of {args.repeats} when warm):")
     print(f"{'run':55s} {'first layout':>13s} {'whole run':>10s}  goal")
     for name, goal, (first, whole) in rows:
-        verdict = "met" if first <= goal else "MISSED"
-        print(f"{name:55s} {first:11.1f} s {whole:8.1f} s  <= {goal:.0f} s {verdict}")
+        verdict = "" if goal is None else f"<= {goal:.0f} s {'met' if first <= goal else 'MISSED'}"
+        print(f"{name:55s} {first:11.1f} s {whole:8.1f} s  {verdict}")
     return 0
 
 

@@ -3,9 +3,9 @@
 A first ``ncjax reconstruct`` traces the network and both worlds' geometry
 (about 10 s on 2 CPU cores) before XLA compiles them. The package carries the
 traced programs (``jax.export``, :data:`ncjax.programs.SHIPPED_DIRECTORY`: the
-network's for one image, and the geometry's two halves for a batch of 4 twice: without a height prior, and with
-the default camera-height prior for central panoramas and the fallback) of the default settings (shipped model,
-world auto, 4 views, edge snap, ``--batch 4``) for 1024 x 512 panoramas, so that a user's first run only compiles.
+network's for one image, and the geometry's two halves for the default ``--batch`` twice: without a height prior,
+and with the default camera-height prior for central panoramas and the fallback) of the default settings (shipped
+model, world auto, 4 views, edge snap) for 1024 x 512 panoramas, so that a user's first run only compiles.
 Other sizes and settings are traced on their first run (the network's program serves every world and pipeline
 setting).
 
@@ -34,6 +34,7 @@ import jax
 from ncjax import programs
 from ncjax.cli.demo import DEMO_DIR
 from ncjax.cli.main import main as ncjax_main
+from ncjax.reconstruction import DEFAULT_BATCH_SIZE
 
 
 def main() -> int:
@@ -57,7 +58,8 @@ def main() -> int:
         "programs": [path.name for path in shipped],
         "settings": (
             "ncjax reconstruct defaults, 1024 x 512 panoramas: the network (one image); walls and layouts (batches "
-            "of 4) without a prior (--rc > 0) and with the camera-height prior (--rc 0, and the fallback of --rc > 0)"
+            f"of {DEFAULT_BATCH_SIZE}) without a prior (--rc > 0) and with the camera-height prior (--rc 0, and the "
+            "fallback of --rc > 0)"
         ),
         "jax": jax.__version__,
         "source_digest": programs.source_digest(),

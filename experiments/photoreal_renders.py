@@ -11,7 +11,9 @@ the probe's size:
   the camera's share of a difference from the light's;
 - ``pathtrace/``: the path tracer's radiance (area lights sampled at every bounce, windows showing an outdoor CC0
   HDR photograph, turned and scaled at random, and lighting the room through their glass), upsampled, then
-  developed by the camera model.
+  developed by the camera model;
+- ``pathtrace_denoised/``: the same radiance denoised (``ncjax.synth.pathtrace_denoise``: the irradiance smoothed
+  within each surface, guided by the primary hits' albedo, normal and depth) before it is upsampled and developed.
 
 Resumable: images already written are skipped, and ``--count`` bounds the path traces of one call (about 30 s each
 on 2 cores at 16 spp), so that a long run goes in chunks. ``--sheet`` writes a contact sheet of what exists.
@@ -39,6 +41,7 @@ import ncjax
 from ncjax.cli.compilation import enable_compilation_cache
 from ncjax.synth.dataset import rendered_samples, rendering_rgb8, sample_name
 from ncjax.synth.pathtrace import PathTraceConfig, path_trace
+from ncjax.synth.pathtrace_denoise import denoise, guide_buffers
 from ncjax.synth.photograph import PhotographConfig, luminance, photograph
 
 OUT = Path(__file__).parent / "out" / "photoreal"
@@ -46,7 +49,7 @@ PROBE_HEIGHT, PROBE_WIDTH = 512, 1024
 HDRI = Path(__file__).parents[2] / "shared" / "data" / "cc0-hdri"
 # What a window shows: the outdoor photographs (night left out: its windows would be black)
 OUTDOOR = ("bridge", "city", "dawn", "esplanade", "forest", "park", "sky", "sunrise", "sunset", "venice")
-SETS = ("raycast", "raycast_camera", "pathtrace")
+SETS = ("raycast", "raycast_camera", "pathtrace", "pathtrace_denoised")
 SEED = 0  # ncjax synth's default
 
 
@@ -83,12 +86,16 @@ def upsampled(image: np.ndarray) -> np.ndarray:
 
 
 @functools.partial(jax.jit, static_argnames=("config", "camera"))
-def traced_photograph(scene, cam, key, sky, config: PathTraceConfig, camera: PhotographConfig):
-    """The path-traced radiance of one scene, upsampled to the probe's size and developed by the camera."""
+def traced_photographs(scene, cam, key, sky, config: PathTraceConfig, camera: PhotographConfig):
+    """The path-traced radiance of one scene, as traced and denoised, each upsampled to the probe's size and
+    developed by the same camera."""
     key_trace, key_camera = jax.random.split(key)
     radiance = path_trace(scene, cam, key_trace, config, sky)
-    radiance = jax.image.resize(radiance, (PROBE_HEIGHT, PROBE_WIDTH, 3), "linear")
-    return photograph(key_camera, radiance, camera)
+    denoised = denoise(radiance, guide_buffers(scene, cam))
+    return tuple(
+        photograph(key_camera, jax.image.resize(image, (PROBE_HEIGHT, PROBE_WIDTH, 3), "linear"), camera)
+        for image in (radiance, denoised)
+    )
 
 
 develop = jax.jit(photograph, static_argnames="config")
@@ -122,19 +129,20 @@ def render(args) -> None:
         if not paths["raycast_camera"].exists():
             linear = (upsampled(rendering_rgb8(rendering)) / 255.0) ** 2.2
             write_png(paths["raycast_camera"], np.asarray(develop(key, jnp.asarray(linear, jnp.float32), camera)))
-        if paths["pathtrace"].exists() or traced >= args.count:
+        if paths["pathtrace_denoised"].exists() or traced >= args.count:
             continue
         start = time.perf_counter()
         sky = jnp.asarray(environment(index, args.window_brightness, args.sun_clip))
-        image = traced_photograph(jax.tree.map(jnp.asarray, scene), cam, key, sky, trace_config, camera)
-        write_png(paths["pathtrace"], np.asarray(image))
+        images = traced_photographs(jax.tree.map(jnp.asarray, scene), cam, key, sky, trace_config, camera)
+        for folder, image in zip(("pathtrace", "pathtrace_denoised"), images, strict=True):
+            write_png(paths[folder], np.asarray(image))
         traced += 1
         print(
             f"{name}: path-traced {width}x{height} at {args.spp} spp in {time.perf_counter() - start:.1f} s", flush=True
         )
     done = {folder: len(list((args.out / folder).glob("*.png"))) for folder in SETS}
     print("written: " + ", ".join(f"{folder} {count}/{args.n}" for folder, count in done.items()))
-    if done["pathtrace"] == args.n:
+    if done["pathtrace_denoised"] == args.n:
         sets = " ".join(f'"{folder}={args.out}/{folder}/*.png"' for folder in SETS)
         print(
             "probe: uv run --with scikit-learn --with scipy python ../shared/tools/realism_probe/probe.py "
@@ -143,14 +151,14 @@ def render(args) -> None:
 
 
 def contact_sheet(out: Path, rows: int) -> Path:
-    """``rows`` rooms, the ray caster's image left and the path-traced photograph right, at half size."""
-    names = sorted(p.name for p in (out / "pathtrace").glob("*.png"))[:rows]
+    """``rows`` rooms at half size: the ray caster's image, the path-traced photograph and the denoised one."""
+    names = sorted(p.name for p in (out / "pathtrace_denoised").glob("*.png"))[:rows]
     if not names:
-        raise FileNotFoundError(f"no path-traced images in {out / 'pathtrace'}")
+        raise FileNotFoundError(f"no path-traced images in {out / 'pathtrace_denoised'}")
     tiles = []
     for name in names:
-        pair = [cv2.imread(str(out / folder / name)) for folder in ("raycast", "pathtrace")]
-        tiles.append(np.concatenate([cv2.resize(p, (PROBE_WIDTH // 2, PROBE_HEIGHT // 2)) for p in pair], 1))
+        views = [cv2.imread(str(out / folder / name)) for folder in ("raycast", "pathtrace", "pathtrace_denoised")]
+        tiles.append(np.concatenate([cv2.resize(p, (PROBE_WIDTH // 2, PROBE_HEIGHT // 2)) for p in views], 1))
     path = out / "contact_sheet.png"
     cv2.imwrite(str(path), np.concatenate(tiles, 0))
     return path

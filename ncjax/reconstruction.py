@@ -52,7 +52,7 @@ from .pipeline.config import (
 from .pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior, flag_scale_conflicts
 from .pipeline.run import FittedWalls, finish, fit_walls
 from .pipeline.types import Layout, LayoutStatus, Rows
-from .programs import compiled_before, load_saved, result_like, user_program_directory
+from .programs import compiled_before, load_saved, program_path, result_like, user_program_directory
 from .solvers.ransac import RansacConfig
 
 # The pipeline's settings for the shipped network's rows, chosen on tuning renders, never the test renders (the
@@ -76,13 +76,14 @@ NETWORK_PIPELINE_CONFIG = PipelineConfig(
 )
 
 
-# The saved geometry programs (ncjax.programs, the CLI's) compile with XLA's cheaper backend settings: the geometry runs
-# in tens of milliseconds a panorama either way, and its compilation is most of a first run's (experiments/RESULTS.md,
-# "Speed"). The network keeps the full optimisation: it is most of a run's time.
-GEOMETRY_COMPILER_OPTIONS = {
+# The saved geometry programs (ncjax.programs, the CLI's) compile with XLA's CPU emitters of before its fusion emitters,
+# whose compilation takes half as long for code as fast (experiments/RESULTS.md, "Speed"). A process that finds them
+# compiled by none before it compiles them for itself with the cheap settings as well (XLA's backend at level 0: half
+# the compilation again, code half as fast), and the optimised ones in the background for the processes after it.
+GEOMETRY_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+CHEAP_GEOMETRY_COMPILER_OPTIONS = GEOMETRY_COMPILER_OPTIONS | {
     "xla_backend_optimization_level": 0,
     "xla_llvm_disable_expensive_passes": True,
-    "xla_cpu_use_fusion_emitters": False,
 }
 
 
@@ -123,8 +124,10 @@ class Reconstruction(NamedTuple):
 
 # Images per call of the geometry's programs: a batch is laid out in chunks of this many, the last one padded with
 # copies of its last image, so that every batch size runs the same programs. The network runs image by image (its
-# views are its batch: on a CPU a larger batch is no faster a panorama).
-DEFAULT_BATCH_SIZE = 4
+# views are its batch: on a CPU a larger batch is no faster a panorama). One: on 2 CPU cores a chunk of 4 lays out a
+# panorama in 0.03 s against 0.066 s alone (a folder's images 7% faster, their files included), but a process's
+# first chunk takes 0.25 s against 0.17 s, and a lone image (a CLI run's first) is padded with 3 copies.
+DEFAULT_BATCH_SIZE = 1
 
 
 class _Chunk(NamedTuple):
@@ -202,8 +205,8 @@ class _SavedGeometry:
     (:mod:`ncjax.programs`): its steps 0-4 and 5-6. :meth:`load` loads (or compiles) a route's two in two
     threads while the caller goes on (XLA loads a compiled program on one core, and these are most of the
     loading); calling runs them. A route's programs are separate, so that a process loads only the route it
-    runs; :meth:`prepare_others` compiles, in the background, the routes this machine never compiled, so that
-    a later process finds them in XLA's cache.
+    runs; :meth:`prepare_later_processes` compiles, in the background, the optimised programs of the routes this
+    machine never compiled so, so that a later process finds them in XLA's cache.
     """
 
     def __init__(self, directory, shape: tuple[int, int], config: PipelineConfig, route: _Route):
@@ -218,7 +221,8 @@ class _SavedGeometry:
         )
         self.programs: dict[str | None, tuple[concurrent.futures.Future, concurrent.futures.Future]] = {}
 
-    def _functions(self, prior_kind: str | None):
+    def _programs(self, prior_kind: str | None) -> list[tuple[str, Callable, tuple]]:
+        """The route's two programs: (key, function, arguments) of its walls and of its layouts."""
         route = self.route._replace(prior_kind=prior_kind)
         walls_structure = []
 
@@ -233,28 +237,28 @@ class _SavedGeometry:
             layout = _finished(jax.tree.unflatten(walls_structure[0], walls_leaves), prior_value, config, route)
             return {field.name: getattr(layout, field.name) for field in dataclasses.fields(Layout)}
 
-        return walls, layouts, repr(("walls", *route)), repr(("layouts", *route))
+        walls_key, layouts_key = repr(("walls", *route)), repr(("layouts", *route))
+        walls_arguments = (self.rows_like, tuple(self.chunk_like), self.config)
+        walls_like = result_like(self.directory, walls_key, walls, *walls_arguments)
+        layouts_arguments = (walls_like, self.chunk_like.prior_value, self.config)
+        return [(walls_key, walls, walls_arguments), (layouts_key, layouts, layouts_arguments)]
 
-    def _walls_arguments(self) -> tuple:
-        return self.rows_like, tuple(self.chunk_like), self.config
+    def _optimised_before(self, key: str, arguments: tuple) -> bool:
+        return compiled_before(self.directory, key, *arguments, compiler_options=GEOMETRY_COMPILER_OPTIONS)
 
-    def load(self, prior_kind: str | None, background: bool = False) -> None:
-        """Start loading the programs of the route of ``prior_kind`` (None: the rows' own scale), once; in
-        ``background`` at the least CPU priority, so that they give way to the process's own work."""
+    def load(self, prior_kind: str | None) -> None:
+        """Start loading the programs of the route of ``prior_kind`` (None: the rows' own scale), once: each
+        optimised where a process compiled it so before, else compiled with the cheap settings."""
         if prior_kind in self.programs:
             return
-        walls, layouts, walls_key, layouts_key = self._functions(prior_kind)
-        walls_like = result_like(self.directory, walls_key, walls, *self._walls_arguments())
-        layouts_arguments = (walls_like, self.chunk_like.prior_value, self.config)
-        cheap = {"compiler_options": GEOMETRY_COMPILER_OPTIONS}
-        pool = concurrent.futures.ThreadPoolExecutor(2, initializer=_lowest_priority if background else None)
-        self.programs[prior_kind] = (
-            pool.submit(load_saved, self.directory, walls_key, walls, *self._walls_arguments(), **cheap),
-            pool.submit(load_saved, self.directory, layouts_key, layouts, *layouts_arguments, **cheap),
-        )
+        pool = concurrent.futures.ThreadPoolExecutor(2)
+        futures = []
+        for key, function, arguments in self._programs(prior_kind):
+            optimised = self._optimised_before(key, arguments)
+            options = GEOMETRY_COMPILER_OPTIONS if optimised else CHEAP_GEOMETRY_COMPILER_OPTIONS
+            futures.append(pool.submit(load_saved, self.directory, key, function, *arguments, compiler_options=options))
         pool.shutdown(wait=False)  # the two loads go on; the pool takes no more
-        if background:
-            _BACKGROUND.extend(self.programs[prior_kind])
+        self.programs[prior_kind] = tuple(futures)
 
     def __call__(self, rows: Rows, chunk: _Chunk, prior_kind: str | None) -> Layout:
         self.load(prior_kind)
@@ -263,22 +267,35 @@ class _SavedGeometry:
         walls_leaves = walls_program.result()(rows, tuple(chunk), self.config)
         return Layout(**layouts_program.result()(walls_leaves, chunk.prior_value, self.config))
 
-    def prepare_others(self, prior_kinds: tuple[str | None, ...]) -> None:
-        """Compile in the background the routes of ``prior_kinds`` this machine has not compiled (none without
-        XLA's persistent cache, where a compilation would not outlive the process). The process waits for them
-        before it exits."""
+    def prepare_later_processes(self, prior_kinds: tuple[str | None, ...]) -> None:
+        """Compile in the background, at the least CPU priority, the optimised programs of the routes of
+        ``prior_kinds`` that no process compiled so (none without XLA's persistent cache, where a compilation would
+        not outlive the process). Inside :func:`background_compilations_deferred`, they start at its end. The
+        process waits for them before it exits (:func:`finish_background_compilations`)."""
         if not jax.config.jax_compilation_cache_dir:
             return
         for prior_kind in prior_kinds:
-            walls, _, walls_key, _ = self._functions(prior_kind)
-            options = GEOMETRY_COMPILER_OPTIONS
-            if not compiled_before(self.directory, walls_key, *self._walls_arguments(), compiler_options=options):
-                self.load(prior_kind, background=True)
+            for key, function, arguments in self._programs(prior_kind):
+                name = program_path(self.directory, key, arguments)
+                if name in _STARTED or self._optimised_before(key, arguments):
+                    continue
+                _STARTED.add(name)
+                compile_later = functools.partial(
+                    load_saved, self.directory, key, function, *arguments, compiler_options=GEOMETRY_COMPILER_OPTIONS
+                )
+                if _DEFERRED is None:
+                    _BACKGROUND.append(_LATER_POOL.submit(compile_later))
+                else:
+                    _DEFERRED.append(compile_later)
 
 
-# the compilations :meth:`_SavedGeometry.prepare_others` started: Python waits for them before it exits, a process
-# that ends with ``os._exit`` (the CLI) must call :func:`finish_background_compilations` first
+# The compilations :meth:`_SavedGeometry.prepare_later_processes` started, one thread each at the least CPU priority:
+# Python waits for them before it exits, a process that ends with ``os._exit`` (the CLI) must call
+# :func:`finish_background_compilations` first. _STARTED: the programs they compile, each started once a process.
 _BACKGROUND: list[concurrent.futures.Future] = []
+_STARTED: set[os.PathLike] = set()
+# Inside background_compilations_deferred: the compilations waiting for its end.
+_DEFERRED: list[Callable[[], object]] | None = None
 
 
 def finish_background_compilations() -> bool:
@@ -290,10 +307,29 @@ def finish_background_compilations() -> bool:
     return bool(pending)
 
 
+@contextlib.contextmanager
+def background_compilations_deferred():
+    """Start the compilations for later processes that :func:`reconstruct_batch` asks for inside the block only
+    at its end: ``ncjax reconstruct`` writes its first image's files before they take the CPU (XLA's compiler
+    runs part of its work in threads that do not inherit the least priority)."""
+    global _DEFERRED
+    outer, _DEFERRED = _DEFERRED, [] if _DEFERRED is None else _DEFERRED
+    try:
+        yield
+    finally:
+        if outer is None:
+            waiting, _DEFERRED = _DEFERRED, None
+            _BACKGROUND.extend(_LATER_POOL.submit(compile_later) for compile_later in waiting)
+
+
 def _lowest_priority() -> None:
     """Give the calling thread the least CPU priority (Linux: a thread's own nice value; elsewhere nothing)."""
     with contextlib.suppress(AttributeError, OSError):
         os.setpriority(os.PRIO_PROCESS, 0, 19)
+
+
+# Where the compilations for later processes run: two threads at the least CPU priority.
+_LATER_POOL = concurrent.futures.ThreadPoolExecutor(2, initializer=_lowest_priority)
 
 
 def _saved_rows(directory: str | os.PathLike, weights: ModelWeights, image_shape: tuple, network: _Network):
@@ -478,10 +514,11 @@ def reconstruct_batch(
             the compiler. True (default): the user's cache folder (:func:`~ncjax.programs.user_cache_directory`,
             ``~/.cache/ncjax/xla``), and XLA's cache switched on there unless jax's
             ``jax_compilation_cache_dir`` is already set; the environment variable ``NCJAX_CACHE=off`` switches
-            both off. The first call on a machine also compiles, in the background, the other route's programs
-            (central against non-central, the default camera-height prior), so that a later process finds them
-            compiled; the process waits for them before it exits. A folder: the programs there (XLA's cache as
-            it is set, nothing compiled in the background). False or None: traced in each
+            both off. A first call on a machine compiles the geometry's programs for itself with XLA's cheap
+            settings, then, in the background, their optimised versions for both routes (central against
+            non-central, the default camera-height prior), which later processes load; the process waits for them
+            before it exits. A folder: the programs there (XLA's cache as it is set, nothing compiled in the
+            background). False or None: traced in each
             process, as any jitted function.
         batch_size: images per call of the geometry's programs: the batch runs in chunks of this many, the last
             one padded, so that any number of images runs the same programs (the network runs image by image).
@@ -546,7 +583,7 @@ def reconstruct_batch(
 
     layouts, own = (jax.tree.map(joined, *parts) for parts in zip(*laid_out, strict=True))
     if program_cache is True and directory is not None:  # a later process may need the routes this one did not run
-        geometry.prepare_others((None, "camera_height"))
+        geometry.prepare_later_processes((None, "camera_height"))
     # device_put, not jnp.asarray: the latter compiles a copy per shape, a few milliseconds each in a new process
     source = jax.device_put(_scale_sources(route, rc, own))
     ceiling, floor, corner_prob = (jax.device_put(x) for x in (rows.ceiling, rows.floor, rows.corner_prob))

@@ -502,7 +502,7 @@ def test_help_shows_every_default():
     reconstruct_help = " ".join(subcommands()["reconstruct"].format_help().split())
     assert (
         "--batch BATCH panoramas per call of the geometry's programs (a smaller last batch is padded: any number "
-        "of images runs the same programs) (default: 4)"
+        "of images runs the same programs) (default: 1)"
     ) in reconstruct_help
     train_help = " ".join(subcommands()["train"].format_help().split())
     assert "--batch N, --batch-size N images per step (default: 4)" in train_help

@@ -13,6 +13,7 @@ from ncjax.synth.photograph import (
     PhotographConfig,
     filmic_tone_curve,
     grey_world_gains,
+    inverse_filmic_tone_curve,
     luminance,
     metered_exposure,
     nadir_patch,
@@ -52,12 +53,21 @@ def test_srgb_encoding_is_the_standards():
     assert float(srgb_encode(jnp.float32(0.18))) == pytest.approx(0.4613, abs=1e-3)
 
 
-def test_metering_puts_the_percentile_at_the_white_point_and_ignores_the_scale():
+def test_metering_renders_the_log_average_at_middle_grey_and_ignores_the_scale():
     radiance = jnp.asarray(_radiance())
-    factor = metered_exposure(radiance, 90.0, 6.0)
-    np.testing.assert_allclose(np.percentile(np.asarray(luminance(radiance * factor)), 90.0), 6.0, rtol=1e-5)
-    np.testing.assert_allclose(metered_exposure(7.0 * radiance, 90.0, 6.0) * 7.0, factor, rtol=1e-5)
-    assert float(metered_exposure(jnp.zeros((HEIGHT, WIDTH, 3)), 90.0, 6.0)) == 1.0
+    factor = metered_exposure(radiance, 0.18, 6.0)
+    key = np.exp(np.mean(np.log(np.asarray(luminance(radiance * factor), np.float64))))
+    assert float(filmic_tone_curve(jnp.float32(key), 6.0)) == pytest.approx(0.18, rel=1e-3)
+    np.testing.assert_allclose(metered_exposure(7.0 * radiance, 0.18, 6.0) * 7.0, factor, rtol=1e-5)
+    assert float(metered_exposure(jnp.zeros((HEIGHT, WIDTH, 3)), 0.18, 6.0)) == 1.0
+
+
+def test_the_inverse_tone_curve_undoes_it():
+    display = jnp.linspace(0.01, 0.99, 50)
+    for white_point in (2.0, 6.0, 11.2):
+        linear = inverse_filmic_tone_curve(display, white_point)
+        np.testing.assert_allclose(filmic_tone_curve(linear, white_point), display, atol=1e-5)
+        assert np.all(np.diff(np.asarray(linear)) > 0) and float(linear[-1]) < white_point
 
 
 def test_grey_world_gains_make_the_mean_grey_and_keep_its_luminance():
@@ -113,8 +123,8 @@ def test_photograph_survives_a_real_jpeg_round_trip():
 
 def test_configuration_rejects_bad_values():
     for bad in (
-        dict(exposure_percentile=0.0),
-        dict(exposure_percentile=101.0),
+        dict(middle_grey=0.0),
+        dict(middle_grey=1.0),
         dict(white_point=0.0),
         dict(white_balance_strength=1.5),
         dict(nadir_rows=(0.2, 0.1)),

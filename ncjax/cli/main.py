@@ -294,7 +294,7 @@ def console_script() -> NoReturn:
     code = main()
     reconstruction = sys.modules.get("ncjax.reconstruction")  # not imported by the commands that reconstruct nothing
     if reconstruction is not None and any(not future.done() for future in reconstruction._BACKGROUND):
-        print("ncjax: finishing the programs of the other route (central or not) for later runs", file=sys.stderr)
+        print("ncjax: finishing the optimised programs for later runs", file=sys.stderr)
         reconstruction.finish_background_compilations()
     sys.stdout.flush()
     sys.stderr.flush()

@@ -308,7 +308,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     tally = RunTally(images, args.out, tqdm(total=len(images), unit="image", desc="ncjax reconstruct"))
 
     def reconstruct(group):
-        _reconstruct_group(settings, group, tally.done, tally.failed, ledger, tally.bar.write)
+        from ..reconstruction import background_compilations_deferred
+
+        # what a first run compiles for later runs waits until this group's files are written
+        with background_compilations_deferred():
+            _reconstruct_group(settings, group, tally.done, tally.failed, ledger, tally.bar.write)
 
     groups: dict[tuple[int, int], list] = collections.defaultdict(list)
     # the run's first image goes alone (padded: the same programs), so that its files appear after one image's

@@ -41,7 +41,8 @@ class PhotographConfig:
     Each range ``(low, high)`` is drawn uniformly per photograph from its key.
 
     Attributes:
-        exposure_percentile: the luminance percentile (0 to 100) that the metering maps to the white point.
+        middle_grey: the display value (linear, before the sRGB encoding) at which the metering renders the scene's
+            log-average luminance: 0.18, the grey a camera's averaging meter aims at.
         exposure_spread: the metering's error: a factor on the exposure, drawn log-uniformly.
         white_point: the linear value the tone curve maps to 1 (brighter is clipped).
         white_balance_strength: how much of the grey-world correction the camera applies (0: none, 1: all).
@@ -57,7 +58,7 @@ class PhotographConfig:
         jpeg_quality: JPEG quality of the file (1 to 100).
     """
 
-    exposure_percentile: float = 97.0
+    middle_grey: float = 0.18
     exposure_spread: tuple[float, float] = (0.8, 1.25)
     white_point: float = 6.0
     white_balance_strength: float = 0.6
@@ -73,8 +74,8 @@ class PhotographConfig:
     jpeg_quality: tuple[float, float] = (75.0, 92.0)
 
     def __post_init__(self):
-        if not 0 < self.exposure_percentile <= 100:
-            raise ValueError(f"exposure_percentile must be in (0, 100], got {self.exposure_percentile}")
+        if not 0 < self.middle_grey < 1:
+            raise ValueError(f"middle_grey must be in (0, 1), got {self.middle_grey}")
         if not self.white_point > 0:
             raise ValueError(f"white_point must be > 0, got {self.white_point}")
         if not 0 <= self.white_balance_strength <= 1:
@@ -89,15 +90,21 @@ def luminance(image: Float[Array, "*S 3"]) -> Float[Array, "*S"]:
 
 
 def metered_exposure(
-    radiance: Float[Array, "H W 3"], percentile: Float[ArrayLike, ""], white_point: Float[ArrayLike, ""]
+    radiance: Float[Array, "H W 3"], middle_grey: Float[ArrayLike, ""], white_point: Float[ArrayLike, ""]
 ) -> Float[Array, ""]:
-    """The factor on the radiance that puts the ``percentile`` of its luminance at ``white_point``.
+    """The factor on the radiance that renders its log-average luminance (the scene's key: Reinhard et al. 2002,
+    "Photographic tone reproduction for digital images", Eq. 1) at ``middle_grey`` through
+    :func:`filmic_tone_curve`.
 
-    A camera meters the scene it sees; mapping a high percentile, not the maximum, to white lets the few
-    brightest pixels (windows, lamps) clip as in real photographs. A black image gets the factor 1.
+    A camera's averaging meter exposes whatever it sees as a mid grey, so a dim room comes out as bright as a
+    sunny one, and what is far brighter than the room's average (windows, lamps) blows out. A black image gets
+    the factor 1.
     """
-    level = jnp.percentile(luminance(radiance), percentile)
-    return jnp.where(level > 0, white_point / jnp.maximum(level, 1e-30), 1.0)
+    level = luminance(radiance)
+    floor = 1e-4 * jnp.mean(level)  # black pixels (shadowed corners) would pull the log-average to zero
+    key = jnp.exp(jnp.mean(jnp.log(level + floor + 1e-30)))
+    target = inverse_filmic_tone_curve(middle_grey, white_point)
+    return jnp.where(jnp.mean(level) > 0, target / key, 1.0)
 
 
 def grey_world_gains(radiance: Float[Array, "H W 3"], strength: Float[ArrayLike, ""]) -> Float[Array, 3]:
@@ -121,6 +128,16 @@ def filmic_tone_curve(linear: Float[Array, "*S"], white_point: Float[ArrayLike, 
     highlights smoothly up to the white point, where the film saturates.
     """
     return jnp.clip(_hable(jnp.maximum(linear, 0.0)) / _hable(white_point), 0.0, 1.0)
+
+
+def inverse_filmic_tone_curve(display: Float[ArrayLike, "*S"], white_point: Float[ArrayLike, ""]) -> Float[Array, "*S"]:
+    """The linear value that :func:`filmic_tone_curve` maps to ``display`` in [0, 1): the positive root of the
+    quadratic that Hable's rational curve equal to ``display * curve(white_point)`` is."""
+    a, b, c, d, e, f = _HABLE
+    level = jnp.asarray(display) * _hable(jnp.asarray(white_point)) + e / f
+    # a (1 - level) x^2 + b (c - level) x + d (e - level f) = 0
+    quadratic, linear, constant = a * (1 - level), b * (c - level), d * (e - level * f)
+    return (-linear + jnp.sqrt(linear**2 - 4 * quadratic * constant)) / (2 * quadratic)
 
 
 def srgb_encode(linear: Float[Array, "*S"]) -> Float[Array, "*S"]:
@@ -178,7 +195,7 @@ def photograph(
 
     log_low, log_high = jnp.log(config.exposure_spread[0]), jnp.log(config.exposure_spread[1])
     error = jnp.exp(log_low + u[0] * (log_high - log_low))
-    exposed = radiance * error * metered_exposure(radiance, config.exposure_percentile, config.white_point)
+    exposed = radiance * error * metered_exposure(radiance, config.middle_grey, config.white_point)
     gains = grey_world_gains(radiance, config.white_balance_strength) * _between(u[1:4], config.white_balance_error)
     exposed = exposed * gains
 
