@@ -138,3 +138,60 @@ def test_the_background_compilations_are_waited_for_before_the_process_ends():
     assert reconstruction.finish_background_compilations() is True
     assert compiling.done() and time.perf_counter() - started >= 0.15 and not reconstruction._BACKGROUND
     pool.shutdown()
+
+
+def test_a_first_process_compiles_cheaply_for_itself_and_optimised_for_the_next_ones(tmp_path, monkeypatch):
+    """The geometry's two tiers (``ncjax.reconstruction``): without a process's marker, a route's programs compile with
+    the cheap settings; the optimised ones of every asked route compile in the background, once, and inside
+    ``background_compilations_deferred`` only at its end; with the markers, the optimised ones are loaded."""
+    import ast
+    import concurrent.futures
+    import os
+
+    from ncjax import reconstruction
+
+    compiled = []
+
+    def recording_load(directory, key, function, *args, compiler_options=None):
+        program, *_, prior_kind = ast.literal_eval(key)
+        compiled.append((program, prior_kind, compiler_options))
+        return lambda *arguments: None
+
+    class RunAtOnce:  # the background pool, synchronous
+        def submit(self, function):
+            future = concurrent.futures.Future()
+            future.set_result(function())
+            return future
+
+    programs.use_compilation_cache(os.environ["NCJAX_CACHE"])  # what the CLI and the API switch on
+    monkeypatch.setattr(reconstruction, "load_saved", recording_load)
+    monkeypatch.setattr(reconstruction, "result_like", lambda *args: None)
+    monkeypatch.setattr(reconstruction, "_LATER_POOL", RunAtOnce())
+    monkeypatch.setattr(reconstruction, "_STARTED", set())
+    route = reconstruction._Route(32, "threefry2x32", "auto", None)
+    geometry = reconstruction._SavedGeometry(tmp_path, (1, 64), reconstruction.PipelineConfig(), route)
+    cheap, optimised = reconstruction.CHEAP_GEOMETRY_COMPILER_OPTIONS, reconstruction.GEOMETRY_COMPILER_OPTIONS
+    geometry.load(None)
+    concurrent.futures.wait(geometry.programs[None])
+    assert sorted(compiled, key=repr) == [("layouts", None, cheap), ("walls", None, cheap)]
+    with reconstruction.background_compilations_deferred():
+        geometry.prepare_later_processes((None, "camera_height"))
+        assert len(compiled) == 2  # nothing starts inside the block
+    assert sorted(compiled[2:], key=repr) == sorted(
+        ((program, kind, optimised) for program in ("walls", "layouts") for kind in (None, "camera_height")), key=repr
+    )
+    geometry.prepare_later_processes((None, "camera_height"))
+    assert len(compiled) == 6  # each started once a process
+    assert reconstruction.finish_background_compilations() is False  # all done
+
+    def optimised_before(*args, compiler_options=None):
+        return compiler_options == optimised
+
+    monkeypatch.setattr(reconstruction, "compiled_before", optimised_before)
+    later = reconstruction._SavedGeometry(tmp_path, (1, 64), reconstruction.PipelineConfig(), route)
+    later.load("camera_height")
+    concurrent.futures.wait(later.programs["camera_height"])
+    assert sorted(compiled[6:], key=repr) == [
+        ("layouts", "camera_height", optimised),
+        ("walls", "camera_height", optimised),
+    ]
