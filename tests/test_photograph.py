@@ -24,6 +24,8 @@ from ncjax.synth.photograph import (
 HEIGHT, WIDTH = 16, 32
 
 _photograph = jax.jit(photograph, static_argnames="config")
+# the camera's own size: its noise and JPEG as they are in the file, before any downsampling
+AT_NATIVE_WIDTH = PhotographConfig(native_width=WIDTH)
 
 
 def _radiance(seed: int = 0) -> np.ndarray:
@@ -94,21 +96,39 @@ def test_nadir_patch_covers_the_bottom_rows_only_and_darkens_the_pole():
 @pytest.mark.slow
 def test_photograph_is_an_8_bit_image_deterministic_per_key():
     radiance = jnp.asarray(_radiance())
-    image = np.asarray(_photograph(jax.random.key(0), radiance))
+    image = np.asarray(_photograph(jax.random.key(0), radiance, AT_NATIVE_WIDTH))
     assert image.shape == (HEIGHT, WIDTH, 3) and image.dtype == np.float32
     assert image.min() >= 0 and image.max() <= 1
     np.testing.assert_allclose(image * 255, np.round(image * 255), atol=1e-3)  # a decoded 8-bit JPEG
-    np.testing.assert_array_equal(np.asarray(_photograph(jax.random.key(0), radiance)), image)
-    assert not np.array_equal(np.asarray(_photograph(jax.random.key(1), radiance)), image)
+    np.testing.assert_array_equal(np.asarray(_photograph(jax.random.key(0), radiance, AT_NATIVE_WIDTH)), image)
+    assert not np.array_equal(np.asarray(_photograph(jax.random.key(1), radiance, AT_NATIVE_WIDTH)), image)
     assert image[4:7, 10:14].mean() > 0.9  # the window blows out
     # The metering normalises the exposure: ten times the light is the same photograph.
-    brighter = np.asarray(_photograph(jax.random.key(0), 10.0 * radiance))
+    brighter = np.asarray(_photograph(jax.random.key(0), 10.0 * radiance, AT_NATIVE_WIDTH))
     assert np.abs(brighter - image).mean() < 2e-3 and np.abs(brighter - image).max() <= 3 / 255 + 1e-6
     # A batch of photographs is the photographs of its images.
     keys = jax.random.split(jax.random.key(2), 2)
     batch = jnp.stack([radiance, 3.0 * radiance])
-    batched = jax.vmap(lambda key, x: photograph(key, x))(keys, batch)
-    np.testing.assert_allclose(batched[1], _photograph(keys[1], batch[1]), atol=1.5 / 255)
+    batched = jax.vmap(lambda key, x: photograph(key, x, AT_NATIVE_WIDTH))(keys, batch)
+    np.testing.assert_allclose(batched[1], _photograph(keys[1], batch[1], AT_NATIVE_WIDTH), atol=1.5 / 255)
+
+
+@pytest.mark.slow
+def test_a_downsampled_photograph_has_the_noise_of_the_pixels_it_averages():
+    """Read at a k-th of the camera's width (no JPEG then), a photograph's sensor noise is a k-th of the file's."""
+    radiance = jnp.asarray(_radiance())
+    quiet = dict(read_noise=(0.0, 0.0), shot_noise=(0.0, 0.0))
+    loud = dict(read_noise=(0.2, 0.2), shot_noise=(0.0, 0.0))
+    spread = []
+    for native_width in (4 * WIDTH, 16 * WIDTH):
+        clean, noisy = (
+            np.asarray(_photograph(jax.random.key(5), radiance, PhotographConfig(native_width=native_width, **noise)))
+            for noise in (quiet, loud)
+        )
+        unclipped = (clean > 0.2) & (clean < 0.8)
+        spread.append(np.std((noisy - clean)[unclipped]))
+    assert spread[0] == pytest.approx(0.05, rel=0.15)
+    assert spread[1] == pytest.approx(0.0125, rel=0.25)
 
 
 @pytest.mark.slow
@@ -125,6 +145,7 @@ def test_configuration_rejects_bad_values():
     for bad in (
         dict(middle_grey=0.0),
         dict(middle_grey=1.0),
+        dict(native_width=0.0),
         dict(white_point=0.0),
         dict(white_balance_strength=1.5),
         dict(nadir_rows=(0.2, 0.1)),

@@ -53,9 +53,13 @@ class PhotographConfig:
         nadir_rows: the fraction of the rows, from the bottom, that the nadir patch covers.
         nadir_blur: the patch's blur, as a fraction of the image width (its smear is wider at the pole).
         nadir_darkening: the factor on the patch's brightness at the pole (the tripod's shadow).
-        read_noise: standard deviation of the sensor's read noise (encoded intensities).
-        shot_noise: standard deviation of its shot noise at intensity 1 (grows as the square root).
+        read_noise: standard deviation of the sensor's read noise (encoded intensities), at ``native_width``.
+        shot_noise: standard deviation of its shot noise at intensity 1 (grows as the square root), at
+            ``native_width``.
         jpeg_quality: JPEG quality of the file (1 to 100).
+        native_width: the width of the camera's own panoramas (5760 for a consumer 360-degree camera). A
+            panorama read at a width k times smaller averages k x k of its pixels: the noise is divided by k, and
+            the JPEG's 8 x 8 blocks are left out where they would shrink below 4 pixels (k > 2).
     """
 
     middle_grey: float = 0.18
@@ -72,6 +76,7 @@ class PhotographConfig:
     read_noise: tuple[float, float] = (0.003, 0.008)
     shot_noise: tuple[float, float] = (0.005, 0.015)
     jpeg_quality: tuple[float, float] = (75.0, 92.0)
+    native_width: float = 5760.0
 
     def __post_init__(self):
         if not 0 < self.middle_grey < 1:
@@ -80,6 +85,8 @@ class PhotographConfig:
             raise ValueError(f"white_point must be > 0, got {self.white_point}")
         if not 0 <= self.white_balance_strength <= 1:
             raise ValueError(f"white_balance_strength must be in [0, 1], got {self.white_balance_strength}")
+        if not self.native_width > 0:
+            raise ValueError(f"native_width must be > 0, got {self.native_width}")
         if not 0 <= self.nadir_rows[0] <= self.nadir_rows[1] < 0.5:
             raise ValueError(f"nadir_rows must be 0 <= low <= high < 0.5, got {self.nadir_rows}")
 
@@ -186,7 +193,8 @@ def photograph(
         config: static settings (:class:`PhotographConfig`).
 
     Returns:
-        (H, W, 3) sRGB-encoded RGB in [0, 1], multiples of 1/255 (a decoded 8-bit JPEG).
+        (H, W, 3) sRGB-encoded RGB in [0, 1], multiples of 1/255 (a decoded 8-bit file, JPEG-compressed unless
+        ``native_width`` is more than twice W).
         Jit with ``config`` static; vmap over keys and images.
     """
     height, width = radiance.shape[:2]
@@ -216,5 +224,9 @@ def photograph(
     image = nadir_patch(
         image, _between(u[9], config.nadir_rows), config.nadir_blur, _between(u[10], config.nadir_darkening)
     )
-    image = add_sensor_noise(key_noise, image, _between(u[11], config.read_noise), _between(u[12], config.shot_noise))
+    averaged = max(config.native_width / width, 1.0)  # native pixels per pixel, along each axis
+    read_noise, shot_noise = _between(u[11], config.read_noise), _between(u[12], config.shot_noise)
+    image = add_sensor_noise(key_noise, image, read_noise / averaged, shot_noise / averaged)
+    if averaged > 2:
+        return jnp.round(image * 255) / 255  # an 8-bit file
     return jpeg_compress(image, _between(u[13], config.jpeg_quality))
