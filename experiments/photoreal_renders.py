@@ -73,7 +73,7 @@ def environment(index: int, brightness: float, sun_clip: float) -> np.ndarray:
     image = cv2.imread(str(HDRI / f"{name}.exr"), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise FileNotFoundError(f"cannot read {HDRI / name}.exr")
-    image = image[..., ::-1].astype(np.float32)
+    image = np.maximum(image[..., ::-1].astype(np.float32), 0.0)  # resampling left texels below 0 around the sun
     level = np.asarray(luminance(jnp.asarray(image)))
     factor = brightness * rng.uniform(0.7, 1.4) / np.median(level)
     clipped = np.minimum(1.0, sun_clip * brightness / np.maximum(level * factor, 1e-12))

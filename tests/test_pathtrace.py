@@ -403,6 +403,16 @@ def test_same_key_same_image_and_a_vmapped_batch_equals_single_renders():
     np.testing.assert_allclose(np.asarray(_trace(scenes[0], cam, keys[0], other, sky)), single[0], rtol=1e-5, atol=1e-6)
 
 
+def test_negative_environment_texels_bring_no_light():
+    """A resampled HDR photograph rings below zero around the sun: such texels are dark, not negative light."""
+    ringing = jnp.full((8, 16, 3), -5.0).at[2:5, ::2].set(2.0)
+    directions = jax.random.normal(jax.random.key(0), (256, 3))
+    directions = directions / jnp.linalg.norm(directions, axis=-1, keepdims=True)
+    radiance = jax.vmap(environment_radiance, (None, 0))(ringing, directions)
+    assert float(radiance.min()) == 0.0 and float(radiance.max()) > 0.0
+    np.testing.assert_array_equal(environment_radiance(jnp.array([-1.0, 0.5, 2.0]), directions[0]), [0.0, 0.5, 2.0])
+
+
 def test_configuration_rejects_bad_values():
     for bad in (
         dict(samples_per_pixel=0),

@@ -8,6 +8,7 @@
 - ``render``, ``raycast``, ``render_details``: ray-cast non-central panoramas (RGB, depth, semantics).
 - ``pathtrace``, ``pathtrace_scene``, ``pathtrace_bsdf``: path-traced panoramas of the same scenes (linear
   radiance: interreflections, area lights, the environment through openings, a rough-glossy floor);
+  ``pathtrace_denoise``: their Monte Carlo noise filtered within each surface the camera's rays first meet;
   ``photograph``: a consumer 360-degree camera's photograph of such radiance; ``pathtrace_reference``: the same
   scenes in Mitsuba 3, the reference renderer (a development dependency, imported on use).
 - ``augment``: photometric and sensor effects; ``dataset``: the dataset folders on disk.

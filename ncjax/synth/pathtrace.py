@@ -103,11 +103,12 @@ def environment_radiance(
         environment: an equirectangular map (He, We, 3) in the panorama's own pixel<->angle convention
             (:func:`~ncjax.geometry.camera.angles_to_pixel` of a full central panorama of that size: azimuth
             decreasing to the right, the top row looking up), read bilinearly, wrapping around in azimuth;
-            or a constant colour (3,).
+            or a constant colour (3,). Negative values count as 0: no light is negative, but a resampled HDR
+            photograph's texels ring below zero around the sun.
         direction: (3,) unit direction of the ray.
     """
     if environment.ndim == 1:
-        return environment
+        return jnp.maximum(environment, 0.0)
     rows, columns = environment.shape[:2]
     azimuth = arctan2(direction[1], direction[0])
     elevation = arctan2(direction[2], jnp.sqrt(direction[0] ** 2 + direction[1] ** 2))
@@ -116,7 +117,7 @@ def environment_radiance(
     fu, fv = u - u0, v - v0
     column = (u0.astype(jnp.int32) + jnp.arange(2)) % columns
     row = jnp.clip(v0.astype(jnp.int32) + jnp.arange(2), 0, rows - 1)
-    texels = environment[row[:, None], column[None, :]]  # (2, 2, 3)
+    texels = jnp.maximum(environment[row[:, None], column[None, :]], 0.0)  # (2, 2, 3)
     weights = jnp.stack([1 - fv, fv])[:, None] * jnp.stack([1 - fu, fu])[None, :]
     return jnp.sum(weights[..., None] * texels, (0, 1))
 

@@ -107,7 +107,7 @@ def metered_exposure(
     sunny one, and what is far brighter than the room's average (windows, lamps) blows out. A black image gets
     the factor 1.
     """
-    level = luminance(radiance)
+    level = jnp.maximum(luminance(radiance), 0.0)  # no light is negative (a resampled photograph's texels may be)
     floor = 1e-4 * jnp.mean(level)  # black pixels (shadowed corners) would pull the log-average to zero
     key = jnp.exp(jnp.mean(jnp.log(level + floor + 1e-30)))
     target = inverse_filmic_tone_curve(middle_grey, white_point)
