@@ -280,13 +280,8 @@ class _SavedGeometry:
                 if name in _STARTED or self._optimised_before(key, arguments):
                     continue
                 _STARTED.add(name)
-                compile_later = functools.partial(
-                    load_saved, self.directory, key, function, *arguments, compiler_options=GEOMETRY_COMPILER_OPTIONS
-                )
-                if _DEFERRED is None:
-                    _BACKGROUND.append(_LATER_POOL.submit(compile_later))
-                else:
-                    _DEFERRED.append(compile_later)
+                optimised = {"compiler_options": GEOMETRY_COMPILER_OPTIONS}
+                _start_later(functools.partial(load_saved, self.directory, key, function, *arguments, **optimised))
 
 
 # The compilations :meth:`_SavedGeometry.prepare_later_processes` started, one thread each at the least CPU priority:
@@ -307,19 +302,30 @@ def finish_background_compilations() -> bool:
     return bool(pending)
 
 
+def _start_later(compile_later: Callable[[], object]) -> None:
+    """Start a compilation for later processes in the background, or at the end of the deferred block it is in."""
+    if _DEFERRED is None:
+        _BACKGROUND.append(_LATER_POOL.submit(compile_later))
+    else:
+        _DEFERRED.append(compile_later)
+
+
 @contextlib.contextmanager
 def background_compilations_deferred():
     """Start the compilations for later processes that :func:`reconstruct_batch` asks for inside the block only
     at its end: ``ncjax reconstruct`` writes its first image's files before they take the CPU (XLA's compiler
     runs part of its work in threads that do not inherit the least priority)."""
     global _DEFERRED
-    outer, _DEFERRED = _DEFERRED, [] if _DEFERRED is None else _DEFERRED
+    if _DEFERRED is not None:  # inside another such block, whose end starts them
+        yield
+        return
+    _DEFERRED = []
     try:
         yield
     finally:
-        if outer is None:
-            waiting, _DEFERRED = _DEFERRED, None
-            _BACKGROUND.extend(_LATER_POOL.submit(compile_later) for compile_later in waiting)
+        waiting, _DEFERRED = _DEFERRED, None
+        for compile_later in waiting:
+            _start_later(compile_later)
 
 
 def _lowest_priority() -> None:
