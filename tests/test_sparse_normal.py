@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ncjax.pipeline.normal_solver import SparseNormalCholesky
 from ncjax.pipeline.sparse_normal import (
     JacobianStructure,
-    SparseNormalCholesky,
     distinct_slots,
     normal_matrix,
     probe_jacobian,

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import ctypes
+import dataclasses
 import math
 import os
 import sys
@@ -57,6 +59,8 @@ def _synth(args: argparse.Namespace) -> int:
         raise ValueError(f"--n must be >= 1, got {args.n}")
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1, got {args.batch}")
+    if args.spp < 1:
+        raise ValueError(f"--spp must be >= 1, got {args.spp}")
     from tqdm import tqdm
 
     import ncjax
@@ -69,6 +73,7 @@ def _synth(args: argparse.Namespace) -> int:
         render=ncjax.synth.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
         width=width,
         height=height,
+        photoreal=_photoreal(args.spp) if args.photoreal else None,
     )
     _check_output_directory(args.out, args.overwrite)
     with tqdm(total=args.n, unit="pano", desc=f"ncjax synth {height}x{width}") as bar:
@@ -77,6 +82,14 @@ def _synth(args: argparse.Namespace) -> int:
         f"wrote {len(names)} samples to {args.out} (img, label_cor, 3D_gt, cam_pose, depth, semantic, json, split.json)"
     )
     return 0
+
+
+def _photoreal(samples_per_pixel: int):
+    """The default photoreal settings with ``samples_per_pixel`` paths a pixel."""
+    from ..synth.photoreal import PhotorealConfig
+
+    default = PhotorealConfig()
+    return dataclasses.replace(default, trace=dataclasses.replace(default.trace, samples_per_pixel=samples_per_pixel))
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -172,6 +185,14 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         "suspended and popcorn ceilings, sunlight, counters and desks with monitors "
         "(ncjax.synth.SceneConfig(decor=True))",
     )
+    synth.add_argument(
+        "--photoreal",
+        action="store_true",
+        help="RGB images with light as it behaves: path-traced (interreflections, area lights, windows showing "
+        "real outdoor HDR panoramas), denoised and developed by a camera model; about 15 s a 512x1024 image on "
+        "2 CPU cores (ncjax.synth.PhotorealConfig)",
+    )
+    synth.add_argument("--spp", type=int, default=8, help="with --photoreal: paths traced per pixel")
     synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")
     synth.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
     synth.set_defaults(run=_synth)
@@ -283,6 +304,28 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
 
+# glibc's mallopt parameters, and the values the command sets (bytes)
+_M_TRIM_THRESHOLD, _M_TOP_PAD, _M_MMAP_THRESHOLD = -1, -2, -3
+_MALLOC_SETTINGS = ((_M_MMAP_THRESHOLD, 32 << 20), (_M_TRIM_THRESHOLD, 256 << 20), (_M_TOP_PAD, 64 << 20))
+
+
+def _allocate_in_large_steps() -> None:
+    """Let glibc's malloc take memory from the system in large steps and keep it (nothing elsewhere).
+
+    Loading a compiled program, XLA allocates and frees many blocks of a few hundred kilobytes: by default each
+    is a new mapping, and the heaps grow and shrink a page at a time, tens of thousands of system calls and page
+    faults on the way to the first layout (0.2 s of the 3 s of a warm ``ncjax reconstruct`` on 2 cores).
+    Blocks up to 32 MB then come from the heaps, which grow 64 MB at a time and give back only what exceeds
+    256 MB. Set by the command for its own process; the API leaves a caller's process as it is.
+    """
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc
+        return
+    for parameter, value in _MALLOC_SETTINGS:
+        mallopt(parameter, value)
+
+
 def console_script() -> NoReturn:
     """The ``ncjax`` command: :func:`main`, then the process ends at once with its exit code.
 
@@ -291,6 +334,7 @@ def console_script() -> NoReturn:
     and running the libraries' exit hooks add 0.5-0.9 s to every command. The programs a first run compiles in
     the background for later runs (:func:`~ncjax.reconstruction.finish_background_compilations`) are waited for.
     """
+    _allocate_in_large_steps()
     code = main()
     reconstruction = sys.modules.get("ncjax.reconstruction")  # not imported by the commands that reconstruct nothing
     if reconstruction is not None and any(not future.done() for future in reconstruction._BACKGROUND):

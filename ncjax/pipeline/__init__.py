@@ -8,7 +8,8 @@ Read in the order the data flows:
   ``batch``: :func:`layout_from_boundaries`, the same jitted and mapped over a batch.
 - ``floor_check`` (step 0), ``corners`` (step 1), ``evidence`` (steps 1-3: RANSAC walls, occlusions).
 - ``walls``: the wall loop after merging and insertion; ``manhattan`` and ``atlanta``: the two branches (step 4).
-- ``adjust``, ``sparse_normal``, ``uncertainty``, ``refine``: the final least squares and its covariance (step 5).
+- ``adjust``, ``sparse_normal``, ``normal_solver``, ``uncertainty``, ``refine``: the final least squares and its
+  covariance (step 5).
 - ``assemble`` (step 6); ``prior``: the scale from a height prior (central panoramas).
 """
 

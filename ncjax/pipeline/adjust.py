@@ -19,7 +19,7 @@ through the implicit-function theorem (optimistix's default ``ImplicitAdjoint``)
 Dogleg rather than ``optx.LevenbergMarquardt``: same tests and accuracy checks, about
 twice as fast here (its Newton and Cauchy steps are computed once per accepted point,
 Levenberg-Marquardt solves again for every damping). Its Newton step solves the normal
-equations by Cholesky with :class:`ncjax.pipeline.sparse_normal.SparseNormalCholesky`: every
+equations by Cholesky with :class:`ncjax.pipeline.normal_solver.SparseNormalCholesky`: every
 residual depends on at most four parameters (:func:`jacobian_structure`), so the
 Jacobian is probed with 8 forward passes instead of one per
 parameter, and ``J^T J`` is summed per wall instead of multiplied out (the same steps;
@@ -40,10 +40,7 @@ from collections.abc import Callable
 
 import equinox as eqx
 import jax
-import jax.flatten_util
 import jax.numpy as jnp
-import jax.scipy.linalg
-import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel
@@ -52,7 +49,7 @@ from ..geometry.plucker import wall_planes_meet
 from ..geometry.polygon import previous_in_loop
 from ..geometry.reprojection import boundary_rows_along, column_directions
 from .config import AdjustmentConfig
-from .sparse_normal import JacobianStructure, SparseNormalCholesky, distinct_slots
+from .sparse_normal import JacobianStructure, distinct_slots
 from .types import Walls
 
 
@@ -465,6 +462,12 @@ def adjust_layout(
         ``(walls, improved)``; the initial walls are kept (``improved`` False) when the result is not finite
         or does not lower the cost (an unconverged but better iterate is kept).
     """
+    # the solvers are imported where a layout is adjusted (traced): a process that runs the saved programs of
+    # ncjax.programs never needs them, and their import is a tenth of a second of its start
+    import optimistix as optx
+
+    from .normal_solver import SparseNormalCholesky
+
     steps, tolerance = config.steps, config.tolerance
     problem, residuals, structure = layout_least_squares(cam, observations, walls, labels, config.corner_weight)
     y0 = problem.start

@@ -9,7 +9,8 @@
 - ``pathtrace``, ``pathtrace_scene``, ``pathtrace_bsdf``: path-traced panoramas of the same scenes (linear
   radiance: interreflections, area lights, the environment through openings, a rough-glossy floor);
   ``pathtrace_denoise``: their Monte Carlo noise filtered within each surface the camera's rays first meet;
-  ``photograph``: a consumer 360-degree camera's photograph of such radiance; ``pathtrace_reference``: the same
+  ``photograph``: a consumer 360-degree camera's photograph of such radiance; ``photoreal``: the two together, the
+  RGB images of ``SynthConfig(photoreal=...)``; ``pathtrace_reference``: the same
   scenes in Mitsuba 3, the reference renderer (a development dependency, imported on use).
 - ``augment``: photometric and sensor effects; ``dataset``: the dataset folders on disk.
 """
@@ -31,6 +32,7 @@ from .labels import RoomLabels, room_labels
 from .materials import Material, Pattern
 from .pathtrace import PathTraceConfig, path_trace
 from .photograph import PhotographConfig, photograph
+from .photoreal import PhotorealConfig, photoreal_image
 from .render import (
     RenderConfig,
     Rendering,
@@ -63,6 +65,8 @@ __all__ = [
     "Pattern",
     "photograph",
     "PhotographConfig",
+    "photoreal_image",
+    "PhotorealConfig",
     "random_augment",
     "random_room",
     "random_scene",

@@ -48,6 +48,7 @@ from jaxtyping import Array, Bool, Float, Int, Key, PRNGKeyArray
 from ..geometry.camera import NonCentralPanorama, pixel_to_angles
 from .labels import RoomLabels, room_labels
 from .materials import Material, material_albedo
+from .photoreal import PhotorealConfig, photoreal_image, window_views
 from .raycast import box_segment_blocked, cast_columns, nearest_box
 from .render_details import (
     ceiling_panels,
@@ -337,17 +338,26 @@ def box_overflow(scene: Scene, cam: NonCentralPanorama, config: RenderConfig = R
 
 @dataclasses.dataclass(frozen=True)
 class SynthConfig:
-    """Static configuration of :func:`synthesize`: room, scene and render settings and the image size."""
+    """Static configuration of :func:`synthesize`: room, scene and render settings and the image size.
+
+    ``photoreal``: None, the RGB image is the ray caster's (``render``); else its settings
+    (:class:`~ncjax.synth.photoreal.PhotorealConfig`): the RGB image is the scene path-traced and photographed,
+    the depth and the semantics still the ray caster's.
+    """
 
     room: RoomConfig = RoomConfig()
     scene: SceneConfig = SceneConfig()
     render: RenderConfig = RenderConfig()
     width: int = 1024
     height: int = 512
+    photoreal: PhotorealConfig | None = None
 
     def __post_init__(self):
         if int(self.width) != self.width or self.width < 8 or int(self.height) != self.height or self.height < 4:
             raise ValueError(f"image size must be at least 4 x 8 pixels (H x W), got {self.height} x {self.width}")
+        scale = 1 if self.photoreal is None else self.photoreal.trace_scale
+        if self.width % scale or self.height % scale:
+            raise ValueError(f"photoreal.trace_scale {scale} must divide the image size {self.height} x {self.width}")
 
 
 def synthesize_scene(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[Scene, RoomLabels]:
@@ -368,7 +378,24 @@ def synthesize(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[
     which compiles much faster.
     """
     scene, labels = synthesize_scene(key, config)
-    return scene, render(scene, scene.room.camera(config.width, config.height), config.render), labels
+    rendering = render(scene, scene.room.camera(config.width, config.height), config.render)
+    if config.photoreal is not None:
+        rendering = eqx.tree_at(lambda r: r.rgb, rendering, photoreal_rgb(key, scene, config, window_views()))
+    return scene, rendering, labels
+
+
+def photoreal_rgb(
+    key: PRNGKeyArray, scene: Scene, config: SynthConfig, views: Float[Array, "N He We 3"]
+) -> Float[Array, "H W 3"]:
+    """The RGB image of the sample of ``key`` (:func:`synthesize`'s) and its ``scene`` with ``config.photoreal``:
+    :func:`~ncjax.synth.photoreal.photoreal_image`, its windows showing ``views``
+    (:func:`~ncjax.synth.photoreal.window_views`)."""
+    cam = scene.room.camera(config.width, config.height)
+    # a stream of its own: the room and the scene come from the two halves of split(key)
+    return photoreal_image(jax.random.fold_in(key, _PHOTOREAL_STREAM), scene, cam, views, config.photoreal)
+
+
+_PHOTOREAL_STREAM = 1
 
 
 # Scene generation is branchy code whose run time is negligible next to
@@ -387,13 +414,22 @@ def _batched_render(config: SynthConfig):
     return jax.jit(jax.vmap(lambda scene: render(scene, scene.room.camera(config.width, config.height), config.render)))
 
 
+@functools.cache
+def _batched_photoreal(config: SynthConfig):
+    return jax.jit(jax.vmap(lambda key, scene, views: photoreal_rgb(key, scene, config, views), in_axes=(0, 0, None)))
+
+
 def synthesize_batch(
     keys: Key[Array, " N"], config: SynthConfig = SynthConfig()
 ) -> tuple[Scene, Rendering, RoomLabels]:
-    """:func:`synthesize` for a batch of keys (leading axis N), two cached jitted calls.
+    """:func:`synthesize` for a batch of keys (leading axis N), two cached jitted calls (three with photoreal).
 
     Compiled once per ``config`` and batch size; keep the batch size fixed
     (pad the last batch) to avoid recompiling.
     """
     scenes, labels = _batched_scenes(config)(keys)
-    return scenes, _batched_render(config)(scenes), labels
+    renderings = _batched_render(config)(scenes)
+    if config.photoreal is not None:  # the views are an argument, not a constant of the program
+        rgb = _batched_photoreal(config)(keys, scenes, window_views())
+        renderings = eqx.tree_at(lambda r: r.rgb, renderings, rgb)
+    return scenes, renderings, labels

@@ -30,6 +30,7 @@ from ..synth.dataset import (
     split_of,
 )
 from ..synth.labels import reencode_corner_prob
+from ..synth.photoreal import PhotorealConfig
 from ..synth.render import SynthConfig
 from ..synth.rooms import RoomConfig
 from ..synth.scene import SceneConfig
@@ -149,6 +150,12 @@ SYNTH_SOURCES = {
         room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
         scene=SceneConfig(decor=True, neutral_paint_probability=0.7),
     ),
+    "synth-photoreal-home": dataclasses.replace(
+        SYNTH_COMMAND_CONFIG,
+        room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
+        scene=SceneConfig(decor=True, neutral_paint_probability=0.7),
+        photoreal=PhotorealConfig(),
+    ),
     "synth-decor-small": dataclasses.replace(
         SYNTH_COMMAND_CONFIG,
         room=RoomConfig(world="mix", size_range=(1.2, 4.0), max_walls=6, rc_range=(0.0, 0.0)),
@@ -163,7 +170,9 @@ SYNTH_SOURCES = {
 """The configuration of each kind of rendered data source, ``KIND:SEED:N``
 (``synth-decor``: what ``ncjax synth --decor`` renders; ``synth-decor-central``: such
 rooms seen by a central camera, rc = 0, as most real panoramas are; ``synth-decor-home``: the
-same with white, off-white or pale walls in 70% of them, as in most homes; ``synth-decor-small``:
+same with white, off-white or pale walls in 70% of them, as in most homes; ``synth-photoreal-home``: the
+rooms of ``synth-decor-home`` (the same ones for the same seed) path-traced and photographed
+(:mod:`ncjax.synth.photoreal`); ``synth-decor-small``:
 closets, bathrooms and corridors, sides of 1.2-4 m and at most 6 walls, seen by a central
 camera, whose walls fill the panorama as no room of the other kinds does; ``synth-decor-open``:
 realistic rooms seen by a central camera with more doors, half of them wide passages to the next

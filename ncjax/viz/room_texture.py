@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import jax
 import numpy as np
 from jaxtyping import Bool, Float, UInt8
@@ -174,14 +175,15 @@ def _project_charts(
     cam: NonCentralPanorama, charts: list[np.ndarray], size: int
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Each chart's pixels (u, v), NaN where no ray sees its point (:func:`~ncjax.geometry.camera.project`)."""
-    flat = np.concatenate([points.reshape(-1, 3) for points in charts])
+    counts = [points.shape[0] * points.shape[1] for points in charts]
     padded = np.zeros((size * size, 3), np.float32)
-    padded[: len(flat)] = flat
-    u, v = (np.asarray(x, np.float64)[: len(flat)] for x in _project(cam, padded))
-    ends = np.cumsum([points.shape[0] * points.shape[1] for points in charts])[:-1]
+    ends = np.cumsum(counts)
+    for points, start, end in zip(charts, ends - counts, ends, strict=True):
+        padded[start:end] = points.reshape(-1, 3)
+    u, v = (np.asarray(x) for x in _project(cam, padded))
     return [
-        (chart_u.reshape(points.shape[:2]), chart_v.reshape(points.shape[:2]))
-        for points, chart_u, chart_v in zip(charts, np.split(u, ends), np.split(v, ends), strict=True)
+        (u[start:end].reshape(points.shape[:2]), v[start:end].reshape(points.shape[:2]))
+        for points, start, end in zip(charts, ends - counts, ends, strict=True)
     ]
 
 
@@ -227,19 +229,11 @@ def _colours(
     """The panorama's colour at each pixel (bilinear; the columns wrap around), and where it has none: hidden,
     or no pixel."""
     unseen = hidden | ~np.isfinite(u) | ~np.isfinite(v)
-    u, v = np.where(unseen, 0.0, u), np.clip(np.where(unseen, 0.0, v), 0.0, image.shape[0] - 1.0)
-    left, top = np.floor(u), np.minimum(np.floor(v), image.shape[0] - 2.0)
-    right_weight, bottom_weight = (u - left)[..., None], (v - top)[..., None]
-    columns = left.astype(np.int64) % image.shape[1], (left.astype(np.int64) + 1) % image.shape[1]
-    rows = top.astype(np.int64), top.astype(np.int64) + 1
-    right_weight, bottom_weight = right_weight.astype(np.float32), bottom_weight.astype(np.float32)
-
-    def pixel(row, column):  # only the pixels used are converted, in float32 (8 bits need no more)
-        return image[row, column].astype(np.float32)
-
-    upper = pixel(rows[0], columns[0]) * (1 - right_weight) + pixel(rows[0], columns[1]) * right_weight
-    lower = pixel(rows[1], columns[0]) * (1 - right_weight) + pixel(rows[1], columns[1]) * right_weight
-    colours = np.round(upper * (1 - bottom_weight) + lower * bottom_weight).astype(np.uint8)
+    u = np.where(unseen, 0.0, u).astype(np.float32)
+    v = np.clip(np.where(unseen, 0.0, v), 0.0, image.shape[0] - 1.0).astype(np.float32)
+    # OpenCV's bilinear weights are multiples of 1/32: a twentieth of a level where the panorama changes by 2 a
+    # pixel. The rows wrap around too, only at v = H - 1, with a weight of 0.
+    colours = cv2.remap(image, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
     colours[unseen] = UNSEEN_COLOUR
     return colours, unseen
 

@@ -1,0 +1,138 @@
+"""Photoreal training images: a scene path-traced, denoised and developed by a consumer camera's model.
+
+The ray caster (:mod:`ncjax.synth.render`) shades each hit locally. A photoreal image is the same scene's light
+as it behaves: :func:`~ncjax.synth.pathtrace.path_trace`'s interreflections, area lights and rough-glossy floor,
+with the windows showing one of the real outdoor HDR panoramas shipped in ``ncjax/data/window_views`` (CC0), turned
+and scaled at random, which also lights the room through them. The radiance is traced at a fraction of the
+image's size (``trace_scale``), denoised (:mod:`ncjax.synth.pathtrace_denoise`), resized to the image and
+developed by :func:`~ncjax.synth.photograph.photograph` (by default its metered exposure, tone curve and white
+balance, 8 bits: :data:`DEVELOPMENT`). The geometry is the scene's own, so the ray caster's labels,
+depth and semantics hold for it unchanged: ``SynthConfig(photoreal=PhotorealConfig())`` renders the rooms of
+``ncjax synth`` so (:func:`~ncjax.synth.render.synthesize_batch`).
+
+Every function is written for one scene and batched with ``jax.vmap``; a key is the only source of randomness.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from ..geometry.camera import NonCentralPanorama
+from .pathtrace import PathTraceConfig, path_trace
+from .pathtrace_denoise import DenoiseConfig, denoise, guide_buffers
+from .photograph import PhotographConfig, luminance, photograph
+from .scene import Scene
+
+WINDOW_VIEWS_PATH = pathlib.Path(__file__).parents[1] / "data" / "window_views" / "outdoor.npz"
+
+DEVELOPMENT = PhotographConfig(
+    vignetting_strength=(0.0, 0.0),
+    seam_exposure=(1.0, 1.0),
+    seam_shift=(0.0, 0.0),
+    nadir_rows=(0.0, 0.0),
+    nadir_darkening=(1.0, 1.0),
+    read_noise=(0.0, 0.0),
+    shot_noise=(0.0, 0.0),
+)
+"""The camera model's development alone: metered exposure, tone curve, white balance, 8 bits. Training
+(:func:`~ncjax.training.loop.augment_batch`) adds the camera's defects to every image, rendered either way."""
+
+
+@dataclasses.dataclass(frozen=True)
+class PhotorealConfig:
+    """Static settings of :func:`photoreal_image` (hashable: a jit static argument).
+
+    Attributes:
+        trace: the path tracer's settings. By default 8 paths a pixel of 3 bounces, and the lamps' shades
+            only seen (their ceiling lights stand for their light), which the denoiser turns into a clean
+            image at a quarter of the cost of 16 paths of 4 bounces.
+        denoise: the denoiser's settings; None keeps the Monte Carlo noise.
+        camera: the camera that develops the radiance (default :data:`DEVELOPMENT`; ``PhotographConfig()``
+            adds vignetting, stitching seams, the tripod at the nadir and sensor noise).
+        trace_scale: the radiance is traced at the image's size divided by this (an integer dividing both
+            sides), then resized bilinearly: 2 traces a quarter of the pixels, which a photograph's softness
+            hides.
+        window_brightness: the range of the median radiance of what windows show (the ceiling lights give a
+            few units to the walls near them).
+        sun_clip: what windows show is clipped at this times its median: the sun, a thousand times the sky,
+            would otherwise be found by a few paths only (speckles the denoiser cannot remove).
+    """
+
+    trace: PathTraceConfig = PathTraceConfig(
+        samples_per_pixel=8, bounces=3, pixels_per_chunk=2048, emissive_boxes_light=False
+    )
+    denoise: DenoiseConfig | None = DenoiseConfig()
+    camera: PhotographConfig = DEVELOPMENT
+    trace_scale: int = 2
+    window_brightness: tuple[float, float] = (1.4, 2.8)
+    sun_clip: float = 4.0
+
+    def __post_init__(self):
+        if int(self.trace_scale) != self.trace_scale or self.trace_scale < 1:
+            raise ValueError(f"trace_scale must be a positive integer, got {self.trace_scale!r}")
+        low, high = self.window_brightness
+        if not 0 < low <= high:
+            raise ValueError(f"window_brightness must be a range 0 < low <= high, got {self.window_brightness}")
+        if not self.sun_clip >= 1:
+            raise ValueError(f"sun_clip must be >= 1 (times the median), got {self.sun_clip}")
+
+
+@functools.cache
+def window_views() -> Float[np.ndarray, "N He We 3"]:
+    """The shipped outdoor panoramas (float32 linear RGB, equirectangular), read once."""
+    with np.load(WINDOW_VIEWS_PATH) as shipped:
+        return shipped["views"].astype(np.float32)
+
+
+def window_view(
+    key: PRNGKeyArray, views: Float[Array, "N He We 3"], config: PhotorealConfig = PhotorealConfig()
+) -> Float[Array, "He We 3"]:
+    """One of ``views`` at random, turned by a random azimuth, scaled to a random median luminance in
+    ``config.window_brightness`` and clipped at ``config.sun_clip`` times that median."""
+    key_pick, key_turn, key_level = jax.random.split(key, 3)
+    view = views[jax.random.randint(key_pick, (), 0, views.shape[0])]
+    view = jnp.roll(view, jax.random.randint(key_turn, (), 0, views.shape[2]), axis=1)
+    level = luminance(view)
+    median = jax.random.uniform(key_level, (), minval=config.window_brightness[0], maxval=config.window_brightness[1])
+    gain = median / jnp.maximum(jnp.median(level), 1e-12)
+    clip = jnp.minimum(1.0, config.sun_clip * median / jnp.maximum(level * gain, 1e-12))
+    return view * (gain * clip)[..., None]
+
+
+def photoreal_image(
+    key: PRNGKeyArray,
+    scene: Scene,
+    cam: NonCentralPanorama,
+    views: Float[Array, "N He We 3"],
+    config: PhotorealConfig = PhotorealConfig(),
+) -> Float[Array, "H W 3"]:
+    """The photograph of ``scene`` by ``cam`` with physically based light (the module's method).
+
+    Args:
+        key: a ``jax.random`` key: the window's view, the paths and the camera's errors and noise.
+        scene: one scene (camera frame); ``cam.rc`` is used, as by :func:`~ncjax.synth.render.render`.
+        cam: the image's camera (static size, a multiple of ``config.trace_scale``).
+        views: the outdoor panoramas windows may show (:func:`window_views`).
+        config: static settings (:class:`PhotorealConfig`).
+
+    Returns:
+        (H, W, 3) sRGB in [0, 1], multiples of 1/255. Jit with ``config`` static; vmap over keys and scenes.
+    """
+    scale = config.trace_scale
+    if cam.width % scale or cam.height % scale:
+        raise ValueError(f"trace_scale {scale} must divide the image size {cam.height} x {cam.width}")
+    key_view, key_trace, key_camera = jax.random.split(key, 3)
+    traced = NonCentralPanorama(cam.width // scale, cam.height // scale, cam.rc, cam.fov_horizontal, cam.fov_vertical)
+    radiance = path_trace(scene, traced, key_trace, config.trace, window_view(key_view, views, config))
+    if config.denoise is not None:
+        radiance = denoise(radiance, guide_buffers(scene, traced), config.denoise)
+    if scale > 1:  # half-pixel centres: the traced pixels' directions are the image's
+        radiance = jax.image.resize(radiance, (cam.height, cam.width, 3), "linear")
+    return photograph(key_camera, radiance, config.camera)

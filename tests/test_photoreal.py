@@ -1,0 +1,94 @@
+"""Photoreal training images (ncjax.synth.photoreal): what windows show, the traced pixels' directions after
+resizing, and rooms rendered so keeping the ray caster's labels, depth and semantics."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
+from ncjax.synth import PhotorealConfig, RoomConfig, SceneConfig, SynthConfig
+from ncjax.synth.pathtrace import PathTraceConfig
+from ncjax.synth.photograph import luminance
+from ncjax.synth.photoreal import window_view, window_views
+from ncjax.synth.render import synthesize_batch
+
+
+def _views(seed: int = 0) -> np.ndarray:
+    """Two small outdoor panoramas: a lognormal sky each, the second with a sun a thousand times brighter."""
+    rng = np.random.default_rng(seed)
+    views = np.exp(rng.normal(0.0, 0.5, (2, 8, 16, 3))).astype(np.float32)
+    views[1, 2, 5] = 1000.0
+    return views
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_window_shows_a_view_at_a_median_in_range_clipped_at_the_sun_clip(seed):
+    config = PhotorealConfig(window_brightness=(1.5, 2.5), sun_clip=3.0)
+    views = _views(seed)
+    view = np.asarray(window_view(jax.random.key(seed), jnp.asarray(views), config))
+    level = np.asarray(luminance(jnp.asarray(view)))
+    median = np.median(level)
+    assert 1.5 - 1e-4 <= median <= 2.5 + 1e-4
+    assert level.max() <= 3.0 * median * (1 + 1e-5)
+    # one of the views, turned about the vertical axis and scaled: each row keeps its texels' ratios
+    candidates = [np.roll(v, shift, axis=1) for v in views for shift in range(views.shape[2])]
+    unclipped = level < 3.0 * median * (1 - 1e-4)
+    assert any(np.allclose((view / c)[unclipped], (view / c)[unclipped].mean(), rtol=1e-4) for c in candidates), (
+        "not a turned, scaled view"
+    )
+
+
+def test_the_shipped_window_views_are_outdoor_hdr_panoramas():
+    views = window_views()
+    assert views.ndim == 4 and views.shape[0] >= 8 and views.shape[2] == 2 * views.shape[1] and views.shape[3] == 3
+    assert np.all(np.isfinite(views)) and views.min() >= 0
+    flat = views.reshape(len(views), -1)
+    assert np.all(flat.max(1) > 10 * np.median(flat, 1)) and np.all(flat.max(1) > 1), "high dynamic range"
+
+
+def test_resized_traced_pixels_look_where_the_images_pixels_look():
+    # jax.image.resize with half-pixel centres, as photoreal_image resizes the traced radiance: a radiance equal to
+    # each traced pixel's elevation becomes each image pixel's elevation (linear in the row: interpolated exactly)
+    image = NonCentralPanorama(64, 32, rc=0.3)
+    traced = NonCentralPanorama(32, 16, rc=0.3)
+    rows, columns = np.mgrid[0 : traced.height, 0 : traced.width].astype(np.float32)
+    _, elevation = pixel_to_angles(traced, columns, rows)
+    resized = jax.image.resize(elevation, (image.height, image.width), "linear")
+    rows, columns = np.mgrid[0 : image.height, 0 : image.width].astype(np.float32)
+    _, expected = pixel_to_angles(image, columns, rows)
+    inner = slice(1, -1)  # the first and last rows are extrapolated flat
+    np.testing.assert_allclose(np.asarray(resized)[inner], np.asarray(expected)[inner], atol=1e-5)
+
+
+def test_configuration_rejects_bad_values():
+    with pytest.raises(ValueError, match="trace_scale"):
+        PhotorealConfig(trace_scale=0)
+    with pytest.raises(ValueError, match="window_brightness"):
+        PhotorealConfig(window_brightness=(0.0, 1.0))
+    with pytest.raises(ValueError, match="sun_clip"):
+        PhotorealConfig(sun_clip=0.5)
+    with pytest.raises(ValueError, match="trace_scale 4 must divide"):
+        SynthConfig(width=36, height=18, photoreal=PhotorealConfig(trace_scale=4))
+
+
+@pytest.mark.slow
+def test_photoreal_rooms_keep_the_ray_casters_scenes_labels_depth_and_semantics():
+    tiny = PhotorealConfig(trace=PathTraceConfig(samples_per_pixel=2, bounces=1, pixels_per_chunk=256))
+    base = SynthConfig(
+        room=RoomConfig(world="mix", rc_range=(0.0, 0.6)), scene=SceneConfig(decor=True), width=32, height=16
+    )
+    keys = jax.vmap(jax.random.key)(jnp.arange(2))
+    cast = jax.device_get(synthesize_batch(keys, base))
+    photoreal = jax.device_get(synthesize_batch(keys, SynthConfig(**{**vars(base), "photoreal": tiny})))
+    (cast_scenes, cast_renderings, cast_labels), (scenes, renderings, labels) = cast, photoreal
+    for a, b in zip(jax.tree.leaves((cast_scenes, cast_labels)), jax.tree.leaves((scenes, labels)), strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(cast_renderings.depth, renderings.depth)
+    np.testing.assert_array_equal(cast_renderings.semantic, renderings.semantic)
+    rgb = np.asarray(renderings.rgb)
+    assert rgb.shape == (2, 16, 32, 3) and rgb.min() >= 0 and rgb.max() <= 1
+    np.testing.assert_allclose(rgb * 255, np.round(rgb * 255), atol=1e-3)  # an 8-bit file
+    assert not np.allclose(rgb, cast_renderings.rgb, atol=0.05), "the ray caster's image"
+    again = jax.device_get(synthesize_batch(keys, SynthConfig(**{**vars(base), "photoreal": tiny})))[1]
+    np.testing.assert_array_equal(rgb, again.rgb)
