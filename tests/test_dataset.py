@@ -130,6 +130,7 @@ def test_same_seed_same_bytes(dataset, tmp_path):
         (["--rc", "1.0:0.5"], "--rc"),
         (["--rc=-1:0"], "--rc"),
         (["--supersampling", "2"], "odd"),
+        (["--photoreal", "--spp", "0"], "--spp"),
     ],
 )
 def test_bad_arguments_give_clear_errors_and_write_nothing(tmp_path, capsys, arguments, message):
