@@ -51,14 +51,14 @@ class PhotorealConfig:
 
     Attributes:
         trace: the path tracer's settings. By default 8 paths a pixel of 3 bounces, and the lamps' shades
-            only seen (their ceiling lights stand for their light), which the denoiser turns into a clean
-            image at a quarter of the cost of 16 paths of 4 bounces.
+            only seen (their ceiling lights stand for their light): about a third of the cost of 16 paths of 4
+            bounces; the denoiser leaves blotches on walls that only bounced light reaches.
         denoise: the denoiser's settings; None keeps the Monte Carlo noise.
         camera: the camera that develops the radiance (default :data:`DEVELOPMENT`; ``PhotographConfig()``
             adds vignetting, stitching seams, the tripod at the nadir and sensor noise).
         trace_scale: the radiance is traced at the image's size divided by this (an integer dividing both
-            sides), then resized bilinearly: 2 traces a quarter of the pixels, which a photograph's softness
-            hides.
+            sides), then resized bilinearly: 2 traces a quarter of the pixels, at the price of a softer image than
+            a photograph's.
         window_brightness: the range of the median radiance of what windows show (the ceiling lights give a
             few units to the walls near them).
         sun_clip: what windows show is clipped at this times its median: the sun, a thousand times the sky,

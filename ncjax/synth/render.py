@@ -384,6 +384,10 @@ def synthesize(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[
     return scene, rendering, labels
 
 
+# the photoreal image's random stream: fold_in(key, 1), apart from split(key), the room's and the scene's
+_PHOTOREAL_STREAM = 1
+
+
 def photoreal_rgb(
     key: PRNGKeyArray, scene: Scene, config: SynthConfig, views: Float[Array, "N He We 3"]
 ) -> Float[Array, "H W 3"]:
@@ -391,11 +395,7 @@ def photoreal_rgb(
     :func:`~ncjax.synth.photoreal.photoreal_image`, its windows showing ``views``
     (:func:`~ncjax.synth.photoreal.window_views`)."""
     cam = scene.room.camera(config.width, config.height)
-    # a stream of its own: the room and the scene come from the two halves of split(key)
     return photoreal_image(jax.random.fold_in(key, _PHOTOREAL_STREAM), scene, cam, views, config.photoreal)
-
-
-_PHOTOREAL_STREAM = 1
 
 
 # Scene generation is branchy code whose run time is negligible next to
