@@ -10,7 +10,8 @@ decor, pale walls in most of them), 512 x 1024, made through the dataset's own p
 - ``photoreal_camera/``: the same radiance developed by the whole camera model (vignetting, stitching seams,
   the tripod at the nadir, sensor noise: ``ncjax.synth.photograph.PhotographConfig()``), which training leaves
   to its own augmentation;
-- ``pathtrace/``: the same traces not denoised.
+- ``pathtrace/``: the same traces not denoised;
+- ``photoreal_full_size/``: traced at the image's size (four times the paths).
 
 Images already written are skipped. ``--sheet`` writes a contact sheet of the first rooms, one row per room and
 one column per set.
@@ -45,6 +46,9 @@ SETS = {
         PHOTOREAL, photoreal=dataclasses.replace(PHOTOREAL.photoreal, camera=PhotographConfig())
     ),
     "pathtrace": dataclasses.replace(PHOTOREAL, photoreal=dataclasses.replace(PHOTOREAL.photoreal, denoise=None)),
+    "photoreal_full_size": dataclasses.replace(
+        PHOTOREAL, photoreal=dataclasses.replace(PHOTOREAL.photoreal, trace_scale=1)
+    ),
 }
 
 
