@@ -1,6 +1,7 @@
 """The path tracer (ncjax.synth.pathtrace) against known physics: the furnace (a closed room of emitting,
 reflecting surfaces), the inverse-square law of a small light, the environment seen through a window, the
-ray caster's and the room's analytic depths, and the GGX lobe's normalisation and energy bound.
+patch of sunlight a window casts, the ray caster's and the room's analytic depths, and the GGX lobe's
+normalisation and energy bound.
 
 Every scene here is built by hand with the same capacities (8 walls, 6 boxes, 2 openings, 2 lights) and
 every image has the same size, so that the path tracer compiles once per configuration."""
@@ -14,9 +15,9 @@ import numpy as np
 import pytest
 
 import ncjax
-from ncjax.synth.elements import Boxes, Lights, Openings
+from ncjax.synth.elements import FRAME_WIDTH, Boxes, Lights, Openings
 from ncjax.synth.materials import Material, Pattern
-from ncjax.synth.pathtrace import PathTraceConfig, camera_ray, environment_radiance, path_trace
+from ncjax.synth.pathtrace import PathTraceConfig, Sun, camera_ray, environment_radiance, path_trace
 from ncjax.synth.pathtrace_bsdf import (
     ggx_brdf,
     ggx_pdf,
@@ -234,6 +235,43 @@ def test_environment_is_seen_through_a_window_and_lights_the_room():
     row, column = 11, 40
     centre = np.asarray(camera_ray(cam_map, jnp.float32(column), jnp.float32(row))[1])
     np.testing.assert_allclose(environment_radiance(sky_map, jnp.asarray(centre)), sky_map[row, column], atol=1e-5)
+
+
+def test_sunlight_through_a_window_lights_the_patch_it_casts():
+    """A black room with a floor of albedo rho, one window and the sun: a floor point whose ray towards the sun
+    leaves through the window's glass has radiance ``rho / pi E cos``, every other point is black (no other
+    light, one bounce). Nothing random reaches the sun's light, so one path a pixel is exact."""
+    rho, irradiance = 0.6, np.array([3.0, 2.5, 2.0], np.float32)
+    window = (0, 0.5, 2.5, -0.9, 0.9)  # wall 0 is x = 2, from y = -1.5 to 1.5: the window spans y in [-1, 1]
+    scene = _scene(floor_albedo=np.full(3, rho), windows=[window])
+    towards = np.array([1.0, 0.3, 0.8]) / np.linalg.norm([1.0, 0.3, 0.8])
+    sun = Sun(direction=jnp.asarray(towards, jnp.float32), irradiance=jnp.asarray(irradiance))
+    cam = _camera(0.2)
+    config = PathTraceConfig(samples_per_pixel=1, bounces=1, floor_specular=0.0, jitter=False)
+    image = np.asarray(_trace(scene, cam, jax.random.key(3), config, None, sun))
+    origin, direction = _pixel_rays(cam)
+    hits = jax.vmap(jax.vmap(intersect, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))(scene, origin, direction)
+    point = np.asarray(hits.point)
+    # Where each point's ray towards the sun crosses the window's wall, and how far inside a pane that is (the
+    # glass inside the frame, split by mullions 5 cm wide, upright in the middle and across at 0.6 of its height).
+    to_wall = (2.0 - point[..., 0]) / towards[0]
+    y, z = point[..., 1] + to_wall * towards[1], point[..., 2] + to_wall * towards[2]
+    inside = np.minimum.reduce(
+        [
+            y - (-1.0 + FRAME_WIDTH),
+            (1.0 - FRAME_WIDTH) - y,
+            z - (-0.9 + FRAME_WIDTH),
+            (0.9 - FRAME_WIDTH) - z,
+            np.abs(y) - 0.025,
+            np.abs(z - (-0.9 + 0.6 * 1.8)) - 0.025,
+        ]
+    )
+    floor = np.asarray(hits.kind) == SurfaceKind.FLOOR
+    lit, shaded = floor & (inside > 0.02), ~floor | (inside < -0.02)
+    assert lit.sum() >= 8 and (floor & shaded).sum() >= 8
+    expected = np.broadcast_to(rho / math.pi * irradiance * towards[2], image[lit].shape)
+    np.testing.assert_allclose(image[lit], expected, rtol=1e-5)
+    assert np.all(image[shaded] == 0)
 
 
 @pytest.mark.slow

@@ -1,5 +1,7 @@
-"""Photoreal training images (ncjax.synth.photoreal): what windows show, the traced pixels' directions after
-resizing, and rooms rendered so keeping the ray caster's labels, depth and semantics."""
+"""Photoreal training images (ncjax.synth.photoreal): what windows show and the sun they let in, and rooms
+rendered so keeping the ray caster's labels, depth and semantics."""
+
+import math
 
 import jax
 import jax.numpy as jnp
@@ -10,7 +12,7 @@ from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
 from ncjax.synth import PhotorealConfig, RoomConfig, SceneConfig, SynthConfig
 from ncjax.synth.pathtrace import PathTraceConfig
 from ncjax.synth.photograph import luminance
-from ncjax.synth.photoreal import window_view, window_views
+from ncjax.synth.photoreal import window_light, window_views
 from ncjax.synth.render import synthesize_batch
 
 
@@ -26,7 +28,7 @@ def _views(seed: int = 0) -> np.ndarray:
 def test_a_window_shows_a_view_at_a_median_in_range_clipped_at_the_sun_clip(seed):
     config = PhotorealConfig(window_brightness=(1.5, 2.5), sun_clip=3.0)
     views = _views(seed)
-    view = np.asarray(window_view(jax.random.key(seed), jnp.asarray(views), config))
+    view = np.asarray(window_light(jax.random.key(seed), jnp.asarray(views), config)[0])
     level = np.asarray(luminance(jnp.asarray(view)))
     median = np.median(level)
     assert 1.5 - 1e-4 <= median <= 2.5 + 1e-4
@@ -39,26 +41,36 @@ def test_a_window_shows_a_view_at_a_median_in_range_clipped_at_the_sun_clip(seed
     )
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_the_light_clipped_around_the_sun_becomes_the_sun(seed):
+    # A clip high enough that only the sun's texel (1000 times the sky) is clipped: the sun's irradiance is
+    # that texel's clipped-away radiance times its solid angle, and its direction the texel's.
+    config = PhotorealConfig(sun_clip=50.0)
+    views = _views(seed)[1:]
+    view, sun = window_light(jax.random.key(seed), jnp.asarray(views), config)
+    view = np.asarray(view)
+    shift = (int(np.argmax(view[2].sum(-1))) - 5) % 16  # the view's brightest texel is the sun, clipped
+    turned = np.roll(views[0], shift, axis=1)
+    gain = float(np.median(view / turned))
+    row, column = 2, (5 + shift) % 16
+    azimuth, elevation = pixel_to_angles(NonCentralPanorama(16, 8), float(column), float(row))
+    azimuth, elevation = float(azimuth), float(elevation)
+    solid_angle = (2 * math.pi / 16) * (math.pi / 8) * math.cos(elevation)
+    expected = (turned[row, column] * gain - view[row, column]) * solid_angle
+    np.testing.assert_allclose(np.asarray(sun.irradiance), expected, rtol=1e-3)
+    direction = [math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)]
+    np.testing.assert_allclose(np.asarray(sun.direction), direction, atol=1e-5)
+    without = window_light(jax.random.key(seed), jnp.asarray(views), PhotorealConfig(sun_clip=50.0, sun=False))
+    np.testing.assert_array_equal(np.asarray(without[0]), view)
+    np.testing.assert_array_equal(np.asarray(without[1].irradiance), 0.0)
+
+
 def test_the_shipped_window_views_are_outdoor_hdr_panoramas():
     views = window_views()
     assert views.ndim == 4 and views.shape[0] >= 8 and views.shape[2] == 2 * views.shape[1] and views.shape[3] == 3
     assert np.all(np.isfinite(views)) and views.min() >= 0
     flat = views.reshape(len(views), -1)
     assert np.all(flat.max(1) > 10 * np.median(flat, 1)) and np.all(flat.max(1) > 1), "high dynamic range"
-
-
-def test_resized_traced_pixels_look_where_the_images_pixels_look():
-    # jax.image.resize with half-pixel centres, as photoreal_image resizes the traced radiance: a radiance equal to
-    # each traced pixel's elevation becomes each image pixel's elevation (linear in the row: interpolated exactly)
-    image = NonCentralPanorama(64, 32, rc=0.3)
-    traced = NonCentralPanorama(32, 16, rc=0.3)
-    rows, columns = np.mgrid[0 : traced.height, 0 : traced.width].astype(np.float32)
-    _, elevation = pixel_to_angles(traced, columns, rows)
-    resized = jax.image.resize(elevation, (image.height, image.width), "linear")
-    rows, columns = np.mgrid[0 : image.height, 0 : image.width].astype(np.float32)
-    _, expected = pixel_to_angles(image, columns, rows)
-    inner = slice(1, -1)  # the first and last rows are extrapolated flat
-    np.testing.assert_allclose(np.asarray(resized)[inner], np.asarray(expected)[inner], atol=1e-5)
 
 
 def test_configuration_rejects_bad_values():

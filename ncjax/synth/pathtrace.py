@@ -12,7 +12,9 @@ The ray caster (:mod:`ncjax.synth.render`) shades each hit locally; here every p
   path's own bounces never meet them and no light is counted twice. The environment lights the room
   through the holes (windows' glass; with decor, open doors), also sampled at every vertex (a uniform point
   of a hole, by area, and the environment's radiance in its direction); a path that leaves the room after a
-  reflection then adds nothing. Emissive
+  reflection then adds nothing. The sun, optionally, is a directional light (:class:`Sun`) sampled at every
+  vertex too: a shadow ray towards it that leaves the room through a window's glass brings its irradiance, so
+  a window casts its patch of sunlight on the floor and walls. Emissive
   surfaces (the lamps' shades; with decor, the light panels) are seen, and light the scene through the
   bounces unless ``PathTraceConfig.emissive_boxes_light`` is False: the ceiling light under each of them
   then stands for its light alone, and paths that find a small bright shade by chance make no speckle.
@@ -31,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
@@ -40,7 +43,14 @@ from ..geometry.fastmath import arctan2
 from ..geometry.polygon import perpendicular
 from .elements import FRAME_WIDTH
 from .pathtrace_bsdf import glossy_brdf, sample_cosine, sample_glossy, tangent_frame
-from .pathtrace_scene import Hit, SurfaceKind, intersect, surface_appearance, surface_emission
+from .pathtrace_scene import (
+    Hit,
+    SurfaceKind,
+    intersect,
+    leaves_through_a_window,
+    surface_appearance,
+    surface_emission,
+)
 from .rooms import room_walls
 from .scene import Scene
 
@@ -92,6 +102,19 @@ class PathTraceConfig:
             raise ValueError(f"floor_roughness must be in (0, 1], got {self.floor_roughness}")
         if not 0 <= self.floor_specular <= 1:
             raise ValueError(f"floor_specular must be in [0, 1], got {self.floor_specular}")
+
+
+class Sun(eqx.Module):
+    """A directional light seen through the windows (all fields traced).
+
+    Attributes:
+        direction: (3,) unit direction towards the sun, camera frame.
+        irradiance: (3,) the sun's irradiance on a surface facing it (its radiance integrated over its disc);
+            0 for none.
+    """
+
+    direction: Float[Array, 3]
+    irradiance: Float[Array, 3]
 
 
 def environment_radiance(
@@ -215,9 +238,10 @@ def _reflect(
     uniform: Float[Array, 9],
     config: PathTraceConfig,
     environment: Float[Array, "He We 3"] | Float[Array, 3],
+    sun: Sun | None,
 ):
-    """One path vertex: the light sampled towards the lights and the holes (before the path's throughput),
-    and the next ray's direction with the throughput factor ``f cos / pdf`` of the reflection."""
+    """One path vertex: the light sampled towards the lights, the holes and the sun (before the path's
+    throughput), and the next ray's direction with the throughput factor ``f cos / pdf`` of the reflection."""
     albedo, is_floor = surface_appearance(scene, hit)
     frame = tangent_frame(hit.normal)
     outgoing = frame @ -direction
@@ -241,6 +265,9 @@ def _reflect(
         visible = (through.kind == SurfaceKind.ESCAPE) & (jnp.abs(through.distance - hole_distance) < 1e-3)
         sky = environment_radiance(environment, to_hole)
         direct = direct + jnp.where(visible, reflectance_cosine(to_hole), 0.0) * scale * sky
+    if sun is not None:
+        sunlit = leaves_through_a_window(scene, intersect(scene, start, sun.direction))
+        direct = direct + jnp.where(sunlit, reflectance_cosine(sun.direction), 0.0) * sun.irradiance
 
     reflected = sample_cosine(uniform[6:8])
     factor = jnp.where(outgoing[2] > 0, albedo, 0.0)
@@ -260,6 +287,7 @@ def trace_path(
     uniform: Float[Array, "bounces 9"],
     config: PathTraceConfig,
     environment: Float[Array, "He We 3"] | Float[Array, 3],
+    sun: Sun | None = None,
 ) -> Float[Array, 3]:
     """The radiance one light path brings back along a ray (ONE ray; batch with ``jax.vmap``).
 
@@ -269,6 +297,7 @@ def trace_path(
         uniform: (bounces, 9) uniform numbers in [0, 1), all the randomness of the path.
         config: static settings; ``config.bounces`` must equal ``uniform``'s first axis.
         environment: see :func:`environment_radiance`.
+        sun: a directional light through the windows, or None.
 
     Returns:
         (3,) an unbiased estimate of the radiance (paths of at most ``bounces`` reflections).
@@ -278,7 +307,7 @@ def trace_path(
     def bounce(carry, numbers):
         hit, direction, throughput, radiance = carry
         alive = hit.kind != SurfaceKind.ESCAPE
-        direct, start, reflected, factor = _reflect(scene, hit, direction, numbers, config, environment)
+        direct, start, reflected, factor = _reflect(scene, hit, direction, numbers, config, environment, sun)
         radiance = radiance + jnp.where(alive, throughput * direct, 0.0)
         throughput = jnp.where(alive, throughput * factor, 0.0)
         hit = intersect(scene, start, reflected)
@@ -298,7 +327,7 @@ def camera_ray(
     return optical_centre(cam, u), pixel_to_ray(cam, u, v)[:3]
 
 
-def _pixel(scene, cam, key, index, config: PathTraceConfig, environment) -> Float[Array, 3]:
+def _pixel(scene, cam, key, index, config: PathTraceConfig, environment, sun) -> Float[Array, 3]:
     """The mean radiance of the paths of pixel ``index`` (row-major), from its own stream of ``key``."""
     row, column = index // cam.width, index % cam.width
     uniform = jax.random.uniform(
@@ -309,7 +338,7 @@ def _pixel(scene, cam, key, index, config: PathTraceConfig, environment) -> Floa
         jitter = numbers[:2] - 0.5 if config.jitter else jnp.zeros(2)
         origin, direction = camera_ray(cam, column + jitter[0], row + jitter[1])
         return trace_path(
-            scene, origin, direction, numbers[2:].reshape(config.bounces, _PER_BOUNCE), config, environment
+            scene, origin, direction, numbers[2:].reshape(config.bounces, _PER_BOUNCE), config, environment, sun
         )
 
     return jnp.mean(jax.vmap(sample)(uniform), 0)
@@ -321,6 +350,7 @@ def path_trace(
     key: PRNGKeyArray,
     config: PathTraceConfig = PathTraceConfig(),
     environment: Float[Array, "He We 3"] | Float[Array, 3] | None = None,
+    sun: Sun | None = None,
 ) -> Float[Array, "H W 3"]:
     """Path-trace the panorama of ``scene`` seen by ``cam``: linear radiance, no tone curve.
 
@@ -333,6 +363,7 @@ def path_trace(
         environment: what is seen through windows and open doors, and lights the room through them: an
             equirectangular map (He, We, 3) or a constant colour (3,), see :func:`environment_radiance`;
             None is black.
+        sun: a directional light that shines through the windows (:class:`Sun`), or None.
 
     Returns:
         (H, W, 3) radiance. Jit with ``config`` static; vmap over scenes (and keys, cameras' rc).
@@ -341,7 +372,7 @@ def path_trace(
         environment = jnp.zeros(3)
     count = cam.width * cam.height
     image = jax.lax.map(
-        lambda index: _pixel(scene, cam, key, index, config, environment),
+        lambda index: _pixel(scene, cam, key, index, config, environment, sun),
         jnp.arange(count),
         batch_size=min(config.pixels_per_chunk, count),
     )

@@ -3,16 +3,18 @@
 At the samples a pixel a render affords, a path-traced image is mostly Monte Carlo noise where only bounced light
 arrives. The noise is in the light, not in the surfaces: each pixel's radiance is its albedo times the irradiance
 its paths estimate, and the irradiance varies slowly over a surface. So the image is divided by the albedo of the
-surface each pixel first meets (demodulated), the irradiance is smoothed by an edge-avoiding a-trous wavelet
-filter (Dammertz et al. 2010, "Edge-avoiding a-trous wavelet transform for fast global illumination filtering";
-the variance-guided luminance weight of Schied et al. 2017, "Spatiotemporal variance-guided filtering"), and
-multiplied by the albedo again: textures stay sharp, and the filter never mixes two surfaces (another kind or
-slot, another normal, another depth). What is seen through windows and open doors, the environment, is kept
-as traced (it carries no path noise).
+surface each pixel first meets (demodulated), the irradiance is smoothed by an edge-avoiding a-trous wavelet filter
+(Dammertz et al. 2010, "Edge-avoiding a-trous wavelet transform for fast global illumination filtering"; the
+variance-guided luminance weight of Schied et al. 2017, "Spatiotemporal variance-guided filtering"), and multiplied
+by the albedo again: textures stay sharp, and the filter never mixes two surfaces (another kind or slot, another
+normal, another depth). What is seen through windows and open doors, the environment, and what emits are kept as
+traced (they carry no path noise).
 
-Each guide comes from one ray through each pixel's centre (:func:`guide_buffers`, one ray a pixel against the
-path tracer's many); the filter itself is a few shifted-image sums (:func:`denoise`). Shifts wrap around the
-panorama's columns (its seam is no edge) and stop at its top and bottom rows.
+Each guide comes from one ray through each pixel's centre (:func:`guide_buffers`, one ray a pixel against the path
+tracer's many); the filter itself is a few shifted-image sums (:func:`denoise`). The same separation lets light
+traced at a fraction of the image's size be brought to full size within each surface (:func:`upsampled_light`) and
+multiplied by the full-size albedo: the light is soft, the textures sharp. Shifts wrap around the panorama's columns
+(its seam is no edge) and stop at its top and bottom rows.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from jaxtyping import Array, Float, Int
 
 from ..geometry.camera import NonCentralPanorama
 from .pathtrace import camera_ray
-from .pathtrace_scene import SurfaceKind, intersect, surface_appearance
+from .pathtrace_scene import SurfaceKind, intersect, surface_appearance, surface_emission
 from .photograph import luminance
 from .scene import Scene
 
@@ -74,10 +76,11 @@ class GuideBuffers(eqx.Module):
 
     Attributes:
         albedo: (H, W, 3) the surface's albedo (:func:`~ncjax.synth.pathtrace_scene.surface_appearance`); 1 where
-            the ray escapes.
+            the ray escapes or meets what emits.
         normal: (H, W, 3) the surface's unit normal.
         depth: (H, W) the distance along the ray, metres.
-        surface: (H, W) one integer per surface: its :class:`~ncjax.synth.pathtrace_scene.SurfaceKind` and slot.
+        surface: (H, W) one integer per surface: its :class:`~ncjax.synth.pathtrace_scene.SurfaceKind` and slot;
+            0 where the ray escapes or meets what emits (kept as traced).
     """
 
     albedo: Float[Array, "H W 3"]
@@ -87,12 +90,15 @@ class GuideBuffers(eqx.Module):
 
 
 def guide_buffer(scene: Scene, cam: NonCentralPanorama, u: Float[Array, ""], v: Float[Array, ""]):
-    """The albedo, normal, depth and surface number of the first hit of pixel (u, v)'s ray (ONE pixel)."""
+    """The albedo, normal, depth and surface number of the first hit of pixel (u, v)'s ray (ONE pixel).
+
+    What emits (lamp shades, light panels) is numbered 0 with the environment, albedo 1: kept as traced, its
+    glow is not spread over the ceiling around it."""
     hit = intersect(scene, *camera_ray(cam, u, v))
     albedo, _ = surface_appearance(scene, hit)
-    escaped = hit.kind == SurfaceKind.ESCAPE
+    kept = (hit.kind == SurfaceKind.ESCAPE) | jnp.any(surface_emission(scene, hit) > 0)
     surface = hit.kind + len(SurfaceKind) * (hit.index + 1)
-    return jnp.where(escaped, 1.0, albedo), hit.normal, hit.distance, jnp.where(escaped, 0, surface)
+    return jnp.where(kept, 1.0, albedo), hit.normal, hit.distance, jnp.where(kept, 0, surface)
 
 
 def guide_buffers(scene: Scene, cam: NonCentralPanorama) -> GuideBuffers:
@@ -168,6 +174,31 @@ def _atrous_level(irradiance, variance, guides: GuideBuffers, step: int, config:
     return mean / total[..., None], mean_variance / total**2
 
 
+def demodulated(radiance: Float[Array, "H W 3"], guides: GuideBuffers) -> Float[Array, "H W 3"]:
+    """The light of each pixel: its radiance over the albedo its centre ray meets (the irradiance on a surface;
+    the radiance itself where the ray escapes, whose guide albedo is 1)."""
+    return radiance / jnp.maximum(guides.albedo, _MIN_ALBEDO)
+
+
+def remodulated(light: Float[Array, "H W 3"], guides: GuideBuffers) -> Float[Array, "H W 3"]:
+    """The radiance of pixels of ``light`` (:func:`demodulated`'s inverse): times the albedo again."""
+    return light * jnp.maximum(guides.albedo, _MIN_ALBEDO)
+
+
+def filtered_light(
+    light: Float[Array, "H W 3"], guides: GuideBuffers, config: DenoiseConfig = DenoiseConfig()
+) -> Float[Array, "H W 3"]:
+    """:func:`demodulated` light with its Monte Carlo noise filtered out within each surface; the environment's
+    pixels (``guides.surface == 0``) unchanged. Jit with ``config`` static; vmap over images."""
+    irradiance = light
+    if config.firefly_factor > 0:
+        irradiance = _clamped_fireflies(irradiance, config)
+    variance = _local_variance(luminance(irradiance), guides, config)
+    for level in range(config.levels):
+        irradiance, variance = _atrous_level(irradiance, variance, guides, 2**level, config)
+    return jnp.where((guides.surface > 0)[..., None], irradiance, light)
+
+
 def denoise(
     radiance: Float[Array, "H W 3"], guides: GuideBuffers, config: DenoiseConfig = DenoiseConfig()
 ) -> Float[Array, "H W 3"]:
@@ -182,11 +213,53 @@ def denoise(
         (H, W, 3) the denoised radiance; the environment's pixels (``guides.surface == 0``) unchanged.
         Jit with ``config`` static; vmap over images.
     """
-    albedo = jnp.maximum(guides.albedo, _MIN_ALBEDO)
-    irradiance = radiance / albedo
-    if config.firefly_factor > 0:
-        irradiance = _clamped_fireflies(irradiance, config)
-    variance = _local_variance(luminance(irradiance), guides, config)
-    for level in range(config.levels):
-        irradiance, variance = _atrous_level(irradiance, variance, guides, 2**level, config)
-    return jnp.where((guides.surface > 0)[..., None], irradiance * albedo, radiance)
+    return remodulated(filtered_light(demodulated(radiance, guides), guides, config), guides)
+
+
+def upsampled_light(
+    light: Float[Array, "h w 3"], coarse: GuideBuffers, fine: GuideBuffers, config: DenoiseConfig = DenoiseConfig()
+) -> Float[Array, "H W 3"]:
+    """Light traced at a fraction of a panorama's size, brought to its full size by joint bilateral upsampling
+    (Kopf et al. 2007): each full-size pixel takes the bilinear mean of the 4 nearest traced pixels (half-pixel
+    centres), weighted as the denoiser weighs its taps, by whether they show the same surface, facing the same
+    way at the same depth, so that light does not bleed across an edge; a pixel none of them matches keeps the
+    plain bilinear mean. Multiplied by the full-size albedo (:func:`remodulated` with ``fine``), the light's
+    softness no longer blurs textures and edges.
+
+    Args:
+        light: (h, w, 3) :func:`demodulated` (and filtered) light of the traced panorama.
+        coarse: the traced panorama's :func:`guide_buffers`.
+        fine: the full-size panorama's (its sides integer multiples of the traced ones).
+        config: the weights' settings (``normal_power``, ``depth_tolerance``).
+
+    Returns:
+        (H, W, 3) the light at full size. Columns wrap around the panorama's seam; rows stop at the poles.
+    """
+    (height, width), (coarse_height, coarse_width) = fine.depth.shape, coarse.depth.shape
+    scale = width // coarse_width
+
+    def neighbours(size, coarse_size, wrap):
+        position = (jnp.arange(size) + 0.5) * coarse_size / size - 0.5
+        first = jnp.floor(position)
+        fraction = position - first
+        indices = first.astype(jnp.int32) + jnp.arange(2)[:, None]
+        indices = indices % coarse_size if wrap else jnp.clip(indices, 0, coarse_size - 1)
+        return indices, jnp.stack([1 - fraction, fraction])
+
+    row_index, row_weight = neighbours(height, coarse_height, wrap=False)
+    column_index, column_weight = neighbours(width, coarse_width, wrap=True)
+    total = jnp.zeros((height, width))
+    upsampled = jnp.zeros((height, width, 3))
+    for i in range(2):
+        for j in range(2):
+            rows, columns = row_index[i][:, None], column_index[j][None, :]
+            same = coarse.surface[rows, columns] == fine.surface
+            facing = jnp.maximum(jnp.sum(coarse.normal[rows, columns] * fine.normal, -1), 0.0)
+            depth_gap = jnp.abs(coarse.depth[rows, columns] - fine.depth)
+            depth_weight = jnp.exp(-depth_gap / (config.depth_tolerance * fine.depth * scale + 1e-6))
+            geometric = jnp.where(fine.surface > 0, facing**config.normal_power * depth_weight, 1.0)
+            # The small floor: where no neighbour matches, the bilinear weights alone decide.
+            weight = row_weight[i][:, None] * column_weight[j][None, :] * (jnp.where(same, geometric, 0.0) + 1e-6)
+            total = total + weight
+            upsampled = upsampled + weight[..., None] * light[rows, columns]
+    return upsampled / total[..., None]

@@ -180,6 +180,14 @@ def intersect(scene: Scene, origin: Float[Array, 3], direction: Float[Array, 3])
     )
 
 
+def leaves_through_a_window(scene: Scene, hit: Hit) -> Bool[Array, ""]:
+    """Whether a ray that met ``hit`` left the room through a window's glass (not through an open door, which
+    leads to another room)."""
+    openings = scene.openings
+    present, slot = in_span(openings.wall, openings.span, openings.mask, hit.index[None], hit.along[None])
+    return (hit.kind == SurfaceKind.ESCAPE) & present[0] & openings.is_window[slot[0]]
+
+
 def _box_coordinates(scene: Scene, hit: Hit):
     """The ray caster's texture coordinates on a box: along the face and up it on a side face, the box's own
     axes on its top and bottom."""
