@@ -1,5 +1,5 @@
-"""Photoreal training images (ncjax.synth.photoreal): what windows show and the sun they let in, and rooms
-rendered so keeping the ray caster's labels, depth and semantics."""
+"""Photoreal training images (ncjax.synth.photoreal): what windows show and the sun they let in, the wall-floor
+edge on its label row, and rooms rendered so keeping the ray caster's labels, depth and semantics."""
 
 import math
 
@@ -7,12 +7,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_pathtrace import FLOOR, _scene
 
-from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
+from ncjax.geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 from ncjax.synth import PhotorealConfig, RoomConfig, SceneConfig, SynthConfig
 from ncjax.synth.pathtrace import PathTraceConfig
 from ncjax.synth.photograph import luminance
-from ncjax.synth.photoreal import window_light, window_views
+from ncjax.synth.photoreal import photoreal_image, window_light, window_views
 from ncjax.synth.render import synthesize_batch
 
 
@@ -82,6 +83,35 @@ def test_configuration_rejects_bad_values():
         PhotorealConfig(sun_clip=0.5)
     with pytest.raises(ValueError, match="trace_scale 4 must divide"):
         SynthConfig(width=36, height=18, photoreal=PhotorealConfig(trace_scale=4))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rc", [0.0, 0.3])
+def test_the_wall_floor_edge_lands_on_its_label_row(rc):
+    # A box room of white walls and a dark floor, lit by one ceiling light, photographed at 64 x 128 (traced at
+    # 32 x 64): in every column the image darkens most from the last row above the floor line's exact row to the
+    # first below it. The exact row is where the column's ray, leaving its own optical centre (rc > 0: not the
+    # panorama's centre), meets the floor at the wall.
+    scene = _scene(albedo=(0.8, 0.8, 0.8), floor_albedo=(0.05, 0.05, 0.05), lights=[((0.3, 0.2, 1.0), (3.0, 3.0, 3.0))])
+    cam = NonCentralPanorama(128, 64, rc=rc)
+    config = PhotorealConfig(trace=PathTraceConfig(samples_per_pixel=4, bounces=2, pixels_per_chunk=512))
+    photograph = jax.jit(photoreal_image, static_argnames="config")
+    image = photograph(jax.random.key(0), scene, cam, jnp.asarray(_views()), config)
+    level = np.asarray(luminance(image))[cam.height // 2 :]
+    drop = level[:-1] - level[1:]  # from each row of the lower half to the next
+    assert np.all(drop.max(0) > 0.1), "no wall-floor edge"
+    edge = cam.height // 2 + np.argmax(drop, 0) + 0.5  # the boundary between the last wall row and the first floor row
+    azimuth, _ = pixel_to_angles(cam, np.arange(cam.width, dtype=np.float32), 0.0)
+    azimuth = np.asarray(azimuth, np.float64)
+    heading = np.stack([np.cos(azimuth), np.sin(azimuth)], -1)
+    centre = rc * heading
+    with np.errstate(divide="ignore"):
+        exits = (np.where(heading > 0, [2.0, 1.5], [-2.0, -1.5]) - centre) / heading
+    reach = np.min(np.where(np.isfinite(exits) & (exits > 0), exits, np.inf), -1)
+    _, label = angles_to_pixel(
+        cam, jnp.asarray(azimuth, jnp.float32), jnp.asarray(np.arctan2(FLOOR, reach), jnp.float32)
+    )
+    np.testing.assert_array_less(np.abs(edge - np.asarray(label)), 0.5 + 1e-3)
 
 
 @pytest.mark.slow

@@ -36,6 +36,9 @@ from .scene import Scene
 _B3_SPLINE = (1 / 16, 1 / 4, 3 / 8, 1 / 4, 1 / 16)
 # Irradiance is the radiance over an albedo at least this (a black surface's noise is not amplified to infinity).
 _MIN_ALBEDO = 0.02
+# Guide pixels computed together: bounds memory, as the path tracer's chunks do (a 512 x 1024 image's guides at
+# once held gigabytes of intermediate hits).
+_GUIDE_PIXELS_PER_CHUNK = 16384
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,10 +106,16 @@ def guide_buffer(scene: Scene, cam: NonCentralPanorama, u: Float[Array, ""], v: 
 
 def guide_buffers(scene: Scene, cam: NonCentralPanorama) -> GuideBuffers:
     """The guides of every pixel of ``cam`` (its centre's ray, as :func:`~ncjax.synth.pathtrace.path_trace`
-    traces it). Jit with the camera's size static."""
+    traces it), a few rows at a time (``_GUIDE_PIXELS_PER_CHUNK``). Jit with the camera's size static."""
     rows, columns = jnp.meshgrid(jnp.arange(cam.height), jnp.arange(cam.width), indexing="ij")
-    per_pixel = jax.vmap(jax.vmap(guide_buffer, (None, None, 0, 0)), (None, None, 0, 0))
-    return GuideBuffers(*per_pixel(scene, cam, columns.astype(jnp.float32), rows.astype(jnp.float32)))
+    per_row = jax.vmap(guide_buffer, (None, None, 0, 0))
+    return GuideBuffers(
+        *jax.lax.map(
+            lambda row: per_row(scene, cam, row[1], row[0]),
+            (rows.astype(jnp.float32), columns.astype(jnp.float32)),
+            batch_size=min(cam.height, max(1, _GUIDE_PIXELS_PER_CHUNK // cam.width)),
+        )
+    )
 
 
 def shifted(image: Float[Array, "H W ..."], rows: int, columns: int) -> Float[Array, "H W ..."]:
