@@ -6,7 +6,8 @@ decor, pale walls in most of them), 512 x 1024, made through the dataset's own p
 - ``raycast/``: the ray caster's 8-bit images, as ``synth-decor-home`` trains on them;
 - ``photoreal/``: the same rooms as ``synth-photoreal-home`` renders them (``ncjax.synth.photoreal``, its default
   settings: path-traced at 256 x 512, 8 samples a pixel, 3 bounces, windows showing the shipped outdoor HDR
-  panoramas, denoised, resized and developed by the camera's metering, tone curve and white balance);
+  panoramas and letting in their sun, denoised, the light brought to 512 x 1024 over the surfaces' albedo there,
+  developed by the camera's metering, tone curve and white balance);
 - ``photoreal_camera/``: the same radiance developed by the whole camera model (vignetting, stitching seams,
   the tripod at the nadir, sensor noise: ``ncjax.synth.photograph.PhotographConfig()``), which training leaves
   to its own augmentation;
@@ -16,7 +17,7 @@ decor, pale walls in most of them), 512 x 1024, made through the dataset's own p
 Images already written are skipped. ``--sheet`` writes a contact sheet of the first rooms, one row per room and
 one column per set.
 
-    uv run python experiments/photoreal_renders.py            # about 5 minutes a set of 26 on 2 cores
+    uv run python experiments/photoreal_renders.py            # about 6 minutes a set of 26 on 2 cores
     uv run python experiments/photoreal_renders.py --sheet
     uv run --with scikit-learn --with scipy python ../shared/tools/realism_probe/probe.py \\
         --real ../shared/data/real-dev "raycast=experiments/out/photoreal/raycast/*.png" ...

@@ -189,8 +189,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         "--photoreal",
         action="store_true",
         help="RGB images with light as it behaves: path-traced (interreflections, area lights, windows showing "
-        "real outdoor HDR panoramas), denoised and developed by a camera model; about 11-14 s a 512x1024 image on "
-        "2 CPU cores (ncjax.synth.PhotorealConfig)",
+        "real outdoor HDR panoramas and letting in their sun), denoised and developed by a camera model; about "
+        "12-14 s a 512x1024 image on 2 CPU cores (ncjax.synth.PhotorealConfig)",
     )
     synth.add_argument("--spp", type=int, default=8, help="with --photoreal: paths traced per pixel")
     synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")

@@ -67,8 +67,9 @@ class PhotorealConfig:
             bounces.
         denoise: the denoiser's settings; None keeps the Monte Carlo noise. Its luminance weight is 4 times
             looser than the denoiser's default: at 8 paths a pixel the default leaves blotches on walls that only
-            bounced light reaches (the realism probe's Frechet distance 539 against 449; the error against 128
-            paths a pixel, blurred over 3 pixels, 0.06 in log luminance either way).
+            bounced light reaches (the realism probe's Frechet distance 539 at the default, 449 so; two rooms' log
+            luminance against 128 paths a pixel, blurred over 3 pixels, off by 0.065 and 0.036 rms at the default,
+            0.062 and 0.044 so: experiments/RESULTS.md, "Path-traced renders").
         camera: the camera that develops the radiance (default :data:`DEVELOPMENT`; ``PhotographConfig()``
             adds vignetting, stitching seams, the tripod at the nadir and sensor noise).
         trace_scale: the light is traced at the image's size divided by this (an integer dividing both sides),
