@@ -176,7 +176,7 @@ def photoreal_image(
     key_view, key_trace, key_camera = jax.random.split(key, 3)
     traced = NonCentralPanorama(cam.width // scale, cam.height // scale, cam.rc, cam.fov_horizontal, cam.fov_vertical)
     view, sun = window_light(key_view, views, config)
-    radiance = path_trace(scene, traced, key_trace, config.trace, view, sun)
+    radiance = path_trace(scene, traced, key_trace, config.trace, view, sun if config.sun else None)
     guides = guide_buffers(scene, traced)
     light = demodulated(radiance, guides)
     if config.denoise is not None:
