@@ -131,13 +131,20 @@ def _taps(step: int):
     return [(step * (i - 2), step * (j - 2), _B3_SPLINE[i] * _B3_SPLINE[j]) for i in range(5) for j in range(5)]
 
 
+def _similarity(pixels: GuideBuffers, others: GuideBuffers, step: int, config: DenoiseConfig):
+    """How much each pixel may take of the light of the pixel ``others`` holds at its place, ``step`` pixels away,
+    by the guides alone, in [0, 1]: 0 on another surface, else the normals' agreement times the depths'."""
+    facing = jnp.maximum(jnp.sum(pixels.normal * others.normal, -1), 0.0)
+    depth_gap = jnp.abs(pixels.depth - others.depth)
+    depth_weight = jnp.exp(-depth_gap / (config.depth_tolerance * pixels.depth * step + 1e-6))
+    return jnp.where(pixels.surface == others.surface, facing**config.normal_power * depth_weight, 0.0)
+
+
 def _geometric_weight(guides: GuideBuffers, rows: int, columns: int, step: int, config: DenoiseConfig):
-    """How much each pixel may take of its neighbour ``(rows, columns)`` away by the guides alone, in [0, 1]."""
-    same = guides.surface == shifted(guides.surface, rows, columns)
-    facing = jnp.maximum(jnp.sum(guides.normal * shifted(guides.normal, rows, columns), -1), 0.0)
-    depth_gap = jnp.abs(guides.depth - shifted(guides.depth, rows, columns))
-    depth_weight = jnp.exp(-depth_gap / (config.depth_tolerance * guides.depth * step + 1e-6))
-    return jnp.where(same & (guides.surface > 0), facing**config.normal_power * depth_weight, 0.0)
+    """How much each pixel may take of its neighbour ``(rows, columns)`` away by the guides alone, in [0, 1]
+    (nothing where it shows the environment: that is not filtered)."""
+    neighbours = jax.tree.map(lambda guide: shifted(guide, rows, columns), guides)
+    return jnp.where(guides.surface > 0, _similarity(guides, neighbours, step, config), 0.0)
 
 
 def _local_variance(brightness: Float[Array, "H W"], guides: GuideBuffers, config: DenoiseConfig):
@@ -262,13 +269,12 @@ def upsampled_light(
     for i in range(2):
         for j in range(2):
             rows, columns = row_index[i][:, None], column_index[j][None, :]
-            same = coarse.surface[rows, columns] == fine.surface
-            facing = jnp.maximum(jnp.sum(coarse.normal[rows, columns] * fine.normal, -1), 0.0)
-            depth_gap = jnp.abs(coarse.depth[rows, columns] - fine.depth)
-            depth_weight = jnp.exp(-depth_gap / (config.depth_tolerance * fine.depth * scale + 1e-6))
-            geometric = jnp.where(fine.surface > 0, facing**config.normal_power * depth_weight, 1.0)
+            neighbour = jax.tree.map(lambda guide: guide[rows, columns], coarse)
+            same = neighbour.surface == fine.surface
+            # The environment's pixels match by surface alone (their normal and depth are the wall's plane).
+            geometric = jnp.where(fine.surface > 0, _similarity(fine, neighbour, scale, config), same)
             # The small floor: where no neighbour matches, the bilinear weights alone decide.
-            weight = row_weight[i][:, None] * column_weight[j][None, :] * (jnp.where(same, geometric, 0.0) + 1e-6)
+            weight = row_weight[i][:, None] * column_weight[j][None, :] * (geometric + 1e-6)
             total = total + weight
             upsampled = upsampled + weight[..., None] * light[rows, columns]
     return upsampled / total[..., None]
