@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
-from ..geometry.camera import NonCentralPanorama, pixel_to_angles
+from ..geometry.camera import NonCentralPanorama, angles_to_ray, pixel_to_angles
 from .pathtrace import PathTraceConfig, Sun, path_trace
 from .pathtrace_denoise import (
     DenoiseConfig,
@@ -137,9 +137,7 @@ def window_light(
     rows, columns = view.shape[:2]
     row, column = jnp.meshgrid(*(jnp.arange(n, dtype=jnp.float32) for n in (rows, columns)), indexing="ij")
     azimuth, elevation = pixel_to_angles(NonCentralPanorama(columns, rows), column, row)
-    direction = jnp.stack(
-        [jnp.cos(elevation) * jnp.cos(azimuth), jnp.cos(elevation) * jnp.sin(azimuth), jnp.sin(elevation)], -1
-    )
+    direction = angles_to_ray(0.0, azimuth, elevation)[..., :3]
     solid_angle = (2 * math.pi / columns) * (math.pi / rows) * jnp.cos(elevation)
     above = elevation > 0
     brightest = direction.reshape(-1, 3)[jnp.argmax(jnp.where(above, level, -1.0))]
