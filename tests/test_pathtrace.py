@@ -29,6 +29,7 @@ from ncjax.synth.pathtrace_bsdf import (
     tangent_frame,
 )
 from ncjax.synth.pathtrace_scene import SurfaceKind, intersect
+from ncjax.synth.render import synthesize_scene
 from ncjax.synth.rooms import Room
 from ncjax.synth.scene import Scene
 
@@ -330,6 +331,81 @@ def test_primary_hits_match_the_ray_caster_and_the_analytic_room(rc):
     on_box = np.asarray(hits.kind) == SurfaceKind.BOX
     assert on_box.sum() > 20
     np.testing.assert_array_equal(on_box, np.asarray(rendering.semantic) == ncjax.synth.Semantic.OBJECT)
+
+
+# ------------------------------------------------------------------ rooms behind open doors
+
+DOORS_HEIGHT, DOORS_WIDTH = 64, 128
+
+
+def _room_with_open_doors(rc: float) -> Scene:
+    """A realistic room whose doors all stand open, half of them wide passages, lit by an ambient light alone
+    (its lamps, light panels and sun off)."""
+    config = ncjax.synth.SynthConfig(
+        room=ncjax.synth.RoomConfig(world="mix", rc_range=(rc, rc)),
+        scene=ncjax.synth.SceneConfig(
+            decor=True, door_probability=1.0, open_door_probability=1.0, passage_probability=0.5
+        ),
+    )
+    scene, _ = jax.jit(synthesize_scene, static_argnums=1)(jax.random.key(2), config)
+    decor = scene.decor
+    dark = dict(
+        lights=dataclasses.replace(scene.lights, mask=jnp.zeros_like(scene.lights.mask)),
+        boxes=dataclasses.replace(scene.boxes, emission=jnp.zeros_like(scene.boxes.emission)),
+        decor=dataclasses.replace(
+            decor,
+            panels=dataclasses.replace(decor.panels, mask=jnp.zeros_like(decor.panels.mask)),
+            sun=dataclasses.replace(decor.sun, mask=jnp.zeros_like(decor.sun.mask)),
+        ),
+        ambient=jnp.array([0.5, 0.45, 0.4]),
+    )
+    return dataclasses.replace(scene, **dark)
+
+
+@pytest.mark.parametrize("rc", [0.0, 0.4])
+def test_rooms_behind_open_doors_are_the_ray_casters(rc):
+    """Through an open door or passage a ray meets the ray caster's room behind it (the door's lining, then a
+    box-shaped room) at the ray caster's depth, and, lit by the ray caster's ambient light, has its radiance:
+    the same surfaces, materials, texture coordinates and shading (its tone curve undone)."""
+    scene = _room_with_open_doors(rc)
+    cam = ncjax.NonCentralPanorama(DOORS_WIDTH, DOORS_HEIGHT, rc=rc)
+    v, u = jnp.meshgrid(
+        jnp.arange(DOORS_HEIGHT, dtype=jnp.float32), jnp.arange(DOORS_WIDTH, dtype=jnp.float32), indexing="ij"
+    )
+    origin, direction = jax.vmap(jax.vmap(camera_ray, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))(cam, u, v)
+    hits = jax.jit(jax.vmap(jax.vmap(intersect, in_axes=(None, 0, 0)), in_axes=(None, 0, 0)))(scene, origin, direction)
+    rendering = jax.jit(ncjax.synth.render)(scene, cam)
+    next_room = np.asarray(hits.kind) == SurfaceKind.NEXT_ROOM
+    assert next_room.sum() > 500
+    assert np.all(np.asarray(rendering.semantic)[next_room] == ncjax.synth.Semantic.OPENING)
+    np.testing.assert_allclose(np.asarray(hits.distance), np.asarray(rendering.depth), rtol=1e-4, atol=1e-4)
+
+    config = PathTraceConfig(samples_per_pixel=1, bounces=0, jitter=False, pixels_per_chunk=2048)
+    image = _trace(scene, cam, jax.random.key(0), config, None, None, math.pi * scene.ambient)
+    cast = np.asarray(rendering.rgb, np.float64)
+    cast_radiance = -np.log1p(-(cast**2.2)) / 1.5  # the ray caster's tone curve undone
+    np.testing.assert_allclose(np.asarray(image)[next_room], cast_radiance[next_room], rtol=2e-3, atol=1e-4)
+    assert np.all(np.asarray(image)[~next_room] == 0)  # nothing else emits; no bounces
+
+
+@pytest.mark.slow
+def test_the_rooms_behind_open_doors_light_the_room_through_them():
+    """The light of the rooms behind, sampled through their doors at every vertex or left to the paths that
+    leave through them by chance: the same mean radiance."""
+    scene = _room_with_open_doors(0.0)
+    cam = _camera(0.0)
+    config = PathTraceConfig(samples_per_pixel=64, bounces=2, jitter=False, emissive_boxes_light=False)
+    light = math.pi * scene.ambient
+    sampled = np.asarray(_trace(scene, cam, jax.random.key(0), config, None, None, light))
+    chance = np.asarray(
+        _trace(scene, cam, jax.random.key(1), dataclasses.replace(config, hole_sampling=False), None, None, light)
+    )
+    origin, direction = _pixel_rays(cam)
+    hits = jax.vmap(jax.vmap(intersect, in_axes=(None, 0, 0)), in_axes=(None, 0, 0))(scene, origin, direction)
+    kind = np.asarray(hits.kind)
+    room = (kind == SurfaceKind.FLOOR) | (kind == SurfaceKind.CEILING) | (kind == SurfaceKind.WALL)
+    assert room.sum() > 100 and sampled[room].mean() > 0
+    np.testing.assert_allclose(chance[room].mean(), sampled[room].mean(), rtol=0.05)
 
 
 # ------------------------------------------------------------------ the GGX lobe

@@ -4,20 +4,21 @@ interreflections, soft shadows and a rough-glossy floor, for the scenes :mod:`nc
 The ray caster (:mod:`ncjax.synth.render`) shades each hit locally; here every pixel averages light paths:
 
 - Geometry: :func:`~ncjax.synth.pathtrace_scene.intersect` (the room's prism, the boxes, holes in the walls
-  where windows and open doors are), with the ray caster's materials and colours.
+  where windows and open doors are, the rooms behind those doors), with the ray caster's materials and colours.
 - Light: the scene's ceiling lights become small area lights, discs of radius ``light_radius`` facing down
   at the lights' positions, whose radiance ``colour / (pi r^2)`` gives them the point light's intensity
   ``colour`` straight down (and ``colour cos`` at an angle, as any Lambertian emitter). They are sampled by
   area at every path vertex (next-event estimation with a shadow ray); they are not in the geometry, so a
   path's own bounces never meet them and no light is counted twice. The environment lights the room
-  through the holes (windows' glass; with decor, open doors), also sampled at every vertex (a uniform point
-  of a hole, by area, and the environment's radiance in its direction); a path that leaves the room after a
-  reflection then adds nothing. The sun, optionally, is a directional light (:class:`Sun`) sampled at every
-  vertex too: a shadow ray towards it that leaves the room through a window's glass brings its irradiance, so
-  a window casts its patch of sunlight on the floor and walls. Emissive
-  surfaces (the lamps' shades; with decor, the light panels) are seen, and light the scene through the
-  bounces unless ``PathTraceConfig.emissive_boxes_light`` is False: the ceiling light under each of them
-  then stands for its light alone, and paths that find a small bright shade by chance make no speckle.
+  through the windows' glass, and with decor the rooms behind open doors (seen, lit evenly: paths end there)
+  light it through the doors: both are sampled at every vertex (a uniform point of a hole, by area, and the
+  light that arrives through it); a path that leaves the room after a reflection then adds nothing. The
+  sun, optionally, is a directional light (:class:`Sun`) sampled at every vertex too: a shadow ray towards it
+  that leaves the room through a window's glass brings its irradiance, so a window casts its patch of
+  sunlight on the floor and walls. Emissive surfaces (the lamps' shades; with decor, the light panels) are
+  seen, and light the scene through the bounces unless ``PathTraceConfig.emissive_boxes_light`` is False:
+  the ceiling light under each of them then stands for its light alone, and paths that find a small bright
+  shade by chance make no speckle.
 - Surfaces: Lambertian with the material's albedo; the room's floor has a GGX lobe over its diffuse base
   (:mod:`ncjax.synth.pathtrace_bsdf`). Directions are drawn by importance (cosine, visible normals).
 - Paths have a fixed number of bounces (static), so every path of a batch does the same work in lock-step;
@@ -48,6 +49,7 @@ from .pathtrace_scene import (
     SurfaceKind,
     intersect,
     leaves_through_a_window,
+    next_room_radiance,
     surface_appearance,
     surface_emission,
 )
@@ -74,8 +76,9 @@ class PathTraceConfig:
         floor_roughness: GGX ``alpha`` of the floor's glossy lobe.
         floor_specular: weight of that lobe over the diffuse base, in [0, 1] (0: a Lambertian floor).
         jitter: spread each pixel's paths uniformly over its area (antialiasing); False traces its centre.
-        hole_sampling: sample the environment's light through the holes (windows' glass, open doors) at every
-            path vertex (next-event estimation); False leaves it to the paths that leave the room by chance.
+        hole_sampling: sample the light through the holes (the environment's through windows' glass, the rooms
+            behind's through open doors) at every path vertex (next-event estimation); False leaves it to the
+            paths that leave the room by chance.
         emissive_boxes_light: emissive surfaces light the scene through the paths' bounces; False: they are
             only seen (by camera rays), and the ceiling lights alone light the room.
     """
@@ -213,22 +216,36 @@ def sample_hole(
     return direction, distance, jnp.where(total > 0, cos_hole * total / distance**2, 0.0)
 
 
+def _arriving(
+    scene: Scene,
+    hit: Hit,
+    direction: Float[Array, 3],
+    environment: Float[Array, "He We 3"] | Float[Array, 3],
+    next_room: Float[Array, 3],
+) -> Float[Array, 3]:
+    """The light that arrives along a ray that left the room: the environment's through a window, the room
+    behind's through an open door (:func:`~ncjax.synth.pathtrace_scene.next_room_radiance`), else 0."""
+    sky = jnp.where(hit.kind == SurfaceKind.ESCAPE, environment_radiance(environment, direction), 0.0)
+    return sky + next_room_radiance(scene, hit, next_room)
+
+
 def _emitted(
     scene: Scene,
     hit: Hit,
     direction: Float[Array, 3],
     environment: Float[Array, "He We 3"] | Float[Array, 3],
+    next_room: Float[Array, 3],
     config: PathTraceConfig,
     seen: bool,
 ) -> Float[Array, 3]:
-    """What a path adds where it arrives: an emissive surface's radiance, or the environment's through a hole.
+    """What a path adds where it arrives: an emissive surface's radiance, or the light through a hole.
     After a reflection (``seen`` False) what the sampling at the vertex already counted is left out."""
     emitted = surface_emission(scene, hit)
     if not (seen or config.emissive_boxes_light):
         emitted = jnp.zeros(3)
     if config.hole_sampling and not seen:
         return emitted
-    return emitted + jnp.where(hit.kind == SurfaceKind.ESCAPE, environment_radiance(environment, direction), 0.0)
+    return emitted + _arriving(scene, hit, direction, environment, next_room)
 
 
 def _reflect(
@@ -238,6 +255,7 @@ def _reflect(
     uniform: Float[Array, 9],
     config: PathTraceConfig,
     environment: Float[Array, "He We 3"] | Float[Array, 3],
+    next_room: Float[Array, 3],
     sun: Sun | None,
 ):
     """One path vertex: the light sampled towards the lights, the holes and the sun (before the path's
@@ -261,10 +279,13 @@ def _reflect(
     if config.hole_sampling:
         to_hole, hole_distance, scale = sample_hole(scene, hit.point, uniform[3:6])
         through = intersect(scene, start, to_hole)
-        # The shadow ray must leave through the hole it aimed at (not hit a mullion or the door's frame).
-        visible = (through.kind == SurfaceKind.ESCAPE) & (jnp.abs(through.distance - hole_distance) < 1e-3)
-        sky = environment_radiance(environment, to_hole)
-        direct = direct + jnp.where(visible, reflectance_cosine(to_hole), 0.0) * scale * sky
+        # The shadow ray must leave through the hole it aimed at (not hit a mullion or the door's frame); one
+        # into a room behind crossed the wall's plane at the door it aimed at, nothing standing in front of it.
+        visible = ((through.kind == SurfaceKind.ESCAPE) & (jnp.abs(through.distance - hole_distance) < 1e-3)) | (
+            through.kind == SurfaceKind.NEXT_ROOM
+        )
+        arriving = _arriving(scene, through, to_hole, environment, next_room)
+        direct = direct + jnp.where(visible, reflectance_cosine(to_hole), 0.0) * scale * arriving
     if sun is not None:
         sunlit = leaves_through_a_window(scene, intersect(scene, start, sun.direction))
         direct = direct + jnp.where(sunlit, reflectance_cosine(sun.direction), 0.0) * sun.irradiance
@@ -288,6 +309,7 @@ def trace_path(
     config: PathTraceConfig,
     environment: Float[Array, "He We 3"] | Float[Array, 3],
     sun: Sun | None = None,
+    next_room: Float[Array, 3] | None = None,
 ) -> Float[Array, 3]:
     """The radiance one light path brings back along a ray (ONE ray; batch with ``jax.vmap``).
 
@@ -298,23 +320,27 @@ def trace_path(
         config: static settings; ``config.bounces`` must equal ``uniform``'s first axis.
         environment: see :func:`environment_radiance`.
         sun: a directional light through the windows, or None.
+        next_room: (3,) the irradiance that lights the rooms behind open doors (before each door's
+            ``room_light``); None is black.
 
     Returns:
         (3,) an unbiased estimate of the radiance (paths of at most ``bounces`` reflections).
     """
+    next_room = jnp.zeros(3) if next_room is None else next_room
     hit = intersect(scene, origin, direction)
 
     def bounce(carry, numbers):
         hit, direction, throughput, radiance = carry
-        alive = hit.kind != SurfaceKind.ESCAPE
-        direct, start, reflected, factor = _reflect(scene, hit, direction, numbers, config, environment, sun)
+        # A path ends where it leaves the room (the room behind a door is seen, not travelled through).
+        alive = (hit.kind != SurfaceKind.ESCAPE) & (hit.kind != SurfaceKind.NEXT_ROOM)
+        direct, start, reflected, factor = _reflect(scene, hit, direction, numbers, config, environment, next_room, sun)
         radiance = radiance + jnp.where(alive, throughput * direct, 0.0)
         throughput = jnp.where(alive, throughput * factor, 0.0)
         hit = intersect(scene, start, reflected)
-        radiance = radiance + throughput * _emitted(scene, hit, reflected, environment, config, seen=False)
+        radiance = radiance + throughput * _emitted(scene, hit, reflected, environment, next_room, config, seen=False)
         return (hit, reflected, throughput, radiance), None
 
-    carry = (hit, direction, jnp.ones(3), _emitted(scene, hit, direction, environment, config, seen=True))
+    carry = (hit, direction, jnp.ones(3), _emitted(scene, hit, direction, environment, next_room, config, seen=True))
     (_, _, _, radiance), _ = jax.lax.scan(bounce, carry, uniform)
     return radiance
 
@@ -327,7 +353,7 @@ def camera_ray(
     return optical_centre(cam, u), pixel_to_ray(cam, u, v)[:3]
 
 
-def _pixel(scene, cam, key, index, config: PathTraceConfig, environment, sun) -> Float[Array, 3]:
+def _pixel(scene, cam, key, index, config: PathTraceConfig, environment, sun, next_room) -> Float[Array, 3]:
     """The mean radiance of the paths of pixel ``index`` (row-major), from its own stream of ``key``."""
     row, column = index // cam.width, index % cam.width
     uniform = jax.random.uniform(
@@ -338,7 +364,14 @@ def _pixel(scene, cam, key, index, config: PathTraceConfig, environment, sun) ->
         jitter = numbers[:2] - 0.5 if config.jitter else jnp.zeros(2)
         origin, direction = camera_ray(cam, column + jitter[0], row + jitter[1])
         return trace_path(
-            scene, origin, direction, numbers[2:].reshape(config.bounces, _PER_BOUNCE), config, environment, sun
+            scene,
+            origin,
+            direction,
+            numbers[2:].reshape(config.bounces, _PER_BOUNCE),
+            config,
+            environment,
+            sun,
+            next_room,
         )
 
     return jnp.mean(jax.vmap(sample)(uniform), 0)
@@ -351,6 +384,7 @@ def path_trace(
     config: PathTraceConfig = PathTraceConfig(),
     environment: Float[Array, "He We 3"] | Float[Array, 3] | None = None,
     sun: Sun | None = None,
+    next_room: Float[Array, 3] | None = None,
 ) -> Float[Array, "H W 3"]:
     """Path-trace the panorama of ``scene`` seen by ``cam``: linear radiance, no tone curve.
 
@@ -360,10 +394,11 @@ def path_trace(
         cam: the panorama (static width W and height H; traced rc and fields of view).
         key: a ``jax.random`` key, the only source of randomness: same key, same image.
         config: static settings (:class:`PathTraceConfig`).
-        environment: what is seen through windows and open doors, and lights the room through them: an
-            equirectangular map (He, We, 3) or a constant colour (3,), see :func:`environment_radiance`;
-            None is black.
+        environment: what is seen through windows, and lights the room through them: an equirectangular
+            map (He, We, 3) or a constant colour (3,), see :func:`environment_radiance`; None is black.
         sun: a directional light that shines through the windows (:class:`Sun`), or None.
+        next_room: (3,) the irradiance that lights the rooms seen through open doors (with decor; before each
+            door's ``room_light``), which light the room through them too; None is black.
 
     Returns:
         (H, W, 3) radiance. Jit with ``config`` static; vmap over scenes (and keys, cameras' rc).
@@ -372,7 +407,7 @@ def path_trace(
         environment = jnp.zeros(3)
     count = cam.width * cam.height
     image = jax.lax.map(
-        lambda index: _pixel(scene, cam, key, index, config, environment, sun),
+        lambda index: _pixel(scene, cam, key, index, config, environment, sun, next_room),
         jnp.arange(count),
         batch_size=min(config.pixels_per_chunk, count),
     )

@@ -7,8 +7,8 @@ surface each pixel first meets (demodulated), the irradiance is smoothed by an e
 (Dammertz et al. 2010, "Edge-avoiding a-trous wavelet transform for fast global illumination filtering"; the
 variance-guided luminance weight of Schied et al. 2017, "Spatiotemporal variance-guided filtering"), and multiplied
 by the albedo again: textures stay sharp, and the filter never mixes two surfaces (another kind or slot, another
-normal, another depth). What is seen through windows and open doors, the environment, and what emits are kept as
-traced (they carry no path noise).
+normal, another depth). What is seen through windows, the environment, and what emits are kept as traced (they
+carry no path noise).
 
 Each guide comes from one ray through each pixel's centre (:func:`guide_buffers`, one ray a pixel against the path
 tracer's many); the filter itself is a few shifted-image sums (:func:`denoise`). The same separation lets light

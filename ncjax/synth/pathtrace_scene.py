@@ -7,10 +7,11 @@ prism (the wall polygon from :func:`~ncjax.synth.rooms.ray_hits`, the floor and 
 written for ONE ray and batched with ``jax.vmap``.
 
 Doors and windows stay rectangles on the wall planes, as in the ray caster, so a hit's albedo matches its
-colours there; where the ray caster shows the sky through a window's glass, and (with decor) inside an open
-door or passage, the wall has a hole: the ray leaves the room (:attr:`SurfaceKind.ESCAPE`) and reads the
-environment. Nothing outside is modelled (no wall thickness, no room behind a door, no re-entry into the
-room through another wall).
+colours there. Where the ray caster shows the sky through a window's glass the wall has a hole: the ray leaves
+the room (:attr:`SurfaceKind.ESCAPE`) and reads the environment. With decor, a ray through an open door or
+passage goes on, as in the ray caster, through the door's lining (the wall's thickness) into the box-shaped
+room behind it (:class:`~ncjax.synth.elements.Doorways`), whose floor, walls and ceiling it meets
+(:attr:`SurfaceKind.NEXT_ROOM`): that room is seen, lit evenly, but paths do not go on in it.
 """
 
 from __future__ import annotations
@@ -38,23 +39,25 @@ _FAR = 1e3
 class SurfaceKind(enum.IntEnum):
     """What a ray meets (:attr:`Hit.kind`)."""
 
-    ESCAPE = 0  # left the room through a hole in a wall (or met nothing): the environment
+    ESCAPE = 0  # left the room through a window's glass (or met nothing): the environment
     FLOOR = 1
     CEILING = 2
     WALL = 3
     BOX = 4  # furniture, lamps, door leaves
+    NEXT_ROOM = 5  # through an open door: the room behind it, or the door's lining
 
 
 class Hit(eqx.Module):
     """Where one ray first meets the scene (all fields traced).
 
     Attributes:
-        distance: along the (unit) ray, metres; for an escape through a hole, to the wall plane.
+        distance: along the (unit) ray, metres; for an escape through a window, to the wall plane.
         point: (3,) the hit point, camera frame.
         normal: (3,) unit normal of the surface, on the ray's side.
         kind: a :class:`SurfaceKind`.
-        index: the wall's slot (walls and escapes through holes) or the box's slot (boxes), else 0.
-        along: distance along the wall from its first corner (walls and holes).
+        index: the wall's slot (walls, and the wall a ray left through) or the box's slot (boxes), else 0.
+        along: where the ray crosses that wall's plane, from its first corner (walls, and the window or door
+            a ray left through).
     """
 
     distance: Float[Array, ""]
@@ -89,8 +92,9 @@ def box_interval_3d(
 
 
 def _opening_at(scene: Scene, wall: Int[Array, ""], along: Float[Array, ""], z: Float[Array, ""]):
-    """The door or window at a point of a wall: whether the point is inside one's rectangle, whether it is a
-    hole there (glass, or with decor an open door's aperture), and the ray caster's albedo of the rectangle."""
+    """The door or window at a point of a wall: whether the point is inside one's rectangle, whether it is on
+    a window's glass, whether it is in an open door's aperture (with decor), the ray caster's albedo of the
+    rectangle, and the opening's slot."""
     openings = scene.openings
     present, slot = in_span(openings.wall, openings.span, openings.mask, wall[None], along[None])
     present, slot = present[0], slot[0]
@@ -106,17 +110,85 @@ def _opening_at(scene: Scene, wall: Int[Array, ""], along: Float[Array, ""], z: 
     inside = present & (z >= fields["bottom"]) & (z <= fields["bottom"] + fields["tall"])
     albedo, emission = opening_appearance(fields, along, z)
     # The ray caster draws the sky where a window's glass is (it glows there): that is where light comes in.
-    hole = inside & fields["is_window"] & jnp.any(emission > 0)
+    glass = inside & fields["is_window"] & jnp.any(emission > 0)
+    aperture = jnp.zeros((), bool)
     if scene.decor is not None:
         x = along - fields["start"]
         aperture = (
-            scene.decor.doorways.is_open[slot]
+            inside
+            & scene.decor.doorways.is_open[slot]
             & (x > FRAME_WIDTH)
             & (x < fields["width"] - FRAME_WIDTH)
             & (z < fields["bottom"] + fields["tall"] - FRAME_WIDTH)
         )
-        hole = hole | (inside & aperture)
-    return inside, hole, albedo
+    return inside, glass, aperture, albedo, slot
+
+
+def _box_exit(
+    start: Float[Array, 3], velocity: Float[Array, 3], low: Float[Array, 3], high: Float[Array, 3]
+) -> tuple[Float[Array, ""], Int[Array, ""]]:
+    """Where a ray inside an axis-aligned box leaves it: the parameter and the axis of the face it leaves by."""
+    safe = jnp.where(jnp.abs(velocity) > 1e-12, velocity, 1e-12)
+    exits = (jnp.where(safe > 0, high, low) - start) / safe
+    axis = jnp.argmin(exits)
+    return exits[axis], axis
+
+
+def next_room_hit(
+    scene: Scene,
+    slot: Int[Array, ""],
+    along: Float[Array, ""],
+    z: Float[Array, ""],
+    direction: Float[Array, 3],
+    wall_direction: Float[Array, 2],
+) -> tuple[Float[Array, ""], Float[Array, 3]]:
+    """What a ray that crosses a wall's plane inside an open door's aperture meets behind it, as the ray caster
+    draws it (:func:`~ncjax.synth.render_details.doorway_columns`): first the door's lining, a box as deep as
+    the wall is thick, between the frame's inner edges, from the floor to the lintel; through its far side the
+    room behind, a box ``room_depth`` deep reaching ``room_sides`` beyond the frame, up to ``room_ceiling``.
+
+    Args:
+        scene: the scene (with decor); slot: the door's slot in ``scene.openings``.
+        along, z: where the ray crosses the wall's plane (along the wall from its first corner, and height).
+        direction: (3,) the ray's unit direction; wall_direction: (2,) the wall's.
+
+    Returns:
+        ``(beyond, normal)``: the distance from the crossing to the surface met, and its unit normal facing
+        the ray.
+    """
+    openings, doorways, room = scene.openings, scene.decor.doorways, scene.room
+    # The wall's frame: along it, out of the room through it, up.
+    outward = -perpendicular(wall_direction)
+    outward = jnp.where(jnp.dot(direction[:2], outward) < 0, -outward, outward)
+    velocity = jnp.stack([jnp.dot(direction[:2], wall_direction), jnp.dot(direction[:2], outward), direction[2]])
+    low_side, high_side = openings.span[slot, 0] + FRAME_WIDTH, openings.span[slot, 1] - FRAME_WIDTH
+    thickness = doorways.wall_thickness[slot]
+    lintel = openings.z_range[slot, 1] - FRAME_WIDTH
+    start = jnp.stack([along, 0.0, z])
+    in_lining, lining_axis = _box_exit(
+        start,
+        velocity,
+        jnp.stack([low_side, 0.0, room.floor_height]),
+        jnp.stack([high_side, thickness, lintel]),
+    )
+    in_room, room_axis = _box_exit(
+        start + in_lining * velocity,
+        velocity,
+        jnp.stack([low_side - FRAME_WIDTH - doorways.room_sides[slot, 0], thickness, room.floor_height]),
+        jnp.stack(
+            [
+                high_side + FRAME_WIDTH + doorways.room_sides[slot, 1],
+                thickness + doorways.room_depth[slot],
+                doorways.room_ceiling[slot],
+            ]
+        ),
+    )
+    through = lining_axis == 1  # left the lining by its far side, into the room
+    beyond = in_lining + jnp.where(through, in_room, 0.0)
+    axis = jnp.where(through, room_axis, lining_axis)
+    local = -jnp.sign(velocity[axis]) * jax.nn.one_hot(axis, 3)  # the face's normal, towards the ray
+    normal = jnp.append(local[0] * wall_direction + local[1] * outward, local[2])
+    return beyond, normal
 
 
 def intersect(scene: Scene, origin: Float[Array, 3], direction: Float[Array, 3]) -> Hit:
@@ -153,26 +225,32 @@ def intersect(scene: Scene, origin: Float[Array, 3], direction: Float[Array, 3])
     on_flat = ~on_box & ~on_wall & jnp.isfinite(t_flat)
     distance = jnp.minimum(jnp.minimum(t_box, t_wall), t_flat)
     distance = jnp.where(jnp.isfinite(distance), distance, _FAR)
-    point = origin + distance * direction
     wall_direction, _, _, _ = room_walls(room)
-    along = jnp.sum((point[:2] - room.corners[wall]) * wall_direction[wall])
-    _, hole, _ = _opening_at(scene, wall, along, point[2])
+    crossing = origin + jnp.where(jnp.isfinite(t_wall), t_wall, distance) * direction
+    along = jnp.sum((crossing[:2] - room.corners[wall]) * wall_direction[wall])
+    _, glass, aperture, _, slot = _opening_at(scene, wall, along, crossing[2])
     flat_kind = jnp.where(direction[2] < 0, SurfaceKind.FLOOR, SurfaceKind.CEILING)
     kind = jnp.where(
         on_box,
         SurfaceKind.BOX,
-        jnp.where(on_wall & ~hole, SurfaceKind.WALL, jnp.where(on_flat, flat_kind, SurfaceKind.ESCAPE)),
+        jnp.where(on_wall & ~glass, SurfaceKind.WALL, jnp.where(on_flat, flat_kind, SurfaceKind.ESCAPE)),
     )
     normal = jnp.where(
         on_box,
         box_normals[box],
         jnp.where(on_wall, jnp.append(perpendicular(wall_direction[wall]), 0.0), jnp.stack([0.0, 0.0, -jnp.sign(dz)])),
     )
+    if scene.decor is not None:
+        into_next_room = on_wall & aperture
+        beyond, next_normal = next_room_hit(scene, slot, along, crossing[2], direction, wall_direction[wall])
+        distance = jnp.where(into_next_room, distance + beyond, distance)
+        kind = jnp.where(into_next_room, SurfaceKind.NEXT_ROOM, kind)
+        normal = jnp.where(into_next_room, next_normal, normal)
     # Facing the ray, whatever side it came from (a ray that started inside a box sees its faces from within).
     normal = jnp.where(jnp.dot(normal, direction) > 0, -normal, normal)
     return Hit(
         distance=distance,
-        point=point,
+        point=origin + distance * direction,
         normal=normal,
         kind=kind.astype(jnp.int32),
         index=jnp.where(on_box, box, jnp.where(on_wall, wall, 0)).astype(jnp.int32),
@@ -180,12 +258,35 @@ def intersect(scene: Scene, origin: Float[Array, 3], direction: Float[Array, 3])
     )
 
 
+def _crossed_opening(scene: Scene, hit: Hit) -> tuple[Bool[Array, ""], Int[Array, ""]]:
+    """Whether the wall point a ray crossed (``hit.index``, ``hit.along``) is in a door's or window's span, and
+    its slot."""
+    openings = scene.openings
+    present, slot = in_span(openings.wall, openings.span, openings.mask, hit.index[None], hit.along[None])
+    return present[0], slot[0]
+
+
 def leaves_through_a_window(scene: Scene, hit: Hit) -> Bool[Array, ""]:
     """Whether a ray that met ``hit`` left the room through a window's glass (not through an open door, which
     leads to another room)."""
-    openings = scene.openings
-    present, slot = in_span(openings.wall, openings.span, openings.mask, hit.index[None], hit.along[None])
-    return (hit.kind == SurfaceKind.ESCAPE) & present[0] & openings.is_window[slot[0]]
+    present, slot = _crossed_opening(scene, hit)
+    return (hit.kind == SurfaceKind.ESCAPE) & present & scene.openings.is_window[slot]
+
+
+def next_room_radiance(scene: Scene, hit: Hit, irradiance: Float[Array, 3]) -> Float[Array, 3]:
+    """The radiance of a surface of a room behind an open door (:attr:`SurfaceKind.NEXT_ROOM`; 0 elsewhere).
+
+    That room is lit evenly, as the ray caster lights it: ``irradiance`` times the door's ``room_light``,
+    shaded by the way the surface faces (brighter towards ``scene.ambient_direction``), on a Lambertian surface
+    of :func:`surface_appearance`'s albedo.
+    """
+    if scene.decor is None:
+        return jnp.zeros(3)
+    albedo, _ = surface_appearance(scene, hit)
+    _, slot = _crossed_opening(scene, hit)
+    facing = 0.7 + 0.3 * jnp.dot(hit.normal, scene.ambient_direction)
+    light = scene.decor.doorways.room_light[slot] * facing * irradiance / jnp.pi
+    return jnp.where(hit.kind == SurfaceKind.NEXT_ROOM, albedo * light, 0.0)
 
 
 def _box_coordinates(scene: Scene, hit: Hit):
@@ -203,8 +304,8 @@ def _box_coordinates(scene: Scene, hit: Hit):
 
 def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Array, ""]]:
     """The albedo at a hit, as the ray caster colours it (the same materials, seeds and texture coordinates;
-    skirting boards, doors and window frames; with decor, posters and pictures and the light panels' diffusers),
-    and whether it is the room's floor (glossy).
+    skirting boards, doors and window frames; with decor, posters and pictures, the light panels' diffusers and
+    the rooms behind open doors with their doors' linings), and whether it is the room's floor (glossy).
 
     Sunlight, which the ray caster paints on as a detail, is not drawn: here the windows' light is traced.
     """
@@ -228,11 +329,32 @@ def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Ar
     material = select(
         is_box, box_material, select(is_floor, scene.floor, select(is_ceiling, scene.ceiling, scene.walls))
     )
-    seed = scene.seed + jnp.where(is_box, 100 + 13 * hit.index, jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3)))
-    albedo = material_albedo(material, seed, a, b, decor=scene.decor is not None)
+    seed = jnp.where(is_box, 100 + 13 * hit.index, jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3)))
+    in_opening, _, _, opening_albedo, slot = _opening_at(scene, hit.index, hit.along, z)
+    if scene.decor is not None:
+        next_room = kind == SurfaceKind.NEXT_ROOM
+        wall_direction, _, _, _ = room_walls(room)
+        offset = hit.point[:2] - room.corners[hit.index]
+        behind_wall = jnp.abs(jnp.dot(offset, perpendicular(wall_direction[hit.index])))
+        next_floor, next_ceiling = next_room & (hit.normal[2] > 0.5), next_room & (hit.normal[2] < -0.5)
+        back_wall = jnp.abs(jnp.dot(hit.normal[:2], wall_direction[hit.index])) < 0.5
+        # The ray caster's coordinates there: the plan's on floor and ceiling, on the back wall along the wall,
+        # on the side walls the depth behind the wall.
+        next_a = jnp.where(
+            next_floor | next_ceiling,
+            plan_a,
+            jnp.where(back_wall, jnp.dot(offset, wall_direction[hit.index]), behind_wall),
+        )
+        next_b = jnp.where(next_floor | next_ceiling, plan_b, height_above_floor)
+        a, b = jnp.where(next_room, next_a, a), jnp.where(next_room, next_b, b)
+        next_material = select(
+            next_ceiling, scene.ceiling, select(next_floor, scene.decor.next_floor, scene.decor.next_walls)
+        )
+        material = select(next_room, next_material, material)
+        seed = jnp.where(next_room, jnp.where(next_ceiling, 4, jnp.where(next_floor, 5, 6)), seed)
+    albedo = material_albedo(material, scene.seed + seed, a, b, decor=scene.decor is not None)
 
     on_wall = kind == SurfaceKind.WALL
-    in_opening, _, opening_albedo = _opening_at(scene, hit.index, hit.along, z)
     skirting = on_wall & ~in_opening & (height_above_floor < scene.skirting_height)
     lip = height_above_floor > scene.skirting_height - 0.012
     albedo = jnp.where(skirting, scene.skirting_colour * jnp.where(lip, 0.7, 1.0), albedo)
@@ -242,6 +364,8 @@ def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Ar
         # The panels are placed in the camera frame, as the ray caster reads them.
         in_panel, rim, _ = ceiling_panels(scene.decor.panels, hit.point[0][None], hit.point[1][None])
         albedo = jnp.where(is_ceiling & in_panel[0], jnp.where(rim[0], 0.7, 0.95), albedo)
+        in_lining = next_room & (behind_wall < scene.decor.doorways.wall_thickness[slot] + 1e-4)
+        albedo = jnp.where(in_lining, scene.openings.frame_colour[slot], albedo)
     return jnp.where(on_wall & in_opening, opening_albedo, albedo), is_floor
 
 
