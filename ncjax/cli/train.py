@@ -32,7 +32,8 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         "70%% of them with white or pale walls, as most homes), synth-photoreal-home:SEED:N (the same rooms "
         "path-traced and photographed: ncjax synth --photoreal; seconds a room on a CPU), synth-decor-small:SEED:N "
         "(closets, bathrooms and corridors, sides 1.2-4 m, rc 0) or synth-decor-open:SEED:N (rc 0, more doors, "
-        "half of them wide passages to the next room, as in open plans); their splits are "
+        "half of them wide passages to the next room, as in open plans), synth-photoreal-open:SEED:N (the same "
+        "rooms path-traced and photographed); their splits are "
         "pooled, validation takes the first --validation-limit images of the pool. Or 'painted' (flat-coloured "
         "random rooms, a smoke test)",
     )

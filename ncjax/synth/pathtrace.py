@@ -222,11 +222,13 @@ def _arriving(
     direction: Float[Array, 3],
     environment: Float[Array, "He We 3"] | Float[Array, 3],
     next_room: Float[Array, 3],
+    seen: bool,
 ) -> Float[Array, 3]:
     """The light that arrives along a ray that left the room: the environment's through a window, the room
-    behind's through an open door (:func:`~ncjax.synth.pathtrace_scene.next_room_radiance`), else 0."""
+    behind's through an open door (:func:`~ncjax.synth.pathtrace_scene.next_room_radiance`: textured where the
+    camera sees it, its materials' mean colours in the light it sheds into the room), else 0."""
     sky = jnp.where(hit.kind == SurfaceKind.ESCAPE, environment_radiance(environment, direction), 0.0)
-    return sky + next_room_radiance(scene, hit, next_room)
+    return sky + next_room_radiance(scene, hit, next_room, textured=seen)
 
 
 def _emitted(
@@ -245,7 +247,7 @@ def _emitted(
         emitted = jnp.zeros(3)
     if config.hole_sampling and not seen:
         return emitted
-    return emitted + _arriving(scene, hit, direction, environment, next_room)
+    return emitted + _arriving(scene, hit, direction, environment, next_room, seen)
 
 
 def _reflect(
@@ -284,7 +286,7 @@ def _reflect(
         visible = ((through.kind == SurfaceKind.ESCAPE) & (jnp.abs(through.distance - hole_distance) < 1e-3)) | (
             through.kind == SurfaceKind.NEXT_ROOM
         )
-        arriving = _arriving(scene, through, to_hole, environment, next_room)
+        arriving = _arriving(scene, through, to_hole, environment, next_room, seen=False)
         direct = direct + jnp.where(visible, reflectance_cosine(to_hole), 0.0) * scale * arriving
     if sun is not None:
         sunlit = leaves_through_a_window(scene, intersect(scene, start, sun.direction))

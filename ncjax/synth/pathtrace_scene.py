@@ -25,7 +25,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ..geometry.polygon import perpendicular
 from .elements import FRAME_WIDTH
-from .materials import material_albedo
+from .materials import Material, material_albedo
 from .raycast import box_interval_2d
 from .render_details import ceiling_panels, decal_appearance, in_span, opening_appearance
 from .rooms import ray_hits, room_walls
@@ -273,16 +273,21 @@ def leaves_through_a_window(scene: Scene, hit: Hit) -> Bool[Array, ""]:
     return (hit.kind == SurfaceKind.ESCAPE) & present & scene.openings.is_window[slot]
 
 
-def next_room_radiance(scene: Scene, hit: Hit, irradiance: Float[Array, 3]) -> Float[Array, 3]:
+def next_room_radiance(scene: Scene, hit: Hit, irradiance: Float[Array, 3], textured: bool = True) -> Float[Array, 3]:
     """The radiance of a surface of a room behind an open door (:attr:`SurfaceKind.NEXT_ROOM`; 0 elsewhere).
 
     That room is lit evenly, as the ray caster lights it: ``irradiance`` times the door's ``room_light``,
     shaded by the way the surface faces (brighter towards ``scene.ambient_direction``), on a Lambertian surface
-    of :func:`surface_appearance`'s albedo.
+    of :func:`surface_appearance`'s albedo, or with ``textured`` False (static) of its material's mean colour
+    (cheaper, for the light it sheds through the door).
     """
     if scene.decor is None:
         return jnp.zeros(3)
-    albedo, _ = surface_appearance(scene, hit)
+    if textured:
+        albedo, _ = surface_appearance(scene, hit)
+    else:
+        material, _, _, _, in_lining, lining_colour = _next_room_surface(scene, hit)
+        albedo = jnp.where(in_lining, lining_colour, (material.colour_a + material.colour_b) / 2)
     _, slot = _crossed_opening(scene, hit)
     facing = 0.7 + 0.3 * jnp.dot(hit.normal, scene.ambient_direction)
     light = scene.decor.doorways.room_light[slot] * facing * irradiance / jnp.pi
@@ -300,6 +305,31 @@ def _box_coordinates(scene: Scene, hit: Hit):
     side_face = jnp.abs(hit.normal[2]) < 0.5
     facing_x = jnp.abs(hit.normal[0] * rotation[0] + hit.normal[1] * rotation[1]) > 0.5
     return jnp.where(side_face & facing_x, local_y, local_x), jnp.where(side_face, hit.point[2], local_y)
+
+
+def _select(condition: Bool[Array, ""], first: Material, second: Material) -> Material:
+    """``first`` where ``condition`` holds, else ``second``, field by field."""
+    return jax.tree.map(lambda p, q: jnp.where(condition, p, q), first, second)
+
+
+def _next_room_surface(scene: Scene, hit: Hit):
+    """The ray caster's surface at a hit in the room behind a door: its material and seed offset, whether it is
+    flat (floor or ceiling, textured along the plan), its coordinate along an upright surface (along the wall on
+    the back wall, the depth behind the wall on the side walls), whether it is on the door's lining (the wall's
+    thickness) and the lining's colour."""
+    room, decor = scene.room, scene.decor
+    wall_direction, _, _, _ = room_walls(room)
+    along_wall = wall_direction[hit.index]
+    offset = hit.point[:2] - room.corners[hit.index]
+    behind_wall = jnp.abs(jnp.dot(offset, perpendicular(along_wall)))
+    floor, ceiling = hit.normal[2] > 0.5, hit.normal[2] < -0.5
+    material = _select(ceiling, scene.ceiling, _select(floor, decor.next_floor, decor.next_walls))
+    seed = jnp.where(ceiling, 4, jnp.where(floor, 5, 6))
+    back_wall = jnp.abs(jnp.dot(hit.normal[:2], along_wall)) < 0.5
+    wall_a = jnp.where(back_wall, jnp.dot(offset, along_wall), behind_wall)
+    _, slot = _crossed_opening(scene, hit)
+    in_lining = behind_wall < decor.doorways.wall_thickness[slot] + 1e-4
+    return material, seed, floor | ceiling, wall_a, in_lining, scene.openings.frame_colour[slot]
 
 
 def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Array, ""]]:
@@ -322,36 +352,19 @@ def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Ar
     a = jnp.where(is_box, box_a, jnp.where(is_floor | is_ceiling, plan_a, hit.along))
     b = jnp.where(is_box, box_b, jnp.where(is_floor | is_ceiling, plan_b, height_above_floor))
 
-    def select(condition, first, second):
-        return jax.tree.map(lambda p, q: jnp.where(condition, p, q), first, second)
-
     box_material = jax.tree.map(lambda field: field[hit.index], boxes.material)
-    material = select(
-        is_box, box_material, select(is_floor, scene.floor, select(is_ceiling, scene.ceiling, scene.walls))
+    material = _select(
+        is_box, box_material, _select(is_floor, scene.floor, _select(is_ceiling, scene.ceiling, scene.walls))
     )
     seed = jnp.where(is_box, 100 + 13 * hit.index, jnp.where(is_ceiling, 1, jnp.where(is_floor, 2, 3)))
-    in_opening, _, _, opening_albedo, slot = _opening_at(scene, hit.index, hit.along, z)
+    in_opening, _, _, opening_albedo, _ = _opening_at(scene, hit.index, hit.along, z)
     if scene.decor is not None:
         next_room = kind == SurfaceKind.NEXT_ROOM
-        wall_direction, _, _, _ = room_walls(room)
-        offset = hit.point[:2] - room.corners[hit.index]
-        behind_wall = jnp.abs(jnp.dot(offset, perpendicular(wall_direction[hit.index])))
-        next_floor, next_ceiling = next_room & (hit.normal[2] > 0.5), next_room & (hit.normal[2] < -0.5)
-        back_wall = jnp.abs(jnp.dot(hit.normal[:2], wall_direction[hit.index])) < 0.5
-        # The ray caster's coordinates there: the plan's on floor and ceiling, on the back wall along the wall,
-        # on the side walls the depth behind the wall.
-        next_a = jnp.where(
-            next_floor | next_ceiling,
-            plan_a,
-            jnp.where(back_wall, jnp.dot(offset, wall_direction[hit.index]), behind_wall),
-        )
-        next_b = jnp.where(next_floor | next_ceiling, plan_b, height_above_floor)
-        a, b = jnp.where(next_room, next_a, a), jnp.where(next_room, next_b, b)
-        next_material = select(
-            next_ceiling, scene.ceiling, select(next_floor, scene.decor.next_floor, scene.decor.next_walls)
-        )
-        material = select(next_room, next_material, material)
-        seed = jnp.where(next_room, jnp.where(next_ceiling, 4, jnp.where(next_floor, 5, 6)), seed)
+        next_material, next_seed, next_flat, next_wall_a, in_lining, lining_colour = _next_room_surface(scene, hit)
+        a = jnp.where(next_room, jnp.where(next_flat, plan_a, next_wall_a), a)
+        b = jnp.where(next_room, jnp.where(next_flat, plan_b, height_above_floor), b)
+        material = _select(next_room, next_material, material)
+        seed = jnp.where(next_room, next_seed, seed)
     albedo = material_albedo(material, scene.seed + seed, a, b, decor=scene.decor is not None)
 
     on_wall = kind == SurfaceKind.WALL
@@ -364,8 +377,7 @@ def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Ar
         # The panels are placed in the camera frame, as the ray caster reads them.
         in_panel, rim, _ = ceiling_panels(scene.decor.panels, hit.point[0][None], hit.point[1][None])
         albedo = jnp.where(is_ceiling & in_panel[0], jnp.where(rim[0], 0.7, 0.95), albedo)
-        in_lining = next_room & (behind_wall < scene.decor.doorways.wall_thickness[slot] + 1e-4)
-        albedo = jnp.where(in_lining, scene.openings.frame_colour[slot], albedo)
+        albedo = jnp.where(next_room & in_lining, lining_colour, albedo)
     return jnp.where(on_wall & in_opening, opening_albedo, albedo), is_floor
 
 

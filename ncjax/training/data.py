@@ -139,33 +139,32 @@ def network_arrays(
 SYNTH_COMMAND_CONFIG = SynthConfig(room=RoomConfig(world="mix"))
 """What ``ncjax synth`` renders by default: world ``mix``, rc 0.3-1.0 m, 512 x 1024."""
 
+_HOME_ROOMS = dataclasses.replace(
+    SYNTH_COMMAND_CONFIG,
+    room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
+    scene=SceneConfig(decor=True, neutral_paint_probability=0.7),
+)
+_OPEN_ROOMS = dataclasses.replace(
+    SYNTH_COMMAND_CONFIG,
+    room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
+    scene=SceneConfig(decor=True, door_probability=0.6, passage_probability=0.5),
+)
+
 SYNTH_SOURCES = {
     "synth": SYNTH_COMMAND_CONFIG,
     "synth-decor": dataclasses.replace(SYNTH_COMMAND_CONFIG, scene=SceneConfig(decor=True)),
     "synth-decor-central": dataclasses.replace(
         SYNTH_COMMAND_CONFIG, room=RoomConfig(world="mix", rc_range=(0.0, 0.0)), scene=SceneConfig(decor=True)
     ),
-    "synth-decor-home": dataclasses.replace(
-        SYNTH_COMMAND_CONFIG,
-        room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
-        scene=SceneConfig(decor=True, neutral_paint_probability=0.7),
-    ),
-    "synth-photoreal-home": dataclasses.replace(
-        SYNTH_COMMAND_CONFIG,
-        room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
-        scene=SceneConfig(decor=True, neutral_paint_probability=0.7),
-        photoreal=PhotorealConfig(),
-    ),
+    "synth-decor-home": _HOME_ROOMS,
+    "synth-photoreal-home": dataclasses.replace(_HOME_ROOMS, photoreal=PhotorealConfig()),
     "synth-decor-small": dataclasses.replace(
         SYNTH_COMMAND_CONFIG,
         room=RoomConfig(world="mix", size_range=(1.2, 4.0), max_walls=6, rc_range=(0.0, 0.0)),
         scene=SceneConfig(decor=True),
     ),
-    "synth-decor-open": dataclasses.replace(
-        SYNTH_COMMAND_CONFIG,
-        room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
-        scene=SceneConfig(decor=True, door_probability=0.6, passage_probability=0.5),
-    ),
+    "synth-decor-open": _OPEN_ROOMS,
+    "synth-photoreal-open": dataclasses.replace(_OPEN_ROOMS, photoreal=PhotorealConfig()),
 }
 """The configuration of each kind of rendered data source, ``KIND:SEED:N``
 (``synth-decor``: what ``ncjax synth --decor`` renders; ``synth-decor-central``: such
@@ -176,7 +175,8 @@ rooms of ``synth-decor-home`` (the same ones for the same seed) path-traced and 
 closets, bathrooms and corridors, sides of 1.2-4 m and at most 6 walls, seen by a central
 camera, whose walls fill the panorama as no room of the other kinds does; ``synth-decor-open``:
 realistic rooms seen by a central camera with more doors, half of them wide passages to the next
-room, as in open plans, across which the boundary stays in the wall plane)."""
+room, as in open plans, across which the boundary stays in the wall plane; ``synth-photoreal-open``: the
+rooms of ``synth-decor-open`` path-traced and photographed)."""
 
 
 def rendered_splits(
