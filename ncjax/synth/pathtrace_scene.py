@@ -27,7 +27,7 @@ from ..geometry.polygon import perpendicular
 from .elements import FRAME_WIDTH
 from .materials import Material, material_albedo
 from .raycast import box_interval_2d
-from .render_details import ceiling_panels, decal_appearance, in_span, opening_appearance
+from .render_details import ambient_facing, ceiling_panels, decal_appearance, in_span, opening_appearance
 from .rooms import ray_hits, room_walls
 from .scene import Scene
 
@@ -91,13 +91,22 @@ def box_interval_3d(
     return jnp.maximum(t_in, near), jnp.minimum(t_out, far), normal
 
 
+def _opening_slot(
+    scene: Scene, wall: Int[Array, ""], along: Float[Array, ""]
+) -> tuple[Bool[Array, ""], Int[Array, ""]]:
+    """Whether a point ``along`` a wall is in a door's or window's span, and its slot (for a hit: the point where
+    its ray crossed the wall, ``hit.index`` and ``hit.along``)."""
+    openings = scene.openings
+    present, slot = in_span(openings.wall, openings.span, openings.mask, wall[None], along[None])
+    return present[0], slot[0]
+
+
 def _opening_at(scene: Scene, wall: Int[Array, ""], along: Float[Array, ""], z: Float[Array, ""]):
     """The door or window at a point of a wall: whether the point is inside one's rectangle, whether it is on
     a window's glass, whether it is in an open door's aperture (with decor), the ray caster's albedo of the
     rectangle, and the opening's slot."""
     openings = scene.openings
-    present, slot = in_span(openings.wall, openings.span, openings.mask, wall[None], along[None])
-    present, slot = present[0], slot[0]
+    present, slot = _opening_slot(scene, wall, along)
     fields = dict(
         start=openings.span[slot, 0],
         width=openings.span[slot, 1] - openings.span[slot, 0],
@@ -258,18 +267,10 @@ def intersect(scene: Scene, origin: Float[Array, 3], direction: Float[Array, 3])
     )
 
 
-def _crossed_opening(scene: Scene, hit: Hit) -> tuple[Bool[Array, ""], Int[Array, ""]]:
-    """Whether the wall point a ray crossed (``hit.index``, ``hit.along``) is in a door's or window's span, and
-    its slot."""
-    openings = scene.openings
-    present, slot = in_span(openings.wall, openings.span, openings.mask, hit.index[None], hit.along[None])
-    return present[0], slot[0]
-
-
 def leaves_through_a_window(scene: Scene, hit: Hit) -> Bool[Array, ""]:
     """Whether a ray that met ``hit`` left the room through a window's glass (not through an open door, which
     leads to another room)."""
-    present, slot = _crossed_opening(scene, hit)
+    present, slot = _opening_slot(scene, hit.index, hit.along)
     return (hit.kind == SurfaceKind.ESCAPE) & present & scene.openings.is_window[slot]
 
 
@@ -288,8 +289,8 @@ def next_room_radiance(scene: Scene, hit: Hit, irradiance: Float[Array, 3], text
     else:
         material, _, _, _, in_lining, lining_colour = _next_room_surface(scene, hit)
         albedo = jnp.where(in_lining, lining_colour, (material.colour_a + material.colour_b) / 2)
-    _, slot = _crossed_opening(scene, hit)
-    facing = 0.7 + 0.3 * jnp.dot(hit.normal, scene.ambient_direction)
+    _, slot = _opening_slot(scene, hit.index, hit.along)
+    facing = ambient_facing(tuple(hit.normal), scene.ambient_direction)
     light = scene.decor.doorways.room_light[slot] * facing * irradiance / jnp.pi
     return jnp.where(hit.kind == SurfaceKind.NEXT_ROOM, albedo * light, 0.0)
 
@@ -327,7 +328,7 @@ def _next_room_surface(scene: Scene, hit: Hit):
     seed = jnp.where(ceiling, 4, jnp.where(floor, 5, 6))
     back_wall = jnp.abs(jnp.dot(hit.normal[:2], along_wall)) < 0.5
     wall_a = jnp.where(back_wall, jnp.dot(offset, along_wall), behind_wall)
-    _, slot = _crossed_opening(scene, hit)
+    _, slot = _opening_slot(scene, hit.index, hit.along)
     in_lining = behind_wall < decor.doorways.wall_thickness[slot] + 1e-4
     return material, seed, floor | ceiling, wall_a, in_lining, scene.openings.frame_colour[slot]
 

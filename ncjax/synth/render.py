@@ -51,6 +51,7 @@ from .materials import Material, material_albedo
 from .photoreal import PhotorealConfig, photoreal_image, window_views
 from .raycast import box_segment_blocked, cast_columns, nearest_box
 from .render_details import (
+    ambient_facing,
     ceiling_panels,
     decal_appearance,
     opening_appearance,
@@ -251,10 +252,7 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     occlusion = 1.0 - 0.35 * jnp.exp(-jnp.maximum(to_edge, 0.0) / 0.3)
     if decor is not None:
         occlusion = jnp.where(through, doorway["light"], occlusion)
-    # A hemispherical ambient (brighter from one side, as daylight from a window)
-    # shades walls of different orientations differently, as in real rooms.
-    direction = scene.ambient_direction
-    facing = 0.7 + 0.3 * (normal_x * direction[0] + normal_y * direction[1] + normal_z * direction[2])
+    facing = ambient_facing((normal_x, normal_y, normal_z), scene.ambient_direction)
     irradiance = (facing * jnp.where(on_box, 0.85, occlusion))[:, None] * scene.ambient
     irradiance = _add_direct_light(scene, irradiance, (x, y, z), (normal_x, normal_y, normal_z), through, shadows)
     radiance = albedo * irradiance + emission

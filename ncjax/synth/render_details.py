@@ -175,6 +175,14 @@ def doorway_columns(opening: dict, direction, t_wall, along, wall_direction, wal
     )
 
 
+def ambient_facing(normal, direction) -> Array:
+    """The factor of the hemispherical ambient light on surfaces of unit ``normal`` (a tuple of coordinate
+    arrays): brighter facing ``direction``, where it comes from most (as daylight from a window), so that walls
+    of different orientations are shaded differently, as in real rooms."""
+    normal_x, normal_y, normal_z = normal
+    return 0.7 + 0.3 * (normal_x * direction[0] + normal_y * direction[1] + normal_z * direction[2])
+
+
 def through_doorway(doorway: dict, slope, cotangent, floor_height):
     """Per pixel of a row, for rays through an open door: the distance to what
     they meet behind the wall, whether it is upright (a jamb or a wall), and
