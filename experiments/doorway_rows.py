@@ -14,18 +14,22 @@ open one (``Semantic.OPENING``), furniture in front of the wall (``OBJECT``), or
 share of columns and the floor and ceiling rows' mean absolute error and share of columns more than 10 px off
 (rows of the 512-row image, as ``benchmarks/real_panoramas.py``).
 
-    uv run python experiments/doorway_rows.py [--rooms 64]
+``--kinds`` picks other sources (``synth-decor-closet``: walk-in closets whose passages fill much of a wall),
+``--model`` another model file.
+
+    uv run python experiments/doorway_rows.py [--rooms 64] [--kinds KIND ...] [--model FILE]
 """
 
 from __future__ import annotations
 
 import argparse
+import pathlib
 
 import numpy as np
 from tqdm import tqdm
 
 import ncjax
-from ncjax.network.predict import default_model
+from ncjax.evaluation.panorama_labels import load_network
 from ncjax.synth.dataset import rendered_samples
 from ncjax.synth.render import Semantic
 from ncjax.training.data import SYNTH_SOURCES
@@ -80,12 +84,16 @@ def table_lines(name: str, errors: dict[str, np.ndarray]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rooms", type=int, default=64, help="rooms per kind")
+    parser.add_argument("--kinds", nargs="+", choices=sorted(SYNTH_SOURCES), default=list(KINDS), help="sources")
+    parser.add_argument("--model", type=pathlib.Path, default=None, help="model file (default: the shipped model)")
     args = parser.parse_args(argv)
     if args.rooms < 1:
         parser.error("--rooms must be at least 1")
-    model = default_model()
-    per_kind = {kind: kind_errors(kind, PHOTO_LIKE_SEED + i, args.rooms, model) for i, kind in enumerate(KINDS)}
-    print(f"{args.rooms} rooms per kind, seeds {PHOTO_LIKE_SEED} and {PHOTO_LIKE_SEED + 1}; rows of a 512-row image")
+    model = load_network(args.model)
+    seeds = {kind: PHOTO_LIKE_SEED + i for i, kind in enumerate(args.kinds)}
+    per_kind = {kind: kind_errors(kind, seed, args.rooms, model) for kind, seed in seeds.items()}
+    listed = ", ".join(f"{kind} seed {seed}" for kind, seed in seeds.items())
+    print(f"{args.rooms} rooms per kind ({listed}); rows of a 512-row image")
     print(f"| renders, column class | columns | floor: mean px / > {FAR:.0f} px | ceiling: mean px / > {FAR:.0f} px |")
     print("| --- | --- | --- | --- |")
     for kind, errors in per_kind.items():

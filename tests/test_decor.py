@@ -215,8 +215,10 @@ def test_sunlight_brightens_only_what_sees_the_sun_through_the_window():
     assert lit_floor > 20
 
 
-def test_open_doors_show_the_room_behind_and_keep_the_edges_on_the_labels():
-    plain_scenes, plain = _plain()
+@functools.cache
+def _one_door_per_room():
+    """The plain scenes with one door 1 m wide in the middle of their first wall: (closed, opened)."""
+    plain_scenes, _ = _plain()
     openings = plain_scenes.openings
     fields = {name: np.array(getattr(openings, name)) for name in ("wall", "span", "z_range", "is_window", "mask")}
     for i in range(BATCH):
@@ -235,6 +237,11 @@ def test_open_doors_show_the_room_behind_and_keep_the_edges_on_the_labels():
         closed,
         np.broadcast_to(np.arange(openings.mask.shape[1]) == 0, fields["mask"].shape),
     )
+    return closed, opened
+
+
+def test_open_doors_show_the_room_behind_and_keep_the_edges_on_the_labels():
+    closed, opened = _one_door_per_room()
     before, after = render_scenes(closed), render_scenes(opened)
     _, _, labels = batch(0)
     behind = 0
@@ -252,6 +259,27 @@ def test_open_doors_show_the_room_behind_and_keep_the_edges_on_the_labels():
         points = _points(opened, after, i)[changed]
         behind += ((points[:, :2] - start) @ normal < -0.05).sum()
     assert behind > 20
+
+
+def test_the_rooms_behind_open_doors_have_skirting_boards():
+    """Skirting boards along the foot of the walls of the room behind a door, as along this room's: painted red,
+    they change pixels seen through the door, all of them below the boards' top."""
+    _, opened = _one_door_per_room()
+    bare = eqx.tree_at(lambda s: s.skirting_height, opened, np.zeros(BATCH, np.float32))
+    red = eqx.tree_at(
+        lambda s: (s.skirting_height, s.skirting_colour),
+        opened,
+        (np.full(BATCH, 0.3, np.float32), np.tile(np.float32([1.0, 0.0, 0.0]), (BATCH, 1))),
+    )
+    without, with_boards = render_scenes(bare), render_scenes(red)
+    behind = 0
+    for i in range(BATCH):
+        changed = np.any(np.asarray(with_boards.rgb[i]) != np.asarray(without.rgb[i]), -1)
+        points = _points(red, with_boards, i)[changed]
+        assert np.all(points[:, 2] - float(red.room.floor_height[i]) < 0.3 + 1e-3)
+        through = np.asarray(with_boards.semantic[i])[changed] == ncjax.synth.Semantic.OPENING
+        behind += through.sum()
+    assert behind > 5
 
 
 @functools.cache
@@ -351,3 +379,37 @@ def test_passages_are_wide_open_leafless_and_keep_the_edges_on_the_labels():
             seen = ~np.isnan(errors)
             assert (errors[seen] <= 1.0).sum() >= 0.99 * seen.sum()
     assert np.sum(np.asarray(renderings.semantic) == ncjax.synth.Semantic.OPENING) > 0.02 * renderings.semantic.size
+
+
+@pytest.mark.slow
+def test_walk_in_closets_have_wide_passages_and_shelving_and_keep_the_edges_on_the_labels():
+    from ncjax.training.data import SYNTH_SOURCES
+
+    closets = dataclasses.replace(SYNTH_SOURCES["synth-decor-closet"], height=HEIGHT, width=WIDTH)
+    keys = jax.random.split(jax.random.key(3), 2 * BATCH)
+    scenes, renderings, labels = jax.device_get(ncjax.synthesize_batch(keys, closets))
+    assert np.all(labels.ok)
+    openings, doorways = scenes.openings, scenes.decor.doorways
+    passages = np.asarray(openings.mask & doorways.is_passage)
+    assert passages.any(-1).mean() >= 0.5
+    width = np.diff(np.asarray(openings.span), axis=-1)[..., 0][passages]
+    assert np.all((width >= 0.9 - 1e-5) & (width <= 2.2 + 1e-5))
+
+    # The closet shelving is the only furniture whose first box floats at head height (its top shelf).
+    def shelving(boxes, floor_height, config):
+        parts = ncjax.synth.furniture.PARTS_PER_PIECE
+        first = slice(0, config.scene.furniture_slots * parts, parts)
+        bottom = np.asarray(boxes.centre[:, first, 2] - boxes.half_size[:, first, 2]) - floor_height[:, None]
+        return np.asarray(boxes.mask[:, first]), bottom >= 1.5
+
+    filled, floating = shelving(scenes.boxes, np.asarray(scenes.room.floor_height), closets)
+    assert np.sum(filled & floating) >= BATCH
+    # Scenes that do not ask for it never have it.
+    plain = batch(0)[0]
+    filled, floating = shelving(plain.boxes, np.asarray(plain.room.floor_height), DECOR)
+    assert filled.any() and not np.any(filled & floating)
+    for i in range(2 * BATCH):
+        label = jax.tree.map(lambda x: x[i], labels)
+        for errors in _edge_errors(np.asarray(renderings.semantic[i]), label):
+            seen = ~np.isnan(errors)
+            assert (errors[seen] <= 1.0).sum() >= 0.99 * seen.sum()

@@ -211,6 +211,12 @@ def test_configurations_reject_bad_values():
         ncjax.synth.RenderConfig(supersampling=2)
     with pytest.raises(ValueError, match="positive"):
         ncjax.synth.SceneConfig(furniture_slots=0)
+    with pytest.raises(ValueError, match="unknown type 'sofa bed'"):
+        ncjax.synth.SceneConfig(furniture_weights=(("sofa bed", 1.0),))
+    with pytest.raises(ValueError, match="negative weight"):
+        ncjax.synth.SceneConfig(furniture_weights=(("bed", -1.0),))
+    with pytest.raises(ValueError, match="passage_width_range"):
+        ncjax.synth.SceneConfig(passage_width_range=(2.0, 1.0))
     with pytest.raises(ValueError, match="image size"):
         ncjax.SynthConfig(width=2, height=2)
 

@@ -185,6 +185,40 @@ FURNITURE_TYPES: tuple[_FurnitureType, ...] = (
         weight=0.7,
         decor=True,
     ),
+    # Walk-in closets' wall shelving (drawn only where a scene's furniture_weights ask for it): a shelf
+    # at head height over a hanging rail, brackets at the ends, a shoe shelf; empty, as in homes for sale,
+    # or with clothes hanging from the rail.
+    _FurnitureType(
+        "closet shelving",
+        True,
+        (0.6, 0.3, 1.6),
+        (2.4, 0.45, 2.0),
+        (
+            (0.0, 1.0, 0.0, 1.0, 0.97, 1.0, False),
+            (0.0, 1.0, 0.45, 0.52, 0.9, 0.92, False),
+            (0.0, 0.02, 0.0, 0.9, 0.1, 0.97, True),
+            (0.98, 1.0, 0.0, 0.9, 0.1, 0.97, True),
+            (0.0, 1.0, 0.0, 0.9, 0.1, 0.12, False),
+        ),
+        weight=0.0,
+        decor=True,
+    ),
+    _FurnitureType(
+        "closet shelving with clothes",
+        True,
+        (0.6, 0.4, 1.6),
+        (2.4, 0.6, 2.0),
+        (
+            (0.0, 1.0, 0.0, 0.75, 0.97, 1.0, True),
+            (0.0, 1.0, 0.35, 0.4, 0.9, 0.92, True),
+            (0.02, 0.98, 0.05, 0.95, 0.45, 0.9, False),
+            (0.0, 0.02, 0.0, 0.75, 0.1, 0.97, True),
+            (0.98, 1.0, 0.0, 0.75, 0.1, 0.97, True),
+        ),
+        fabric=True,
+        weight=0.0,
+        decor=True,
+    ),
 )
 PARTS_PER_PIECE = max(len(t.parts) for t in FURNITURE_TYPES)
 # The basic scenes' types: the head of the pool (the decor's types come after them).
@@ -218,12 +252,23 @@ TEMPLATES = _template_arrays()
 # ---------------------------------------------------------------- random pieces
 
 
+def furniture_weights(config) -> np.ndarray:
+    """The relative frequency of each furniture type in a scene of configuration ``config`` (a
+    :class:`~ncjax.synth.scene.SceneConfig`): the templates' weights, with ``config.furniture_weights``
+    in place of those it names; the basic scenes draw from the head of the pool only."""
+    weight = TEMPLATES["weight"].copy()
+    names = [t.name for t in FURNITURE_TYPES]
+    for name, value in config.furniture_weights:
+        weight[names.index(name)] = value
+    return weight if config.decor else weight[:BASIC_TYPES]
+
+
 def furniture_candidate(key, room: Room, config):
     """One random piece for a scene of configuration ``config`` (a :class:`~ncjax.synth.scene.SceneConfig`):
     (type, size (3,), centre (2,), rotation (2,), valid)."""
     u = jax.random.uniform(key, (11,))
     # The types of the realistic scenes come last in the pool: the basic pool is its head.
-    weight = TEMPLATES["weight"] if config.decor else TEMPLATES["weight"][:BASIC_TYPES]
+    weight = furniture_weights(config)
     kind = categorical(u[0], jnp.asarray(weight))
     size = between(u[1:4], jnp.asarray(TEMPLATES["size_low"])[kind], jnp.asarray(TEMPLATES["size_high"])[kind])
     size = size.at[2].min(room.ceiling_height - room.floor_height - 0.25)

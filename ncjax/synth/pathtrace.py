@@ -10,7 +10,8 @@ The ray caster (:mod:`ncjax.synth.render`) shades each hit locally; here every p
   ``colour`` straight down (and ``colour cos`` at an angle, as any Lambertian emitter). They are sampled by
   area at every path vertex (next-event estimation with a shadow ray); they are not in the geometry, so a
   path's own bounces never meet them and no light is counted twice. The environment lights the room
-  through the windows' glass, and with decor the rooms behind open doors (seen, lit evenly: paths end there)
+  through the windows' glass, and with decor the rooms behind open doors (seen, lit as the ray caster lights
+  them: paths end there)
   light it through the doors: both are sampled at every vertex (a uniform point of a hole, by area, and the
   light that arrives through it); a path that leaves the room after a reflection then adds nothing. The
   sun, optionally, is a directional light (:class:`Sun`) sampled at every vertex too: a shadow ray towards it
@@ -228,7 +229,7 @@ def _arriving(
     behind's through an open door (:func:`~ncjax.synth.pathtrace_scene.next_room_radiance`: textured where the
     camera sees it, its materials' mean colours in the light it sheds into the room), else 0."""
     sky = jnp.where(hit.kind == SurfaceKind.ESCAPE, environment_radiance(environment, direction), 0.0)
-    return sky + next_room_radiance(scene, hit, next_room, textured=seen)
+    return sky + next_room_radiance(scene, hit, direction, next_room, textured=seen)
 
 
 def _emitted(

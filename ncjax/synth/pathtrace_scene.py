@@ -11,7 +11,8 @@ colours there. Where the ray caster shows the sky through a window's glass the w
 the room (:attr:`SurfaceKind.ESCAPE`) and reads the environment. With decor, a ray through an open door or
 passage goes on, as in the ray caster, through the door's lining (the wall's thickness) into the box-shaped
 room behind it (:class:`~ncjax.synth.elements.Doorways`), whose floor, walls and ceiling it meets
-(:attr:`SurfaceKind.NEXT_ROOM`): that room is seen, lit evenly, but paths do not go on in it.
+(:attr:`SurfaceKind.NEXT_ROOM`): that room is seen, lit as the ray caster lights it (evenly, darker towards
+its edges; its skirting boards drawn), but paths do not go on in it.
 """
 
 from __future__ import annotations
@@ -27,7 +28,15 @@ from ..geometry.polygon import perpendicular
 from .elements import FRAME_WIDTH
 from .materials import Material, material_albedo
 from .raycast import box_interval_2d
-from .render_details import ambient_facing, ceiling_panels, decal_appearance, in_span, opening_appearance
+from .render_details import (
+    ambient_facing,
+    ceiling_panels,
+    decal_appearance,
+    edge_darkening,
+    in_span,
+    opening_appearance,
+    with_skirting,
+)
 from .rooms import ray_hits, room_walls
 from .scene import Scene
 
@@ -274,12 +283,16 @@ def leaves_through_a_window(scene: Scene, hit: Hit) -> Bool[Array, ""]:
     return (hit.kind == SurfaceKind.ESCAPE) & present & scene.openings.is_window[slot]
 
 
-def next_room_radiance(scene: Scene, hit: Hit, irradiance: Float[Array, 3], textured: bool = True) -> Float[Array, 3]:
-    """The radiance of a surface of a room behind an open door (:attr:`SurfaceKind.NEXT_ROOM`; 0 elsewhere).
+def next_room_radiance(
+    scene: Scene, hit: Hit, direction: Float[Array, 3], irradiance: Float[Array, 3], textured: bool = True
+) -> Float[Array, 3]:
+    """The radiance of a surface of a room behind an open door (:attr:`SurfaceKind.NEXT_ROOM`; 0 elsewhere),
+    met by a ray of unit ``direction``.
 
-    That room is lit evenly, as the ray caster lights it: ``irradiance`` times the door's ``room_light``,
-    shaded by the way the surface faces (brighter towards ``scene.ambient_direction``), on a Lambertian surface
-    of :func:`surface_appearance`'s albedo, or with ``textured`` False (static) of its material's mean colour
+    That room is lit as the ray caster lights it: ``irradiance`` times the door's ``room_light``, shaded by
+    the way the surface faces (brighter towards ``scene.ambient_direction``) and darkened towards the room's
+    edges (:func:`~ncjax.synth.render_details.edge_darkening`), on a Lambertian surface of
+    :func:`surface_appearance`'s albedo, or with ``textured`` False (static) of its material's mean colour
     (cheaper, for the light it sheds through the door).
     """
     if scene.decor is None:
@@ -291,8 +304,25 @@ def next_room_radiance(scene: Scene, hit: Hit, irradiance: Float[Array, 3], text
         albedo = jnp.where(in_lining, lining_colour, (material.colour_a + material.colour_b) / 2)
     _, slot = _opening_slot(scene, hit.index, hit.along)
     facing = ambient_facing(tuple(hit.normal), scene.ambient_direction)
-    light = scene.decor.doorways.room_light[slot] * facing * irradiance / jnp.pi
+    darkening = edge_darkening(_next_room_edge_distance(scene, hit, direction, slot))
+    light = scene.decor.doorways.room_light[slot] * facing * darkening * irradiance / jnp.pi
     return jnp.where(hit.kind == SurfaceKind.NEXT_ROOM, albedo * light, 0.0)
+
+
+def _next_room_edge_distance(scene: Scene, hit: Hit, direction: Float[Array, 3], slot: Int[Array, ""]):
+    """How far a hit in the room behind a door lies from that room's edges, as the ray caster measures it: on
+    an upright surface, from the floor or the room's ceiling; on the floor or a ceiling, horizontally along
+    the ray to the first upright surface it would meet (a jamb, a side or the back wall)."""
+    wall_direction, _, _, _ = room_walls(scene.room)
+    along_wall = wall_direction[hit.index]
+    offset = hit.point[:2] - scene.room.corners[hit.index]
+    behind_wall = jnp.abs(jnp.dot(offset, perpendicular(along_wall)))
+    level = jnp.append(direction[:2], 0.0) / jnp.maximum(jnp.linalg.norm(direction[:2]), 1e-9)
+    to_upright, _ = next_room_hit(scene, slot, hit.along, scene.room.floor_height, level, along_wall)
+    travelled = behind_wall / jnp.maximum(jnp.abs(jnp.dot(level[:2], perpendicular(along_wall))), 1e-9)
+    height = hit.point[2] - scene.room.floor_height
+    upright = jnp.minimum(height, scene.decor.doorways.room_ceiling[slot] - hit.point[2])
+    return jnp.where(jnp.abs(hit.normal[2]) > 0.5, to_upright - travelled, upright)
 
 
 def _box_coordinates(scene: Scene, hit: Hit):
@@ -369,9 +399,11 @@ def surface_appearance(scene: Scene, hit: Hit) -> tuple[Float[Array, 3], Bool[Ar
     albedo = material_albedo(material, scene.seed + seed, a, b, decor=scene.decor is not None)
 
     on_wall = kind == SurfaceKind.WALL
-    skirting = on_wall & ~in_opening & (height_above_floor < scene.skirting_height)
-    lip = height_above_floor > scene.skirting_height - 0.012
-    albedo = jnp.where(skirting, scene.skirting_colour * jnp.where(lip, 0.7, 1.0), albedo)
+    skirted = on_wall & ~in_opening
+    if scene.decor is not None:
+        # The room behind a door has skirting boards too (not in the door's lining), as the ray caster draws it.
+        skirted = skirted | (next_room & (jnp.abs(hit.normal[2]) < 0.5) & ~in_lining)
+    albedo = with_skirting(albedo, skirted, height_above_floor, scene.skirting_height, scene.skirting_colour)
     if scene.decor is not None:
         in_decal, decal_albedo = _decal_at(scene, hit.index, hit.along, z)
         albedo = jnp.where(on_wall & ~in_opening & in_decal, decal_albedo, albedo)

@@ -1,12 +1,12 @@
 """Photoreal training images: a scene path-traced, denoised and developed by a consumer camera's model.
 
-The ray caster (:mod:`ncjax.synth.render`) shades each hit locally. A photoreal image is the same scene's light
-as it behaves: :func:`~ncjax.synth.pathtrace.path_trace`'s interreflections, area lights and rough-glossy floor,
-with the windows showing one of the real outdoor HDR panoramas shipped in ``ncjax/data/window_views`` (CC0), turned
-and scaled at random, which also lights the room through them, its sun as a directional light that casts
-patches of sunlight; open doors and passages show the rooms behind them, lit evenly. The light is traced at a
-fraction of the image's size (``trace_scale``), denoised and brought to the image's size over the surfaces'
-albedo at that size (:mod:`ncjax.synth.pathtrace_denoise`), then developed by
+The ray caster (:mod:`ncjax.synth.render`) shades each hit locally. A photoreal image is the same scene's light as
+it behaves: :func:`~ncjax.synth.pathtrace.path_trace`'s interreflections, area lights and rough-glossy floor, with
+the windows showing one of the real outdoor HDR panoramas shipped in ``ncjax/data/window_views`` (CC0), turned and
+scaled at random, which also lights the room through them, its sun as a directional light that casts patches of
+sunlight; open doors and passages show the rooms behind them, lit evenly (darker towards their edges). The light is
+traced at a fraction of the image's size (``trace_scale``), denoised and brought to the image's size over the
+surfaces' albedo at that size (:mod:`ncjax.synth.pathtrace_denoise`), then developed by
 :func:`~ncjax.synth.photograph.photograph` (by default its metered exposure, tone curve and white balance, 8 bits:
 :data:`DEVELOPMENT`). The geometry is the scene's own, so the ray caster's labels, depth and semantics hold for
 it unchanged: ``SynthConfig(photoreal=PhotorealConfig())`` renders the rooms of ``ncjax synth`` so
@@ -83,11 +83,12 @@ class PhotorealConfig:
             would otherwise be found by a few paths only (speckles the denoiser cannot remove).
         sun: what the clip takes around the sun lights the room as a directional light through the windows
             (:func:`window_light`): patches of sunlight, sampled at every path vertex, without speckles.
-        next_room_light: the rooms seen through open doors and passages are lit evenly, and light the room
-            through their doors: each door's ``room_light`` (0.35-1.8) times this much of ``pi`` times the mean
-            radiance of what the windows show (the irradiance of a surface open to that whole view). At 0.1 and
-            ``room_light`` 1 they are lit about as the room is: 0.45-3 times its median irradiance over 11
-            rooms of ``synth-decor-open`` (median 0.75), as the rooms' lamps and windows vary.
+        next_room_light: the rooms seen through open doors and passages are lit evenly (darker towards their edges,
+            as the ray caster darkens them), and light the room through their doors: each door's ``room_light``
+            (0.35-1.8) times this much of ``pi`` times the mean radiance of what the windows show (the irradiance of a
+            surface open to that whole view). At 0.1 and ``room_light`` 1 they are lit about as the room is: 0.45-3
+            times its median irradiance over 11 rooms of ``synth-decor-open`` (median 0.75), as the rooms' lamps and
+            windows vary.
     """
 
     trace: PathTraceConfig = PathTraceConfig(

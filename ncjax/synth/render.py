@@ -24,8 +24,11 @@ windows, light panels, decals on the walls and open doors
 (``ncjax.synth.render_details``): decals and panels are drawn on the room's
 planes, and a ray through an open door goes on into a box-shaped room behind
 only once it has met the wall plane inside the doorway, so the labels stay
-exact too; what is seen through a doorway is of the class OPENING. The renderer
-compiles these steps only for scenes that have decor.
+exact too; what is seen through a doorway is of the class OPENING. That room
+looks like a room, as in photographs: skirting boards along its walls' foot,
+darker towards its edges, so that its floor line is as plain as the room's own
+(a network taught on bare rooms behind doors follows real ones' floor lines).
+The renderer compiles these steps only for scenes that have decor.
 
 Not modelled (yet): shadows cast by walls, inter-reflections and specular
 surfaces; geometry of windows and skirting boards; views through windows;
@@ -54,9 +57,11 @@ from .render_details import (
     ambient_facing,
     ceiling_panels,
     decal_appearance,
+    edge_darkening,
     opening_appearance,
     sunlight,
     through_doorway,
+    with_skirting,
 )
 from .rooms import RoomConfig, random_room
 from .scene import Scene, SceneConfig, random_scene
@@ -223,9 +228,11 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     if decor is not None:
         in_opening, on_door = in_opening | through, in_opening & ~through
     opening_albedo, opening_emission = opening_appearance(opening, columns["along"], z)
-    skirting = on_wall & ~in_opening & (height_above_floor < scene.skirting_height)
-    skirting_lip = skirting & (height_above_floor > scene.skirting_height - 0.012)
-    albedo = jnp.where(skirting[:, None], scene.skirting_colour * jnp.where(skirting_lip, 0.7, 1.0)[:, None], albedo)
+    skirted = on_wall & ~in_opening
+    if decor is not None:
+        # The room behind a door has skirting boards too (not in the door's lining): a room, as in photographs.
+        skirted = skirted | (through & behind_upright & ~in_lining)
+    albedo = with_skirting(albedo, skirted, height_above_floor, scene.skirting_height, scene.skirting_colour)
     other_emission = 0.0
     if decor is not None:
         decal = columns["decal"]
@@ -247,11 +254,18 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
 
     # Light: ambient darkened near the room's edges, plus point lights (with
     # decor, and the sun; the room behind an open door gets its own share of
-    # ambient light only).
+    # ambient light only, darkened near its own edges).
     to_edge = jnp.where(on_floor_or_ceiling, t_wall - t, jnp.minimum(height_above_floor, room.ceiling_height - z))
-    occlusion = 1.0 - 0.35 * jnp.exp(-jnp.maximum(to_edge, 0.0) / 0.3)
     if decor is not None:
-        occlusion = jnp.where(through, doorway["light"], occlusion)
+        # The room behind darkens towards its own edges as this one does, on its floor and ceiling to the
+        # first upright surface along the ray (a jamb, a side or the back wall).
+        to_edge_behind = jnp.where(
+            behind_flat, doorway["t_upright"] - t, jnp.minimum(height_above_floor, doorway["ceiling"] - z)
+        )
+        to_edge = jnp.where(through, to_edge_behind, to_edge)
+    occlusion = edge_darkening(to_edge)
+    if decor is not None:
+        occlusion = jnp.where(through, doorway["light"] * occlusion, occlusion)
     facing = ambient_facing((normal_x, normal_y, normal_z), scene.ambient_direction)
     irradiance = (facing * jnp.where(on_box, 0.85, occlusion))[:, None] * scene.ambient
     irradiance = _add_direct_light(scene, irradiance, (x, y, z), (normal_x, normal_y, normal_z), through, shadows)

@@ -175,6 +175,21 @@ def doorway_columns(opening: dict, direction, t_wall, along, wall_direction, wal
     )
 
 
+def edge_darkening(to_edge) -> Array:
+    """The factor of the ambient light at ``to_edge`` metres from the nearest edge of a room (where a wall
+    meets the floor, the ceiling or another wall): 0.65 on the edge, within 5% of 1 beyond 0.6 m; the soft
+    darkening into corners that light bouncing between surfaces gives, which the ray caster does not trace."""
+    return 1.0 - 0.35 * jnp.exp(-jnp.maximum(to_edge, 0.0) / 0.3)
+
+
+def with_skirting(albedo, on_wall, height_above_floor, skirting_height, skirting_colour) -> Array:
+    """``albedo`` (``(..., 3)``) with the skirting boards drawn where ``on_wall`` (``(...)``) points lie below
+    ``skirting_height``: ``skirting_colour``, darker on the board's top lip."""
+    skirting = on_wall & (height_above_floor < skirting_height)
+    lip = height_above_floor > skirting_height - 0.012
+    return jnp.where(skirting[..., None], skirting_colour * jnp.where(lip, 0.7, 1.0)[..., None], albedo)
+
+
 def ambient_facing(normal, direction) -> Array:
     """The factor of the hemispherical ambient light on surfaces of unit ``normal`` (a tuple of coordinate
     arrays): brighter facing ``direction``, where it comes from most (as daylight from a window), so that walls

@@ -46,7 +46,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from .decor import LAMP_PARTS, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
 from .elements import Boxes, Decor, Doorways, Lights, Openings
-from .furniture import PARTS_PER_PIECE, TEMPLATES, furniture_candidate, piece_boxes, piece_materials
+from .furniture import FURNITURE_TYPES, PARTS_PER_PIECE, TEMPLATES, furniture_candidate, piece_boxes, piece_materials
 from .materials import Material, Pattern, colour_in_hsv_box, surface_materials
 from .placement import (
     Footprints,
@@ -84,13 +84,18 @@ class SceneConfig:
             centres and any furniture except carpets, metres.
         furniture_probability: chance that each furniture slot is wanted at all
             (some rooms are sparse, some crowded).
+        furniture_weights: ``(name, weight)`` pairs that replace the relative frequency
+            of the furniture types they name (:data:`~ncjax.synth.furniture.FURNITURE_TYPES`;
+            e.g. the closet shelving, which no other scene has).
         door_probability: chance that an opening is a door rather than a window.
         open_door_probability: chance that a door is open, showing the room behind it.
         door_leaf_probability: chance that an open door's leaf stands swung into the room.
         passage_probability: chance that a door is instead a wide passage to the next room
-            (decor only): an opening 1.2-3.0 m wide, up to 0.05-0.4 m below the ceiling,
-            with no leaf, as between the rooms of an open plan; the label's boundary
-            stays in the wall plane across it, as labellers of real panoramas draw it.
+            (decor only): an opening ``passage_width_range`` wide, up to 0.05-0.4 m below the
+            ceiling, with no leaf, as between the rooms of an open plan or at the mouth of a
+            walk-in closet; the label's boundary stays in the wall plane across it, as
+            labellers of real panoramas draw it.
+        passage_width_range: width of a passage, metres.
         decal_probability: chance that each decal slot is wanted.
         panel_probability: chance that a room is lit by flush light panels
             rather than lamps.
@@ -113,10 +118,12 @@ class SceneConfig:
     candidates_per_slot: int = 3
     camera_clearance: float = 0.3
     furniture_probability: float = 0.75
+    furniture_weights: tuple[tuple[str, float], ...] = ()
     door_probability: float = 0.35
     open_door_probability: float = 0.6
     door_leaf_probability: float = 0.7
     passage_probability: float = 0.0
+    passage_width_range: tuple[float, float] = (1.2, 3.0)
     decal_probability: float = 0.6
     panel_probability: float = 0.25
     pendant_probability: float = 0.25
@@ -139,6 +146,16 @@ class SceneConfig:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
         if self.camera_clearance < 0:
             raise ValueError(f"camera_clearance must be >= 0, got {self.camera_clearance}")
+        names = [t.name for t in FURNITURE_TYPES]
+        for name, weight in self.furniture_weights:
+            if name not in names:
+                raise ValueError(f"furniture_weights: unknown type {name!r} (known: {', '.join(names)})")
+            if weight < 0:
+                raise ValueError(f"furniture_weights: negative weight {weight} for {name!r}")
+        if not 0 < self.passage_width_range[0] <= self.passage_width_range[1]:
+            raise ValueError(
+                f"passage_width_range must be (low, high) with 0 < low <= high, got {self.passage_width_range}"
+            )
         probabilities = (
             "furniture_probability",
             "door_probability",
@@ -225,7 +242,7 @@ def _opening_candidate(key, room: Room, config: SceneConfig):
     height = jnp.minimum(height, room_height - 0.15 - bottom)
     p = jax.random.uniform(jax.random.fold_in(key, _PASSAGE_STREAM), (3,))
     is_passage = config.decor & ~is_window & (p[0] < config.passage_probability)
-    passage = jnp.stack([between(p[1], 1.2, 3.0), 0.0, room_height - between(p[2], 0.05, 0.4)])
+    passage = jnp.stack([between(p[1], *config.passage_width_range), 0.0, room_height - between(p[2], 0.05, 0.4)])
     width, bottom, height = jnp.where(is_passage, passage, jnp.stack([width, bottom, height]))
     wall, along, fits, start, direction, normal = wall_position(u[4:6], room, width, 0.15)
     centre = start + (along + width / 2) * direction + 0.05 * normal

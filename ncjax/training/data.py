@@ -163,6 +163,28 @@ SYNTH_SOURCES = {
         room=RoomConfig(world="mix", size_range=(1.2, 4.0), max_walls=6, rc_range=(0.0, 0.0)),
         scene=SceneConfig(decor=True),
     ),
+    "synth-decor-closet": dataclasses.replace(
+        SYNTH_COMMAND_CONFIG,
+        room=RoomConfig(
+            world="manhattan",
+            max_walls=6,
+            size_range=(1.2, 2.6),
+            height_range=(2.3, 2.9),
+            rc_range=(0.0, 0.0),
+            camera_margin=0.2,
+        ),
+        scene=SceneConfig(
+            decor=True,
+            opening_slots=2,
+            door_probability=1.0,
+            passage_probability=0.85,
+            passage_width_range=(0.9, 2.2),
+            neutral_paint_probability=0.7,
+            camera_clearance=0.15,
+            candidates_per_slot=6,
+            furniture_weights=(("closet shelving", 20.0), ("closet shelving with clothes", 10.0)),
+        ),
+    ),
     "synth-decor-open": _OPEN_ROOMS,
     "synth-photoreal-open": dataclasses.replace(_OPEN_ROOMS, photoreal=PhotorealConfig()),
 }
@@ -173,7 +195,10 @@ same with white, off-white or pale walls in 70% of them, as in most homes; ``syn
 rooms of ``synth-decor-home`` (the same ones for the same seed) path-traced and photographed
 (:mod:`ncjax.synth.photoreal`); ``synth-decor-small``:
 closets, bathrooms and corridors, sides of 1.2-4 m and at most 6 walls, seen by a central
-camera, whose walls fill the panorama as no room of the other kinds does; ``synth-decor-open``:
+camera, whose walls fill the panorama as no room of the other kinds does; ``synth-decor-closet``: walk-in
+closets and alcoves, sides of 1.2-2.6 m, their walls lined with shelving (some with clothes hanging), seen by
+a central camera from inside, most with a passage 0.9-2.2 m wide that fills much of a wall and shows the room
+behind it (the label stays in the closet's wall plane); ``synth-decor-open``:
 realistic rooms seen by a central camera with more doors, half of them wide passages to the next
 room, as in open plans, across which the boundary stays in the wall plane; ``synth-photoreal-open``: the
 rooms of ``synth-decor-open`` path-traced and photographed)."""
