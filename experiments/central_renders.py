@@ -26,7 +26,6 @@ layouts with the true corner count, and on how many rooms the layout beats the r
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 from pathlib import Path
 
@@ -41,11 +40,11 @@ from ncjax.io.export import status_has_geometry
 from ncjax.network.checkpoint import load_model
 from ncjax.network.predict import DEFAULT_MODEL_PATH
 from ncjax.pipeline.prior import HeightPrior
-from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG, reconstruct_batch
+from ncjax.reconstruction import reconstruct_batch
 from ncjax.synth.dataset import rendered_samples
 from ncjax.training.data import SYNTH_SOURCES
 
-from common import BATCH, OUT, PHOTO_LIKE_SEED, model_suffix, photo_like_image
+from common import BATCH, OUT, PHOTO_LIKE_SEED, model_suffix, network_config, photo_like_image
 
 KINDS = ("synth-decor-home", "synth-decor-open")
 # world, and the options replacing NETWORK_PIPELINE_CONFIG's ("margin": world auto with manhattan_margin; "own
@@ -121,7 +120,7 @@ def setting_scores(data: dict[str, np.ndarray], world: str, options: dict) -> di
     """Per room: whether a layout with geometry came back, its 3D IoU (0 without) and its CE (NaN on a wrong count)."""
     width = data["floor_v"].shape[1]
     cam = ncjax.NonCentralPanorama(width, width // 2, rc=0.0)
-    config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **options)
+    config = network_config(**options)
     prior = HeightPrior("camera_height", -data["floor_corners"][:, 0, 2])
     layouts = ncjax.layout_from_boundaries(
         data["ceiling_v"], data["floor_v"], data["corner_prob"], cam, world, config, prior=prior

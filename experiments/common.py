@@ -39,7 +39,7 @@ from ncjax.io.images import read_panorama_file
 from ncjax.io.layout_corners import LayoutCorners
 from ncjax.network.checkpoint import load_model
 from ncjax.network.predict import DEFAULT_MODEL_PATH, default_model, predict_boundaries
-from ncjax.pipeline.config import PipelineConfig
+from ncjax.pipeline.config import RENAMED, PipelineConfig
 from ncjax.pipeline.corners import column_walls, find_corners
 from ncjax.pipeline.manhattan import manhattan_frame
 from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior
@@ -372,3 +372,24 @@ def photo_like_image(seed: int, index: int, rendering) -> np.ndarray:
     rgb = rendering_rgb8(rendering).astype(np.float32) / 255.0
     photo = _augment(jax.random.fold_in(jax.random.key(seed), index), jnp.asarray(rgb))
     return np.round(np.clip(np.asarray(photo), 0, 1) * 255).astype(np.uint8)
+
+
+def network_config(**settings) -> PipelineConfig:
+    """:data:`NETWORK_PIPELINE_CONFIG` with ``settings`` given by their flat names (``corner_threshold=0.4``, the
+    ``ncjax reconstruct`` options' names) placed in their stages' parts (``corners.threshold``)."""
+    changes: dict = {}
+    for name, value in settings.items():
+        stage, _, field = RENAMED.get(name, name).rpartition(".")
+        if stage:
+            changes.setdefault(stage, {})[field] = value
+        else:
+            changes[field] = value
+    return NETWORK_PIPELINE_CONFIG.replace(**changes)
+
+
+def network_setting(name: str):
+    """The value of a :data:`NETWORK_PIPELINE_CONFIG` setting given by its flat name (see :func:`network_config`)."""
+    value = NETWORK_PIPELINE_CONFIG
+    for part in RENAMED.get(name, name).split("."):
+        value = getattr(value, part)
+    return value

@@ -34,7 +34,6 @@ and how far off they were (a failure rate cannot choose it: it only adds failure
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import time
 from pathlib import Path
@@ -56,6 +55,8 @@ from common import (
     failure_causes,
     layout_scores,
     model_suffix,
+    network_config,
+    network_setting,
     scores_summary,
     tuning_boundaries,
 )
@@ -256,11 +257,11 @@ def main(argv=None):
     record, unscaled = {}, {}
     for name in tqdm(args.configs, desc="configurations"):
         kwargs = (
-            {key: getattr(NETWORK_PIPELINE_CONFIG, key) for key in CONFIGS["pipeline defaults"]}
+            {key: network_setting(key) for key in CONFIGS["pipeline defaults"]}
             if name == "current"
             else (CONFIGS | MARGIN_CONFIGS)[name]
         )
-        config = dataclasses.replace(NETWORK_PIPELINE_CONFIG, **kwargs)
+        config = network_config(**kwargs)
         for world in TUNING_SEEDS:
             per_room = pipeline_scores(data[world], world if args.world == "own" else "auto", config)
             clear = [r for r, keep in zip(per_room, data[world]["clear"], strict=False) if keep]

@@ -191,6 +191,19 @@ def test_central_renders_refuses_a_missing_model_or_setting_before_any_work(tmp_
         assert raised.value.code == 2
 
 
+def test_settings_by_their_flat_names_land_in_their_stages():
+    common = experiment("common")
+    config = common.network_config(corner_threshold=0.35, manhattan_margin=0.15, capacity=24)
+    assert config.corners.threshold == 0.35 and config.branches.manhattan_margin == 0.15 and config.capacity == 24
+    assert common.network_setting("corner_threshold") == common.NETWORK_PIPELINE_CONFIG.corners.threshold
+    # every setting the experiments compare is one the pipeline has
+    tuning, central = experiment("tune_network_pipeline"), experiment("central_renders")
+    for settings in [*tuning.CONFIGS.values(), *tuning.MARGIN_CONFIGS.values()]:
+        common.network_config(**settings)
+    for _, settings in central.SETTINGS.values():
+        common.network_config(**settings)
+
+
 @pytest.mark.slow
 def test_central_renders_scores_exact_rows_as_the_true_room():
     """Exact rows of central rooms (what the cache holds for a perfect network): the default setting returns the true
