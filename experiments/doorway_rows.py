@@ -15,9 +15,10 @@ share of columns and the floor and ceiling rows' mean absolute error and share o
 (rows of the 512-row image, as ``benchmarks/real_panoramas.py``).
 
 ``--kinds`` picks other sources (``synth-decor-closet``: walk-in closets whose passages fill much of a wall),
-``--model`` another model file.
+``--model`` another model file; ``--sheet FILE`` also writes the first ``--sheet-rooms`` renders of each kind at
+half size with their true rows (green) and the model's (red).
 
-    uv run python experiments/doorway_rows.py [--rooms 64] [--kinds KIND ...] [--model FILE]
+    uv run python experiments/doorway_rows.py [--rooms 64] [--kinds KIND ...] [--model FILE] [--sheet FILE]
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 
+import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -48,14 +50,28 @@ def column_classes(semantic: np.ndarray, floor_v: np.ndarray) -> np.ndarray:
     return semantic[rows, np.arange(semantic.shape[1])]
 
 
-def kind_errors(kind: str, seed: int, rooms: int, model) -> dict[str, np.ndarray]:
-    """Per column of ``rooms`` renders of ``kind``: its class and the floor and ceiling rows' absolute errors."""
-    classes, floor_error, ceiling_error = [], [], []
+def drawn_rows(image: np.ndarray, true_rows, predicted_rows) -> np.ndarray:
+    """``image`` (RGB) at half size, BGR, with the true rows in green and the predicted ones in red."""
+    tile = np.ascontiguousarray(image[..., ::-1])
+    columns = np.arange(tile.shape[1]) + 0.5
+    for rows, colour in ((predicted_rows, (0, 0, 255)), (true_rows, (0, 200, 0))):
+        for row in rows:
+            points = np.stack([columns, np.asarray(row)], 1).astype(np.int32)
+            cv2.polylines(tile, [points], False, colour, 2)
+    return cv2.resize(tile, (tile.shape[1] // 2, tile.shape[0] // 2), interpolation=cv2.INTER_AREA)
+
+
+def kind_errors(kind: str, seed: int, rooms: int, model, sheet_rooms: int = 0) -> dict[str, np.ndarray]:
+    """Per column of ``rooms`` renders of ``kind``: its class and the floor and ceiling rows' absolute errors; and
+    the first ``sheet_rooms`` renders drawn with their rows (:func:`drawn_rows`), stacked."""
+    classes, floor_error, ceiling_error, tiles = [], [], [], []
     for index, _scene, rendering, labels in tqdm(
         rendered_samples(rooms, seed, SYNTH_SOURCES[kind]), total=rooms, desc=kind
     ):
         image = photo_like_image(seed, index, rendering)
         ceiling_v, floor_v, _ = ncjax.predict_boundaries(image, model)
+        if len(tiles) < sheet_rooms:
+            tiles.append(drawn_rows(image, (labels.ceiling_v, labels.floor_v), (ceiling_v, floor_v)))
         scale = 512 / image.shape[0]
         classes.append(column_classes(np.asarray(rendering.semantic), np.asarray(labels.floor_v)))
         floor_error.append(np.abs(floor_v - np.asarray(labels.floor_v)) * scale)
@@ -64,6 +80,7 @@ def kind_errors(kind: str, seed: int, rooms: int, model) -> dict[str, np.ndarray
         "class": np.concatenate(classes),
         "floor": np.concatenate(floor_error),
         "ceiling": np.concatenate(ceiling_error),
+        "tiles": np.concatenate(tiles) if tiles else np.zeros((0, 0, 3), np.uint8),
     }
 
 
@@ -86,18 +103,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rooms", type=int, default=64, help="rooms per kind")
     parser.add_argument("--kinds", nargs="+", choices=sorted(SYNTH_SOURCES), default=list(KINDS), help="sources")
     parser.add_argument("--model", type=pathlib.Path, default=None, help="model file (default: the shipped model)")
+    parser.add_argument("--sheet", type=pathlib.Path, help="also write a contact sheet (JPEG) of the first renders")
+    parser.add_argument("--sheet-rooms", type=int, default=2, help="renders of each kind on the sheet")
     args = parser.parse_args(argv)
     if args.rooms < 1:
         parser.error("--rooms must be at least 1")
     model = load_network(args.model)
     seeds = {kind: PHOTO_LIKE_SEED + i for i, kind in enumerate(args.kinds)}
-    per_kind = {kind: kind_errors(kind, seed, args.rooms, model) for kind, seed in seeds.items()}
+    sheet_rooms = min(args.sheet_rooms, args.rooms) if args.sheet else 0
+    per_kind = {kind: kind_errors(kind, seed, args.rooms, model, sheet_rooms) for kind, seed in seeds.items()}
     listed = ", ".join(f"{kind} seed {seed}" for kind, seed in seeds.items())
     print(f"{args.rooms} rooms per kind ({listed}); rows of a 512-row image")
     print(f"| renders, column class | columns | floor: mean px / > {FAR:.0f} px | ceiling: mean px / > {FAR:.0f} px |")
     print("| --- | --- | --- | --- |")
     for kind, errors in per_kind.items():
         print("\n".join(table_lines(kind, errors)))
+    if args.sheet:
+        sheet = np.concatenate([errors["tiles"] for errors in per_kind.values()])
+        if not cv2.imwrite(str(args.sheet), sheet, [cv2.IMWRITE_JPEG_QUALITY, 85]):
+            raise OSError(f"could not write {args.sheet}")
+        print(f"wrote {args.sheet}: {sheet_rooms} renders of each kind, true rows green, the model's red")
     return 0
 
 

@@ -377,3 +377,18 @@ def test_doorway_rows_classes_each_column_by_what_stands_just_above_its_floor_li
     lines = module.table_lines("renders", errors)
     assert lines[0] == "| renders, doorway | 25.0% | 20.0 / 100.0% | 0.0 / 0.0% |"
     assert lines[1] == "| renders, wall | 75.0% | 3.0 / 0.0% | 0.0 / 0.0% |"
+
+
+def test_doorway_rows_sheet_draws_the_true_rows_green_and_the_predicted_red_at_half_size():
+    module = experiment("doorway_rows")
+    image = np.full((64, 128, 3), 128, np.uint8)
+    true_rows = (np.full(128, 10.0), np.full(128, 50.0))
+    predicted = (np.full(128, 10.0), np.full(128, 30.0))
+    tile = module.drawn_rows(image, true_rows, predicted).astype(int)  # BGR, half size
+    assert tile.shape == (32, 64, 3)
+    blue, green, red = tile[25, 32]  # the true floor line, row 50 at half size
+    assert green > red + 40 and green > blue + 40
+    blue, green, red = tile[15, 32]  # the predicted one
+    assert red > green + 40 and red > blue + 40
+    assert tile[5, 32, 1] > tile[5, 32, 2] + 40  # where both lie, the true row is drawn over the predicted
+    assert np.all(np.abs(tile[20, 32] - 128) <= 2)  # nothing elsewhere
