@@ -258,6 +258,22 @@ def test_rendered_splits_equal_the_written_and_read_dataset(dataset):
             np.testing.assert_allclose(arrays[key][order(arrays)], read[key][order(read)], atol=1e-4)
 
 
+@pytest.mark.slow
+def test_rendered_splits_through_a_render_cache_equal_those_rendered_in_memory(tmp_path, monkeypatch):
+    from _synth import BATCH, CONFIG
+
+    from ncjax.training import data
+
+    monkeypatch.setattr(data, "RENDER_CHUNK", 4)  # files of rooms 0-3 and 4-5
+    height, width = HEIGHT // 2, WIDTH // 2
+    in_memory = data.rendered_splits(7, N, height, width, batch_size=BATCH, config=CONFIG, progress=False)
+    cached = data.rendered_splits(7, N, height, width, BATCH, CONFIG, progress=False, cache=tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["000000-000004.npz", "000004-000006.npz"]
+    for split, arrays in in_memory.items():
+        for key, value in arrays.items():
+            np.testing.assert_array_equal(cached[split][key], value)
+
+
 @pytest.mark.parametrize(
     "source, expected",
     [
@@ -283,6 +299,73 @@ def test_parse_synth_source_refuses_malformed_sources(source):
 
     with pytest.raises(ValueError, match="synth:SEED:N"):
         parse_synth_source(source)
+
+
+def _counted_rooms(monkeypatch):
+    """Stand-in rooms for :func:`~ncjax.training.data.rendered_splits` (each room's image holds its index, every
+    third one in the valid split); the list of the ``(first, last)`` ranges rendered."""
+    from ncjax.training import data
+
+    rendered = []
+
+    def rooms(seed, first, last, height, width, batch_size, config, bar):
+        rendered.append((first, last))
+        bar.update(last - first)
+        indices = np.arange(first, last)
+        return {
+            "image": np.broadcast_to(indices[:, None, None, None], (last - first, 2, 4, 3)).astype(np.uint8),
+            "split": (indices % 3 == 2).astype(np.int8),
+        }
+
+    monkeypatch.setattr(data, "_rendered_arrays", rooms)
+    monkeypatch.setattr(data, "RENDER_CHUNK", 4)
+    return rendered
+
+
+def test_a_render_cache_is_read_back_and_a_spent_budget_keeps_what_was_rendered(tmp_path, monkeypatch):
+    import time
+
+    from ncjax.training.data import RenderingStopped, rendered_splits
+
+    rendered = _counted_rooms(monkeypatch)
+    first = rendered_splits(0, 10, 2, 4, progress=False, cache=tmp_path)
+    assert rendered == [(0, 4), (4, 8), (8, 10)]
+    assert first["train"]["image"][:, 0, 0, 0].tolist() == [0, 1, 3, 4, 6, 7, 9]
+    assert first["valid"]["image"][:, 0, 0, 0].tolist() == [2, 5, 8]
+    again = rendered_splits(0, 10, 2, 4, progress=False, cache=tmp_path, deadline=time.monotonic() - 1)
+    assert rendered == [(0, 4), (4, 8), (8, 10)]  # read back, nothing rendered, the spent budget no matter
+    for split in first:
+        np.testing.assert_array_equal(again[split]["image"], first[split]["image"])
+    # A budget spent with rooms left: the files kept, the run told to go on; nothing half-written.
+    (tmp_path / "000004-000008.npz").unlink()
+    with pytest.raises(RenderingStopped, match="rendered 4 of 10 rooms"):
+        rendered_splits(0, 10, 2, 4, progress=False, cache=tmp_path, deadline=time.monotonic() - 1)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["000000-000004.npz", "000008-000010.npz"]
+    rendered_splits(0, 10, 2, 4, progress=False, cache=tmp_path)
+    assert rendered[-1] == (4, 8) and len(rendered) == 4
+
+
+def test_train_stops_with_a_message_when_its_budget_runs_out_while_rendering(tmp_path, monkeypatch, capsys):
+    _counted_rooms(monkeypatch)
+    cache, checkpoints = tmp_path / "rendered", tmp_path / "checkpoints"
+    arguments = ["train", "--data", "synth:3:10", "--render-cache", str(cache), "--checkpoint-dir", str(checkpoints)]
+    assert cli.main(arguments + ["--time-budget", "1e-9"]) == 0
+    assert "time budget spent while rendering: rendered 0 of 10 rooms" in capsys.readouterr().out
+    assert not checkpoints.exists() and not any(cache.rglob("*.npz"))
+
+
+def test_render_cache_folders_are_named_by_source_size_and_configuration(tmp_path):
+    from ncjax.training.data import render_cache_folder
+
+    home = render_cache_folder(tmp_path, "synth-decor-home:5:100", 512, 1024)
+    assert home == render_cache_folder(tmp_path, "synth-decor-home:5:900", 512, 1024)  # N does not matter
+    assert home.name.startswith("synth-decor-home_5_512x1024_")
+    others = [
+        render_cache_folder(tmp_path, "synth-decor-home:6:100", 512, 1024),
+        render_cache_folder(tmp_path, "synth-decor-home:5:100", 256, 512),
+        render_cache_folder(tmp_path, "synth-photoreal-home:5:100", 512, 1024),
+    ]
+    assert home not in others and len(set(others)) == 3
 
 
 def test_training_data_refuses_a_malformed_source_before_reading_the_others(tmp_path):

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..network.checkpoint import WEIGHTS_DTYPES, check_warm_start
 from ..network.config import PRESETS, HorizonNetConfig
-from ..training.data import evaluate_arrays, folder_batches, painted_batches, training_data
+from ..training.data import RenderingStopped, evaluate_arrays, folder_batches, painted_batches, training_data
 from ..training.loop import TrainConfig, train
 from .arguments import DefaultsHelpFormatter
 from .options import add_config_options, config_from_options
@@ -63,6 +63,13 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         "started, data preparation included; rerun the same command to continue (default: no limit)",
     )
     parser.add_argument("--checkpoint-dir", default="checkpoints/horizonnet", help="where the checkpoints go")
+    parser.add_argument(
+        "--render-cache",
+        metavar="DIR",
+        help="keep the rendered KIND:SEED:N rooms in DIR (64 a file) and read them back instead of rendering them "
+        "again: a rerun starts at once, and a --time-budget that runs out while rendering keeps what was rendered "
+        "for the next run (default: render in memory each run)",
+    )
     parser.add_argument("--checkpoint-every", type=int, default=250, help="steps between checkpoints")
     parser.add_argument(
         "--validate-every", type=int, default=500, help="steps between validations (0: only at the end)"
@@ -90,6 +97,25 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _batches_and_validation(args: argparse.Namespace, height: int, width: int, started: float):
+    """The batches of ``--data`` and the validation on its valid images (None for the painted data), or None when
+    the time budget ran out while rendering into ``--render-cache`` (said on stdout)."""
+    if args.data == ["painted"]:
+        return painted_batches(args.seed, args.batch_size, height, width), None
+    deadline = None if args.time_budget is None else started + args.time_budget
+    cache = None if args.render_cache is None else pathlib.Path(args.render_cache)
+    try:
+        train_arrays, valid = training_data(args.data, height, width, args.validation_limit, cache, deadline)
+    except RenderingStopped as stopped:
+        print(f"time budget spent while rendering: {stopped}")
+        return None
+
+    def validate(model, step):
+        return evaluate_arrays(model, valid)
+
+    return folder_batches(train_arrays, args.batch_size, args.seed), validate
+
+
 def run_train(args: argparse.Namespace) -> int:
     """``ncjax train``: train (or resume) a preset on a dataset folder or the painted stand-in data.
 
@@ -111,16 +137,10 @@ def run_train(args: argparse.Namespace) -> int:
         check_warm_start(args.init_from, config)  # a wrong file fails here, before the data is read
     height, width = config.input_height, config.input_width
     train_config = config_from_options(args, TrainConfig(total_steps=args.steps))
-    validate = None
-    if args.data == ["painted"]:
-        data = painted_batches(args.seed, args.batch_size, height, width)
-    else:
-        train_arrays, valid = training_data(args.data, height, width, args.validation_limit)
-        data = folder_batches(train_arrays, args.batch_size, args.seed)
-
-        def validate(model, step):
-            return evaluate_arrays(model, valid)
-
+    prepared = _batches_and_validation(args, height, width, started)
+    if prepared is None:
+        return 0
+    data, validate = prepared
     result = train(
         config,
         data,

@@ -174,20 +174,24 @@ def rendered_samples(
     config: SynthConfig = SynthConfig(),
     batch_size: int = 8,
     progress: Callable[[int], None] | None = None,
+    first: int = 0,
 ) -> Iterator[tuple[int, Scene, Rendering, RoomLabels]]:
     """The samples of :func:`write_dataset` in index order, rendered but not written.
 
     Sample ``i`` is made from ``fold_in(key(seed), i)`` in batches of a fixed
     size (the last one padded), so a sample does not depend on ``n`` or on
     ``batch_size``. Yields ``(index, scene, rendering, labels)`` as numpy
-    pytrees; ``progress`` is called with the number of samples after each batch.
+    pytrees, for indices ``first`` to ``n - 1``; ``progress`` is called with the
+    number of samples after each batch.
 
     Raises:
         RuntimeError: a sample's labels are invalid.
     """
     _check_counts(n, batch_size)
+    if not 0 <= first < n:
+        raise ValueError(f"first sample {first} not in [0, {n})")
     base = jax.random.key(seed)
-    for start in range(0, n, batch_size):
+    for start in range(first, n, batch_size):
         indices = np.arange(start, start + batch_size)
         keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(indices, jnp.uint32))
         scenes, renderings, labels = jax.device_get(synthesize_batch(keys, config))

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import os
+import pathlib
+import time
 from collections.abc import Callable, Iterator
 
 import cv2
@@ -204,6 +207,36 @@ room, as in open plans, across which the boundary stays in the wall plane; ``syn
 rooms of ``synth-decor-open`` path-traced and photographed)."""
 
 
+RENDER_CHUNK = 64
+"""Rooms per file of a render cache (:func:`rendered_splits`)."""
+
+
+class RenderingStopped(Exception):
+    """The time budget ran out while a ``KIND:SEED:N`` source was rendered into its cache; what was rendered is
+    kept there, and the same command goes on from it."""
+
+
+def _rendered_arrays(
+    seed: int, first: int, last: int, height: int, width: int, batch_size: int, config: SynthConfig, bar
+) -> dict[str, np.ndarray]:
+    """:func:`network_arrays` of samples ``first`` to ``last - 1``, stacked, with each one's split (its index in
+    :data:`SPLITS`) under ``"split"``."""
+    samples = []
+    for index, scene, rendering, labels in rendered_samples(last, seed, config, batch_size, bar.update, first):
+        mask = np.asarray(labels.corner_mask)
+        arrays = network_arrays(
+            rendering_rgb8(rendering),
+            float(scene.room.rc),
+            np.asarray(labels.ceiling_corners)[mask],
+            np.asarray(labels.floor_corners)[mask],
+            height,
+            width,
+        )
+        arrays["split"] = np.int8(list(SPLITS).index(split_of(index, seed)))
+        samples.append(arrays)
+    return {key: np.stack([a[key] for a in samples]) for key in samples[0]}
+
+
 def rendered_splits(
     seed: int,
     n: int,
@@ -212,6 +245,8 @@ def rendered_splits(
     batch_size: int = 16,
     config: SynthConfig = SYNTH_COMMAND_CONFIG,
     progress: bool = True,
+    cache: pathlib.Path | None = None,
+    deadline: float | None = None,
 ) -> dict[str, dict[str, np.ndarray]]:
     """The samples ``ncjax synth --n N --seed SEED`` would write, as :func:`load_split` arrays per split.
 
@@ -219,27 +254,52 @@ def rendered_splits(
     index order rather than name order), so a machine with a fast accelerator
     trains without writing and decoding thousands of files. Splits without
     samples are left out.
+
+    With ``cache`` (a folder for this source, its configuration and size) the rooms are kept there in files of
+    :data:`RENDER_CHUNK` and read back rather than rendered again: a rerun, or a resumed training, starts at
+    once, and rooms that take seconds each (photoreal ones on a CPU) are rendered over several runs.
+
+    Raises:
+        RenderingStopped: with ``cache``, ``deadline`` (a :func:`time.monotonic` time) passed between two files
+            while rooms were left to render.
     """
     from tqdm.auto import tqdm
 
-    per_split: dict[str, list[dict[str, np.ndarray]]] = {split: [] for split in SPLITS}
+    chunks = [(first, min(first + RENDER_CHUNK, n)) for first in range(0, n, RENDER_CHUNK)] if cache else [(0, n)]
+    parts = []
     with tqdm(total=n, desc=f"render seed {seed}", disable=not progress) as bar:
-        for index, scene, rendering, labels in rendered_samples(n, seed, config, batch_size, bar.update):
-            mask = np.asarray(labels.corner_mask)
-            arrays = network_arrays(
-                rendering_rgb8(rendering),
-                float(scene.room.rc),
-                np.asarray(labels.ceiling_corners)[mask],
-                np.asarray(labels.floor_corners)[mask],
-                height,
-                width,
-            )
-            per_split[split_of(index, seed)].append(arrays)
+        for first, last in chunks:
+            path = None if cache is None else cache / f"{first:06d}-{last:06d}.npz"
+            if path is not None and path.exists():
+                with np.load(path) as stored:
+                    parts.append(dict(stored))
+                bar.update(last - first)
+                continue
+            if path is not None and deadline is not None and time.monotonic() >= deadline:
+                raise RenderingStopped(f"rendered {first} of {n} rooms into {cache}; rerun the same command to go on")
+            parts.append(_rendered_arrays(seed, first, last, height, width, batch_size, config, bar))
+            if path is not None:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                partial = path.with_suffix(".partial")
+                with open(partial, "wb") as file:  # renamed once whole: an interrupted write is never read
+                    np.savez(file, **parts[-1])
+                os.replace(partial, path)
+    arrays = {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+    split = arrays.pop("split")
     return {
-        split: {key: np.stack([a[key] for a in samples]) for key in samples[0]}
-        for split, samples in per_split.items()
-        if samples
+        name: {key: value[split == code] for key, value in arrays.items()}
+        for code, name in enumerate(SPLITS)
+        if np.any(split == code)
     }
+
+
+def render_cache_folder(cache: pathlib.Path, source: str, height: int, width: int) -> pathlib.Path:
+    """The folder of ``cache`` that keeps the rooms of ``KIND:SEED:N`` ``source`` at ``height`` x ``width``: named
+    by the kind, the seed, the size and a digest of the kind's configuration (any N: a sample does not depend on
+    it), so a changed configuration never reads another's rooms."""
+    kind, seed, _ = source.split(":")
+    digest = hashlib.sha256(repr(SYNTH_SOURCES[kind]).encode()).hexdigest()[:10]
+    return cache / f"{kind}_{seed}_{height}x{width}_{digest}"
 
 
 def load_split(
@@ -289,14 +349,22 @@ def parse_synth_source(source: str) -> tuple[int, int] | None:
 
 
 def training_data(
-    sources: list[str], height: int, width: int, validation_limit: int | None
+    sources: list[str],
+    height: int,
+    width: int,
+    validation_limit: int | None,
+    render_cache: pathlib.Path | None = None,
+    deadline: float | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Train and validation arrays pooled, in the given order, from dataset folders and
     ``KIND:SEED:N`` renders (:data:`SYNTH_SOURCES`).
 
-    Such a source is rendered in memory (:func:`rendered_splits`);
-    validation takes the first ``validation_limit`` images of the pooled valid
-    splits (None: all).
+    Such a source is rendered in memory (:func:`rendered_splits`; with ``render_cache``, kept in its
+    :func:`render_cache_folder` there and rendered until ``deadline``); validation takes the first
+    ``validation_limit`` images of the pooled valid splits (None: all).
+
+    Raises:
+        RenderingStopped: ``deadline`` passed while rooms were left to render into ``render_cache``.
     """
     synth_sources = [parse_synth_source(source) for source in sources]  # malformed ones fail before any work
     pooled: dict[str, list[dict[str, np.ndarray]]] = {"train": [], "valid": []}
@@ -307,7 +375,9 @@ def training_data(
                     load_split(source, split, height, width, limit=validation_limit if split == "valid" else None)
                 )
         else:
-            rendered = rendered_splits(*synth, height, width, config=SYNTH_SOURCES[source.split(":")[0]])
+            cache = None if render_cache is None else render_cache_folder(render_cache, source, height, width)
+            config = SYNTH_SOURCES[source.split(":")[0]]
+            rendered = rendered_splits(*synth, height, width, config=config, cache=cache, deadline=deadline)
             for split in pooled:
                 if split not in rendered:
                     raise ValueError(f"data source {source!r} has no {split} samples; render more (N)")
