@@ -313,16 +313,22 @@ def _next_room_edge_distance(scene: Scene, hit: Hit, direction: Float[Array, 3],
     """How far a hit in the room behind a door lies from that room's edges, as the ray caster measures it: on
     an upright surface, from the floor or the room's ceiling; on the floor or a ceiling, horizontally along
     the ray to the first upright surface it would meet (a jamb, a side or the back wall)."""
-    wall_direction, _, _, _ = room_walls(scene.room)
-    along_wall = wall_direction[hit.index]
-    offset = hit.point[:2] - scene.room.corners[hit.index]
-    behind_wall = jnp.abs(jnp.dot(offset, perpendicular(along_wall)))
+    along_wall, _, behind_wall = _behind_door_wall(scene, hit)
     level = jnp.append(direction[:2], 0.0) / jnp.maximum(jnp.linalg.norm(direction[:2]), 1e-9)
     to_upright, _ = next_room_hit(scene, slot, hit.along, scene.room.floor_height, level, along_wall)
     travelled = behind_wall / jnp.maximum(jnp.abs(jnp.dot(level[:2], perpendicular(along_wall))), 1e-9)
     height = hit.point[2] - scene.room.floor_height
     upright = jnp.minimum(height, scene.decor.doorways.room_ceiling[slot] - hit.point[2])
     return jnp.where(jnp.abs(hit.normal[2]) > 0.5, to_upright - travelled, upright)
+
+
+def _behind_door_wall(scene: Scene, hit: Hit):
+    """Where a hit in the room behind a door lies from the wall the door is in: that wall's unit direction,
+    the hit's plan offset from the wall's first corner, and its distance behind the wall's plane."""
+    wall_direction, _, _, _ = room_walls(scene.room)
+    along_wall = wall_direction[hit.index]
+    offset = hit.point[:2] - scene.room.corners[hit.index]
+    return along_wall, offset, jnp.abs(jnp.dot(offset, perpendicular(along_wall)))
 
 
 def _box_coordinates(scene: Scene, hit: Hit):
@@ -348,11 +354,8 @@ def _next_room_surface(scene: Scene, hit: Hit):
     flat (floor or ceiling, textured along the plan), its coordinate along an upright surface (along the wall on
     the back wall, the depth behind the wall on the side walls), whether it is on the door's lining (the wall's
     thickness) and the lining's colour."""
-    room, decor = scene.room, scene.decor
-    wall_direction, _, _, _ = room_walls(room)
-    along_wall = wall_direction[hit.index]
-    offset = hit.point[:2] - room.corners[hit.index]
-    behind_wall = jnp.abs(jnp.dot(offset, perpendicular(along_wall)))
+    decor = scene.decor
+    along_wall, offset, behind_wall = _behind_door_wall(scene, hit)
     floor, ceiling = hit.normal[2] > 0.5, hit.normal[2] < -0.5
     material = _select(ceiling, scene.ceiling, _select(floor, decor.next_floor, decor.next_walls))
     seed = jnp.where(ceiling, 4, jnp.where(floor, 5, 6))
