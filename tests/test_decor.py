@@ -240,6 +240,16 @@ def _one_door_per_room():
     return closed, opened
 
 
+def _assert_edges_on_labels(semantic, labels):
+    """In each image, the semantic ceiling and floor edges lie within 1 px of the label's rows in 99% of the
+    columns where no object is near them."""
+    for i in range(semantic.shape[0]):
+        label = jax.tree.map(lambda x: x[i], labels)
+        for errors in _edge_errors(np.asarray(semantic[i]), label):
+            seen = ~np.isnan(errors)
+            assert (errors[seen] <= 1.0).sum() >= 0.99 * seen.sum()
+
+
 def test_open_doors_show_the_room_behind_and_keep_the_edges_on_the_labels():
     closed, opened = _one_door_per_room()
     before, after = render_scenes(closed), render_scenes(opened)
@@ -250,15 +260,12 @@ def test_open_doors_show_the_room_behind_and_keep_the_edges_on_the_labels():
         # Only the door's pixels change, and they stay an opening: the labels' edges do not move.
         assert np.all(np.asarray(before.semantic[i])[changed] == ncjax.synth.Semantic.OPENING)
         np.testing.assert_array_equal(after.semantic[i], before.semantic[i])
-        label = jax.tree.map(lambda x: x[i], labels)
-        for errors in _edge_errors(np.asarray(after.semantic[i]), label):
-            seen = ~np.isnan(errors)
-            assert (errors[seen] <= 1.0).sum() >= 0.99 * seen.sum()
         # Through the doorway the rays end behind the wall plane.
         start, _, normal = _wall(opened, i, 0)
         points = _points(opened, after, i)[changed]
         behind += ((points[:, :2] - start) @ normal < -0.05).sum()
     assert behind > 20
+    _assert_edges_on_labels(after.semantic, labels)
 
 
 def test_the_rooms_behind_open_doors_have_skirting_boards():
@@ -373,22 +380,25 @@ def test_passages_are_wide_open_leafless_and_keep_the_edges_on_the_labels():
     assert not leaves.any()
     # Through a passage the next room shows, yet the edges stay on the wall plane's label rows.
     renderings = render_scenes(scenes)
-    for i in range(BATCH):
-        label = jax.tree.map(lambda x: x[i], labels)
-        for errors in _edge_errors(np.asarray(renderings.semantic[i]), label):
-            seen = ~np.isnan(errors)
-            assert (errors[seen] <= 1.0).sum() >= 0.99 * seen.sum()
+    _assert_edges_on_labels(renderings.semantic, labels)
     assert np.sum(np.asarray(renderings.semantic) == ncjax.synth.Semantic.OPENING) > 0.02 * renderings.semantic.size
+
+
+def _source_batch(kind: str, seed: int):
+    """``2 BATCH`` rooms of a training source at the tests' size: its configuration, scenes, renderings and labels
+    (all labels valid)."""
+    from ncjax.training.data import SYNTH_SOURCES
+
+    config = dataclasses.replace(SYNTH_SOURCES[kind], height=HEIGHT, width=WIDTH)
+    keys = jax.random.split(jax.random.key(seed), 2 * BATCH)
+    scenes, renderings, labels = jax.device_get(ncjax.synthesize_batch(keys, config))
+    assert np.all(labels.ok)
+    return config, scenes, renderings, labels
 
 
 @pytest.mark.slow
 def test_walk_in_closets_have_wide_passages_and_shelving_and_keep_the_edges_on_the_labels():
-    from ncjax.training.data import SYNTH_SOURCES
-
-    closets = dataclasses.replace(SYNTH_SOURCES["synth-decor-closet"], height=HEIGHT, width=WIDTH)
-    keys = jax.random.split(jax.random.key(3), 2 * BATCH)
-    scenes, renderings, labels = jax.device_get(ncjax.synthesize_batch(keys, closets))
-    assert np.all(labels.ok)
+    closets, scenes, renderings, labels = _source_batch("synth-decor-closet", seed=3)
     openings, doorways = scenes.openings, scenes.decor.doorways
     passages = np.asarray(openings.mask & doorways.is_passage)
     assert passages.any(-1).mean() >= 0.5
@@ -408,8 +418,16 @@ def test_walk_in_closets_have_wide_passages_and_shelving_and_keep_the_edges_on_t
     plain = batch(0)[0]
     filled, floating = shelving(plain.boxes, np.asarray(plain.room.floor_height), DECOR)
     assert filled.any() and not np.any(filled & floating)
-    for i in range(2 * BATCH):
-        label = jax.tree.map(lambda x: x[i], labels)
-        for errors in _edge_errors(np.asarray(renderings.semantic[i]), label):
-            seen = ~np.isnan(errors)
-            assert (errors[seen] <= 1.0).sum() >= 0.99 * seen.sum()
+    _assert_edges_on_labels(renderings.semantic, labels)
+
+
+@pytest.mark.slow
+def test_corridors_have_open_doors_along_them_and_keep_the_edges_on_the_labels():
+    _, scenes, renderings, labels = _source_batch("synth-decor-hall", seed=4)
+    openings, doorways = scenes.openings, scenes.decor.doorways
+    doors = np.asarray(openings.mask & ~openings.is_window)
+    # Most corridors open on a room behind, and most have doors on more than one wall.
+    assert np.mean(np.any(doors & np.asarray(doorways.is_open), axis=-1)) >= 0.5
+    walls_with_doors = [len(set(np.asarray(openings.wall[i])[doors[i]])) for i in range(2 * BATCH)]
+    assert np.mean(np.array(walls_with_doors) >= 2) >= 0.5
+    _assert_edges_on_labels(renderings.semantic, labels)

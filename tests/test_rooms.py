@@ -202,6 +202,8 @@ def test_failure_is_reported_not_hidden():
         dict(min_walls=5),
         dict(max_walls=16),
         dict(height_range=(3.0, 2.0)),
+        dict(width_range=(1.5, 1.0)),
+        dict(width_range=(1.0, 4.0)),  # wider than the shortest length
     ],
 )
 def test_bad_config_is_rejected(kwargs):
@@ -244,3 +246,26 @@ def test_a_float32_ray_through_a_corner_always_meets_a_wall():
     assert bool(jnp.all(jnp.isfinite(nearest)))
     # the wall met is the corner's: at its distance from the ray's origin
     np.testing.assert_allclose(nearest, jnp.linalg.norm(target, axis=1) - rc, rtol=1e-4)
+
+
+@pytest.mark.slow
+def test_corridors_are_narrow_and_long():
+    from ncjax.training.data import SYNTH_SOURCES
+
+    config = dataclasses.replace(SYNTH_SOURCES["synth-decor-hall"].room, camera_tries=64)
+    rooms = _generate(config, 32, seed=5)
+    assert np.all(np.asarray(rooms.status) == ncjax.synth.RoomStatus.OK)
+    assert np.all(np.asarray(rooms.rc) == 0) and np.asarray(rooms.num_walls).max() <= 6
+    extents = []
+    for i in range(32):
+        room = jax.tree.map(lambda leaf: leaf[i], rooms)
+        # The room's own axes: the camera frame is rotated from them.
+        direction = np.asarray(ncjax.synth.room_walls(room)[0][0])
+        axes = np.stack([direction, [-direction[1], direction[0]]])
+        along_axes = np.asarray(room.corners)[np.asarray(room.mask)] @ axes.T
+        extents.append(along_axes.max(0) - along_axes.min(0))
+        assert float(distance_to_walls(jnp.zeros(2), rooms.corners[i], rooms.mask[i])) > 0.2 - 1e-5
+    extents = np.array(extents)
+    narrow, long = extents.min(1), extents.max(1)
+    assert np.all((narrow >= 0.9 - 1e-4) & (narrow <= 1.6 + 1e-4))
+    assert np.all((long >= 3.0 - 1e-4) & (long <= 7.5 + 1e-4))

@@ -50,6 +50,9 @@ class RoomConfig:
         world: "manhattan", "atlanta" or "mix" (half and half).
         min_walls, max_walls: range of the Manhattan wall count (even numbers).
         size_range: side lengths of the bounding rectangle, metres.
+        width_range: with a range, the rectangle's shorter side is drawn from it instead, and the
+            longer from ``size_range`` (a corridor: ``(0.9, 1.5)`` wide, ``size_range`` long); None: both
+            sides from ``size_range``.
         height_range: floor-to-ceiling height, metres.
         camera_height_range: camera height above the floor, metres.
         rc_range: radius of the circle of optical centres, metres.
@@ -69,6 +72,7 @@ class RoomConfig:
     min_walls: int = 4
     max_walls: int = 14
     size_range: tuple[float, float] = (3.5, 10.0)
+    width_range: tuple[float, float] | None = None
     height_range: tuple[float, float] = (2.4, 3.5)
     camera_height_range: tuple[float, float] = (1.0, 1.8)
     rc_range: tuple[float, float] = (0.3, 1.0)
@@ -91,6 +95,11 @@ class RoomConfig:
             low, high = getattr(self, name)
             if not 0 <= low <= high:
                 raise ValueError(f"{name} must be (low, high) with 0 <= low <= high, got {(low, high)}")
+        if self.width_range is not None and not 0 < self.width_range[0] <= self.width_range[1] <= self.size_range[0]:
+            raise ValueError(
+                f"width_range must be (low, high) with 0 < low <= high <= size_range's low {self.size_range[0]}, "
+                f"got {self.width_range}"
+            )
         if self.camera_height_range[1] >= self.height_range[0]:
             raise ValueError("the camera must stay below the ceiling: camera_height_range[1] < height_range[0]")
         if self.capacity < self.max_walls + self.max_walls // 2 + 3:
@@ -233,12 +242,21 @@ def _staircase(key, corner: _RectangleCorner, steps, clearance, config: RoomConf
 
 def _manhattan_polygon(key, clearance, config: RoomConfig):
     """A rectilinear CCW polygon with an even number of walls in [min_walls, max_walls],
-    centred on the origin, sides at least ``2 clearance + 1`` metres."""
+    centred on the origin, sides at least ``2 clearance + 1`` metres (a corridor's width at least
+    ``2 clearance + 2 min_step``)."""
     key_n, key_size, key_slots, key_corners = jax.random.split(key, 4)
     max_steps = config.max_walls // 2 - 2
     total_steps = jax.random.randint(key_n, (), config.min_walls // 2 - 2, config.max_walls // 2 - 1)
     smallest = jnp.maximum(config.size_range[0], 2 * clearance + 1.0)
     size = jax.random.uniform(key_size, (2,), minval=smallest, maxval=jnp.maximum(smallest, config.size_range[1]))
+    if config.width_range is not None:
+        # A corridor (along x; the room is turned to any yaw later): the camera needs its clearance to both long
+        # walls, and a step's room beside it.
+        narrowest = jnp.maximum(config.width_range[0], 2 * clearance + 2 * config.min_step)
+        width = jax.random.uniform(
+            jax.random.fold_in(key_size, 1), minval=narrowest, maxval=jnp.maximum(narrowest, config.width_range[1])
+        )
+        size = jnp.stack([size[0], width])
     half_x, half_y = size[0] / 2, size[1] / 2
     rectangle = jnp.array([[1.0, -1.0], [1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0]]) * jnp.stack([half_x, half_y])
     incoming = jnp.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])

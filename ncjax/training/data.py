@@ -153,6 +153,20 @@ _OPEN_ROOMS = dataclasses.replace(
     scene=SceneConfig(decor=True, door_probability=0.6, passage_probability=0.5),
 )
 
+
+def _narrow_rooms(room: dict, scene: dict) -> SynthConfig:
+    """Narrow Manhattan rooms (closets, corridors) seen from inside by a central camera, which stands, and lets the
+    furniture stand, nearer the walls than in other rooms; ``room`` and ``scene`` set the rest of the
+    :class:`RoomConfig` and the decor's :class:`SceneConfig`."""
+    return dataclasses.replace(
+        SYNTH_COMMAND_CONFIG,
+        room=RoomConfig(
+            world="manhattan", max_walls=6, height_range=(2.3, 2.9), rc_range=(0.0, 0.0), camera_margin=0.2, **room
+        ),
+        scene=SceneConfig(decor=True, camera_clearance=0.15, candidates_per_slot=6, **scene),
+    )
+
+
 SYNTH_SOURCES = {
     "synth": SYNTH_COMMAND_CONFIG,
     "synth-decor": dataclasses.replace(SYNTH_COMMAND_CONFIG, scene=SceneConfig(decor=True)),
@@ -166,26 +180,26 @@ SYNTH_SOURCES = {
         room=RoomConfig(world="mix", size_range=(1.2, 4.0), max_walls=6, rc_range=(0.0, 0.0)),
         scene=SceneConfig(decor=True),
     ),
-    "synth-decor-closet": dataclasses.replace(
-        SYNTH_COMMAND_CONFIG,
-        room=RoomConfig(
-            world="manhattan",
-            max_walls=6,
-            size_range=(1.2, 2.6),
-            height_range=(2.3, 2.9),
-            rc_range=(0.0, 0.0),
-            camera_margin=0.2,
-        ),
-        scene=SceneConfig(
-            decor=True,
+    "synth-decor-closet": _narrow_rooms(
+        dict(size_range=(1.2, 2.6)),
+        dict(
             opening_slots=2,
             door_probability=1.0,
             passage_probability=0.85,
             passage_width_range=(0.9, 2.2),
             neutral_paint_probability=0.7,
-            camera_clearance=0.15,
-            candidates_per_slot=6,
             furniture_weights=(("closet shelving", 20.0), ("closet shelving with clothes", 10.0)),
+        ),
+    ),
+    "synth-decor-hall": _narrow_rooms(
+        dict(size_range=(3.0, 7.5), width_range=(0.9, 1.6)),
+        dict(
+            door_probability=0.9,
+            open_door_probability=0.75,
+            passage_probability=0.2,
+            passage_width_range=(0.9, 1.6),
+            neutral_paint_probability=0.8,
+            furniture_probability=0.15,
         ),
     ),
     "synth-decor-open": _OPEN_ROOMS,
@@ -201,7 +215,10 @@ closets, bathrooms and corridors, sides of 1.2-4 m and at most 6 walls, seen by 
 camera, whose walls fill the panorama as no room of the other kinds does; ``synth-decor-closet``: walk-in
 closets and alcoves, sides of 1.2-2.6 m, their walls lined with shelving (some with clothes hanging), seen by
 a central camera from inside, most with a passage 0.9-2.2 m wide that fills much of a wall and shows the room
-behind it (the label stays in the closet's wall plane); ``synth-decor-open``:
+behind it (the label stays in the closet's wall plane); ``synth-decor-hall``: corridors 0.9-1.6 m wide and
+3-7.5 m long, seen by a central camera from inside, doors along them, most open on the rooms behind (whose floors
+run on past the corridor's wall-floor edge, close to the bottom of the image), few pieces of furniture;
+``synth-decor-open``:
 realistic rooms seen by a central camera with more doors, half of them wide passages to the next
 room, as in open plans, across which the boundary stays in the wall plane; ``synth-photoreal-open``: the
 rooms of ``synth-decor-open`` path-traced and photographed)."""
