@@ -8,6 +8,7 @@ import functools
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import shapely
@@ -404,21 +405,42 @@ def test_walk_in_closets_have_wide_passages_and_shelving_and_keep_the_edges_on_t
     assert passages.any(-1).mean() >= 0.5
     width = np.diff(np.asarray(openings.span), axis=-1)[..., 0][passages]
     assert np.all((width >= 0.9 - 1e-5) & (width <= 2.2 + 1e-5))
-
-    # The closet shelving is the only furniture whose first box floats at head height (its top shelf).
-    def shelving(boxes, floor_height, config):
-        parts = ncjax.synth.furniture.PARTS_PER_PIECE
-        first = slice(0, config.scene.furniture_slots * parts, parts)
-        bottom = np.asarray(boxes.centre[:, first, 2] - boxes.half_size[:, first, 2]) - floor_height[:, None]
-        return np.asarray(boxes.mask[:, first]), bottom >= 1.5
-
-    filled, floating = shelving(scenes.boxes, np.asarray(scenes.room.floor_height), closets)
+    filled, floating = _shelving(scenes.boxes, np.asarray(scenes.room.floor_height), closets)
     assert np.sum(filled & floating) >= BATCH
     # Scenes that do not ask for it never have it.
     plain = batch(0)[0]
-    filled, floating = shelving(plain.boxes, np.asarray(plain.room.floor_height), DECOR)
+    filled, floating = _shelving(plain.boxes, np.asarray(plain.room.floor_height), DECOR)
     assert filled.any() and not np.any(filled & floating)
     _assert_edges_on_labels(renderings.semantic, labels)
+
+
+@pytest.mark.slow
+def test_closets_are_photographed_from_their_opening_with_shelving_and_keep_the_edges_on_the_labels():
+    closets, scenes, renderings, labels = _source_batch("synth-decor-closet-door", seed=3)
+    openings, doorways = scenes.openings, scenes.decor.doorways
+    # One opening each, a passage in the wall nearest the camera, 3-15 cm away, around the camera's foot.
+    np.testing.assert_array_equal(np.asarray(openings.mask[:, 0] & doorways.is_passage[:, 0]), True)
+    for i in range(2 * BATCH):
+        room = jax.tree.map(lambda x: jnp.asarray(x[i]), scenes.room)
+        distances = np.asarray(ncjax.synth.rooms.wall_distances(jnp.zeros(2), room.corners, room.mask))
+        wall = int(openings.wall[i, 0])
+        assert wall == np.argmin(distances) and 0.03 - 1e-5 <= distances[wall] <= 0.15 + 1e-5
+        start, end = np.asarray(room.corners[wall]), np.asarray(room.corners[(wall + 1) % int(room.mask.sum())])
+        foot = -start @ (end - start) / np.linalg.norm(end - start)
+        span = np.asarray(openings.span[i, 0])
+        assert span[0] - 1e-5 <= foot <= span[1] + 1e-5 and 0.5 <= span[1] - span[0] <= 2.2 + 1e-5
+    filled, floating = _shelving(scenes.boxes, np.asarray(scenes.room.floor_height), closets)
+    assert np.mean(np.any(filled & floating, axis=-1)) >= 0.75
+    _assert_edges_on_labels(renderings.semantic, labels)
+
+
+def _shelving(boxes, floor_height, config):
+    """Which furniture slots are filled, and which hold closet shelving: the only furniture whose first box
+    floats at head height (its top shelf)."""
+    parts = ncjax.synth.furniture.PARTS_PER_PIECE
+    first = slice(0, config.scene.furniture_slots * parts, parts)
+    bottom = np.asarray(boxes.centre[:, first, 2] - boxes.half_size[:, first, 2]) - floor_height[:, None]
+    return np.asarray(boxes.mask[:, first]), bottom >= 1.5
 
 
 @pytest.mark.slow

@@ -217,6 +217,8 @@ def test_configurations_reject_bad_values():
         ncjax.synth.SceneConfig(furniture_weights=(("bed", -1.0),))
     with pytest.raises(ValueError, match="passage_width_range"):
         ncjax.synth.SceneConfig(passage_width_range=(2.0, 1.0))
+    with pytest.raises(ValueError, match="passage_at_camera needs decor"):
+        ncjax.synth.SceneConfig(passage_at_camera=True)
     with pytest.raises(ValueError, match="image size"):
         ncjax.SynthConfig(width=2, height=2)
 

@@ -204,6 +204,7 @@ def test_failure_is_reported_not_hidden():
         dict(height_range=(3.0, 2.0)),
         dict(width_range=(1.5, 1.0)),
         dict(width_range=(1.0, 4.0)),  # wider than the shortest length
+        dict(doorway_distance=(0.2, 0.1)),
     ],
 )
 def test_bad_config_is_rejected(kwargs):
@@ -269,3 +270,15 @@ def test_corridors_are_narrow_and_long():
     narrow, long = extents.min(1), extents.max(1)
     assert np.all((narrow >= 0.9 - 1e-4) & (narrow <= 1.6 + 1e-4))
     assert np.all((long >= 3.0 - 1e-4) & (long <= 7.5 + 1e-4))
+
+
+@pytest.mark.slow
+def test_a_camera_in_a_doorway_stands_that_far_from_one_wall_and_clear_of_the_others():
+    config = ncjax.RoomConfig(world="mix", size_range=(2.0, 5.0), doorway_distance=(0.05, 0.1), camera_tries=64)
+    rooms = _generate(config, 24, seed=11)
+    assert np.all(np.asarray(rooms.status) == ncjax.synth.RoomStatus.OK)
+    for i in range(24):
+        room = jax.tree.map(lambda leaf: leaf[i], rooms)
+        distances = np.sort(np.asarray(ncjax.synth.rooms.wall_distances(jnp.zeros(2), room.corners, room.mask)))
+        rc = float(room.rc)
+        assert rc + 0.05 - 1e-5 <= distances[0] <= rc + 0.1 + 1e-5 and distances[1] > rc + config.camera_margin - 1e-5

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ..geometry.polygon import perpendicular, polygon_edges, segments_cross
-from .rooms import Room, point_in_polygon, room_walls
+from .rooms import Room, point_in_polygon, room_walls, wall_distances
 
 # ----------------------------------------------------------------- 2D rectangles
 
@@ -164,6 +164,20 @@ def wall_position(uniform: Float[Array, 2], room: Room, width: Float[Array, ""],
     room_left = length[wall] - width - 2 * margin
     along = margin + uniform[1] * jnp.maximum(room_left, 0.0)
     return wall, along, room_left >= 0, start[wall], direction[wall], normal[wall]
+
+
+def wall_position_at_camera(room: Room, width: Float[Array, ""], margin: float):
+    """The wall nearest the camera and a start along it that centres ``width`` on the camera's foot, shifted to
+    keep ``margin`` at both ends, with ``width`` cut to what the wall holds.
+
+    Returns ``(wall, along, width, wall_start, wall_direction, inward_normal)``.
+    """
+    start, direction, normal, length, _, _ = room_frame(room)
+    wall = jnp.argmin(wall_distances(jnp.zeros(2), room.corners, room.mask))
+    width = jnp.minimum(width, length[wall] - 2 * margin)
+    foot = -jnp.dot(start[wall], direction[wall])  # the camera (the origin) along the wall from its start
+    along = jnp.clip(foot - width / 2, margin, length[wall] - margin - width)
+    return wall, along, width, start[wall], direction[wall], normal[wall]
 
 
 def no_footprints() -> Footprints:

@@ -60,6 +60,10 @@ class RoomConfig:
             (at least one occlusion corner in view).
         camera_margin: extra clearance between the circle of optical centres
             and every wall, metres.
+        doorway_distance: with a range, the circle of optical centres stands this far (metres) from
+            its nearest wall, as a photographer in a doorway (the scene can open a passage there:
+            :attr:`~ncjax.synth.SceneConfig.passage_at_camera`), and ``camera_margin`` from the others;
+            None: ``camera_margin`` from every wall.
         min_step: smallest staircase step, metres.
         clip_probability: probability of clipping each convex corner (Atlanta).
         capacity: K, the fixed number of wall slots.
@@ -78,6 +82,7 @@ class RoomConfig:
     rc_range: tuple[float, float] = (0.3, 1.0)
     occlusion: str = "any"
     camera_margin: float = 0.3
+    doorway_distance: tuple[float, float] | None = None
     min_step: float = 0.25
     clip_probability: float = 0.5
     capacity: int = 32
@@ -95,6 +100,8 @@ class RoomConfig:
             low, high = getattr(self, name)
             if not 0 <= low <= high:
                 raise ValueError(f"{name} must be (low, high) with 0 <= low <= high, got {(low, high)}")
+        if self.doorway_distance is not None and not 0 <= self.doorway_distance[0] <= self.doorway_distance[1]:
+            raise ValueError(f"doorway_distance must be (low, high) with 0 <= low <= high, got {self.doorway_distance}")
         if self.width_range is not None and not 0 < self.width_range[0] <= self.width_range[1] <= self.size_range[0]:
             raise ValueError(
                 f"width_range must be (low, high) with 0 < low <= high <= size_range's low {self.size_range[0]}, "
@@ -162,16 +169,20 @@ def point_in_polygon(point: Float[Array, 2], corners: Float[Array, "K 2"], mask:
     return jnp.sum(straddles & (x_cross > point[0]) & mask) % 2 == 1
 
 
-def distance_to_walls(
-    point: Float[Array, 2], corners: Float[Array, "K 2"], mask: Bool[Array, " K"]
-) -> Float[Array, ""]:
-    """Distance from a point to the nearest wall segment."""
+def wall_distances(point: Float[Array, 2], corners: Float[Array, "K 2"], mask: Bool[Array, " K"]) -> Float[Array, " K"]:
+    """Distance from a point to each wall segment (inf in masked slots)."""
     edges = polygon_edges(corners, mask)
     a, b = edges[:, 0], edges[:, 1]
     ab = b - a
     t = jnp.clip(jnp.sum((point - a) * ab, -1) / jnp.maximum(jnp.sum(ab * ab, -1), 1e-12), 0.0, 1.0)
-    distance = jnp.linalg.norm(point - (a + t[:, None] * ab), axis=-1)
-    return jnp.min(jnp.where(mask, distance, jnp.inf))
+    return jnp.where(mask, jnp.linalg.norm(point - (a + t[:, None] * ab), axis=-1), jnp.inf)
+
+
+def distance_to_walls(
+    point: Float[Array, 2], corners: Float[Array, "K 2"], mask: Bool[Array, " K"]
+) -> Float[Array, ""]:
+    """Distance from a point to the nearest wall segment."""
+    return jnp.min(wall_distances(point, corners, mask))
 
 
 def ray_hits(
@@ -243,7 +254,7 @@ def _staircase(key, corner: _RectangleCorner, steps, clearance, config: RoomConf
 def _manhattan_polygon(key, clearance, config: RoomConfig):
     """A rectilinear CCW polygon with an even number of walls in [min_walls, max_walls],
     centred on the origin, sides at least ``2 clearance + 1`` metres (a corridor's width at least
-    ``2 clearance + 2 min_step``)."""
+    ``2 clearance``, and ``2 min_step`` more where staircases may be)."""
     key_n, key_size, key_slots, key_corners = jax.random.split(key, 4)
     max_steps = config.max_walls // 2 - 2
     total_steps = jax.random.randint(key_n, (), config.min_walls // 2 - 2, config.max_walls // 2 - 1)
@@ -251,8 +262,9 @@ def _manhattan_polygon(key, clearance, config: RoomConfig):
     size = jax.random.uniform(key_size, (2,), minval=smallest, maxval=jnp.maximum(smallest, config.size_range[1]))
     if config.width_range is not None:
         # A corridor (along x; the room is turned to any yaw later): the camera needs its clearance to both long
-        # walls, and a step's room beside it.
-        narrowest = jnp.maximum(config.width_range[0], 2 * clearance + 2 * config.min_step)
+        # walls, and a staircase's step room beside it.
+        steps_room = 2 * config.min_step if config.max_walls > 4 else 0.0
+        narrowest = jnp.maximum(config.width_range[0], 2 * clearance + steps_room)
         width = jax.random.uniform(
             jax.random.fold_in(key_size, 1), minval=narrowest, maxval=jnp.maximum(narrowest, config.width_range[1])
         )
@@ -342,9 +354,9 @@ def vertex_visibility(corners: Float[Array, "K 2"], mask: Bool[Array, " K"], rc:
 
 
 def _place_camera(key, corners, mask, rc, config: RoomConfig):
-    """First of ``camera_tries`` uniform candidates that is inside with margin and
-    meets the occlusion requirement; the origin (the rectangle's centre, kept
-    clear by construction) is the last resort. Returns (position, status)."""
+    """First of ``camera_tries`` uniform candidates that is inside with margin (or, with
+    ``config.doorway_distance``, in a doorway) and meets the occlusion requirement; the origin (the
+    rectangle's centre, kept clear by construction) is the last resort. Returns (position, status)."""
     valid_corners = jnp.where(mask[:, None], corners, corners[:1])
     low, high = jnp.min(valid_corners, 0), jnp.max(valid_corners, 0)
     candidates = jax.random.uniform(key, (config.camera_tries, 2), minval=low, maxval=high)
@@ -353,7 +365,13 @@ def _place_camera(key, corners, mask, rc, config: RoomConfig):
     def assess(candidate):
         local = corners - candidate
         inside = point_in_polygon(candidate, corners, mask)
-        clear = distance_to_walls(candidate, corners, mask) > rc + config.camera_margin
+        distances = jnp.sort(wall_distances(candidate, corners, mask))
+        if config.doorway_distance is None:
+            clear = distances[0] > rc + config.camera_margin
+        else:
+            low, high = config.doorway_distance
+            in_doorway = (distances[0] >= rc + low) & (distances[0] <= rc + high)
+            clear = in_doorway & (distances[1] > rc + config.camera_margin)
         _, occluding, _, _ = vertex_visibility(local, mask, rc)
         occluded = jnp.any(occluding)
         return inside & clear, occluded

@@ -55,6 +55,7 @@ from .placement import (
     pack_footprints,
     room_frame,
     wall_position,
+    wall_position_at_camera,
 )
 from .rooms import Room, distance_to_walls, point_in_polygon
 
@@ -62,6 +63,16 @@ from .rooms import Room, distance_to_walls, point_in_polygon
 _DECOR_STREAM = 0xDEC0
 # fold_in data of the passage draw: its own stream, so that rooms drawn without passages stay those of earlier scenes.
 _PASSAGE_STREAM = 0xDA55
+
+
+def _check_furniture_weights(weights: tuple[tuple[str, float], ...]) -> None:
+    """Raise on a :attr:`SceneConfig.furniture_weights` entry of an unknown type or a negative weight."""
+    names = [t.name for t in FURNITURE_TYPES]
+    for name, weight in weights:
+        if name not in names:
+            raise ValueError(f"furniture_weights: unknown type {name!r} (known: {', '.join(names)})")
+        if weight < 0:
+            raise ValueError(f"furniture_weights: negative weight {weight} for {name!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,6 +107,9 @@ class SceneConfig:
             walk-in closet; the label's boundary stays in the wall plane across it, as
             labellers of real panoramas draw it.
         passage_width_range: width of a passage, metres.
+        passage_at_camera: (decor only) the first opening is a passage in the wall nearest the
+            camera, centred on the camera's foot (as wide as the wall holds): a room photographed from
+            its doorway, as walk-in closets are (with :attr:`~ncjax.synth.RoomConfig.doorway_distance`).
         decal_probability: chance that each decal slot is wanted.
         panel_probability: chance that a room is lit by flush light panels
             rather than lamps.
@@ -124,6 +138,7 @@ class SceneConfig:
     door_leaf_probability: float = 0.7
     passage_probability: float = 0.0
     passage_width_range: tuple[float, float] = (1.2, 3.0)
+    passage_at_camera: bool = False
     decal_probability: float = 0.6
     panel_probability: float = 0.25
     pendant_probability: float = 0.25
@@ -146,12 +161,9 @@ class SceneConfig:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
         if self.camera_clearance < 0:
             raise ValueError(f"camera_clearance must be >= 0, got {self.camera_clearance}")
-        names = [t.name for t in FURNITURE_TYPES]
-        for name, weight in self.furniture_weights:
-            if name not in names:
-                raise ValueError(f"furniture_weights: unknown type {name!r} (known: {', '.join(names)})")
-            if weight < 0:
-                raise ValueError(f"furniture_weights: negative weight {weight} for {name!r}")
+        _check_furniture_weights(self.furniture_weights)
+        if self.passage_at_camera and not self.decor:
+            raise ValueError("passage_at_camera needs decor=True (passages are decor)")
         if not 0 < self.passage_width_range[0] <= self.passage_width_range[1]:
             raise ValueError(
                 f"passage_width_range must be (low, high) with 0 < low <= high, got {self.passage_width_range}"
@@ -229,22 +241,27 @@ class Scene(eqx.Module):
 # them made the scene generator take a minute to compile.
 
 
-def _opening_candidate(key, room: Room, config: SceneConfig):
+def _opening_candidate(key, room: Room, config: SceneConfig, at_camera: bool = False):
     """One door or window: its fields, (with decor) its doorway's, its footprint on
     the wall and (doors) the keep-out area in front of it (with decor, as deep as
-    an open door's leaf is wide)."""
+    an open door's leaf is wide). With ``at_camera`` (static), a passage at the camera's foot."""
     u = jax.random.uniform(key, (10,))
-    is_window = u[0] >= config.door_probability
+    is_window = (u[0] >= config.door_probability) & (not at_camera)
     door = jnp.stack([between(u[1], 0.75, 1.0), 0.0, between(u[2], 1.95, 2.15)])
     window = jnp.stack([between(u[1], 0.6, 2.2), between(u[2], 0.5, 1.1), between(u[3], 0.8, 1.6)])
     width, bottom, height = jnp.where(is_window, window, door)
     room_height = room.ceiling_height - room.floor_height
     height = jnp.minimum(height, room_height - 0.15 - bottom)
     p = jax.random.uniform(jax.random.fold_in(key, _PASSAGE_STREAM), (3,))
-    is_passage = config.decor & ~is_window & (p[0] < config.passage_probability)
+    is_passage = config.decor & ~is_window & ((p[0] < config.passage_probability) | at_camera)
     passage = jnp.stack([between(p[1], *config.passage_width_range), 0.0, room_height - between(p[2], 0.05, 0.4)])
     width, bottom, height = jnp.where(is_passage, passage, jnp.stack([width, bottom, height]))
-    wall, along, fits, start, direction, normal = wall_position(u[4:6], room, width, 0.15)
+    if at_camera:
+        # A closet's opening takes up nearly all of its wall.
+        wall, along, width, start, direction, normal = wall_position_at_camera(room, width, 0.05)
+        fits = width >= 0.5
+    else:
+        wall, along, fits, start, direction, normal = wall_position(u[4:6], room, width, 0.15)
     centre = start + (along + width / 2) * direction + 0.05 * normal
     colour = jnp.where(
         is_window,
@@ -275,6 +292,8 @@ def _opening_candidate(key, room: Room, config: SceneConfig):
         room_light=between(w[6], 0.35, 1.8),
     )
     depth = jnp.where(is_open & ~is_passage, jnp.maximum(0.45, width / 2 + 0.05), 0.45)
+    if at_camera:
+        depth = 0.02  # the camera stands in it, and shelves reach up to a closet's opening
     keep_out = Footprints(centre + depth * normal, jnp.stack([width / 2 + 0.05, depth]), direction, ~is_window)
     return fields, doorway, footprint, keep_out
 
@@ -288,6 +307,13 @@ def _openings(key, room: Room, config: SceneConfig):
     fields, doorways, footprints, keep_out = jax.vmap(lambda k: _opening_candidate(k, room, config))(
         jax.random.split(key_candidates, n)
     )
+    if config.passage_at_camera:
+        # First in line, so that the packing takes it before any other opening.
+        at_camera = _opening_candidate(jax.random.fold_in(key, _PASSAGE_STREAM), room, config, at_camera=True)
+        candidates = (fields, doorways, footprints, keep_out)
+        fields, doorways, footprints, keep_out = jax.tree.map(
+            lambda first, rest: jnp.concatenate([first[None], rest]), at_camera, candidates
+        )
     chosen, filled = pack_footprints(footprints, config.opening_slots, no_footprints(), 0.3)
     wanted = 1 + jnp.floor(jax.random.uniform(key_count) * config.opening_slots)
     filled = filled & (jnp.arange(config.opening_slots) < wanted)

@@ -155,17 +155,18 @@ _OPEN_ROOMS = dataclasses.replace(
 
 
 def _narrow_rooms(room: dict, scene: dict) -> SynthConfig:
-    """Narrow Manhattan rooms (closets, corridors) seen from inside by a central camera, which stands, and lets the
-    furniture stand, nearer the walls than in other rooms; ``room`` and ``scene`` set the rest of the
-    :class:`RoomConfig` and the decor's :class:`SceneConfig`."""
+    """Narrow Manhattan rooms (closets, corridors) seen by a central camera, which stands, and lets the furniture
+    stand, nearer the walls than in other rooms; ``room`` and ``scene`` set the rest of the :class:`RoomConfig` and
+    the decor's :class:`SceneConfig`."""
+    room = dict(world="manhattan", max_walls=6, height_range=(2.3, 2.9), rc_range=(0.0, 0.0), camera_margin=0.2) | room
     return dataclasses.replace(
         SYNTH_COMMAND_CONFIG,
-        room=RoomConfig(
-            world="manhattan", max_walls=6, height_range=(2.3, 2.9), rc_range=(0.0, 0.0), camera_margin=0.2, **room
-        ),
-        scene=SceneConfig(decor=True, camera_clearance=0.15, candidates_per_slot=6, **scene),
+        room=RoomConfig(**room),
+        scene=SceneConfig(**(dict(decor=True, camera_clearance=0.15, candidates_per_slot=6) | scene)),
     )
 
+
+_CLOSET_SHELVING = (("closet shelving", 20.0), ("closet shelving with clothes", 10.0))
 
 SYNTH_SOURCES = {
     "synth": SYNTH_COMMAND_CONFIG,
@@ -188,7 +189,21 @@ SYNTH_SOURCES = {
             passage_probability=0.85,
             passage_width_range=(0.9, 2.2),
             neutral_paint_probability=0.7,
-            furniture_weights=(("closet shelving", 20.0), ("closet shelving with clothes", 10.0)),
+            furniture_weights=_CLOSET_SHELVING,
+        ),
+    ),
+    "synth-decor-closet-door": _narrow_rooms(
+        dict(
+            max_walls=4, size_range=(1.2, 2.6), width_range=(0.6, 1.2), camera_margin=0.1, doorway_distance=(0.03, 0.15)
+        ),
+        dict(
+            passage_at_camera=True,
+            camera_clearance=0.05,
+            opening_slots=1,
+            furniture_probability=1.0,
+            passage_width_range=(0.9, 2.2),
+            neutral_paint_probability=0.7,
+            furniture_weights=_CLOSET_SHELVING,
         ),
     ),
     "synth-decor-hall": _narrow_rooms(
@@ -215,7 +230,10 @@ closets, bathrooms and corridors, sides of 1.2-4 m and at most 6 walls, seen by 
 camera, whose walls fill the panorama as no room of the other kinds does; ``synth-decor-closet``: walk-in
 closets and alcoves, sides of 1.2-2.6 m, their walls lined with shelving (some with clothes hanging), seen by
 a central camera from inside, most with a passage 0.9-2.2 m wide that fills much of a wall and shows the room
-behind it (the label stays in the closet's wall plane); ``synth-decor-hall``: corridors 0.9-1.6 m wide and
+behind it (the label stays in the closet's wall plane); ``synth-decor-closet-door``: closets 0.6-1.2 m deep and
+1.2-2.6 m wide photographed from their opening, as they mostly are: the camera 3-15 cm inside it, the opening
+filling nearly all of that wall (labelled in its plane, close under the camera) and showing the room behind, shelving
+along the other walls; ``synth-decor-hall``: corridors 0.9-1.6 m wide and
 3-7.5 m long, seen by a central camera from inside, doors along them, most open on the rooms behind (whose floors
 run on past the corridor's wall-floor edge, close to the bottom of the image), few pieces of furniture;
 ``synth-decor-open``:
