@@ -1,5 +1,6 @@
 """The dataset files (authors' layout plus ours), the reader, the split and ``ncjax synth``."""
 
+import dataclasses
 import filecmp
 import json
 import os
@@ -131,6 +132,9 @@ def test_same_seed_same_bytes(dataset, tmp_path):
         (["--rc=-1:0"], "--rc"),
         (["--supersampling", "2"], "odd"),
         (["--photoreal", "--spp", "0"], "--spp"),
+        (["--kind", "synth-decor-attic"], "--kind must be one of synth, synth-decor,"),
+        (["--kind", "synth-decor-hall", "--decor", "--rc", "0:0"], "leave out --rc, --decor"),
+        (["--kind", "synth-decor-hall", "--spp", "4"], "--kind synth-decor-hall is ray-cast"),
     ],
 )
 def test_bad_arguments_give_clear_errors_and_write_nothing(tmp_path, capsys, arguments, message):
@@ -139,6 +143,24 @@ def test_bad_arguments_give_clear_errors_and_write_nothing(tmp_path, capsys, arg
     assert cli.main(base + arguments) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_a_training_source_kind_writes_the_rooms_that_training_renders(tmp_path):
+    from PIL import Image
+
+    from ncjax.synth.dataset import rendered_samples, rendering_rgb8
+    from ncjax.training.data import SYNTH_SOURCES
+
+    out = tmp_path / "hall"
+    arguments = ["--kind", "synth-decor-hall", "--size", f"{HEIGHT}x{WIDTH}", "--batch", "2"]
+    assert cli.main(["synth", "--n", "2", "--out", str(out), "--seed", "3"] + arguments) == 0
+    config = dataclasses.replace(SYNTH_SOURCES["synth-decor-hall"], height=HEIGHT, width=WIDTH)
+    names = ncjax.synth.list_samples(str(out))
+    for name, (_, scene, rendering, _) in zip(names, rendered_samples(2, 3, config, batch_size=2), strict=True):
+        assert ncjax.synth.rc_from_name(name) == 0.0 and float(scene.room.rc) == 0.0
+        written = np.asarray(Image.open(out / "img" / f"{name}.png"))
+        np.testing.assert_array_equal(written, rendering_rgb8(rendering))
 
 
 def test_non_empty_output_folder_is_refused(tmp_path, capsys):

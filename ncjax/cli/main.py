@@ -52,6 +52,10 @@ def _parse_rc(text: str) -> tuple[float, float]:
     return low, high
 
 
+# ncjax synth's defaults that a --kind replaces.
+_SYNTH_WORLD, _SYNTH_RC, _SYNTH_SPP = "mix", "0.3:1.0", 8
+
+
 def _synth(args: argparse.Namespace) -> int:
     height, width = parse_size(args.size)
     rc_range = _parse_rc(args.rc)
@@ -66,15 +70,19 @@ def _synth(args: argparse.Namespace) -> int:
     import ncjax
 
     from ..synth.dataset import _check_output_directory, write_dataset
+    from ..synth.photoreal import PhotorealConfig
 
-    config = ncjax.SynthConfig(
-        room=ncjax.RoomConfig(world=args.world, rc_range=rc_range),
-        scene=ncjax.synth.SceneConfig(decor=args.decor),
-        render=ncjax.synth.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
-        width=width,
-        height=height,
-        photoreal=_photoreal(args.spp) if args.photoreal else None,
-    )
+    if args.kind is not None:
+        config = _kind_config(args, height, width)
+    else:
+        config = ncjax.SynthConfig(
+            room=ncjax.RoomConfig(world=args.world, rc_range=rc_range),
+            scene=ncjax.synth.SceneConfig(decor=args.decor),
+            render=ncjax.synth.RenderConfig(supersampling=args.supersampling, shadows=args.shadows),
+            width=width,
+            height=height,
+            photoreal=_with_samples(PhotorealConfig(), args.spp) if args.photoreal else None,
+        )
     _check_output_directory(args.out, args.overwrite)
     with tqdm(total=args.n, unit="pano", desc=f"ncjax synth {height}x{width}") as bar:
         names = write_dataset(args.out, args.n, args.seed, config, args.batch, args.overwrite, progress=bar.update)
@@ -84,12 +92,35 @@ def _synth(args: argparse.Namespace) -> int:
     return 0
 
 
-def _photoreal(samples_per_pixel: int):
-    """The default photoreal settings with ``samples_per_pixel`` paths a pixel."""
-    from ..synth.photoreal import PhotorealConfig
+def _with_samples(photoreal, samples: int):
+    """The photoreal settings ``photoreal`` with ``samples`` paths a pixel."""
+    return dataclasses.replace(photoreal, trace=dataclasses.replace(photoreal.trace, samples_per_pixel=samples))
 
-    default = PhotorealConfig()
-    return dataclasses.replace(default, trace=dataclasses.replace(default.trace, samples_per_pixel=samples_per_pixel))
+
+def _kind_config(args: argparse.Namespace, height: int, width: int):
+    """The rooms and rendering of the training source ``args.kind`` at ``height`` x ``width``, with ``--spp``
+    for a photoreal one; the options that the source sets are refused."""
+    from ..training.data import SYNTH_SOURCES
+
+    if args.kind not in SYNTH_SOURCES:
+        raise ValueError(f"--kind must be one of {', '.join(sorted(SYNTH_SOURCES))}; got {args.kind!r}")
+    given = {
+        "--world": args.world != _SYNTH_WORLD,
+        "--rc": args.rc != _SYNTH_RC,
+        "--decor": args.decor,
+        "--photoreal": args.photoreal,
+        "--shadows": args.shadows,
+        "--supersampling": args.supersampling != 1,
+    }
+    if any(given.values()):
+        options = ", ".join(name for name, set_here in given.items() if set_here)
+        raise ValueError(f"--kind {args.kind} sets the rooms and their rendering: leave out {options}")
+    config = dataclasses.replace(SYNTH_SOURCES[args.kind], height=height, width=width)
+    if args.spp != _SYNTH_SPP:
+        if config.photoreal is None:
+            raise ValueError(f"--spp is for photoreal rooms, and --kind {args.kind} is ray-cast")
+        config = dataclasses.replace(config, photoreal=_with_samples(config.photoreal, args.spp))
+    return config
 
 
 def _train(args: argparse.Namespace) -> int:
@@ -169,13 +200,20 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     synth.add_argument("--out", required=True, help="output folder (must be new or empty)")
     synth.add_argument("--seed", type=int, default=0, help="random seed: same seed, same bytes")
     synth.add_argument(
+        "--kind",
+        help="the rooms of a source of ncjax train --data KIND:SEED:N (e.g. synth-decor-open, synth-decor-hall, "
+        "synth-photoreal-home; ncjax train --help lists them): the same rooms and images as training renders for "
+        "the same --seed and --size; --world, --rc, --decor, --photoreal, --shadows and --supersampling are the "
+        "source's (default: none, the rooms those options describe)",
+    )
+    synth.add_argument(
         "--world",
         choices=("manhattan", "atlanta", "mix"),
-        default="mix",
+        default=_SYNTH_WORLD,
         help="room model (mix: each room manhattan or atlanta at random, half and half)",
     )
     synth.add_argument("--size", default="512x1024", help="HxW in pixels")
-    synth.add_argument("--rc", default="0.3:1.0", help="range of the radius rc in metres, MIN:MAX (0:0 is central)")
+    synth.add_argument("--rc", default=_SYNTH_RC, help="range of the radius rc in metres, MIN:MAX (0:0 is central)")
     synth.add_argument("--supersampling", type=int, default=1, help="odd s: s x s rays per pixel for the RGB image")
     synth.add_argument("--shadows", action="store_true", help="cast shadows from the furniture")
     synth.add_argument(
@@ -192,7 +230,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         "real outdoor HDR panoramas and letting in their sun), denoised and developed by a camera model; about "
         "12-14 s a 512x1024 image on 2 CPU cores (ncjax.synth.PhotorealConfig)",
     )
-    synth.add_argument("--spp", type=int, default=8, help="with --photoreal: paths traced per pixel")
+    synth.add_argument(
+        "--spp", type=int, default=_SYNTH_SPP, help="with --photoreal or a photoreal --kind: paths traced per pixel"
+    )
     synth.add_argument("--batch", type=int, default=8, help="panoramas rendered per jitted call")
     synth.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty folder")
     synth.set_defaults(run=_synth)

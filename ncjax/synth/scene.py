@@ -109,7 +109,7 @@ class SceneConfig:
         passage_width_range: width of a passage, metres.
         passage_at_camera: (decor only) the first opening is a passage in the wall nearest the
             camera, centred on the camera's foot (as wide as the wall holds): a room photographed from
-            its doorway, as walk-in closets are (with :attr:`~ncjax.synth.RoomConfig.doorway_distance`).
+            its doorway, as closets are (with :attr:`~ncjax.synth.RoomConfig.doorway_distance`).
         decal_probability: chance that each decal slot is wanted.
         panel_probability: chance that a room is lit by flush light panels
             rather than lamps.
