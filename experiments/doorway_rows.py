@@ -14,7 +14,9 @@ open one (``Semantic.OPENING``), furniture in front of the wall (``OBJECT``), or
 share of columns and the floor and ceiling rows' mean absolute error and share of columns more than 10 px off
 (rows of the 512-row image, as ``benchmarks/real_panoramas.py``).
 
-``--kinds`` picks other sources (``synth-decor-closet``: walk-in closets whose passages fill much of a wall),
+``--kinds`` picks other sources (``synth-decor-closet``: walk-in closets whose passages fill much of a wall;
+``synth-decor-hall``: corridors with doors along them; ``synth-decor-closet-door``: closets photographed from their
+opening; the n-th kind given takes seed 401 + n - 1),
 ``--model`` another model file; ``--sheet FILE`` also writes the first ``--sheet-rooms`` renders of each kind at
 half size with their true rows (green) and the model's (red).
 
