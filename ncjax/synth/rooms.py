@@ -96,12 +96,12 @@ class RoomConfig:
             raise ValueError(f"occlusion must be 'any', 'none' or 'required', got {self.occlusion!r}")
         if self.min_walls % 2 or self.max_walls % 2 or not 4 <= self.min_walls <= self.max_walls <= 14:
             raise ValueError("Manhattan wall counts must be even with 4 <= min_walls <= max_walls <= 14")
-        for name in ("size_range", "height_range", "camera_height_range", "rc_range"):
+        for name in ("size_range", "height_range", "camera_height_range", "rc_range", "doorway_distance"):
+            if getattr(self, name) is None:
+                continue
             low, high = getattr(self, name)
             if not 0 <= low <= high:
                 raise ValueError(f"{name} must be (low, high) with 0 <= low <= high, got {(low, high)}")
-        if self.doorway_distance is not None and not 0 <= self.doorway_distance[0] <= self.doorway_distance[1]:
-            raise ValueError(f"doorway_distance must be (low, high) with 0 <= low <= high, got {self.doorway_distance}")
         if self.width_range is not None and not 0 < self.width_range[0] <= self.width_range[1] <= self.size_range[0]:
             raise ValueError(
                 f"width_range must be (low, high) with 0 < low <= high <= size_range's low {self.size_range[0]}, "
@@ -365,13 +365,15 @@ def _place_camera(key, corners, mask, rc, config: RoomConfig):
     def assess(candidate):
         local = corners - candidate
         inside = point_in_polygon(candidate, corners, mask)
-        distances = jnp.sort(wall_distances(candidate, corners, mask))
+        distances = wall_distances(candidate, corners, mask)
+        nearest = jnp.min(distances)
         if config.doorway_distance is None:
-            clear = distances[0] > rc + config.camera_margin
+            clear = nearest > rc + config.camera_margin
         else:
             low, high = config.doorway_distance
-            in_doorway = (distances[0] >= rc + low) & (distances[0] <= rc + high)
-            clear = in_doorway & (distances[1] > rc + config.camera_margin)
+            others = jnp.where(jnp.arange(distances.shape[0]) == jnp.argmin(distances), jnp.inf, distances)
+            in_doorway = (nearest >= rc + low) & (nearest <= rc + high)
+            clear = in_doorway & (jnp.min(others) > rc + config.camera_margin)
         _, occluding, _, _ = vertex_visibility(local, mask, rc)
         occluded = jnp.any(occluding)
         return inside & clear, occluded

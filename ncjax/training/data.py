@@ -166,7 +166,12 @@ def _narrow_rooms(room: dict, scene: dict) -> SynthConfig:
     )
 
 
-_CLOSET_SHELVING = (("closet shelving", 20.0), ("closet shelving with clothes", 10.0))
+# What both kinds of closet have: wide openings, pale walls, shelving.
+_CLOSETS = dict(
+    passage_width_range=(0.9, 2.2),
+    neutral_paint_probability=0.7,
+    furniture_weights=(("closet shelving", 20.0), ("closet shelving with clothes", 10.0)),
+)
 
 SYNTH_SOURCES = {
     "synth": SYNTH_COMMAND_CONFIG,
@@ -183,28 +188,13 @@ SYNTH_SOURCES = {
     ),
     "synth-decor-closet": _narrow_rooms(
         dict(size_range=(1.2, 2.6)),
-        dict(
-            opening_slots=2,
-            door_probability=1.0,
-            passage_probability=0.85,
-            passage_width_range=(0.9, 2.2),
-            neutral_paint_probability=0.7,
-            furniture_weights=_CLOSET_SHELVING,
-        ),
+        dict(opening_slots=2, door_probability=1.0, passage_probability=0.85, **_CLOSETS),
     ),
     "synth-decor-closet-door": _narrow_rooms(
         dict(
             max_walls=4, size_range=(1.2, 2.6), width_range=(0.6, 1.2), camera_margin=0.1, doorway_distance=(0.03, 0.15)
         ),
-        dict(
-            passage_at_camera=True,
-            camera_clearance=0.05,
-            opening_slots=1,
-            furniture_probability=1.0,
-            passage_width_range=(0.9, 2.2),
-            neutral_paint_probability=0.7,
-            furniture_weights=_CLOSET_SHELVING,
-        ),
+        dict(passage_at_camera=True, camera_clearance=0.05, opening_slots=1, furniture_probability=1.0, **_CLOSETS),
     ),
     "synth-decor-hall": _narrow_rooms(
         dict(size_range=(3.0, 7.5), width_range=(0.9, 1.6)),
