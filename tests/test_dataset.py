@@ -372,7 +372,74 @@ def test_train_stops_with_a_message_when_its_budget_runs_out_while_rendering(tmp
     cache, checkpoints = tmp_path / "rendered", tmp_path / "checkpoints"
     arguments = ["train", "--data", "synth:3:10", "--render-cache", str(cache), "--checkpoint-dir", str(checkpoints)]
     assert cli.main(arguments + ["--time-budget", "1e-9"]) == 0
-    assert "time budget spent while rendering: rendered 0 of 10 rooms" in capsys.readouterr().out
+    assert "stopped before training: rendered 0 of 10 rooms" in capsys.readouterr().out
+    assert not checkpoints.exists() and not any(cache.rglob("*.npz"))
+
+
+def test_rendering_in_proportion_stops_with_every_source_at_about_the_same_share(tmp_path, monkeypatch):
+    from ncjax.training import data
+
+    rendered = _counted_rooms(monkeypatch)  # files of 4 rooms
+    clock = [0.0]
+    counted = data._rendered_arrays
+
+    def one_second_a_file(*args):
+        clock[0] += 1
+        return counted(*args)
+
+    monkeypatch.setattr(data, "_rendered_arrays", one_second_a_file)
+    monkeypatch.setattr(data.time, "monotonic", lambda: clock[0])
+    sources = ["synth:0:16", "synth-decor:1:8"]
+    # The source furthest behind goes next (the first on ties): 16-room's file 1, 8-room's 1, 16-room's 2.
+    assert data.render_in_proportion(sources, 2, 4, tmp_path, deadline=3, progress=False) == {
+        "synth:0:16": 8,
+        "synth-decor:1:8": 4,
+    }
+    assert rendered == [(0, 4), (0, 4), (4, 8)]
+    # A rerun reads the files back and renders on; with nothing left, nothing is rendered.
+    assert data.render_in_proportion(sources, 2, 4, tmp_path, deadline=100, progress=False) == {
+        "synth:0:16": 16,
+        "synth-decor:1:8": 8,
+    }
+    assert rendered[3:] == [(8, 12), (4, 8), (12, 16)]  # 16-room source, 8-room, 16-room
+    assert data.render_in_proportion(sources, 2, 4, tmp_path, deadline=-1, progress=False)["synth:0:16"] == 16
+    assert len(rendered) == 6
+    with pytest.raises(ValueError, match="not a rendered source"):
+        data.render_in_proportion(["synth:0:16", "some/folder"], 2, 4, tmp_path, deadline=100)
+
+
+def test_training_data_takes_the_rooms_rendered_in_proportion(tmp_path, monkeypatch):
+    from ncjax.training.data import RenderingStopped, render_in_proportion, training_data
+
+    _counted_rooms(monkeypatch)  # every third room in the valid split
+    sources = ["synth:0:16", "synth-decor:1:8"]
+    counts = render_in_proportion(sources, 2, 4, tmp_path, deadline=float("inf"), progress=False)
+    train, valid = training_data(sources, 2, 4, None, tmp_path, rendered_rooms={"synth:0:16": 4, "synth-decor:1:8": 0})
+    assert train["image"][:, 0, 0, 0].tolist() == [0, 1, 3] and valid["image"][:, 0, 0, 0].tolist() == [2]
+    train, valid = training_data(sources, 2, 4, None, tmp_path, rendered_rooms=counts)
+    assert len(train["image"]) + len(valid["image"]) == 24
+    # A source cut short before its first valid room trains on its rooms; no valid room at all stops the command.
+    train, valid = training_data(sources, 2, 4, None, tmp_path, rendered_rooms={"synth:0:16": 4, "synth-decor:1:8": 2})
+    assert train["image"][:, 0, 0, 0].tolist() == [0, 1, 3, 0, 1] and len(valid["image"]) == 1
+    with pytest.raises(RenderingStopped, match="no valid rooms"):
+        training_data(["synth:0:16"], 2, 4, None, tmp_path, rendered_rooms={"synth:0:16": 2})
+
+
+def test_train_refuses_a_render_budget_without_a_cache(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["train", "--data", "synth:3:10", "--render-budget", "60"]) == 2
+    assert "--render-budget must be positive and comes with --render-cache" in capsys.readouterr().err
+    assert os.listdir(tmp_path) == []
+
+
+def test_train_stops_with_a_message_when_its_render_budget_leaves_no_rooms(tmp_path, monkeypatch, capsys):
+    _counted_rooms(monkeypatch)
+    cache, checkpoints = tmp_path / "rendered", tmp_path / "checkpoints"
+    arguments = ["train", "--data", "synth:3:10", "--render-cache", str(cache), "--checkpoint-dir", str(checkpoints)]
+    assert cli.main(arguments + ["--render-budget", "1e-9"]) == 0
+    printed = capsys.readouterr().out
+    assert "render budget spent: training on 0 of 10 rooms of synth:3:10" in printed
+    assert "stopped before training: no train rooms" in printed
     assert not checkpoints.exists() and not any(cache.rglob("*.npz"))
 
 

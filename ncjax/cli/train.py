@@ -13,7 +13,15 @@ import numpy as np
 
 from ..network.checkpoint import WEIGHTS_DTYPES, check_warm_start
 from ..network.config import PRESETS, HorizonNetConfig
-from ..training.data import RenderingStopped, evaluate_arrays, folder_batches, painted_batches, training_data
+from ..training.data import (
+    RenderingStopped,
+    evaluate_arrays,
+    folder_batches,
+    painted_batches,
+    parse_synth_source,
+    render_in_proportion,
+    training_data,
+)
 from ..training.loop import TrainConfig, train
 from .arguments import DefaultsHelpFormatter
 from .options import add_config_options, config_from_options
@@ -72,6 +80,15 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         "again: a rerun starts at once, and a --time-budget that runs out while rendering keeps what was rendered "
         "for the next run (default: render in memory each run)",
     )
+    parser.add_argument(
+        "--render-budget",
+        type=float,
+        metavar="SECONDS",
+        help="with --render-cache: no file of KIND:SEED:N rooms starts rendering after this much time since the "
+        "command started; the training takes the rooms rendered by then (each source about the same share of its "
+        "N: the source furthest behind renders next), and a rerun renders on from them. Keeps a slow renderer "
+        "from spending --time-budget before any step (default: render every room first)",
+    )
     parser.add_argument("--checkpoint-every", type=int, default=250, help="steps between checkpoints")
     parser.add_argument(
         "--validate-every", type=int, default=500, help="steps between validations (0: only at the end)"
@@ -99,17 +116,38 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _render_within_budget(args: argparse.Namespace, height: int, width: int, deadline: float) -> dict[str, int]:
+    """:func:`render_in_proportion` of ``--data``'s rendered sources until ``deadline``; says on stdout what the
+    training takes of a source the budget left unfinished."""
+    sources = [source for source in args.data if parse_synth_source(source) is not None]
+    rendered_rooms = render_in_proportion(sources, height, width, pathlib.Path(args.render_cache), deadline)
+    unfinished = [
+        f"{rooms} of {parse_synth_source(source)[1]} rooms of {source}"
+        for source, rooms in rendered_rooms.items()
+        if rooms < parse_synth_source(source)[1]
+    ]
+    if unfinished:
+        print(f"render budget spent: training on {', '.join(unfinished)}; a rerun renders on")
+    return rendered_rooms
+
+
 def _batches_and_validation(args: argparse.Namespace, height: int, width: int, started: float):
     """The batches of ``--data`` and the validation on its valid images (None for the painted data), or None when
-    the time budget ran out while rendering into ``--render-cache`` (said on stdout)."""
+    the time budget ran out while rendering into ``--render-cache``, or the render budget left no rooms to train or
+    validate on (said on stdout)."""
     if args.data == ["painted"]:
         return painted_batches(args.seed, args.batch_size, height, width), None
     deadline = None if args.time_budget is None else started + args.time_budget
     cache = None if args.render_cache is None else pathlib.Path(args.render_cache)
     try:
-        train_arrays, valid = training_data(args.data, height, width, args.validation_limit, cache, deadline)
+        rendered_rooms = None
+        if args.render_budget is not None:
+            rendered_rooms = _render_within_budget(args, height, width, started + args.render_budget)
+        train_arrays, valid = training_data(
+            args.data, height, width, args.validation_limit, cache, deadline, rendered_rooms
+        )
     except RenderingStopped as stopped:
-        print(f"time budget spent while rendering: {stopped}")
+        print(f"stopped before training: {stopped}")
         return None
 
     def validate(model, step):
@@ -132,6 +170,8 @@ def run_train(args: argparse.Namespace) -> int:
         raise ValueError(f"--steps and --batch must be positive, got {args.steps} and {args.batch_size}")
     if args.time_budget is not None and not args.time_budget > 0:
         raise ValueError(f"--time-budget must be positive, got {args.time_budget}")
+    if args.render_budget is not None and not (args.render_budget > 0 and args.render_cache):
+        raise ValueError(f"--render-budget must be positive and comes with --render-cache, got {args.render_budget}")
     config = HorizonNetConfig.preset(args.preset)
     if args.corner_base is not None:
         config = dataclasses.replace(config, corner_base=args.corner_base)

@@ -237,8 +237,25 @@ RENDER_CHUNK = 64
 
 
 class RenderingStopped(Exception):
-    """The time budget ran out while a ``KIND:SEED:N`` source was rendered into its cache; what was rendered is
-    kept there, and the same command goes on from it."""
+    """The time budget ran out while a ``KIND:SEED:N`` source was rendered into its cache, or the render budget
+    left no rooms to train or validate on; what was rendered is kept there, and the same command goes on from it."""
+
+
+def _cache_files(n: int) -> list[tuple[int, int]]:
+    """``(first, last)`` rooms of each render-cache file of a source of ``n`` rooms, in order."""
+    return [(first, min(first + RENDER_CHUNK, n)) for first in range(0, n, RENDER_CHUNK)]
+
+
+def _cache_file(cache: pathlib.Path, first: int, last: int) -> pathlib.Path:
+    return cache / f"{first:06d}-{last:06d}.npz"
+
+
+def _write_cache_file(path: pathlib.Path, arrays: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".partial")
+    with open(partial, "wb") as file:  # renamed once whole: an interrupted write is never read
+        np.savez(file, **arrays)
+    os.replace(partial, path)
 
 
 def _rendered_arrays(
@@ -290,11 +307,11 @@ def rendered_splits(
     """
     from tqdm.auto import tqdm
 
-    chunks = [(first, min(first + RENDER_CHUNK, n)) for first in range(0, n, RENDER_CHUNK)] if cache else [(0, n)]
+    chunks = _cache_files(n) if cache else [(0, n)]
     parts = []
     with tqdm(total=n, desc=f"render seed {seed}", disable=not progress) as bar:
         for first, last in chunks:
-            path = None if cache is None else cache / f"{first:06d}-{last:06d}.npz"
+            path = None if cache is None else _cache_file(cache, first, last)
             if path is not None and path.exists():
                 with np.load(path) as stored:
                     parts.append(dict(stored))
@@ -304,11 +321,7 @@ def rendered_splits(
                 raise RenderingStopped(f"rendered {first} of {n} rooms into {cache}; rerun the same command to go on")
             parts.append(_rendered_arrays(seed, first, last, height, width, batch_size, config, bar))
             if path is not None:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                partial = path.with_suffix(".partial")
-                with open(partial, "wb") as file:  # renamed once whole: an interrupted write is never read
-                    np.savez(file, **parts[-1])
-                os.replace(partial, path)
+                _write_cache_file(path, parts[-1])
     arrays = {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
     split = arrays.pop("split")
     return {
@@ -373,6 +386,61 @@ def parse_synth_source(source: str) -> tuple[int, int] | None:
     return int(parts[1]), int(parts[2])
 
 
+def render_in_proportion(
+    sources: list[str],
+    height: int,
+    width: int,
+    render_cache: pathlib.Path,
+    deadline: float,
+    batch_size: int = 16,
+    progress: bool = True,
+) -> dict[str, int]:
+    """Render ``KIND:SEED:N`` sources into their :func:`render_cache_folder` in ``render_cache`` until ``deadline``
+    (a :func:`time.monotonic` time, checked between files of :data:`RENDER_CHUNK` rooms), the next file always the
+    source's that has the smallest share of its rooms: when time runs out every source has about the same share of
+    its rooms, so that the mix the sources' N set holds whatever the rendering costs.
+
+    Returns:
+        For each source, how many of its rooms, from the first on, are in the cache (N once all are).
+
+    Raises:
+        ValueError: a source that is not ``KIND:SEED:N``.
+    """
+    from tqdm.auto import tqdm
+
+    synth = {}
+    for source in sources:
+        parsed = parse_synth_source(source)
+        if parsed is None:
+            raise ValueError(f"{source!r} is not a rendered source KIND:SEED:N")
+        synth[source] = parsed
+    files = {source: _cache_files(n) for source, (_, n) in synth.items()}
+    done = dict.fromkeys(synth, 0)  # files of each source in the cache, from its first on
+
+    def rooms(source: str) -> int:
+        return files[source][done[source] - 1][1] if done[source] else 0
+
+    def share(source: str) -> float:
+        return rooms(source) / synth[source][1]
+
+    left = sum(n for _, n in synth.values())
+    with tqdm(total=left, desc="render", disable=not progress) as bar:
+        while unfinished := [source for source in synth if done[source] < len(files[source])]:
+            source = min(unfinished, key=share)  # the first such source on ties
+            folder = render_cache_folder(render_cache, source, height, width)
+            first, last = files[source][done[source]]
+            path = _cache_file(folder, first, last)
+            if not path.exists():
+                if time.monotonic() >= deadline:
+                    break
+                seed, config = synth[source][0], SYNTH_SOURCES[source.split(":")[0]]
+                _write_cache_file(path, _rendered_arrays(seed, first, last, height, width, batch_size, config, bar))
+            else:
+                bar.update(last - first)
+            done[source] += 1
+    return {source: rooms(source) for source in synth}
+
+
 def training_data(
     sources: list[str],
     height: int,
@@ -380,16 +448,20 @@ def training_data(
     validation_limit: int | None,
     render_cache: pathlib.Path | None = None,
     deadline: float | None = None,
+    rendered_rooms: dict[str, int] | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """Train and validation arrays pooled, in the given order, from dataset folders and
     ``KIND:SEED:N`` renders (:data:`SYNTH_SOURCES`).
 
     Such a source is rendered in memory (:func:`rendered_splits`; with ``render_cache``, kept in its
     :func:`render_cache_folder` there and rendered until ``deadline``); validation takes the first
-    ``validation_limit`` images of the pooled valid splits (None: all).
+    ``validation_limit`` images of the pooled valid splits (None: all). With ``rendered_rooms`` (what
+    :func:`render_in_proportion` returns) a source takes only its first rooms, those in the cache; one that has
+    fewer than its N may lack a split.
 
     Raises:
-        RenderingStopped: ``deadline`` passed while rooms were left to render into ``render_cache``.
+        RenderingStopped: ``deadline`` passed while rooms were left to render into ``render_cache``, or
+            ``rendered_rooms`` give no training or no validation rooms.
     """
     synth_sources = [parse_synth_source(source) for source in sources]  # malformed ones fail before any work
     pooled: dict[str, list[dict[str, np.ndarray]]] = {"train": [], "valid": []}
@@ -399,14 +471,22 @@ def training_data(
                 pooled[split].append(
                     load_split(source, split, height, width, limit=validation_limit if split == "valid" else None)
                 )
-        else:
-            cache = None if render_cache is None else render_cache_folder(render_cache, source, height, width)
-            config = SYNTH_SOURCES[source.split(":")[0]]
-            rendered = rendered_splits(*synth, height, width, config=config, cache=cache, deadline=deadline)
-            for split in pooled:
-                if split not in rendered:
-                    raise ValueError(f"data source {source!r} has no {split} samples; render more (N)")
+            continue
+        seed, n = synth
+        rooms = n if rendered_rooms is None else rendered_rooms[source]
+        if rooms == 0:
+            continue
+        cache = None if render_cache is None else render_cache_folder(render_cache, source, height, width)
+        config = SYNTH_SOURCES[source.split(":")[0]]
+        rendered = rendered_splits(seed, rooms, height, width, config=config, cache=cache, deadline=deadline)
+        for split in pooled:
+            if split in rendered:
                 pooled[split].append(rendered[split])
+            elif rooms == n:
+                raise ValueError(f"data source {source!r} has no {split} samples; render more (N)")
+    for split, parts in pooled.items():
+        if not parts:
+            raise RenderingStopped(f"no {split} rooms in {render_cache} yet; rerun the same command to go on")
     train_arrays, valid = (
         {key: np.concatenate([a[key] for a in parts]) for key in parts[0]} for parts in pooled.values()
     )
