@@ -158,3 +158,20 @@ print(sorted(name for name in left_out if name in sys.modules))
         check=True,
     )
     assert lazy.stdout.strip() == "True"  # the network's names are there, imported on first use
+
+
+def test_training_s_imports_leave_out_the_layouts_libraries():
+    """``ncjax train`` runs where only the training's packages are (an accelerator's image without shapely, trimesh
+    or manifold3d): its command, data, loop and model files import none of them; checked in a new interpreter."""
+    import subprocess
+    import sys
+
+    script = """
+import sys
+from ncjax.cli.main import build_parser
+build_parser("train")
+import ncjax.cli.train, ncjax.training.data, ncjax.training.loop, ncjax.network.checkpoint, ncjax.synth.photoreal
+print(sorted(name for name in ("shapely", "trimesh", "manifold3d") if name in sys.modules))
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]", done.stdout

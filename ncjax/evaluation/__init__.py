@@ -10,9 +10,35 @@
   benchmark's table and CSV; ``contact_sheet``: its picture of every panorama.
 """
 
-from . import central_metrics, layout_metrics, network_metrics
-from .layout_metrics import evaluate_layout
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+from . import network_metrics
 from .network_metrics import boundary_pixel_error, corner_confusion, corner_scores, network_table
+
+# imported on first use: the layouts' metrics need shapely, which the training (the network's metrics only) does
+# without, as on an accelerator's image that lacks it
+_LAZY_MODULES = ("central_metrics", "layout_metrics")
+
+if TYPE_CHECKING:
+    from . import central_metrics as central_metrics
+    from . import layout_metrics as layout_metrics
+    from .layout_metrics import evaluate_layout
+
+
+def __getattr__(name: str):
+    if name in _LAZY_MODULES:
+        return importlib.import_module(f"{__name__}.{name}")
+    if name == "evaluate_layout":
+        return importlib.import_module(f"{__name__}.layout_metrics").evaluate_layout
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY_MODULES, "evaluate_layout"})
+
 
 __all__ = [
     "boundary_pixel_error",
