@@ -86,9 +86,12 @@ class PhotorealConfig:
         next_room_light: the rooms seen through open doors and passages are lit evenly (darker towards their edges,
             as the ray caster darkens them), and light the room through their doors: each door's ``room_light``
             (0.35-1.8) times this much of ``pi`` times the mean radiance of what the windows show (the irradiance of a
-            surface open to that whole view). At 0.1 and ``room_light`` 1 they are lit about as the room is: 0.45-3
-            times its median irradiance over 11 rooms of ``synth-decor-open`` (median 0.75), as the rooms' lamps and
-            windows vary.
+            surface open to that whole view). At 0.015 they look about as bright as the room's walls, as in
+            photographs: what is seen of them has 0.22-2.04 times the walls' median luminance (median 0.81; the ray
+            caster's 0.55) over the 11 of the first 16 rooms of ``synth-decor-open`` (seed 701) that show them
+            (``experiments/next_room_light.py``). At 0.1 they glowed, 1.3-10.8 times (median 3.7), and heads trained
+            on such renders followed the photographs' doorways to the floor lines of the rooms behind
+            (experiments/RESULTS.md, "Path-traced renders").
     """
 
     trace: PathTraceConfig = PathTraceConfig(
@@ -100,7 +103,7 @@ class PhotorealConfig:
     window_brightness: tuple[float, float] = (1.4, 2.8)
     sun_clip: float = 4.0
     sun: bool = True
-    next_room_light: float = 0.1
+    next_room_light: float = 0.015
 
     def __post_init__(self):
         if int(self.trace_scale) != self.trace_scale or self.trace_scale < 1:

@@ -423,8 +423,7 @@ def render_in_proportion(
     def share(source: str) -> float:
         return rooms(source) / synth[source][1]
 
-    left = sum(n for _, n in synth.values())
-    with tqdm(total=left, desc="render", disable=not progress) as bar:
+    with tqdm(total=sum(n for _, n in synth.values()), desc="render", disable=not progress) as bar:
         while unfinished := [source for source in synth if done[source] < len(files[source])]:
             source = min(unfinished, key=share)  # the first such source on ties
             folder = render_cache_folder(render_cache, source, height, width)
