@@ -29,6 +29,7 @@ from ncjax.synth.pathtrace import path_trace
 from ncjax.synth.pathtrace_denoise import guide_buffers
 from ncjax.synth.pathtrace_scene import SurfaceKind
 from ncjax.synth.photoreal import PhotorealConfig, window_light, window_views
+from ncjax.synth.render import radiance_from_colours
 from ncjax.training.data import SYNTH_SOURCES
 
 HEIGHT, WIDTH = 128, 256
@@ -37,11 +38,6 @@ MIN_PIXELS = 20
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
     return rgb @ np.array([0.2126, 0.7152, 0.0722])
-
-
-def ray_cast_radiance(rgb: np.ndarray) -> np.ndarray:
-    """The ray caster's image back to its radiance: the inverse of ``(1 - exp(-1.5 L)) ** (1 / 2.2)``."""
-    return -np.log(np.clip(1.0 - rgb**2.2, 1e-6, 1.0)) / 1.5
 
 
 def at_traced_pixels(image: np.ndarray) -> np.ndarray:
@@ -75,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
         behind, walls = kind == SurfaceKind.NEXT_ROOM, kind == SurfaceKind.WALL
         if behind.sum() < MIN_PIXELS:
             continue
-        photoreal, cast = luminance(radiance), luminance(ray_cast_radiance(at_traced_pixels(np.asarray(rendering.rgb))))
+        cast = np.asarray(radiance_from_colours(at_traced_pixels(np.asarray(rendering.rgb))))
+        photoreal, cast = luminance(radiance), luminance(cast)
         ratios.append([np.median(image[behind]) / np.median(image[walls]) for image in (photoreal, cast)])
         print(
             f"room {index}: {behind.mean():.1%} of the pixels behind doors; behind / walls: photoreal "

@@ -332,3 +332,12 @@ def test_box_interval_agrees_with_shapely(x, y, w, h, yaw, heading):
         along = sorted(np.dot(np.asarray(crossing.coords), direction))
         np.testing.assert_allclose([t_in, t_out], along, atol=1e-4)
         assert np.dot(normal, direction) < 0  # the entry side faces the ray
+
+
+def test_radiance_from_colours_inverts_the_tone_curve():
+    from ncjax.synth.render import radiance_from_colours, tone_curve
+
+    radiance = np.linspace(0.0, 5.0, 51)[:, None] * np.array([1.0, 0.5, 0.25])
+    colours = np.asarray(tone_curve(radiance))
+    np.testing.assert_allclose(colours, (1.0 - np.exp(-1.5 * radiance)) ** (1.0 / 2.2), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(radiance_from_colours(colours)), radiance, rtol=1e-3, atol=1e-5)

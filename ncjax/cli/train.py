@@ -119,12 +119,12 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
 def _render_within_budget(args: argparse.Namespace, height: int, width: int, deadline: float) -> dict[str, int]:
     """:func:`render_in_proportion` of ``--data``'s rendered sources until ``deadline``; says on stdout what the
     training takes of a source the budget left unfinished."""
-    sources = [source for source in args.data if parse_synth_source(source) is not None]
-    rendered_rooms = render_in_proportion(sources, height, width, pathlib.Path(args.render_cache), deadline)
+    rooms_wanted = {source: synth[1] for source in args.data if (synth := parse_synth_source(source)) is not None}
+    rendered_rooms = render_in_proportion(list(rooms_wanted), height, width, pathlib.Path(args.render_cache), deadline)
     unfinished = [
-        f"{rooms} of {parse_synth_source(source)[1]} rooms of {source}"
+        f"{rooms} of {rooms_wanted[source]} rooms of {source}"
         for source, rooms in rendered_rooms.items()
-        if rooms < parse_synth_source(source)[1]
+        if rooms < rooms_wanted[source]
     ]
     if unfinished:
         print(f"render budget spent: training on {', '.join(unfinished)}; a rerun renders on")

@@ -21,6 +21,7 @@ from .network_metrics import boundary_pixel_error, corner_confusion, corner_scor
 # imported on first use: the layouts' metrics need shapely, which the training (the network's metrics only) does
 # without, as on an accelerator's image that lacks it
 _LAZY_MODULES = ("central_metrics", "layout_metrics")
+_LAZY_NAMES = {"evaluate_layout": "layout_metrics"}  # a name, and the module it comes from
 
 if TYPE_CHECKING:
     from . import central_metrics as central_metrics
@@ -31,13 +32,13 @@ if TYPE_CHECKING:
 def __getattr__(name: str):
     if name in _LAZY_MODULES:
         return importlib.import_module(f"{__name__}.{name}")
-    if name == "evaluate_layout":
-        return importlib.import_module(f"{__name__}.layout_metrics").evaluate_layout
+    if name in _LAZY_NAMES:
+        return getattr(importlib.import_module(f"{__name__}.{_LAZY_NAMES[name]}"), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY_MODULES, "evaluate_layout"})
+    return sorted({*globals(), *_LAZY_MODULES, *_LAZY_NAMES})
 
 
 __all__ = [

@@ -46,7 +46,7 @@ import functools
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int, Key, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Key, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama, pixel_to_angles
 from .labels import RoomLabels, room_labels
@@ -270,7 +270,7 @@ def _row(scene: Scene, columns: dict, elevation: Float[Array, ""], shadows: bool
     irradiance = (facing * jnp.where(on_box, 0.85, occlusion))[:, None] * scene.ambient
     irradiance = _add_direct_light(scene, irradiance, (x, y, z), (normal_x, normal_y, normal_z), through, shadows)
     radiance = albedo * irradiance + emission
-    rgb = (1.0 - jnp.exp(-1.5 * radiance)) ** (1.0 / 2.2)
+    rgb = tone_curve(radiance)
     semantic = jnp.where(
         on_box,
         Semantic.OBJECT,
@@ -394,6 +394,21 @@ def synthesize(key: PRNGKeyArray, config: SynthConfig = SynthConfig()) -> tuple[
     if config.photoreal is not None:
         rendering = eqx.tree_at(lambda r: r.rgb, rendering, photoreal_rgb(key, scene, config, window_views()))
     return scene, rendering, labels
+
+
+# The ray caster's exposure and display gamma (:func:`tone_curve`).
+_EXPOSURE, _GAMMA = 1.5, 2.2
+
+
+def tone_curve(radiance: Float[Array, "*shape 3"]) -> Float[Array, "*shape 3"]:
+    """The ray caster's colours from its radiance: an exponential tone curve, then gamma 2.2, in [0, 1)."""
+    return (1.0 - jnp.exp(-_EXPOSURE * radiance)) ** (1.0 / _GAMMA)
+
+
+def radiance_from_colours(rgb: Float[ArrayLike, "*shape 3"]) -> Float[Array, "*shape 3"]:
+    """The radiance behind the ray caster's colours: the inverse of :func:`tone_curve` (a colour of 1, which the
+    curve never reaches, taken as just below it)."""
+    return -jnp.log(jnp.clip(1.0 - jnp.asarray(rgb) ** _GAMMA, 1e-6, 1.0)) / _EXPOSURE
 
 
 # the photoreal image's random stream: fold_in(key, 1), apart from split(key), the room's and the scene's
