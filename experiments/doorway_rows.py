@@ -11,8 +11,9 @@ It renders rooms of ``synth-decor-open`` (doors, half of them wide passages to t
 shipped model's rows (4 views, edge snap, as ``ncjax reconstruct``). Each column is put in one class by what the
 rendering shows just above its true floor line (3 rows up, on the wall plane): a door or what is seen through an
 open one (``Semantic.OPENING``), furniture in front of the wall (``OBJECT``), or the wall. Per class it prints the
-share of columns and the floor and ceiling rows' mean absolute error and share of columns more than 10 px off
-(rows of the 512-row image, as ``benchmarks/real_panoramas.py``).
+share of columns, the floor and ceiling rows' mean absolute error and share of columns more than 10 px off, and the
+floor rows' signed error (mean and median; positive: below the label, towards the nadir), in rows of the 512-row
+image, as ``benchmarks/real_panoramas.py``.
 
 ``--kinds`` picks other sources (``synth-decor-closet``: walk-in closets whose passages fill much of a wall;
 ``synth-decor-hall``: corridors with doors along them; ``synth-decor-closet-door``: closets photographed from their
@@ -76,11 +77,12 @@ def kind_errors(kind: str, seed: int, rooms: int, model, sheet_rooms: int = 0) -
             tiles.append(drawn_rows(image, (labels.ceiling_v, labels.floor_v), (ceiling_v, floor_v)))
         scale = 512 / image.shape[0]
         classes.append(column_classes(np.asarray(rendering.semantic), np.asarray(labels.floor_v)))
-        floor_error.append(np.abs(floor_v - np.asarray(labels.floor_v)) * scale)
+        floor_error.append((floor_v - np.asarray(labels.floor_v)) * scale)
         ceiling_error.append(np.abs(ceiling_v - np.asarray(labels.ceiling_v)) * scale)
     return {
         "class": np.concatenate(classes),
-        "floor": np.concatenate(floor_error),
+        "floor": np.abs(np.concatenate(floor_error)),
+        "floor_signed": np.concatenate(floor_error),
         "ceiling": np.concatenate(ceiling_error),
         "tiles": np.concatenate(tiles) if tiles else np.zeros((0, 0, 3), np.uint8),
     }
@@ -93,8 +95,10 @@ def table_lines(name: str, errors: dict[str, np.ndarray]) -> list[str]:
         if not picked.any():
             continue
         floor, ceiling = errors["floor"][picked], errors["ceiling"][picked]
+        signed = errors["floor_signed"][picked]
         lines.append(
             f"| {name}, {label} | {np.mean(picked):.1%} | {np.mean(floor):.1f} / {np.mean(floor > FAR):.1%} "
+            f"| {np.mean(signed):+.1f} / {np.median(signed):+.1f} "
             f"| {np.mean(ceiling):.1f} / {np.mean(ceiling > FAR):.1%} |"
         )
     return lines
@@ -116,8 +120,11 @@ def main(argv: list[str] | None = None) -> int:
     per_kind = {kind: kind_errors(kind, seed, args.rooms, model, sheet_rooms) for kind, seed in seeds.items()}
     listed = ", ".join(f"{kind} seed {seed}" for kind, seed in seeds.items())
     print(f"{args.rooms} rooms per kind ({listed}); rows of a 512-row image")
-    print(f"| renders, column class | columns | floor: mean px / > {FAR:.0f} px | ceiling: mean px / > {FAR:.0f} px |")
-    print("| --- | --- | --- | --- |")
+    print(
+        f"| renders, column class | columns | floor: mean px / > {FAR:.0f} px | floor signed (below the label +): "
+        f"mean / median px | ceiling: mean px / > {FAR:.0f} px |"
+    )
+    print("| --- | --- | --- | --- | --- |")
     for kind, errors in per_kind.items():
         print("\n".join(table_lines(kind, errors)))
     if args.sheet:

@@ -1,5 +1,7 @@
 """The noise sweep runs end to end in its small version and writes its outputs."""
 
+import dataclasses
+import pathlib
 from types import SimpleNamespace
 
 import jax
@@ -373,10 +375,11 @@ def test_doorway_rows_classes_each_column_by_what_stands_just_above_its_floor_li
     assert classes.tolist() == [Semantic.WALL, Semantic.OPENING, Semantic.WALL, Semantic.WALL]
     semantic[3, 2] = Semantic.OBJECT
     assert module.column_classes(semantic, floor_v)[2] == Semantic.OBJECT
-    errors = {"class": classes, "floor": np.array([1.0, 20.0, 3.0, 5.0]), "ceiling": np.zeros(4)}
+    signed = np.array([1.0, -20.0, 3.0, -5.0])
+    errors = {"class": classes, "floor": np.abs(signed), "floor_signed": signed, "ceiling": np.zeros(4)}
     lines = module.table_lines("renders", errors)
-    assert lines[0] == "| renders, doorway | 25.0% | 20.0 / 100.0% | 0.0 / 0.0% |"
-    assert lines[1] == "| renders, wall | 75.0% | 3.0 / 0.0% | 0.0 / 0.0% |"
+    assert lines[0] == "| renders, doorway | 25.0% | 20.0 / 100.0% | -20.0 / -20.0 | 0.0 / 0.0% |"
+    assert lines[1] == "| renders, wall | 75.0% | 3.0 / 0.0% | -0.3 / +1.0 | 0.0 / 0.0% |"
 
 
 def test_doorway_rows_sheet_draws_the_true_rows_green_and_the_predicted_red_at_half_size():
@@ -392,3 +395,63 @@ def test_doorway_rows_sheet_draws_the_true_rows_green_and_the_predicted_red_at_h
     assert red > green + 40 and red > blue + 40
     assert tile[5, 32, 1] > tile[5, 32, 2] + 40  # where both lie, the true row is drawn over the predicted
     assert np.all(np.abs(tile[20, 32] - 128) <= 2)  # nothing elsewhere
+
+
+def test_photoreal_stage_arms_differ_only_in_how_the_home_rooms_are_rendered(tmp_path):
+    module = experiment("photoreal_stage")
+    from ncjax.cli.main import build_parser
+
+    commands = {arm: module.arm_command(arm, tmp_path / "out", tmp_path / "work", smoke=False) for arm in module.ARMS}
+    photoreal, raycast = commands["photoreal"], commands["raycast"]
+    assert len(photoreal) == len(raycast)
+    differing = [(a, b) for a, b in zip(photoreal, raycast, strict=True) if a != b]
+    assert differing[0] == ("synth-photoreal-home:91:1000", "synth-decor-home:91:1000")
+    # Everything else that differs is where each arm writes.
+    assert all("photoreal" in a and "raycast" in b for a, b in differing[1:])
+    for command in commands.values():
+        args = build_parser().parse_args(command[command.index("train") :])
+        assert args.render_cache and args.render_budget < args.time_budget <= 540
+        assert pathlib.Path(args.render_cache).is_relative_to(tmp_path / "work")
+        assert pathlib.Path(args.export).parent == tmp_path / "out"
+
+
+def test_photoreal_stage_runs_both_arms_and_fails_when_one_does(tmp_path, monkeypatch, capsys):
+    module = experiment("photoreal_stage")
+    started = []
+
+    class FakeProcess:
+        def __init__(self, command, stdout, stderr, env):
+            started.append((command, env["XLA_PYTHON_CLIENT_MEM_FRACTION"]))
+            self.code = 1 if "synth-decor-home:91:16" in command else 0
+
+        def wait(self):
+            return self.code
+
+    monkeypatch.setattr(module.subprocess, "Popen", FakeProcess)
+    assert module.main(["--smoke", "--out", str(tmp_path), "--work", str(tmp_path / "work")]) == 1
+    assert [fraction for _, fraction in started] == ["0.45", "0.45"]
+    assert "raycast failed" in capsys.readouterr().err
+    assert (tmp_path / "photoreal.log").exists() and (tmp_path / "raycast.log").exists()
+
+
+def test_photoreal_factors_change_one_setting_of_the_quarter_renders_at_a_time():
+    module = experiment("photoreal_factors")
+    quarter = module.SOURCES["photoreal-quarter"].photoreal
+    shipped = module.PHOTOREAL.photoreal
+    assert (quarter.trace_scale, quarter.trace.samples_per_pixel) == (4, 4)
+    assert dataclasses.replace(quarter, trace_scale=shipped.trace_scale, trace=shipped.trace) == shipped
+    changed = {
+        "matte": ("trace", "floor_specular", 0.0),
+        "no-sun": (None, "sun", False),
+        "flat-windows": (None, "sun", False),
+        "direct": ("trace", "bounces", 1),
+        "six-bounces": ("trace", "bounces", 6),
+    }
+    for variant, (part, field, value) in changed.items():
+        config = module.SOURCES[f"photoreal-{variant}"].photoreal
+        if part == "trace":
+            assert config == dataclasses.replace(quarter, trace=dataclasses.replace(quarter.trace, **{field: value}))
+        else:
+            assert config == dataclasses.replace(quarter, **{field: value})
+    views = module.flat_window_views()
+    assert views.shape == module.window_views().shape and np.all(views == views[:, :1, :1])
