@@ -50,14 +50,14 @@ DEFAULT_ROOMS = "701:120"
 render_module = importlib.import_module("ncjax.synth.render")
 
 
-def _photoreal(quarter: bool = True, trace: dict | None = None, **settings):
-    """``synth-photoreal-open`` with ``settings`` on its :class:`PhotorealConfig` and ``trace`` on its tracer's."""
+def _photoreal(trace: dict | None = None, **settings):
+    """``synth-photoreal-open`` at a quarter of the paths (the light traced at a quarter of the image's size, 4 paths
+    a pixel), with ``settings`` on its :class:`PhotorealConfig` and ``trace`` on its tracer's."""
     photoreal = PHOTOREAL.photoreal
-    trace = dict(trace or {})
-    if quarter:
-        settings.setdefault("trace_scale", 4)
-        trace.setdefault("samples_per_pixel", 4)
-    photoreal = dataclasses.replace(photoreal, trace=dataclasses.replace(photoreal.trace, **trace), **settings)
+    trace = {"samples_per_pixel": 4, **(trace or {})}
+    photoreal = dataclasses.replace(
+        photoreal, trace=dataclasses.replace(photoreal.trace, **trace), **{"trace_scale": 4, **settings}
+    )
     return dataclasses.replace(PHOTOREAL, photoreal=photoreal)
 
 
