@@ -81,8 +81,7 @@ def kind_errors(kind: str, seed: int, rooms: int, model, sheet_rooms: int = 0) -
         ceiling_error.append(np.abs(ceiling_v - np.asarray(labels.ceiling_v)) * scale)
     return {
         "class": np.concatenate(classes),
-        "floor": np.abs(np.concatenate(floor_error)),
-        "floor_signed": np.concatenate(floor_error),
+        "floor": np.concatenate(floor_error),  # signed: positive below the label
         "ceiling": np.concatenate(ceiling_error),
         "tiles": np.concatenate(tiles) if tiles else np.zeros((0, 0, 3), np.uint8),
     }
@@ -94,8 +93,8 @@ def table_lines(name: str, errors: dict[str, np.ndarray]) -> list[str]:
         picked = errors["class"] == semantic
         if not picked.any():
             continue
-        floor, ceiling = errors["floor"][picked], errors["ceiling"][picked]
-        signed = errors["floor_signed"][picked]
+        signed, ceiling = errors["floor"][picked], errors["ceiling"][picked]
+        floor = np.abs(signed)
         lines.append(
             f"| {name}, {label} | {np.mean(picked):.1%} | {np.mean(floor):.1f} / {np.mean(floor > FAR):.1%} "
             f"| {np.mean(signed):+.1f} / {np.median(signed):+.1f} "

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 
 import jax
 import jax.numpy as jnp
@@ -28,16 +27,13 @@ from ncjax.synth.dataset import rendered_samples
 from ncjax.synth.pathtrace import path_trace
 from ncjax.synth.pathtrace_denoise import guide_buffers
 from ncjax.synth.pathtrace_scene import SurfaceKind
-from ncjax.synth.photoreal import PhotorealConfig, window_light, window_views
+from ncjax.synth.photograph import luminance
+from ncjax.synth.photoreal import PhotorealConfig, next_room_irradiance, window_light, window_views
 from ncjax.synth.render import radiance_from_colours
 from ncjax.training.data import SYNTH_SOURCES
 
 HEIGHT, WIDTH = 128, 256
 MIN_PIXELS = 20
-
-
-def luminance(rgb: np.ndarray) -> np.ndarray:
-    return rgb @ np.array([0.2126, 0.7152, 0.0722])
 
 
 def at_traced_pixels(image: np.ndarray) -> np.ndarray:
@@ -61,8 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     @jax.jit
     def traced(key, scene):
         view, sun = window_light(key, views, config)
-        next_room = config.next_room_light * math.pi * jnp.mean(view, (0, 1))
-        radiance = path_trace(scene, cam, key, config.trace, view, sun if config.sun else None, next_room)
+        radiance = path_trace(
+            scene, cam, key, config.trace, view, sun if config.sun else None, next_room_irradiance(view, config)
+        )
         return radiance, guide_buffers(scene, cam).surface % len(SurfaceKind)
 
     ratios = []
@@ -72,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         if behind.sum() < MIN_PIXELS:
             continue
         cast = np.asarray(radiance_from_colours(at_traced_pixels(np.asarray(rendering.rgb))))
-        photoreal, cast = luminance(radiance), luminance(cast)
+        photoreal, cast = np.asarray(luminance(radiance)), np.asarray(luminance(cast))
         ratios.append([np.median(image[behind]) / np.median(image[walls]) for image in (photoreal, cast)])
         print(
             f"room {index}: {behind.mean():.1%} of the pixels behind doors; behind / walls: photoreal "

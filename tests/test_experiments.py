@@ -376,7 +376,7 @@ def test_doorway_rows_classes_each_column_by_what_stands_just_above_its_floor_li
     semantic[3, 2] = Semantic.OBJECT
     assert module.column_classes(semantic, floor_v)[2] == Semantic.OBJECT
     signed = np.array([1.0, -20.0, 3.0, -5.0])
-    errors = {"class": classes, "floor": np.abs(signed), "floor_signed": signed, "ceiling": np.zeros(4)}
+    errors = {"class": classes, "floor": signed, "ceiling": np.zeros(4)}
     lines = module.table_lines("renders", errors)
     assert lines[0] == "| renders, doorway | 25.0% | 20.0 / 100.0% | -20.0 / -20.0 | 0.0 / 0.0% |"
     assert lines[1] == "| renders, wall | 75.0% | 3.0 / 0.0% | -0.3 / +1.0 | 0.0 / 0.0% |"

@@ -162,6 +162,13 @@ def window_light(
     return clipped, Sun(direction=sun_direction, irradiance=jnp.sum(taken, (0, 1)))
 
 
+def next_room_irradiance(view: Float[Array, "He We 3"], config: PhotorealConfig = PhotorealConfig()) -> Float[Array, 3]:
+    """The irradiance that lights the rooms behind open doors (before each door's ``room_light``):
+    ``config.next_room_light`` of a surface's open to the whole of what the windows show (``pi`` times its mean
+    radiance)."""
+    return config.next_room_light * math.pi * jnp.mean(view, (0, 1))
+
+
 def photoreal_image(
     key: PRNGKeyArray,
     scene: Scene,
@@ -187,7 +194,7 @@ def photoreal_image(
     key_view, key_trace, key_camera = jax.random.split(key, 3)
     traced = NonCentralPanorama(cam.width // scale, cam.height // scale, cam.rc, cam.fov_horizontal, cam.fov_vertical)
     view, sun = window_light(key_view, views, config)
-    next_room = config.next_room_light * math.pi * jnp.mean(view, (0, 1))
+    next_room = next_room_irradiance(view, config)
     radiance = path_trace(scene, traced, key_trace, config.trace, view, sun if config.sun else None, next_room)
     guides = guide_buffers(scene, traced)
     light = demodulated(radiance, guides)
