@@ -12,14 +12,20 @@ cores instead of 15 s):
 - ``raycast``, ``photoreal``: ``synth-decor-open`` and ``synth-photoreal-open`` as they are;
 - ``quarter``; ``matte``: no glossy lobe on the floor; ``no-sun``; ``flat-windows``: the windows show each view's
   mean colour (so no sun); ``direct``: 1 bounce, no interreflection; ``six-bounces``;
+- ``local-tone``: the camera fuses an HDR capture and tone-maps it locally (``PhotographConfig.local_compression``
+  0.4-0.8: the windows show their view, shadowed corners lift);
 - ``raycast-developed``: the ray caster's image taken back to radiance and developed by the photoreal camera
   (metering, tone curve, white balance), no path tracing;
 - ``both``: the rooms ray-cast and at a quarter of the paths, twice the images.
 
 Renders and features are cached by ``frozen_backbone.py`` (``experiments/out/frozen_shipped_<kind>_...npz``), the
-heads written to ``experiments/out/factor_<variant>[_<rooms>][_seed<S>].safetensors``.
+heads written to ``experiments/out/factor_<variant>[_<rooms>][_imagenet][_seed<S>].safetensors``.
+
+``--backbone imagenet`` trains the heads on ImageNet's frozen features instead of the shipped model's, which its
+training adapted to ray-cast renders (and so may favour them).
 
     uv run python experiments/photoreal_factors.py --data DIR [--variants NAME ...] [--seed S] [--rooms 701:120]
+        [--backbone imagenet]
 """
 
 from __future__ import annotations
@@ -35,11 +41,10 @@ import sys
 from unittest import mock
 
 import frozen_backbone
-import jax
 import numpy as np
 
 from ncjax.synth.photograph import photograph
-from ncjax.synth.photoreal import window_views
+from ncjax.synth.photoreal import DEVELOPMENT, window_views
 from ncjax.training.data import SYNTH_SOURCES
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -67,13 +72,12 @@ def flat_window_views() -> np.ndarray:
     return np.broadcast_to(views.mean((1, 2), keepdims=True), views.shape).copy()
 
 
-def developed_raycast(key, scene, config, views):
-    """In place of :func:`ncjax.synth.render.photoreal_rgb`: the ray caster's image, its radiance developed by the
-    photoreal camera (the same random stream)."""
+def developed_raycast(key, scene, cam, views, config):
+    """In place of :func:`ncjax.synth.photoreal.photoreal_image`: the ray caster's image of ``synth-photoreal-open``'s
+    rooms, its radiance developed by the photoreal camera (``config.camera``), no path tracing."""
     del views
-    rgb = render_module.render(scene, scene.room.camera(config.width, config.height), config.render).rgb
-    radiance = render_module.radiance_from_colours(rgb)
-    return photograph(jax.random.fold_in(key, render_module._PHOTOREAL_STREAM), radiance, config.photoreal.camera)
+    rgb = render_module.render(scene, cam, PHOTOREAL.render).rgb
+    return photograph(key, render_module.radiance_from_colours(rgb), config.camera)
 
 
 # The variants' sources, registered beside ncjax train's (SYNTH_SOURCES) when the module loads.
@@ -84,6 +88,7 @@ SOURCES = {
     "photoreal-flat-windows": _photoreal(sun=False),
     "photoreal-direct": _photoreal(trace={"bounces": 1}),
     "photoreal-six-bounces": _photoreal(trace={"bounces": 6}),
+    "photoreal-local-tone": _photoreal(camera=dataclasses.replace(DEVELOPMENT, local_compression=(0.4, 0.8))),
     "raycast-developed": _photoreal(),
 }
 SYNTH_SOURCES.update(SOURCES)
@@ -98,22 +103,25 @@ VARIANTS = {
     "flat-windows": (("photoreal-flat-windows",), {"window_views": flat_window_views}),
     "direct": (("photoreal-direct",), {}),
     "six-bounces": (("photoreal-six-bounces",), {}),
-    "raycast-developed": (("raycast-developed",), {"photoreal_rgb": developed_raycast}),
+    "local-tone": (("photoreal-local-tone",), {}),
+    "raycast-developed": (("raycast-developed",), {"photoreal_image": developed_raycast}),
     "both": (("synth-decor-open", "photoreal-quarter"), {}),
 }
 
 
-def head(variant: str, rooms: str, seed: int) -> pathlib.Path:
-    """Train (or find) the head of ``variant`` on ``rooms`` (SEED:N) with head seed ``seed``; its model file."""
+def head(variant: str, rooms: str, seed: int, backbone: str = "shipped") -> pathlib.Path:
+    """Train (or find) the head of ``variant`` on ``rooms`` (SEED:N) with head seed ``seed`` on the frozen
+    ``backbone`` (``frozen_backbone.py --backbone``); its model file."""
     kinds, replaced = VARIANTS[variant]
-    suffix = (f"_{rooms.replace(':', '_')}" if rooms != DEFAULT_ROOMS else "") + (f"_seed{seed}" if seed else "")
+    suffix = f"_{rooms.replace(':', '_')}" if rooms != DEFAULT_ROOMS else ""
+    suffix += (f"_{backbone}" if backbone != "shipped" else "") + (f"_seed{seed}" if seed else "")
     export = OUT / f"factor_{variant}{suffix}.safetensors"
     if not export.exists():
         with contextlib.ExitStack() as stack:
             for name, function in replaced.items():
                 stack.enter_context(mock.patch.object(render_module, name, function))
             data = ["--data", *(f"{kind}:{rooms}" for kind in kinds)]
-            arguments = [*data, "--backbone", "shipped", "--seed", str(seed), "--export", str(export)]
+            arguments = [*data, "--backbone", backbone, "--seed", str(seed), "--export", str(export)]
             if frozen_backbone.main(arguments):
                 raise RuntimeError(f"the head of {variant} did not train")
     return export
@@ -134,13 +142,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variants", nargs="+", choices=sorted(VARIANTS), default=list(VARIANTS))
     parser.add_argument("--seed", type=int, default=0, help="the heads' seed (frozen_backbone.py --seed)")
     parser.add_argument("--rooms", default=DEFAULT_ROOMS, help="SEED:N of the open-plan rooms")
+    parser.add_argument(
+        "--backbone",
+        choices=("shipped", "imagenet"),
+        default="shipped",
+        help="the frozen backbone: the shipped model's (adapted to ray-cast renders) or ImageNet's (neither's)",
+    )
     args = parser.parse_args(argv)
     if not args.data.is_dir():
         parser.error(f"--data {args.data} is not a folder")
     print("| variant | ceiling | floor | 3D IoU | open plan: floor / IoU |")
     print("| --- | --- | --- | --- | --- |")
     for variant in args.variants:
-        means = scores(head(variant, args.rooms, args.seed), args.data)
+        means = scores(head(variant, args.rooms, args.seed, args.backbone), args.data)
         every = next(iter(means.values()))  # the mean over all images comes first
         open_plan = next((row for name, row in means.items() if "open_plan" in name), None)
         line = f"| {variant} | {float(every['ceiling_error_px']):.1f} | {float(every['floor_error_px']):.1f} | "

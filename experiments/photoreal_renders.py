@@ -11,6 +11,8 @@ decor, pale walls in most of them), 512 x 1024, made through the dataset's own p
 - ``photoreal_camera/``: the same radiance developed by the whole camera model (vignetting, stitching seams,
   the tripod at the nadir, sensor noise: ``ncjax.synth.photograph.PhotographConfig()``), which training leaves
   to its own augmentation;
+- ``photoreal_local_tone/``: the same radiance fused and tone-mapped locally as an HDR capture
+  (``PhotographConfig.local_compression`` 0.4-0.8: the windows show their view, shadowed corners lift);
 - ``pathtrace/``: the same traces not denoised;
 - ``photoreal_full_size/``: traced at the image's size (four times the paths).
 
@@ -34,6 +36,7 @@ import numpy as np
 from ncjax.cli.compilation import enable_compilation_cache
 from ncjax.synth.dataset import rendered_samples, rendering_rgb8
 from ncjax.synth.photograph import PhotographConfig
+from ncjax.synth.photoreal import DEVELOPMENT
 from ncjax.training.data import SYNTH_SOURCES
 
 OUT = Path(__file__).parent / "out" / "photoreal"
@@ -45,6 +48,12 @@ SETS = {
     "photoreal": PHOTOREAL,
     "photoreal_camera": dataclasses.replace(
         PHOTOREAL, photoreal=dataclasses.replace(PHOTOREAL.photoreal, camera=PhotographConfig())
+    ),
+    "photoreal_local_tone": dataclasses.replace(
+        PHOTOREAL,
+        photoreal=dataclasses.replace(
+            PHOTOREAL.photoreal, camera=dataclasses.replace(DEVELOPMENT, local_compression=(0.4, 0.8))
+        ),
     ),
     "pathtrace": dataclasses.replace(PHOTOREAL, photoreal=dataclasses.replace(PHOTOREAL.photoreal, denoise=None)),
     "photoreal_full_size": dataclasses.replace(

@@ -446,12 +446,17 @@ def test_photoreal_factors_change_one_setting_of_the_quarter_renders_at_a_time()
         "flat-windows": (None, "sun", False),
         "direct": ("trace", "bounces", 1),
         "six-bounces": ("trace", "bounces", 6),
+        "local-tone": ("camera", "local_compression", (0.4, 0.8)),
     }
     for variant, (part, field, value) in changed.items():
         config = module.SOURCES[f"photoreal-{variant}"].photoreal
-        if part == "trace":
-            assert config == dataclasses.replace(quarter, trace=dataclasses.replace(quarter.trace, **{field: value}))
+        if part in ("trace", "camera"):
+            inner = dataclasses.replace(getattr(quarter, part), **{field: value})
+            assert config == dataclasses.replace(quarter, **{part: inner})
         else:
             assert config == dataclasses.replace(quarter, **{field: value})
     views = module.flat_window_views()
     assert views.shape == module.window_views().shape and np.all(views == views[:, :1, :1])
+    # what a variant replaces while it renders is the renderer module's own (mock.patch.object needs it there)
+    for _, replaced in module.VARIANTS.values():
+        assert all(callable(getattr(module.render_module, name)) for name in replaced)

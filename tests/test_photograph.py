@@ -1,5 +1,6 @@
 """The camera model (ncjax.synth.photograph): its tone curve and encoding against their definitions, the metering's
-normalisation, the white balance, the nadir patch, and the photograph's type, range, determinism and JPEG file."""
+normalisation, the white balance, the nadir patch, the local tone mapping of an HDR capture, and the photograph's
+type, range, determinism and JPEG file."""
 
 import io
 
@@ -14,6 +15,7 @@ from ncjax.synth.photograph import (
     filmic_tone_curve,
     grey_world_gains,
     inverse_filmic_tone_curve,
+    local_tone_mapping,
     luminance,
     metered_exposure,
     nadir_patch,
@@ -149,6 +151,36 @@ def test_configuration_rejects_bad_values():
         dict(white_point=0.0),
         dict(white_balance_strength=1.5),
         dict(nadir_rows=(0.2, 0.1)),
+        dict(local_compression=(0.0, 0.5)),
+        dict(local_compression=(0.8, 0.5)),
+        dict(local_compression=(0.5, 1.5)),
     ):
         with pytest.raises(ValueError):
             PhotographConfig(**bad)
+
+
+def _window_wall(fine_contrast: float = 0.0) -> np.ndarray:
+    """A 64 x 128 panorama: a dim wall (radiance 1) with a window 100 times brighter over a quarter of the columns,
+    a warm colour, and a fine checker of ``fine_contrast`` (relative) over everything."""
+    v, u = np.mgrid[0:64, 0:128]
+    level = np.where((u >= 48) & (u < 80), 100.0, 1.0) * (1 + fine_contrast * ((u + v) % 2 * 2 - 1))
+    return (level[..., None] * np.array([1.2, 1.0, 0.7])).astype(np.float32)
+
+
+def test_local_tone_mapping_compresses_the_light_and_keeps_fine_detail_and_colour():
+    wall = _window_wall(fine_contrast=0.05)
+    mapped = np.asarray(jax.jit(local_tone_mapping)(jnp.asarray(wall), 0.5))
+    level = luminance(mapped)
+    # Far from the window's edges the 100:1 step becomes about 10:1: its log halved.
+    window, dim = level[24:40, 56:72].mean(), level[24:40, 4:20].mean()
+    assert 8 < window / dim < 12.5
+    # The checker's 5% (a 1.105 ratio between neighbours) is detail: kept within a percent.
+    neighbours = level[30, 9:13] / level[30, 8:12]
+    np.testing.assert_allclose(np.maximum(neighbours, 1 / neighbours), 1.05 / 0.95, rtol=0.01)
+    # Each pixel's colour is kept: every channel takes the same factor.
+    np.testing.assert_allclose(mapped / mapped[..., 1:2], wall / wall[..., 1:2], rtol=1e-5)
+
+
+def test_local_tone_mapping_at_compression_one_changes_nothing():
+    wall = jnp.asarray(_window_wall(fine_contrast=0.05))
+    np.testing.assert_allclose(np.asarray(local_tone_mapping(wall, 1.0)), np.asarray(wall), rtol=1e-6)

@@ -31,7 +31,7 @@ def to_greyscale(image: Float[Array, "H W 3"]) -> Float[Array, "H W 3"]:
     return jnp.broadcast_to((image @ _LUMA)[..., None], image.shape)
 
 
-def gaussian_blur(image: Float[Array, "H W 3"], sigma: Float[ArrayLike, ""], radius: int = 3) -> Float[Array, "H W 3"]:
+def gaussian_blur(image: Float[Array, "H W C"], sigma: Float[ArrayLike, ""], radius: int = 3) -> Float[Array, "H W C"]:
     """Separable Gaussian blur of standard deviation ``sigma`` pixels (a static
     ``radius`` bounds the kernel): wraps around horizontally, clamps vertically."""
     offsets = jnp.arange(-radius, radius + 1)
