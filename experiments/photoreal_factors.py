@@ -5,9 +5,9 @@ renders than after the same rooms ray-cast (experiments/RESULTS.md, "What the ph
 script trains such a head (``experiments/frozen_backbone.py``, 8 epochs, ``--backbone shipped``) on the rooms of
 ``synth-photoreal-open:SEED:N`` rendered with one setting changed, and scores it on labelled photographs
 (``benchmarks/real_panoramas.py``), printing one line per variant: the ceiling and floor rows (px of 512) and the raw
-3D IoU over all images and over the open-plan ones. Every variant but ``raycast`` and ``photoreal`` traces at a
-quarter of the paths (``quarter``: the light at a quarter of the image's size, 4 paths a pixel; 3 s a room on 2
-cores instead of 15 s):
+3D IoU over all images and over the open-plan ones, and the floor rows' mean signed error. Every variant but
+``raycast`` and ``photoreal`` traces at a quarter of the paths (``quarter``: the light at a quarter of the image's
+size, 4 paths a pixel; 3 s a room on 2 cores instead of 15 s):
 
 - ``raycast``, ``photoreal``: ``synth-decor-open`` and ``synth-photoreal-open`` as they are;
 - ``quarter``; ``matte``: no glossy lobe on the floor; ``no-sun``; ``flat-windows``: the windows show each view's
@@ -151,8 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.data.is_dir():
         parser.error(f"--data {args.data} is not a folder")
-    print("| variant | ceiling | floor | 3D IoU | open plan: floor / IoU |")
-    print("| --- | --- | --- | --- | --- |")
+    print("| variant | ceiling | floor | 3D IoU | open plan: floor / IoU | floor signed (below the label +) |")
+    print("| --- | --- | --- | --- | --- | --- |")
     for variant in args.variants:
         means = scores(head(variant, args.rooms, args.seed, args.backbone), args.data)
         every = next(iter(means.values()))  # the mean over all images comes first
@@ -160,6 +160,7 @@ def main(argv: list[str] | None = None) -> int:
         line = f"| {variant} | {float(every['ceiling_error_px']):.1f} | {float(every['floor_error_px']):.1f} | "
         line += f"{float(every['iou_3d']):.3f} | "
         line += f"{float(open_plan['floor_error_px']):.1f} / {float(open_plan['iou_3d']):.3f} |" if open_plan else "- |"
+        line += f" {float(every['floor_signed_error_px']):+.1f} |"
         print(line, flush=True)
     return 0
 

@@ -12,7 +12,7 @@ from _scripts import script_module
 
 import ncjax
 from ncjax.evaluation.panorama_labels import distinct_corners, label_boundaries, read_label_cor
-from ncjax.evaluation.panorama_scores import match_one_to_one
+from ncjax.evaluation.panorama_scores import match_one_to_one, row_error
 from ncjax.synth.dataset import label_cor_rows
 
 WIDTH, HEIGHT = 1024, 512
@@ -86,6 +86,14 @@ def test_label_rows_match_the_renderers_exact_rows(corners, tmp_path):
     assert distinct_corners(columns, WIDTH).sum() == distinct
 
 
+def test_row_errors_in_rows_of_512_absolute_and_signed_over_the_finite_columns():
+    label = np.array([100.0, 100.0, 100.0, np.nan])  # a 4-column panorama of 2 rows: 256 rows of 512 a row
+    predicted = np.array([101.0, 97.0, np.nan, 50.0])
+    assert row_error(predicted, label) == 256 * (1 + 3) / 2
+    assert row_error(predicted, label, signed=True) == 256 * (1 - 3) / 2  # below the label is positive
+    assert np.isnan(row_error(np.full(4, np.nan), label))
+
+
 def test_corners_match_one_to_one_across_the_seam():
     peaks = np.array([1023.4, 3.0, 500.0, 700.0])
     targets = np.array([0.2, 505.0, 900.0])
@@ -151,6 +159,7 @@ def test_benchmark_on_renders(rendered_folder, tmp_path):
         figures = {key: float(value) for key, value in row.items() if key not in ("name", "tags")}
         assert all(np.isfinite(value) for value in figures.values())
         assert figures["ceiling_error_px"] < 5.0 and figures["floor_error_px"] < 5.0
+        assert abs(figures["floor_signed_error_px"]) <= figures["floor_error_px"]
         for key in ("precision_1pct", "recall_1pct", "precision_2.5pct", "recall_2.5pct", "iou_2d", "iou_3d"):
             assert 0.0 <= figures[key] <= 1.0
         assert figures["iou_2d"] > 0.8 and figures["iou_3d"] > 0.7

@@ -59,11 +59,13 @@ def corner_counts(peaks: np.ndarray, panorama: LabelledPanorama, fraction: float
     return int(matched.sum()), int(len(peaks) - on_occluded.sum())
 
 
-def row_error(predicted: np.ndarray, label: np.ndarray) -> float:
-    """Mean |row error| over the columns where both are finite, in pixels of a 512-row image."""
+def row_error(predicted: np.ndarray, label: np.ndarray, signed: bool = False) -> float:
+    """Mean |row error| over the columns where both are finite, in pixels of a 512-row image; ``signed``: the mean
+    row error itself (positive below the label, towards the nadir)."""
     both = np.isfinite(predicted) & np.isfinite(label)
     scale = REFERENCE_WIDTH / len(label)  # = 512 / H for a W = 2 H panorama
-    return float(scale * np.mean(np.abs(predicted[both] - label[both]))) if both.any() else math.nan
+    error = predicted[both] - label[both]
+    return float(scale * np.mean(error if signed else np.abs(error))) if both.any() else math.nan
 
 
 def ratio(numerator: float, denominator: float) -> float:
@@ -91,6 +93,7 @@ def score_image(panorama: LabelledPanorama, ceiling_v: np.ndarray, floor_v: np.n
         "tags": " ".join(panorama.tags),
         "ceiling_error_px": row_error(ceiling_v, panorama.ceiling_v) if panorama.score_ceiling else math.nan,
         "floor_error_px": row_error(floor_v, panorama.floor_v),
+        "floor_signed_error_px": row_error(floor_v, panorama.floor_v, signed=True),
         "label_corners": len(panorama.corner_columns),
         "predicted_corners": len(peaks),
         "exact_corner_count": float(len(peaks) == len(panorama.corner_columns)),
@@ -114,7 +117,14 @@ def nan_mean(values: list[float]) -> float:
 def summarise(rows: list[dict], name: str) -> dict:
     """The mean row of several images: errors, IoUs and the exact-count share averaged, corners pooled."""
     summary = {"name": name, "tags": ""}
-    for key in ("ceiling_error_px", "floor_error_px", "exact_corner_count", "iou_2d", "iou_3d"):
+    for key in (
+        "ceiling_error_px",
+        "floor_error_px",
+        "floor_signed_error_px",
+        "exact_corner_count",
+        "iou_2d",
+        "iou_3d",
+    ):
         summary[key] = nan_mean([row[key] for row in rows])
     for key in ("label_corners", "predicted_corners"):
         summary[key] = sum(row[key] for row in rows)
