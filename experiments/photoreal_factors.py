@@ -19,13 +19,13 @@ size, 4 paths a pixel; 3 s a room on 2 cores instead of 15 s):
 - ``both``: the rooms ray-cast and at a quarter of the paths, twice the images.
 
 Renders and features are cached by ``frozen_backbone.py`` (``experiments/out/frozen_shipped_<kind>_...npz``), the
-heads written to ``experiments/out/factor_<variant>[_<rooms>][_imagenet][_seed<S>].safetensors``.
+heads written to ``experiments/out/factor_<variant>[_<rooms>][_imagenet][_epochs<E>][_seed<S>].safetensors``.
 
 ``--backbone imagenet`` trains the heads on ImageNet's frozen features instead of the shipped model's, which its
 training adapted to ray-cast renders (and so may favour them).
 
     uv run python experiments/photoreal_factors.py --data DIR [--variants NAME ...] [--seed S] [--rooms 701:120]
-        [--backbone imagenet]
+        [--backbone imagenet] [--epochs 8]
 """
 
 from __future__ import annotations
@@ -109,19 +109,21 @@ VARIANTS = {
 }
 
 
-def head(variant: str, rooms: str, seed: int, backbone: str = "shipped") -> pathlib.Path:
+def head(variant: str, rooms: str, seed: int, backbone: str = "shipped", epochs: int = 8) -> pathlib.Path:
     """Train (or find) the head of ``variant`` on ``rooms`` (SEED:N) with head seed ``seed`` on the frozen
-    ``backbone`` (``frozen_backbone.py --backbone``); its model file."""
+    ``backbone`` (``frozen_backbone.py --backbone``) for ``epochs``; its model file."""
     kinds, replaced = VARIANTS[variant]
     suffix = f"_{rooms.replace(':', '_')}" if rooms != DEFAULT_ROOMS else ""
-    suffix += (f"_{backbone}" if backbone != "shipped" else "") + (f"_seed{seed}" if seed else "")
+    suffix += (f"_{backbone}" if backbone != "shipped" else "") + (f"_epochs{epochs}" if epochs != 8 else "")
+    suffix += f"_seed{seed}" if seed else ""
     export = OUT / f"factor_{variant}{suffix}.safetensors"
     if not export.exists():
         with contextlib.ExitStack() as stack:
             for name, function in replaced.items():
                 stack.enter_context(mock.patch.object(render_module, name, function))
             data = ["--data", *(f"{kind}:{rooms}" for kind in kinds)]
-            arguments = [*data, "--backbone", backbone, "--seed", str(seed), "--export", str(export)]
+            arguments = [*data, "--backbone", backbone, "--seed", str(seed), "--epochs", str(epochs)]
+            arguments += ["--export", str(export)]
             if frozen_backbone.main(arguments):
                 raise RuntimeError(f"the head of {variant} did not train")
     return export
@@ -148,13 +150,14 @@ def main(argv: list[str] | None = None) -> int:
         default="shipped",
         help="the frozen backbone: the shipped model's (adapted to ray-cast renders) or ImageNet's (neither's)",
     )
+    parser.add_argument("--epochs", type=int, default=8, help="the heads' epochs (frozen_backbone.py --epochs)")
     args = parser.parse_args(argv)
     if not args.data.is_dir():
         parser.error(f"--data {args.data} is not a folder")
     print("| variant | ceiling | floor | 3D IoU | open plan: floor / IoU | floor signed (below the label +) |")
     print("| --- | --- | --- | --- | --- | --- |")
     for variant in args.variants:
-        means = scores(head(variant, args.rooms, args.seed, args.backbone), args.data)
+        means = scores(head(variant, args.rooms, args.seed, args.backbone, args.epochs), args.data)
         every = next(iter(means.values()))  # the mean over all images comes first
         open_plan = next((row for name, row in means.items() if "open_plan" in name), None)
         line = f"| {variant} | {float(every['ceiling_error_px']):.1f} | {float(every['floor_error_px']):.1f} | "
