@@ -44,7 +44,7 @@ import frozen_backbone
 import numpy as np
 
 from ncjax.synth.photograph import photograph
-from ncjax.synth.photoreal import DEVELOPMENT, window_views
+from ncjax.synth.photoreal import HDR_DEVELOPMENT, window_views
 from ncjax.training.data import SYNTH_SOURCES
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -88,7 +88,7 @@ SOURCES = {
     "photoreal-flat-windows": _photoreal(sun=False),
     "photoreal-direct": _photoreal(trace={"bounces": 1}),
     "photoreal-six-bounces": _photoreal(trace={"bounces": 6}),
-    "photoreal-local-tone": _photoreal(camera=dataclasses.replace(DEVELOPMENT, local_compression=(0.4, 0.8))),
+    "photoreal-local-tone": _photoreal(camera=HDR_DEVELOPMENT),
     "raycast-developed": _photoreal(),
 }
 SYNTH_SOURCES.update(SOURCES)

@@ -36,7 +36,7 @@ import numpy as np
 from ncjax.cli.compilation import enable_compilation_cache
 from ncjax.synth.dataset import rendered_samples, rendering_rgb8
 from ncjax.synth.photograph import PhotographConfig
-from ncjax.synth.photoreal import DEVELOPMENT
+from ncjax.synth.photoreal import HDR_DEVELOPMENT
 from ncjax.training.data import SYNTH_SOURCES
 
 OUT = Path(__file__).parent / "out" / "photoreal"
@@ -50,10 +50,7 @@ SETS = {
         PHOTOREAL, photoreal=dataclasses.replace(PHOTOREAL.photoreal, camera=PhotographConfig())
     ),
     "photoreal_local_tone": dataclasses.replace(
-        PHOTOREAL,
-        photoreal=dataclasses.replace(
-            PHOTOREAL.photoreal, camera=dataclasses.replace(DEVELOPMENT, local_compression=(0.4, 0.8))
-        ),
+        PHOTOREAL, photoreal=dataclasses.replace(PHOTOREAL.photoreal, camera=HDR_DEVELOPMENT)
     ),
     "pathtrace": dataclasses.replace(PHOTOREAL, photoreal=dataclasses.replace(PHOTOREAL.photoreal, denoise=None)),
     "photoreal_full_size": dataclasses.replace(

@@ -107,6 +107,14 @@ def luminance(image: Float[Array, "*S 3"]) -> Float[Array, "*S"]:
     return image @ jnp.asarray(_LUMINANCE, image.dtype)
 
 
+def log_luminance(radiance: Float[Array, "H W 3"]) -> Float[Array, "H W"]:
+    """The natural log of each pixel's luminance, black pixels lifted to 1e-4 of the image's mean: shadowed corners
+    would pull a log-average (the metering's key) to zero and a log image to minus infinity. No light is negative
+    (a resampled photograph's texels may be): it counts as black."""
+    level = jnp.maximum(luminance(radiance), 0.0)
+    return jnp.log(level + 1e-4 * jnp.mean(level) + 1e-30)
+
+
 def local_tone_mapping(
     radiance: Float[Array, "H W 3"],
     compression: Float[ArrayLike, ""],
@@ -136,8 +144,7 @@ def local_tone_mapping(
         (H, W, 3) linear RGB, each pixel multiplied by ``exp((compression - 1) * (base - mean base))``.
     """
     height, width = radiance.shape[:2]
-    level = jnp.maximum(luminance(radiance), 0.0)
-    log_level = jnp.log(level + 1e-4 * jnp.mean(level) + 1e-30)
+    log_level = log_luminance(radiance)
     coarse = jax.image.resize(log_level, (max(height // grid, 1), max(width // grid, 1)), "linear")
     sigma = scale * coarse.shape[1]
     radius = int(3 * sigma) + 1
@@ -165,11 +172,9 @@ def metered_exposure(
     sunny one, and what is far brighter than the room's average (windows, lamps) blows out. A black image gets
     the factor 1.
     """
-    level = jnp.maximum(luminance(radiance), 0.0)  # no light is negative (a resampled photograph's texels may be)
-    floor = 1e-4 * jnp.mean(level)  # black pixels (shadowed corners) would pull the log-average to zero
-    key = jnp.exp(jnp.mean(jnp.log(level + floor + 1e-30)))
+    key = jnp.exp(jnp.mean(log_luminance(radiance)))
     target = inverse_filmic_tone_curve(middle_grey, white_point)
-    return jnp.where(jnp.mean(level) > 0, target / key, 1.0)
+    return jnp.where(jnp.mean(jnp.maximum(luminance(radiance), 0.0)) > 0, target / key, 1.0)
 
 
 def grey_world_gains(radiance: Float[Array, "H W 3"], strength: Float[ArrayLike, ""]) -> Float[Array, 3]:

@@ -57,6 +57,11 @@ DEVELOPMENT = PhotographConfig(
 """The camera model's development alone: metered exposure, tone curve, white balance, 8 bits. Training
 (:func:`~ncjax.training.loop.augment_batch`) adds the camera's defects to every image, rendered either way."""
 
+HDR_DEVELOPMENT = dataclasses.replace(DEVELOPMENT, local_compression=(0.4, 0.8))
+""":data:`DEVELOPMENT` of an HDR capture, tone-mapped locally as real-estate capture apps do (the windows show their
+view, shadowed corners lift). Measured, not the training renders' default: heads on such renders read photographs
+no better (experiments/RESULTS.md, "Path-traced renders")."""
+
 
 @dataclasses.dataclass(frozen=True)
 class PhotorealConfig:
