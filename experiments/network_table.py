@@ -32,6 +32,7 @@ with the flag: their share and 3D IoU, and the IoU over all rooms with them.
 
     uv run python experiments/network_table.py                # 128 rooms per world
     uv run python experiments/network_table.py --small        # 8 rooms per world
+    uv run python experiments/network_table.py --network-only --model FILE   # a model's test-render row (minutes)
 """
 
 from __future__ import annotations
@@ -124,6 +125,30 @@ def by_narrowest_wall(per_room: list[dict], narrowest: np.ndarray) -> list[dict]
     return out
 
 
+def network_lines(model, evaluated: list[tuple[str, dict]], view_counts: list[int], record: dict) -> list[str]:
+    """Table netcorExp: a row per test set and view count, each also put in ``record``; the paper's row last."""
+    lines = [
+        "### Table netcorExp (network)",
+        "",
+        "| test set | views | images | precision | recall | accuracy | IoU | PE mean (px) | PE std (px) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, data in evaluated:
+        for views in view_counts:
+            row = evaluate_arrays(model, data, views=views)
+            record[f"network_{name}" + ("" if views == 1 else f"_views{views}")] = row
+            lines.append(
+                f"| {name} | {views} | {len(data['image'])} | {row['precision']:.3f} | {row['recall']:.3f} | "
+                f"{row['accuracy']:.3f} | {row['iou']:.3f} | {row['pe_mean']:.3f} | {row['pe_std']:.3f} |"
+            )
+    p = PAPER["netcorExp"]
+    lines.append(
+        f"| paper (its test set) | 1 | 499 | {p['precision']} | {p['recall']} | {p['accuracy']} | {p['iou']} | "
+        f"{p['pe_mean']} | {p['pe_std']} |"
+    )
+    return lines
+
+
 def miscounted_layouts(per_room: list[dict]) -> str:
     """How good the returned layouts with too few or too many corners are: count and 3D IoU mean / median (%)."""
     parts = []
@@ -150,6 +175,11 @@ def main(argv=None):
         "--occlusion-threshold", type=float, default=NETWORK_PIPELINE_CONFIG.occlusion.threshold, help="pixels"
     )
     parser.add_argument("--skip-network", action="store_true", help="only the layout tables")
+    parser.add_argument(
+        "--network-only",
+        action="store_true",
+        help="only Table netcorExp's row of all rooms at --views views, printed (the model card's test-render row)",
+    )
     add_boundary_arguments(parser)
     args = parser.parse_args(argv)
     config = NETWORK_PIPELINE_CONFIG.replace(
@@ -166,26 +196,14 @@ def main(argv=None):
         folder = str(test_renders(world, count, args.out))
         arrays[world] = load_split(folder, "all", model.config.input_height, model.config.input_width)
     pooled = {key: np.concatenate([a[key] for a in arrays.values()]) for key in arrays["manhattan"]}
-    lines += [
-        "### Table netcorExp (network)",
-        "",
-        "| test set | views | images | precision | recall | accuracy | IoU | PE mean (px) | PE std (px) |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for name, data in [] if args.skip_network else [*arrays.items(), ("all", pooled)]:
-        for views in sorted({1, args.views}):
-            row = evaluate_arrays(model, data, views=views)
-            record[f"network_{name}" + ("" if views == 1 else f"_views{views}")] = row
-            lines.append(
-                f"| {name} | {views} | {len(data['image'])} | {row['precision']:.3f} | {row['recall']:.3f} | "
-                f"{row['accuracy']:.3f} | "
-                f"{row['iou']:.3f} | {row['pe_mean']:.3f} | {row['pe_std']:.3f} |"
-            )
-    p = PAPER["netcorExp"]
-    lines.append(
-        f"| paper (its test set) | 1 | 499 | {p['precision']} | {p['recall']} | {p['accuracy']} | {p['iou']} | "
-        f"{p['pe_mean']} | {p['pe_std']} |"
-    )
+    evaluated = [] if args.skip_network else [*arrays.items(), ("all", pooled)]
+    view_counts = sorted({1, args.views})
+    if args.network_only:
+        evaluated, view_counts = [("all", pooled)], [args.views]
+    lines += network_lines(model, evaluated, view_counts, record)
+    if args.network_only:
+        print("\n".join(lines))
+        return record
 
     lines += [
         "",

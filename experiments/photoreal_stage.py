@@ -10,10 +10,11 @@ its memory) with their own checkpoints, render caches, histories and logs. Each 
 Score both with ``benchmarks/real_panoramas.py --data ../shared/data/real-dev --model FILE`` against the shipped
 model.
 
-    python experiments/photoreal_stage.py [--out DIR] [--work DIR] [--one-at-a-time] [--smoke]
+    python experiments/photoreal_stage.py [--out DIR] [--work DIR] [--one-at-a-time] [--micro-batches N] [--smoke]
 
-``--one-at-a-time`` runs the arms one after the other (a CPU); ``--smoke`` runs the exact options at a few rooms and
-2 steps (a check that both arms start, train and export, minutes on 2 cores).
+``--one-at-a-time`` runs the arms one after the other (a CPU; a step's batch of 16 does not fit 24 GB there, so
+give it ``--micro-batches 4``: the same update from four parts of 4 in turn, 12 GB); ``--smoke`` runs the exact
+options at a few rooms and 2 steps of 4 images (a check that both arms start, train and export, minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -36,14 +37,14 @@ HOME_ROOMS = 1000
 SMOKE_ROOMS = {"home": 16, "shared": 64}
 
 
-def arm_command(arm: str, out: pathlib.Path, work: pathlib.Path, smoke: bool) -> list[str]:
+def arm_command(arm: str, out: pathlib.Path, work: pathlib.Path, smoke: bool, micro_batches: int = 1) -> list[str]:
     """The ``ncjax train`` command of one arm: its model and history in ``out``, its checkpoints and rendered rooms
-    under ``work``."""
+    under ``work``; each step's batch taken in ``micro_batches`` parts."""
     home = SMOKE_ROOMS["home"] if smoke else HOME_ROOMS
     data = [f"{ARMS[arm]}:91:{home}"] + [
         f"{kind}:{seed}:{SMOKE_ROOMS['shared'] if smoke else n}" for kind, seed, n in SHARED_ROOMS
     ]
-    steps, batch = ("2", "2") if smoke else ("600", "16")
+    steps, batch = ("2", "4") if smoke else ("600", "16")
     checkpoints = work / arm
     return [
         sys.executable, "-m", "ncjax.cli", "train", "--data", *data, "--preset", "lite0-1024",
@@ -52,7 +53,7 @@ def arm_command(arm: str, out: pathlib.Path, work: pathlib.Path, smoke: bool) ->
         "--backbone-learning-rate-scale", "0.1", "--validate-every", "0", "--time-budget", "520",
         "--render-budget", "240", "--checkpoint-dir", str(checkpoints), "--render-cache", str(checkpoints / "rendered"),
         "--history", str(out / f"{arm}_history.json"), "--export", str(out / f"lite0-{arm}.safetensors"),
-        "--export-dtype", "float16",
+        "--export-dtype", "float16", "--micro-batches", str(micro_batches),
     ]  # fmt: skip
 
 
@@ -66,6 +67,9 @@ def main(argv: list[str] | None = None) -> int:
         help="checkpoints and rendered rooms (gigabytes: keep them out of what a device call brings back)",
     )
     parser.add_argument("--one-at-a-time", action="store_true", help="run the arms one after the other (a CPU)")
+    parser.add_argument(
+        "--micro-batches", type=int, default=1, help="each step's batch in this many parts (4 on a 24 GB CPU)"
+    )
     parser.add_argument("--smoke", action="store_true", help="a few rooms and 2 steps")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -76,7 +80,10 @@ def main(argv: list[str] | None = None) -> int:
         log = open(args.out / f"{arm}.log", "w")  # noqa: SIM115 (closed once the arm ends)
         running[arm] = (
             subprocess.Popen(
-                arm_command(arm, args.out, args.work, args.smoke), stdout=log, stderr=log, env=environment
+                arm_command(arm, args.out, args.work, args.smoke, args.micro_batches),
+                stdout=log,
+                stderr=log,
+                env=environment,
             ),
             log,
         )

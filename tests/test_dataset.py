@@ -432,6 +432,15 @@ def test_train_refuses_a_render_budget_without_a_cache(tmp_path, monkeypatch, ca
     assert os.listdir(tmp_path) == []
 
 
+def test_train_refuses_a_batch_that_does_not_split_into_its_micro_batches(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["train", "--data", "synth:3:10", "--batch", "6", "--micro-batches", "4"]) == 2
+    assert "--batch 6 does not split into --micro-batches 4" in capsys.readouterr().err
+    assert cli.main(["train", "--data", "synth:3:10", "--micro-batches", "0"]) == 2
+    assert "--micro-batches must be >= 1, got 0" in capsys.readouterr().err
+    assert os.listdir(tmp_path) == []
+
+
 def test_train_stops_with_a_message_when_its_render_budget_leaves_no_rooms(tmp_path, monkeypatch, capsys):
     _counted_rooms(monkeypatch)
     cache, checkpoints = tmp_path / "rendered", tmp_path / "checkpoints"

@@ -334,6 +334,42 @@ def test_door_leaves_hang_in_their_doorways_and_lamps_stay_up():
 
 
 @pytest.mark.slow
+def test_beams_cross_the_ceiling_from_wall_to_wall_and_keep_the_edges_on_the_labels():
+    config = ncjax.synth.SceneConfig(decor=True, beam_probability=1.0)
+    beam_config = dataclasses.replace(DECOR, scene=config)
+    plain, _, labels = batch(0)
+    keys = jax.random.split(jax.random.key(0), BATCH)
+    scenes, _ = jax.device_get(_batched_scenes(beam_config)(keys))
+    # The same room, furniture and door leaves as without beams; the beams after the other boxes.
+    np.testing.assert_array_equal(scenes.room.corners, plain.room.corners)
+    others = plain.boxes.mask.shape[1]
+    assert scenes.boxes.mask.shape[1] == others + config.beam_slots
+    furniture = config.furniture_slots * ncjax.synth.furniture.PARTS_PER_PIECE
+    for part in (slice(0, furniture), slice(others - config.opening_slots, others)):
+        np.testing.assert_array_equal(scenes.boxes.centre[:, part], plain.boxes.centre[:, part])
+        np.testing.assert_array_equal(scenes.boxes.mask[:, part], plain.boxes.mask[:, part])
+    beams = jax.tree.map(lambda x: np.asarray(x)[:, others:], scenes.boxes)
+    assert beams.mask.sum() >= BATCH
+    ceiling = np.asarray(scenes.room.ceiling_height)
+    for i, b in zip(*np.nonzero(beams.mask), strict=True):
+        top, bottom = beams.centre[i, b, 2] + np.array([1, -1]) * beams.half_size[i, b, 2]
+        assert abs(top - ceiling[i]) < 1e-5 and 0.1 - 1e-5 <= top - bottom <= 0.35 + 1e-5 and bottom > 0.4
+        walls = shapely.LinearRing(np.asarray(scenes.room.corners[i])[np.asarray(scenes.room.mask[i])])
+        ends = beams.centre[i, b, :2] + np.array([-1, 1])[:, None] * beams.half_size[i, b, 0] * beams.rotation[i, b]
+        assert max(walls.distance(shapely.Point(end)) for end in ends) < 1e-4  # wall to wall
+    # A beam only hides what lies above the camera, and the edges stay on the labels where no object is near.
+    with_beams = jax.device_get(_batched_render(beam_config)(scenes))
+    no_beams = np.asarray(scenes.boxes.mask) & (np.arange(others + config.beam_slots) < others)
+    without = jax.device_get(_batched_render(beam_config)(eqx.tree_at(lambda s: s.boxes.mask, scenes, no_beams)))
+    changed = np.asarray(with_beams.depth) < np.asarray(without.depth) - 1e-4
+    assert changed.sum() > 20 * BATCH
+    assert not changed[:, HEIGHT // 2 :].any()
+    np.testing.assert_array_equal(np.asarray(with_beams.depth) <= np.asarray(without.depth) + 1e-4, True)
+    assert np.all(np.asarray(with_beams.semantic)[changed] == ncjax.synth.Semantic.OBJECT)
+    _assert_edges_on_labels(with_beams.semantic, labels)
+
+
+@pytest.mark.slow
 def test_neutral_paint_gives_pale_walls_and_leaves_the_rest_of_the_scene_as_it_was():
     from ncjax.synth.materials import Pattern
     from ncjax.synth.scene import random_scene

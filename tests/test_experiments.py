@@ -410,6 +410,7 @@ def test_photoreal_stage_arms_differ_only_in_how_the_home_rooms_are_rendered(tmp
     assert all("photoreal" in a and "raycast" in b for a, b in differing[1:])
     for command in commands.values():
         args = build_parser().parse_args(command[command.index("train") :])
+        assert args.micro_batches == 1 and args.batch_size == 16
         assert args.render_cache and args.render_budget < args.time_budget <= 540
         assert pathlib.Path(args.render_cache).is_relative_to(tmp_path / "work")
         assert pathlib.Path(args.export).parent == tmp_path / "out"
@@ -428,8 +429,11 @@ def test_photoreal_stage_runs_both_arms_and_fails_when_one_does(tmp_path, monkey
             return self.code
 
     monkeypatch.setattr(module.subprocess, "Popen", FakeProcess)
-    assert module.main(["--smoke", "--out", str(tmp_path), "--work", str(tmp_path / "work")]) == 1
+    assert (
+        module.main(["--smoke", "--out", str(tmp_path), "--work", str(tmp_path / "work"), "--micro-batches", "4"]) == 1
+    )
     assert [fraction for _, fraction in started] == ["0.45", "0.45"]
+    assert all(command[command.index("--micro-batches") + 1] == "4" for command, _ in started)
     assert "raycast failed" in capsys.readouterr().err
     assert (tmp_path / "photoreal.log").exists() and (tmp_path / "raycast.log").exists()
 

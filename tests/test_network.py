@@ -17,6 +17,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 from flax import nnx
 
@@ -662,6 +663,40 @@ def test_efficientnet_backbone_model_round_trip(tmp_path):
     assert loaded.config == LITE0_TINY
     a, b = params_of(model), params_of(loaded)
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+@pytest.mark.slow
+def test_micro_batches_give_the_whole_batch_gradient():
+    """Eval-mode batch norm and no dropout: a step over 2 or 4 micro-batches moves every weight as one over the
+    whole batch (plain gradient descent, so the moves are the gradients); train mode updates the statistics."""
+    with pytest.raises(ValueError, match="micro_batches"):
+        ncjax.TrainConfig(micro_batches=0)
+    moves, losses = {}, {}
+    for parts in (1, 2, 4):
+        model = nnx.clone(tiny_model())
+        model.eval()
+        before = params_of(model)
+        optimizer = nnx.Optimizer(model, optax.sgd(1.0), wrt=nnx.Param)
+        train_config = dataclasses.replace(TRAIN, micro_batches=parts)
+        terms = ncjax.training.loop.train_step(model, optimizer, next(batches(0)), jax.random.key(3), train_config)
+        losses[parts] = float(terms["loss"])
+        after = params_of(model)
+        moves[parts] = {name: after[name] - before[name] for name in after}
+    assert np.abs(moves[1]["head/kernel"]).max() > 1e-4
+    for parts in (2, 4):
+        assert losses[parts] == pytest.approx(losses[1], rel=1e-5)
+        for name, whole in moves[1].items():
+            np.testing.assert_allclose(moves[parts][name], whole, rtol=1e-3, atol=1e-6, err_msg=name)
+    with pytest.raises(ValueError, match="micro-batches"):
+        ncjax.training.loop.train_step(
+            model, optimizer, next(batches(0)), jax.random.key(3), dataclasses.replace(TRAIN, micro_batches=3)
+        )
+    model.train()
+    statistics = {name: value for name, value in params_of(model).items() if name.endswith("/mean")}
+    ncjax.training.loop.train_step(
+        model, optimizer, next(batches(0)), jax.random.key(3), dataclasses.replace(TRAIN, micro_batches=2)
+    )
+    assert statistics and all(not np.array_equal(params_of(model)[name], value) for name, value in statistics.items())
 
 
 @pytest.mark.slow

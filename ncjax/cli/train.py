@@ -37,7 +37,8 @@ def add_train_arguments(parser: argparse.ArgumentParser) -> None:
         help="required: dataset folders (ncjax synth or the authors') or synth:SEED:N (the N rooms `ncjax synth "
         "--seed SEED` writes, rendered in memory), synth-decor:SEED:N (the same with --decor), "
         "synth-decor-central:SEED:N (such rooms with a central camera, rc 0), synth-decor-home:SEED:N (the same, "
-        "70%% of them with white or pale walls, as most homes), synth-photoreal-home:SEED:N (the same rooms "
+        "70%% of them with white or pale walls, as most homes, a fifth with beams across the ceiling), "
+        "synth-photoreal-home:SEED:N (the same rooms "
         "path-traced and photographed: ncjax synth --photoreal; seconds a room on a CPU), synth-decor-small:SEED:N "
         "(closets, bathrooms and corridors, sides 1.2-4 m, rc 0), synth-decor-closet:SEED:N (walk-in closets with "
         "shelving, most with a passage filling much of a wall, rc 0), synth-decor-closet-door:SEED:N (closets "
@@ -156,6 +157,18 @@ def _batches_and_validation(args: argparse.Namespace, height: int, width: int, s
     return folder_batches(train_arrays, args.batch_size, args.seed), validate
 
 
+def _check_run_options(args: argparse.Namespace, train_config: TrainConfig) -> None:
+    """A ValueError for options no run can take, before any data is read."""
+    if args.steps < 1 or args.batch_size < 1:
+        raise ValueError(f"--steps and --batch must be positive, got {args.steps} and {args.batch_size}")
+    if args.batch_size % train_config.micro_batches:
+        raise ValueError(f"--batch {args.batch_size} does not split into --micro-batches {train_config.micro_batches}")
+    if args.time_budget is not None and not args.time_budget > 0:
+        raise ValueError(f"--time-budget must be positive, got {args.time_budget}")
+    if args.render_budget is not None and not (args.render_budget > 0 and args.render_cache):
+        raise ValueError(f"--render-budget must be positive and comes with --render-cache, got {args.render_budget}")
+
+
 def run_train(args: argparse.Namespace) -> int:
     """``ncjax train``: train (or resume) a preset on a dataset folder or the painted stand-in data.
 
@@ -166,12 +179,6 @@ def run_train(args: argparse.Namespace) -> int:
         print("ncjax train: error: give --data (dataset folders, synth:SEED:N or painted)", file=sys.stderr)
         return 2
     started = time.monotonic()
-    if args.steps < 1 or args.batch_size < 1:
-        raise ValueError(f"--steps and --batch must be positive, got {args.steps} and {args.batch_size}")
-    if args.time_budget is not None and not args.time_budget > 0:
-        raise ValueError(f"--time-budget must be positive, got {args.time_budget}")
-    if args.render_budget is not None and not (args.render_budget > 0 and args.render_cache):
-        raise ValueError(f"--render-budget must be positive and comes with --render-cache, got {args.render_budget}")
     config = HorizonNetConfig.preset(args.preset)
     if args.corner_base is not None:
         config = dataclasses.replace(config, corner_base=args.corner_base)
@@ -179,6 +186,7 @@ def run_train(args: argparse.Namespace) -> int:
         check_warm_start(args.init_from, config)  # a wrong file fails here, before the data is read
     height, width = config.input_height, config.input_width
     train_config = config_from_options(args, TrainConfig(total_steps=args.steps))
+    _check_run_options(args, train_config)
     prepared = _batches_and_validation(args, height, width, started)
     if prepared is None:
         return 0

@@ -1,10 +1,10 @@
 """Generators of what dresses a furnished room up: ceiling lights of several
 kinds (flush lamps, pendants, fans, flush light panels), wall decals (posters,
-pictures, whiteboards), sun patches through the windows and the leaves of open
-doors.
+pictures, whiteboards), sun patches through the windows, the leaves of open
+doors and beams across the ceiling.
 
 None of them changes the room's layout: decals and panels are flat on a wall
-or the ceiling, sunlight is a light term, and lamps and door leaves are boxes
+or the ceiling, sunlight is a light term, and lamps, door leaves and beams are boxes
 inside the room (objects, like furniture). Each is a pure function of a key,
 in fixed-capacity arrays with masks (see :mod:`ncjax.synth.scene`).
 """
@@ -20,6 +20,7 @@ from jaxtyping import Array, Float
 
 from ..geometry.polygon import perpendicular
 from .elements import FRAME_WIDTH, Boxes, DecalKind, Decals, Doorways, Lights, Openings, Panels, SunPatches
+from .furniture import piece_materials
 from .materials import Material, Pattern, colour_in_hsv_box
 from .placement import (
     Footprints,
@@ -34,7 +35,7 @@ from .placement import (
     room_frame,
     wall_position,
 )
-from .rooms import Room, distance_to_walls, point_in_polygon
+from .rooms import Room, distance_to_walls, point_in_polygon, ray_hits
 
 LAMP_PARTS = 4  # boxes per ceiling light slot (a fan needs four)
 
@@ -147,9 +148,10 @@ def _lamp_parts(kind, centre, reach, axis, ceiling, uniform):
     return centre3, half, rotation, emissive, mask & (kind != LampKind.PANEL), light_z - 0.1
 
 
-def ceiling_lights(key, room: Room, config, axis, ceiling: Material, standing: Boxes):
+def ceiling_lights(key, room: Room, config, axis, ceiling: Material, standing: Boxes, overhead: Footprints):
     """Ceiling lights, away from walls and apart, clear of the ``standing`` boxes (furniture, door leaves) under
-    the hanging ones: boxes (LAMP_PARTS per slot), their point lights and the flush panels.
+    the hanging ones and of the ``overhead`` footprints (beams): boxes (LAMP_PARTS per slot), their point lights
+    and the flush panels.
 
     A room has either light panels (chance ``config.panel_probability``) or lamps,
     each flush, a pendant or a fan (``config.pendant_probability``,
@@ -192,7 +194,7 @@ def ceiling_lights(key, room: Room, config, axis, ceiling: Material, standing: B
     candidates = Footprints(centre, half, rotation, inside & away & (bottom > 0.4))
     clear = ~_blocked_below(candidates, bottom, standing)
     candidates = Footprints(centre, half, rotation, candidates.mask & clear)
-    chosen, filled = pack_footprints(candidates, slots, no_footprints(), 0.8)
+    chosen, filled = pack_footprints(candidates, slots, overhead, 0.8)
     filled = filled & (jnp.arange(slots) <= jnp.floor(v[0, 10] * slots) + panel_room)
     kind, centre, half, reach = kind[chosen], centre[chosen], half[chosen], reach[chosen]
     centre3, half3, rotation3, emissive, mask, light_z = jax.vmap(_lamp_parts, in_axes=(0, 0, 0, None, None, 0))(
@@ -350,3 +352,57 @@ def door_leaves(key, room: Room, openings: Openings, doorways: Doorways, config)
         emission=jnp.zeros((d, 3)),
         mask=valid,
     )
+
+
+def ceiling_beams(key, room: Room, config, axis: Float[Array, 2], ceiling: Material) -> tuple[Boxes, Footprints]:
+    """Beams and dropped headers across the ceiling (``config.beam_slots`` boxes; a room has them with chance
+    ``config.beam_probability``), as in garages, basements, older homes and between the parts of an open plan.
+
+    One to ``beam_slots`` parallel beams, all along the room's plan axis or all across it, each through a random
+    point of the room 0.5 m or more from its walls and from wall to wall along its line (through the walls of a
+    room that is not convex, as beams run), 0.1-0.4 m wide and 0.1-0.35 m deep, its top on the ceiling, 0.3 m or
+    more apart; cased in the ceiling's material or bare wood. The label's ceiling stays the room's: a beam hides
+    the wall-ceiling edge where it meets a wall, as furniture hides the floor's.
+
+    Returns:
+        The beams' boxes and their plan footprints (for the hanging lights to keep clear of).
+    """
+    slots = config.beam_slots
+    n = slots * config.candidates_per_slot
+    u = jax.random.uniform(key, (n, 4))
+    v = jax.random.uniform(jax.random.fold_in(key, 1), (4,))
+    direction = jnp.where(v[0] < 0.5, axis, perpendicular(axis))
+    _, _, _, _, low_xy, high_xy = room_frame(room)
+    through = between(u[:, :2], low_xy, high_xy)
+    ahead = jax.vmap(lambda p: jnp.min(ray_hits(p, direction, room.corners, room.mask)))(through)
+    behind = jax.vmap(lambda p: jnp.min(ray_hits(p, -direction, room.corners, room.mask)))(through)
+    spans = jnp.isfinite(ahead + behind)
+    ahead, behind = jnp.where(spans, ahead, 0.0), jnp.where(spans, behind, 0.0)
+    inside = jax.vmap(point_in_polygon, in_axes=(0, None, None))(through, room.corners, room.mask)
+    away = jax.vmap(distance_to_walls, in_axes=(0, None, None))(through, room.corners, room.mask) > 0.5
+    width, depth = between(u[:, 2], 0.1, 0.4), between(u[:, 3], 0.1, 0.35)
+    candidates = Footprints(
+        centre=through + ((ahead - behind) / 2)[:, None] * direction,
+        half_size=jnp.stack([(ahead + behind) / 2, width / 2], -1),
+        rotation=jnp.broadcast_to(direction, (n, 2)),
+        mask=inside & away & spans & (room.ceiling_height - depth > 0.4),
+    )
+    chosen, filled = pack_footprints(candidates, slots, no_footprints(), 0.3)
+    wanted = (v[1] < config.beam_probability) & (jnp.arange(slots) <= jnp.floor(v[2] * slots))
+    footprints = Footprints(
+        candidates.centre[chosen], candidates.half_size[chosen], candidates.rotation[chosen], filled & wanted
+    )
+    wood, _ = piece_materials(jax.random.fold_in(key, 2), jnp.array(False))
+    cased = Material(jnp.int32(Pattern.PAINT), ceiling.colour_a, ceiling.colour_a, ceiling.scale)
+    material = jax.tree.map(
+        lambda c, w: jnp.broadcast_to(jnp.where(v[3] < 0.6, c, w), (slots, *jnp.shape(c))), cased, wood
+    )
+    beams = Boxes(
+        centre=jnp.concatenate([footprints.centre, (room.ceiling_height - depth[chosen] / 2)[:, None]], -1),
+        half_size=jnp.concatenate([footprints.half_size, (depth[chosen] / 2)[:, None]], -1),
+        rotation=footprints.rotation,
+        material=material,
+        emission=jnp.zeros((slots, 3)),
+        mask=footprints.mask,
+    )
+    return beams, footprints

@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from .decor import LAMP_PARTS, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
+from .decor import LAMP_PARTS, ceiling_beams, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
 from .elements import Boxes, Decor, Doorways, Lights, Openings
 from .furniture import FURNITURE_TYPES, PARTS_PER_PIECE, TEMPLATES, furniture_candidate, piece_boxes, piece_materials
 from .materials import Material, Pattern, colour_in_hsv_box, surface_materials
@@ -61,6 +61,7 @@ from .rooms import Room, distance_to_walls, point_in_polygon
 
 # fold_in data of the decor's random key (far above any split count of the basic draws).
 _DECOR_STREAM = 0xDEC0
+_BEAM_STREAM = 0xBEA3
 # fold_in data of the passage draw: its own stream, so that rooms drawn without passages stay those of earlier scenes.
 _PASSAGE_STREAM = 0xDA55
 
@@ -82,7 +83,7 @@ class SceneConfig:
     Attributes:
         decor: realistic scenes: decor over the basic furnished room (see
             :mod:`ncjax.synth.scene`); the settings from ``decal_slots`` to
-            ``sun_probability`` apply to them only.
+            ``sun_probability`` and the beams' apply to them only.
         furniture_slots: F, the most pieces of furniture (each up to
             :data:`PARTS_PER_PIECE` boxes).
         lamp_slots: L, the most ceiling lights (each a box and a point light; with
@@ -118,6 +119,9 @@ class SceneConfig:
         suspended_ceiling_probability, stipple_ceiling_probability: chance of a
             suspended-ceiling grid, a popcorn ceiling (otherwise paint, plaster or tiles).
         sun_probability: chance that the sun shines in through the windows.
+        beam_slots, beam_probability: the most beams across the ceiling (or dropped headers) and the chance that
+            a room has any (:func:`~ncjax.synth.decor.ceiling_beams`; with 0, the default, a scene has no slots
+            for them).
         neutral_paint_probability: chance that the walls are painted white, off-white or
             a pale grey or beige (flat paint or plaster), as in most homes: the wall meets
             a ceiling of nearly the same colour and only the shading shows the edge.
@@ -147,6 +151,8 @@ class SceneConfig:
     stipple_ceiling_probability: float = 0.15
     sun_probability: float = 0.4
     neutral_paint_probability: float = 0.0
+    beam_slots: int = 2
+    beam_probability: float = 0.0
 
     def __post_init__(self):
         for name in (
@@ -155,6 +161,7 @@ class SceneConfig:
             "opening_slots",
             "decal_slots",
             "sun_slots",
+            "beam_slots",
             "candidates_per_slot",
         ):
             if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
@@ -182,6 +189,7 @@ class SceneConfig:
             "stipple_ceiling_probability",
             "sun_probability",
             "neutral_paint_probability",
+            "beam_probability",
         )
         for name in probabilities:
             if not 0.0 <= getattr(self, name) <= 1.0:
@@ -195,9 +203,11 @@ class SceneConfig:
 
     @property
     def box_slots(self) -> int:
-        """B, the box capacity: furniture parts, then ceiling lights (then, with decor, door leaves)."""
+        """B, the box capacity: furniture parts, then ceiling lights (then, with decor, door leaves, then beams
+        where a room may have them)."""
         if self.decor:
-            return self.furniture_slots * PARTS_PER_PIECE + self.lamp_slots * LAMP_PARTS + self.opening_slots
+            beams = self.beam_slots if self.beam_probability > 0.0 else 0
+            return self.furniture_slots * PARTS_PER_PIECE + self.lamp_slots * LAMP_PARTS + self.opening_slots + beams
         return self.furniture_slots * PARTS_PER_PIECE + self.lamp_slots
 
 
@@ -206,7 +216,7 @@ class Scene(eqx.Module):
 
     Attributes:
         room: the :class:`~ncjax.synth.Room` (camera frame).
-        boxes: furniture parts, then ceiling lights (then, with decor, door leaves), :class:`Boxes`.
+        boxes: furniture parts, then ceiling lights (then, with decor, door leaves, then any beams), :class:`Boxes`.
         openings: doors and windows, :class:`Openings`.
         lights: :class:`Lights`.
         floor, ceiling, walls: their :class:`~ncjax.synth.materials.Material`.
@@ -381,9 +391,13 @@ def _decorate(key, lamps_key, room: Room, config: SceneConfig, basic: _BasicDraw
     keys = jax.random.split(key, 5)
     leaves = door_leaves(keys[0], room, openings, doorways, config)
     axis = plan_axis(room)
-    # Hanging lights keep clear of the furniture and door leaves under them.
+    beams, overhead = [], no_footprints()
+    if config.beam_probability > 0.0:  # static: scenes that never have beams keep their shapes and draws
+        beam_boxes, overhead = ceiling_beams(jax.random.fold_in(key, _BEAM_STREAM), room, config, axis, ceiling)
+        beams = [beam_boxes]
+    # Hanging lights keep clear of the furniture and door leaves under them and of the beams.
     standing = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), pieces, leaves)
-    lamps, lights, panels = ceiling_lights(lamps_key, room, config, axis, ceiling, standing)
+    lamps, lights, panels = ceiling_lights(lamps_key, room, config, axis, ceiling, standing, overhead)
     next_floor, _, next_walls = surface_materials(keys[1], config)
     # Half the rooms behind open doors continue this room's floor (open plans, corridors).
     same_floor = jax.random.uniform(keys[2]) < 0.5
@@ -397,7 +411,7 @@ def _decorate(key, lamps_key, room: Room, config: SceneConfig, basic: _BasicDraw
         next_walls=next_walls,
         plan_axis=axis,
     )
-    return jax.tree.map(lambda a, b, c: jnp.concatenate([a, b, c]), pieces, lamps, leaves), lights, decor
+    return jax.tree.map(lambda *parts: jnp.concatenate(parts), pieces, lamps, leaves, *beams), lights, decor
 
 
 def random_scene(key: PRNGKeyArray, room: Room, config: SceneConfig = SceneConfig()) -> Scene:

@@ -145,12 +145,12 @@ SYNTH_COMMAND_CONFIG = SynthConfig(room=RoomConfig(world="mix"))
 _HOME_ROOMS = dataclasses.replace(
     SYNTH_COMMAND_CONFIG,
     room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
-    scene=SceneConfig(decor=True, neutral_paint_probability=0.7),
+    scene=SceneConfig(decor=True, neutral_paint_probability=0.7, beam_probability=0.2),
 )
 _OPEN_ROOMS = dataclasses.replace(
     SYNTH_COMMAND_CONFIG,
     room=RoomConfig(world="mix", rc_range=(0.0, 0.0)),
-    scene=SceneConfig(decor=True, door_probability=0.6, passage_probability=0.5),
+    scene=SceneConfig(decor=True, door_probability=0.6, passage_probability=0.5, beam_probability=0.2),
 )
 
 
@@ -213,7 +213,8 @@ SYNTH_SOURCES = {
 """The configuration of each kind of rendered data source, ``KIND:SEED:N``
 (``synth-decor``: what ``ncjax synth --decor`` renders; ``synth-decor-central``: such
 rooms seen by a central camera, rc = 0, as most real panoramas are; ``synth-decor-home``: the
-same with white, off-white or pale walls in 70% of them, as in most homes; ``synth-photoreal-home``: the
+same with white, off-white or pale walls in 70% of them, as in most homes, and beams or dropped headers across
+the ceiling in 20% (as the open plans); ``synth-photoreal-home``: the
 rooms of ``synth-decor-home`` (the same ones for the same seed) path-traced and photographed
 (:mod:`ncjax.synth.photoreal`); ``synth-decor-small``:
 closets, bathrooms and corridors, sides of 1.2-4 m and at most 6 walls, seen by a central
