@@ -11,6 +11,7 @@ import pytest
 from _scripts import script_module
 
 import ncjax
+from ncjax.network import HorizonNetConfig
 
 
 def experiment(name: str):
@@ -464,3 +465,29 @@ def test_photoreal_factors_change_one_setting_of_the_quarter_renders_at_a_time()
     # what a variant replaces while it renders is the renderer module's own (mock.patch.object needs it there)
     for _, replaced in module.VARIANTS.values():
         assert all(callable(getattr(module.render_module, name)) for name in replaced)
+
+
+def test_weight_interpolation_draws_the_line_between_two_networks_of_one_architecture():
+    module = experiment("weight_interpolation")
+    config = HorizonNetConfig()
+    start = module.ModelWeights(config, {"a": np.array([0.0, 2.0], np.float16), "b": np.array([4.0], np.float32)})
+    end = module.ModelWeights(config, {"a": np.array([1.0, 0.0], np.float16), "b": np.array([0.0], np.float32)})
+    for weight, expected_a, expected_b in (
+        (0.0, [0.0, 2.0], [4.0]),
+        (1.0, [1.0, 0.0], [0.0]),
+        (0.25, [0.25, 1.5], [3.0]),
+    ):
+        line = module.interpolated(start, end, weight)
+        np.testing.assert_allclose(line.tensors["a"], expected_a)
+        np.testing.assert_allclose(line.tensors["b"], expected_b)
+        assert line.tensors["a"].dtype == np.float32
+    with pytest.raises(ValueError, match="not the same architecture"):
+        module.interpolated(start, module.ModelWeights(config, {"a": end.tensors["a"]}), 0.5)
+
+
+def test_weight_interpolation_refuses_a_weight_off_the_line_and_writes_nothing(tmp_path, capsys):
+    module = experiment("weight_interpolation")
+    out = tmp_path / "out"
+    assert module.main(["--start", "lite0-1024", "--end", "lite0-1024", "--weights", "1.5", "--out", str(out)]) == 2
+    assert "--weights must lie in [0, 1]" in capsys.readouterr().err
+    assert not out.exists()

@@ -265,16 +265,19 @@ def train_step(
         )
         return terms["loss"], (terms, nnx.state(part_model, nnx.Not(nnx.Param)))
 
-    def accumulate(carry, inputs):
-        gradient_sum, statistics = carry
-        (_, (terms, statistics)), gradient = jax.value_and_grad(part_loss, has_aux=True)(params, statistics, *inputs)
-        return (jax.tree.map(jnp.add, gradient_sum, gradient), statistics), terms
-
     if parts == 1:  # no loop: on a CPU a scan of one part makes the step a third slower
         (_, (terms, statistics)), gradient = jax.value_and_grad(part_loss, has_aux=True)(
             params, statistics, batch, dropout_key
         )
     else:
+
+        def accumulate(carry, inputs):
+            gradient_sum, statistics = carry
+            (_, (terms, statistics)), gradient = jax.value_and_grad(part_loss, has_aux=True)(
+                params, statistics, *inputs
+            )
+            return (jax.tree.map(jnp.add, gradient_sum, gradient), statistics), terms
+
         split = jax.tree.map(lambda x: x.reshape(parts, x.shape[0] // parts, *x.shape[1:]), batch)
         (gradient_sum, statistics), terms = jax.lax.scan(
             accumulate,
