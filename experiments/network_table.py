@@ -196,10 +196,11 @@ def main(argv=None):
         folder = str(test_renders(world, count, args.out))
         arrays[world] = load_split(folder, "all", model.config.input_height, model.config.input_width)
     pooled = {key: np.concatenate([a[key] for a in arrays.values()]) for key in arrays["manhattan"]}
-    evaluated = [] if args.skip_network else [*arrays.items(), ("all", pooled)]
-    view_counts = sorted({1, args.views})
     if args.network_only:
         evaluated, view_counts = [("all", pooled)], [args.views]
+    else:
+        evaluated = [] if args.skip_network else [*arrays.items(), ("all", pooled)]
+        view_counts = sorted({1, args.views})
     lines += network_lines(model, evaluated, view_counts, record)
     if args.network_only:
         print("\n".join(lines))
