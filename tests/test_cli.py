@@ -140,10 +140,10 @@ def test_options_replace_only_the_settings_given(capsys):
     train_config = config_from_options(train_args, ncjax.TrainConfig(total_steps=10))
     assert (train_config.peak_learning_rate, train_config.flip, train_config.total_steps) == (3e-4, False, 10)
     train_args = _parser(add_train_arguments).parse_args(
-        ["--preset", "lite0-1024", "--backbone-learning-rate-scale", "0"]
+        ["--preset", "lite0-1024", "--backbone-learning-rate-scale", "0.25", "--head-learning-rate-scale", "0"]
     )
     train_config = config_from_options(train_args, ncjax.TrainConfig())
-    assert train_config == ncjax.TrainConfig(backbone_learning_rate_scale=0.0)
+    assert train_config == ncjax.TrainConfig(backbone_learning_rate_scale=0.25, head_learning_rate_scale=0.0)
     assert ncjax.HorizonNetConfig.preset(train_args.preset).backbone == "efficientnet_lite0"
     train_args = _parser(add_train_arguments).parse_args(
         ["--no-photometric", "--augment-jpeg-quality", "5", "30", "--augment-seam-count", "2"]

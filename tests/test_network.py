@@ -700,27 +700,57 @@ def test_micro_batches_give_the_whole_batch_gradient():
 
 
 @pytest.mark.slow
-def test_backbone_learning_rate_scale_scales_the_backbone_updates():
-    """One AdamW update: the backbone moves ``scale`` times as far, the rest as with the full learning rate."""
-    with pytest.raises(ValueError, match="backbone_learning_rate_scale"):
-        ncjax.TrainConfig(backbone_learning_rate_scale=-0.1)
+@pytest.mark.parametrize(("backbone_scale", "head_scale"), [(0.25, 1.0), (1.0, 0.5)])
+def test_learning_rate_scales_scale_the_updates_of_their_part(backbone_scale, head_scale):
+    """One AdamW update: the backbone moves ``backbone_scale`` times as far as with the full learning rate, the
+    rest (compressions, LSTM, head) ``head_scale`` times."""
     steps = {}
-    for scale in (1.0, 0.25):
+    for scales in ((1.0, 1.0), (backbone_scale, head_scale)):
         model = nnx.clone(tiny_model())
         before = params_of(model)
-        optimizer = ncjax.training.loop.make_optimizer(
-            model, dataclasses.replace(TRAIN, warmup_steps=0, backbone_learning_rate_scale=scale)
+        train_config = dataclasses.replace(
+            TRAIN, warmup_steps=0, backbone_learning_rate_scale=scales[0], head_learning_rate_scale=scales[1]
         )
+        optimizer = ncjax.training.loop.make_optimizer(model, train_config)
         # Gradients of ones; jitted, an update compiles faster than its eager ops.
         nnx.jit(lambda o, m: o.update(m, jax.tree.map(jnp.ones_like, nnx.state(m, nnx.Param))))(optimizer, model)
         after = params_of(model)
-        steps[scale] = {name: after[name] - before[name] for name in after}
-    assert np.all(steps[1.0]["backbone/stem/conv/conv/kernel"] < 0)
-    for name, full in steps[1.0].items():
-        if name.startswith("backbone/"):
-            np.testing.assert_allclose(steps[0.25][name], 0.25 * full, atol=1e-7, err_msg=name)
-        else:
-            np.testing.assert_array_equal(steps[0.25][name], full, err_msg=name)
+        steps[scales] = {name: after[name] - before[name] for name in after}
+    full, scaled = steps[(1.0, 1.0)], steps[(backbone_scale, head_scale)]
+    assert np.all(full["backbone/stem/conv/conv/kernel"] < 0) and np.all(full["head/kernel"] < 0)
+    for name, step in full.items():
+        scale = backbone_scale if name.startswith("backbone/") else head_scale
+        np.testing.assert_allclose(scaled[name], scale * step, atol=1e-7, err_msg=name)
+
+
+@pytest.mark.parametrize(
+    ("backbone_scale", "head_scale", "message"),
+    [(-0.1, 1.0, "backbone_learning_rate_scale"), (1.0, -1.0, "head_learning_rate_scale"), (0.0, 0.0, "both 0")],
+)
+def test_learning_rate_scales_are_checked(backbone_scale, head_scale, message):
+    with pytest.raises(ValueError, match=message):
+        ncjax.TrainConfig(backbone_learning_rate_scale=backbone_scale, head_learning_rate_scale=head_scale)
+
+
+@pytest.mark.slow
+def test_frozen_head_keeps_its_weights_statistics_and_dropout_off_in_a_train_step():
+    """Head scale 0: only the backbone learns; the compressions' batch-norm statistics stay, dropout is off."""
+    frozen = dataclasses.replace(TRAIN, warmup_steps=0, head_learning_rate_scale=0.0)
+    model = nnx.clone(tiny_model())
+    ncjax.training.loop.set_train_mode(model, frozen)
+    assert model.lstm.dropout.deterministic and not model.backbone.stem.norm.use_running_average
+    optimizer = ncjax.training.loop.make_optimizer(model, frozen)
+    before = params_of(model)
+    key = jax.random.fold_in(ncjax.training.loop.step_key_root(0), 0)
+    terms = ncjax.training.loop.train_step(model, optimizer, next(batches(0)), key, frozen)
+    after = params_of(model)
+    assert np.isfinite(float(terms["loss"]))
+    rest = [name for name in before if not name.startswith("backbone/")]
+    assert "compressions/0/norms/0/mean" in rest and "head/kernel" in rest
+    for name in rest:
+        np.testing.assert_array_equal(after[name], before[name], err_msg=name)
+    assert not np.array_equal(after["backbone/stem/conv/conv/kernel"], before["backbone/stem/conv/conv/kernel"])
+    assert not np.array_equal(after["backbone/stem/norm/mean"], before["backbone/stem/norm/mean"])
 
 
 @pytest.mark.extended

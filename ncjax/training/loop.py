@@ -69,6 +69,10 @@ class TrainConfig:
             the rest of the network (its updates, weight decay included, are
             scaled by it); 0 freezes the backbone: its weights and its batch-norm
             statistics (the backbone stays in eval mode while the rest trains).
+        head_learning_rate_scale: the same for the rest of the network, the part that reads the backbone's
+            features (height compressions, LSTM and linear head); 0 freezes it, batch-norm statistics and
+            dropout included, so that only the features adapt and the head reads them as it was trained to
+            (a network fine-tuned whole on narrow rooms learns its head's sense of room size anew).
         roll, flip: random horizontal roll / left-right flip (labels follow).
         photometric: a random camera's rendition of each image (``augment``).
         augment: ranges and probabilities of the photometric and camera effects.
@@ -85,6 +89,7 @@ class TrainConfig:
     weight_decay: float = 1e-4
     gradient_clip: float = 1.0
     backbone_learning_rate_scale: float = 1.0
+    head_learning_rate_scale: float = 1.0
     roll: bool = True
     flip: bool = True
     photometric: bool = True
@@ -94,6 +99,10 @@ class TrainConfig:
     def __post_init__(self):
         if not self.backbone_learning_rate_scale >= 0.0:
             raise ValueError(f"backbone_learning_rate_scale must be >= 0, got {self.backbone_learning_rate_scale}")
+        if not self.head_learning_rate_scale >= 0.0:
+            raise ValueError(f"head_learning_rate_scale must be >= 0, got {self.head_learning_rate_scale}")
+        if self.backbone_learning_rate_scale == 0 and self.head_learning_rate_scale == 0:
+            raise ValueError("backbone_learning_rate_scale and head_learning_rate_scale are both 0: nothing trains")
         if self.micro_batches < 1:
             raise ValueError(f"micro_batches must be >= 1, got {self.micro_batches}")
 
@@ -114,8 +123,8 @@ class TrainConfig:
 def make_optimizer(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
     """AdamW with linear warm-up, cosine decay and global-norm gradient clipping.
 
-    The backbone's updates are then scaled by ``train_config.backbone_learning_rate_scale``
-    (the clipping norm counts every gradient, the backbone's included).
+    The backbone's updates are then scaled by ``train_config.backbone_learning_rate_scale`` and the rest's by
+    ``train_config.head_learning_rate_scale`` (the clipping norm counts every gradient).
 
     Built in a jitted function, like :func:`~ncjax.network.model.init_model`, so that a
     fresh optimizer and one restored from a checkpoint have equal graph
@@ -135,7 +144,8 @@ def _adamw(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimizer:
 
 def adamw_transform(train_config: TrainConfig) -> optax.GradientTransformation:
     """:func:`make_optimizer`'s update rule, for an optimizer of any part of the network (the backbone's updates,
-    where its parameters are among those updated, scaled by ``backbone_learning_rate_scale``)."""
+    where its parameters are among those updated, scaled by ``backbone_learning_rate_scale``, the rest's by
+    ``head_learning_rate_scale``)."""
     schedule = optax.warmup_cosine_decay_schedule(
         init_value=0.0,
         peak_value=train_config.peak_learning_rate,
@@ -147,12 +157,18 @@ def adamw_transform(train_config: TrainConfig) -> optax.GradientTransformation:
         optax.clip_by_global_norm(train_config.gradient_clip),
         optax.adamw(schedule, weight_decay=train_config.weight_decay),
         optax.masked(optax.scale(train_config.backbone_learning_rate_scale), _backbone_mask),
+        optax.masked(optax.scale(train_config.head_learning_rate_scale), _head_mask),
     )
 
 
 def _backbone_mask(params):
     """True for the leaves of the backbone's parameters (state paths starting with ``backbone``)."""
     return jax.tree_util.tree_map_with_path(lambda path, _: path[0].key == "backbone", params)
+
+
+def _head_mask(params):
+    """True for the leaves of every parameter outside the backbone."""
+    return jax.tree.map(lambda in_backbone: not in_backbone, _backbone_mask(params))
 
 
 # ----------------------------------------------------------------------------- loss
@@ -230,14 +246,18 @@ def augment_batch(key: PRNGKeyArray, batch: dict[str, Array], train_config: Trai
 
 
 def set_train_mode(model: HorizonNet, train_config: TrainConfig) -> None:
-    """Train mode, except for a frozen backbone (learning-rate scale 0), which stays in eval mode.
+    """Train mode, except for a frozen backbone or head (learning-rate scale 0), which stays in eval mode.
 
     Frozen, the pretrained features stay exactly those it was trained with: its batch-norm
-    statistics do not drift to the renders' colours and textures.
+    statistics do not drift to the renders' colours and textures. A frozen head keeps its statistics and
+    runs without dropout, as it reads features at inference.
     """
     model.train()
     if train_config.backbone_learning_rate_scale == 0:
         model.backbone.eval()
+    if train_config.head_learning_rate_scale == 0:
+        for part in (model.compressions, model.lstm, model.head):
+            part.eval()
 
 
 @functools.partial(nnx.jit, static_argnames=("train_config",))
