@@ -5,8 +5,11 @@ path-traced (photoreal) rooms than after the same rooms ray-cast (8 seeds each, 
 photoreal renders teach"). Whether the whole network does too is what this stage measures: two ``ncjax train``
 commands from the shipped weights, identical but for the home rooms (``synth-photoreal-home:91:N`` or
 ``synth-decor-home:91:N``, the same rooms), run side by side on one accelerator (each process given under half of
-its memory) with their own checkpoints, render caches, histories and logs. Each writes a float16 model
-(``lite0-photoreal.safetensors``, ``lite0-raycast.safetensors``) and resumes from its checkpoints when rerun.
+its memory) with their own checkpoints, render caches, histories and logs. Only the backbone trains: the head
+that reads its features stays the shipped one's (``--head-learning-rate-scale 0``), which on 2 cores kept the plain
+bedrooms' rows where the whole network trained pulled them in (experiments/RESULTS.md, "Which part learns what").
+Each writes a float16 model (``lite0-photoreal.safetensors``, ``lite0-raycast.safetensors``) and resumes from its
+checkpoints when rerun.
 Score both with ``benchmarks/real_panoramas.py --data ../shared/data/real-dev --model FILE`` against the shipped
 model.
 
@@ -49,9 +52,10 @@ def arm_command(arm: str, out: pathlib.Path, work: pathlib.Path, smoke: bool, mi
     return [
         sys.executable, "-m", "ncjax.cli", "train", "--data", *data, "--preset", "lite0-1024",
         "--init-from", str(pathlib.Path(__file__).resolve().parents[1] / "ncjax" / "models" / "lite0-1024.safetensors"),
-        "--steps", steps, "--batch", batch, "--peak-learning-rate", "2e-4", "--warmup-steps", "30",
-        "--backbone-learning-rate-scale", "0.1", "--validate-every", "0", "--time-budget", "520",
-        "--render-budget", "240", "--checkpoint-dir", str(checkpoints), "--render-cache", str(checkpoints / "rendered"),
+        "--steps", steps, "--batch", batch, "--peak-learning-rate", "2e-5", "--warmup-steps", "30",
+        "--backbone-learning-rate-scale", "1", "--head-learning-rate-scale", "0", "--validate-every", "0",
+        "--time-budget", "520", "--render-budget", "240", "--checkpoint-dir", str(checkpoints),
+        "--render-cache", str(checkpoints / "rendered"),
         "--history", str(out / f"{arm}_history.json"), "--export", str(out / f"lite0-{arm}.safetensors"),
         "--export-dtype", "float16", "--micro-batches", str(micro_batches),
     ]  # fmt: skip

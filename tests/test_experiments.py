@@ -412,6 +412,7 @@ def test_photoreal_stage_arms_differ_only_in_how_the_home_rooms_are_rendered(tmp
     for command in commands.values():
         args = build_parser().parse_args(command[command.index("train") :])
         assert args.micro_batches == 1 and args.batch_size == 16
+        assert args.head_learning_rate_scale == 0 and args.backbone_learning_rate_scale > 0
         assert args.render_cache and args.render_budget < args.time_budget <= 540
         assert pathlib.Path(args.render_cache).is_relative_to(tmp_path / "work")
         assert pathlib.Path(args.export).parent == tmp_path / "out"
@@ -483,6 +484,33 @@ def test_weight_interpolation_draws_the_line_between_two_networks_of_one_archite
         assert line.tensors["a"].dtype == np.float32
     with pytest.raises(ValueError, match="not the same architecture"):
         module.interpolated(start, module.ModelWeights(config, {"a": end.tensors["a"]}), 0.5)
+
+
+def test_weight_interpolation_moves_only_the_parts_asked_for():
+    module = experiment("weight_interpolation")
+    names = [
+        "model/backbone/stem/conv/kernel",
+        "model/backbone/stem/norm/mean",
+        "model/compressions/0/norms/0/var",
+        "model/compressions/0/convs/0/bias",
+        "model/lstm/forward/0/cell/dense_i/kernel",
+        "model/head/kernel",
+    ]
+    start = module.ModelWeights(HorizonNetConfig(), {name: np.zeros(2, np.float32) for name in names})
+    end = module.ModelWeights(HorizonNetConfig(), {name: np.ones(2, np.float32) for name in names})
+    for parts, moved in (
+        (("backbone",), names[:2]),
+        (("statistics",), names[1:3]),
+        (("compressions", "lstm", "head"), names[2:]),
+        (module.PARTS, names),
+        (None, names),
+    ):
+        swapped = module.interpolated(start, end, 1.0, parts)
+        assert [name for name in names if swapped.tensors[name][0] == 1.0] == moved, parts
+    # The shipped network's tensors: each in exactly one of the four layers' parts.
+    layers = ("backbone", "compressions", "lstm", "head")
+    for name in module.read_weights("lite0-1024").tensors:
+        assert sum(module.in_parts(name, (layer,)) for layer in layers) == 1, name
 
 
 def test_weight_interpolation_refuses_a_weight_off_the_line_and_writes_nothing(tmp_path, capsys):
