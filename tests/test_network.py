@@ -732,19 +732,24 @@ def test_learning_rate_scales_are_checked(backbone_scale, head_scale, message):
         ncjax.TrainConfig(backbone_learning_rate_scale=backbone_scale, head_learning_rate_scale=head_scale)
 
 
+def parameters_around_a_train_step(model, train_config):
+    """The model's parameters and statistics before and after one train step in its configured train mode."""
+    ncjax.training.loop.set_train_mode(model, train_config)
+    optimizer = ncjax.training.loop.make_optimizer(model, train_config)
+    before = params_of(model)
+    key = jax.random.fold_in(ncjax.training.loop.step_key_root(0), 0)
+    terms = ncjax.training.loop.train_step(model, optimizer, next(batches(0)), key, train_config)
+    assert np.isfinite(float(terms["loss"]))
+    return before, params_of(model)
+
+
 @pytest.mark.slow
 def test_frozen_head_keeps_its_weights_statistics_and_dropout_off_in_a_train_step():
     """Head scale 0: only the backbone learns; the compressions' batch-norm statistics stay, dropout is off."""
     frozen = dataclasses.replace(TRAIN, warmup_steps=0, head_learning_rate_scale=0.0)
     model = nnx.clone(tiny_model())
-    ncjax.training.loop.set_train_mode(model, frozen)
+    before, after = parameters_around_a_train_step(model, frozen)
     assert model.lstm.dropout.deterministic and not model.backbone.stem.norm.use_running_average
-    optimizer = ncjax.training.loop.make_optimizer(model, frozen)
-    before = params_of(model)
-    key = jax.random.fold_in(ncjax.training.loop.step_key_root(0), 0)
-    terms = ncjax.training.loop.train_step(model, optimizer, next(batches(0)), key, frozen)
-    after = params_of(model)
-    assert np.isfinite(float(terms["loss"]))
     rest = [name for name in before if not name.startswith("backbone/")]
     assert "compressions/0/norms/0/mean" in rest and "head/kernel" in rest
     for name in rest:
@@ -757,13 +762,7 @@ def test_frozen_head_keeps_its_weights_statistics_and_dropout_off_in_a_train_ste
 def test_frozen_efficientnet_backbone_keeps_its_weights_in_a_train_step():
     frozen = dataclasses.replace(TRAIN, warmup_steps=0, backbone_learning_rate_scale=0.0)
     model = nnx.clone(lite0_model())
-    ncjax.training.loop.set_train_mode(model, frozen)
-    optimizer = ncjax.training.loop.make_optimizer(model, frozen)
-    before = params_of(model)
-    key = jax.random.fold_in(ncjax.training.loop.step_key_root(0), 0)
-    terms = ncjax.training.loop.train_step(model, optimizer, next(batches(0)), key, frozen)
-    after = params_of(model)
-    assert np.isfinite(float(terms["loss"]))
+    before, after = parameters_around_a_train_step(model, frozen)
     # Weights and batch-norm statistics: the frozen backbone stays in eval mode.
     backbone = [name for name in before if name.startswith("backbone/")]
     assert "backbone/stem/norm/mean" in backbone
