@@ -255,9 +255,9 @@ def set_train_mode(model: HorizonNet, train_config: TrainConfig) -> None:
     model.train()
     if train_config.backbone_learning_rate_scale == 0:
         model.backbone.eval()
-    if train_config.head_learning_rate_scale == 0:
-        for part in (model.compressions, model.lstm, model.head):
-            part.eval()
+    if train_config.head_learning_rate_scale == 0:  # everything outside the backbone, as the optimizer's mask
+        model.eval()
+        model.backbone.train()
 
 
 @functools.partial(nnx.jit, static_argnames=("train_config",))
