@@ -64,6 +64,7 @@ SETTINGS = {
     "occlusion 6": ("auto", {"occlusion_threshold": 6.0}),
     "occlusion 12": ("auto", {"occlusion_threshold": 12.0}),
     "inlier 4": ("auto", {"inlier_threshold": 4.0}),
+    "no range check": ("auto", {"checks.max_corner_range_ratio": math.inf}),
 }
 DEFAULT_SETTINGS = ("auto", "manhattan", "atlanta", "margin 0.1", "margin 0.2", "own heights")
 

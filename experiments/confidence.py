@@ -18,6 +18,10 @@ more than ``max_scale_conflict`` standard deviations from the prior's
 render whose geometry measured a height (how often rows of one room reach it), each candidate
 threshold's flags among the renders that fall back to the prior, and their layouts' 3D IoU.
 
+Last, where the corner range check starts (``checks.max_corner_range_ratio``: a layout with a corner farther than
+that many times the 95th percentile of its rows' ranges is ``DEGENERATE_LAYOUT``): per candidate ratio, the tuning
+renders' layouts it alone fails, and their 3D IoU without it.
+
     uv run python experiments/confidence.py [--rooms 64]
 """
 
@@ -40,23 +44,32 @@ from common import layout_scores, tuning_boundaries
 
 THRESHOLDS = (0.5, 0.6, 0.7, 0.75, 0.8)
 CONFLICT_THRESHOLDS = (2.0, 2.5, 3.0, 4.0)
+RANGE_RATIOS = (1.5, 2.0, 3.0)
 
 
-def explained_and_iou(data: dict, config: ncjax.PipelineConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Per render: the layout's explained fraction and its up-to-scale 3D IoU (NaN without a layout)."""
+def _layouts(data: dict, config: ncjax.PipelineConfig) -> ncjax.Layout:
+    """The renders' layouts (world auto, no prior), ``config`` traced: one compilation for every setting."""
     width = data["ceiling_v"].shape[1]
 
-    def one(ceiling_v, floor_v, corner_prob, rc, key):
-        cam = ncjax.NonCentralPanorama(width, width // 2, rc=rc)
-        return layout_of(Rows(ceiling_v, floor_v, corner_prob), cam, None, key, config, "auto")
+    @jax.jit
+    def run(rows, rc, keys, config):
+        def one(ceiling_v, floor_v, corner_prob, rc, key):
+            cam = ncjax.NonCentralPanorama(width, width // 2, rc=rc)
+            return layout_of(Rows(ceiling_v, floor_v, corner_prob), cam, None, key, config, "auto")
+
+        return jax.vmap(one)(*rows, rc, keys)
 
     keys = jax.random.split(jax.random.key(0), len(data["rc"]))
-    layouts = jax.device_get(
-        jax.jit(jax.vmap(one))(data["ceiling_v"], data["floor_v"], data["corner_prob"], data["rc"], keys)
-    )
+    rows = (data["ceiling_v"], data["floor_v"], data["corner_prob"])
+    return jax.device_get(run(rows, data["rc"], keys, config))
+
+
+def explained_and_iou(data: dict, config: ncjax.PipelineConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per render: the layout's explained fraction, its up-to-scale 3D IoU (NaN without a layout) and its status."""
+    layouts = _layouts(data, config)
     per_room = layout_scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
     iou = np.array([room.get("iou3d_up_to_scale", np.nan) for room in per_room])
-    return np.asarray(layouts.explained_fraction), iou
+    return np.asarray(layouts.explained_fraction), iou, np.asarray(layouts.status)
 
 
 def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np.ndarray]:
@@ -80,6 +93,16 @@ def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np
         "iou": np.array([room.get("iou3d", np.nan) for room in per_room]),
         "iou_up_to_scale": np.array([room.get("iou3d_up_to_scale", np.nan) for room in per_room]),
     }
+
+
+def corner_range_failures(data: dict, config: ncjax.PipelineConfig) -> np.ndarray:
+    """Per :data:`RANGE_RATIOS` ratio and render: whether the corner range check alone fails its layout."""
+    without = _layouts(data, config.replace(checks={"max_corner_range_ratio": np.inf})).status
+    failed = []
+    for ratio in RANGE_RATIOS:
+        status = _layouts(data, config.replace(checks={"max_corner_range_ratio": ratio})).status
+        failed.append((status == LayoutStatus.DEGENERATE_LAYOUT) & (without != LayoutStatus.DEGENERATE_LAYOUT))
+    return np.asarray(failed)
 
 
 def mean_ious(found: dict[str, np.ndarray], mask: np.ndarray) -> str:
@@ -120,13 +143,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("experiments/out"))
     args = parser.parse_args(argv)
     config = NETWORK_PIPELINE_CONFIG.replace(checks={"min_explained_fraction": 0.0})
-    explained, iou, found = [], [], []
+    explained, iou, found, range_failures = [], [], [], []
     for world in ("manhattan", "atlanta"):
         data = tuning_boundaries(world, args.rooms, 4, args.out)
-        e, i = explained_and_iou(data, config)
+        e, i, _ = explained_and_iou(data, config.replace(checks={"max_corner_range_ratio": np.inf}))
         explained.append(e)
         iou.append(i)
         found.append(conflicts_and_ious(data, NETWORK_PIPELINE_CONFIG))
+        range_failures.append(corner_range_failures(data, config))
     explained, iou = np.concatenate(explained), np.concatenate(iou)
     found = {key: np.concatenate([part[key] for part in found]) for key in found[0]}
     quantiles = np.quantile(explained, [0.0, 0.01, 0.05, 0.5])
@@ -142,6 +166,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {threshold} | {low.sum()} ({100 * low.mean():.1f}%) | {flagged} | {np.nanmean(iou[~low]):.3f} |")
     print(f"in use: min_explained_fraction = {NETWORK_PIPELINE_CONFIG.checks.min_explained_fraction}")
     print_conflicts(found, NETWORK_PIPELINE_CONFIG)
+    failures = np.concatenate(range_failures, axis=1)
+    print(f"layouts that fail only by the corner range check (DEGENERATE_LAYOUT), of {failures.shape[1]}:")
+    print("| max_corner_range_ratio | failed | their 3D IoU without it (up to scale) |")
+    print("| --- | --- | --- |")
+    for ratio, failed in zip(RANGE_RATIOS, failures, strict=True):
+        their = f"{np.nanmean(iou[failed]):.3f}" if failed.any() else "-"
+        print(f"| {ratio} | {failed.sum()} | {their} |")
+    print(f"in use: max_corner_range_ratio = {NETWORK_PIPELINE_CONFIG.checks.max_corner_range_ratio}")
     return 0
 
 

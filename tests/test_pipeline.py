@@ -1121,6 +1121,7 @@ def test_bad_arguments_raise():
         ("checks", "min_finite_fraction", (1.5, -0.1)),
         ("checks", "max_room_height", (0.0, math.nan)),
         ("checks", "max_corner_distance", (-1.0,)),
+        ("checks", "max_corner_range_ratio", (0.0, math.nan)),
     ):
         for value in values:
             with pytest.raises(ValueError, match=f"{field} must be"):

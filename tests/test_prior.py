@@ -327,6 +327,49 @@ def test_a_ceiling_or_floor_at_the_camera_is_implausible():
 
 
 @pytest.mark.slow
+def test_a_corner_beyond_what_the_rows_see_is_implausible():
+    """Exact rows, rc 0 and a camera-height prior: every wall is seen, so a room's farthest corner lies at least
+    as far as any of its rows' boundary points; a limit just under that fails every layout with
+    DEGENERATE_LAYOUT, the network's (3 times the rows' 95th percentile) passes them all."""
+    batch, labels = rooms("manhattan", (0.0, 0.0))
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=batch.rc)
+    prior = HeightPrior("camera_height", -batch.floor_height)
+    rows = (labels.ceiling_v, labels.floor_v, labels.corner_target)
+
+    def statuses(ratio):
+        config = ncjax.PipelineConfig().replace(checks={"max_corner_range_ratio": ratio})
+        return np.asarray(ncjax.layout_from_boundaries(*rows, cam, "manhattan", config, prior=prior).status)
+
+    assert np.all(statuses(0.99) == ncjax.LayoutStatus.DEGENERATE_LAYOUT)
+    assert np.all(statuses(3.0) == ncjax.LayoutStatus.OK)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rc", [0.0, 0.3])
+def test_seen_range_is_the_rows_ranges_95th_percentile(rc):
+    """The rows' boundary points at the room's heights, their ranges from the axis by the pixel maps of
+    docs/design.md in numpy (rc + h / tan(elevation)), over the usable columns: the same 95th percentile."""
+    from ncjax.pipeline.assemble import seen_range
+    from ncjax.pipeline.run import fit_walls
+    from ncjax.pipeline.types import Rows
+
+    room, labels = (jax.tree.map(lambda x: x[0], tree) for tree in rooms("manhattan", (rc, rc)))
+    cam = room.camera(WIDTH, HEIGHT)
+    rows = Rows(labels.ceiling_v, labels.floor_v, labels.corner_target)
+    prior = HeightPrior("camera_height", -room.floor_height) if rc == 0 else None
+    evidence = fit_walls(rows, cam, prior, jax.random.key(0), ncjax.PipelineConfig(), "manhattan").evidence
+    # the prior's route runs on its virtual rig, whose rows see the same points from a larger circle
+    cam, usable = evidence.cam, np.asarray(evidence.usable)
+    heights = (float(room.ceiling_height), float(room.floor_height))
+    ranges = [
+        float(cam.rc) + height / np.tan(np.pi / 2 - np.pi * (np.asarray(row, np.float64)[usable] + 0.5) / HEIGHT)
+        for row, height in zip((evidence.rows.ceiling, evidence.rows.floor), heights, strict=True)
+    ]
+    expected = np.quantile(np.concatenate(ranges), 0.95)
+    np.testing.assert_allclose(seen_range(evidence, *heights), expected, rtol=1e-4)
+
+
+@pytest.mark.slow
 def test_a_prior_s_walls_reach_the_adjustment_at_its_room_height_with_their_shape():
     """Noisy rows leave the virtual rig's solve at some scale; the walls the adjustment starts from are at the
     prior's room height, their shape (directions, distance ratios, height ratio) kept."""

@@ -5,15 +5,20 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from ..geometry.plucker import horizontal_wall_line
+from ..geometry.reprojection import boundary_points
 from ..solvers.wall import canonical_orientation
 from .adjust import is_manhattan, loop_corners
 from .config import PipelineConfig
 from .refine import refine
 from .types import BranchWalls, Layout, LayoutStatus, WallEvidence
 from .uncertainty import LayoutUncertainty, room_height_sigma
+
+# how far the rows see (:func:`seen_range`): a high quantile, not the farthest row, which one row run through a
+# doorway into the next room sets
+SEEN_RANGE_QUANTILE = 0.95
 
 
 def assemble_layout(
@@ -44,6 +49,7 @@ def assemble_layout(
     to_metric = jnp.where(prior_room_height > 0, prior_room_height / room_height, 1.0)
     plausible = to_metric * room_height <= checks.max_room_height
     plausible &= to_metric * farthest <= checks.max_corner_distance
+    plausible &= farthest <= checks.max_corner_range_ratio * seen_range(evidence, ceiling_height, floor_height)
     # the ceiling above and the floor below the camera, neither of them at it (with a fraction below 0.5 the two
     # clearances also make the room height positive)
     clearance = checks.min_height_fraction * room_height
@@ -93,6 +99,22 @@ def assemble_layout(
         status=status,
         ok=status == LayoutStatus.OK,
     )
+
+
+def seen_range(
+    evidence: WallEvidence, ceiling_height: Float[ArrayLike, ""], floor_height: Float[ArrayLike, ""]
+) -> Float[Array, ""]:
+    """The 95th percentile of the usable boundary rows' ranges from the camera's axis, their points at these
+    heights (:func:`~ncjax.geometry.reprojection.boundary_points`): how far the rows see."""
+    cam, rows = evidence.cam, evidence.rows
+    columns = jnp.arange(cam.width, dtype=rows.ceiling.dtype)
+
+    def ranges(row, height):
+        points, reached = boundary_points(cam, columns, jnp.where(evidence.finite, row, 0.0), height)
+        return jnp.where(reached & evidence.usable, jnp.linalg.norm(points, axis=-1), jnp.nan)
+
+    both = jnp.concatenate([ranges(rows.ceiling, ceiling_height), ranges(rows.floor, floor_height)])
+    return jnp.nanquantile(both, SEEN_RANGE_QUANTILE)
 
 
 def finish_layout(evidence: WallEvidence, branch: BranchWalls, config: PipelineConfig) -> Layout:

@@ -220,6 +220,10 @@ class ChecksConfig:
         min_explained_fraction: an otherwise ok layout that reprojects fewer than this fraction of the usable
             boundary rows within the inlier threshold is flagged ``LOW_CONFIDENCE``: the network's rows do not
             describe one room. Off (0) by default; the network's configuration sets it.
+        max_corner_range_ratio: a layout with a corner farther from the camera's axis than this many times the
+            95th percentile of its boundary rows' ranges (their points at the layout's heights) is implausible
+            (``DEGENERATE_LAYOUT``): a wall the rows see edge-on, met by its neighbour far beyond anything the
+            rows see. Off (inf) by default; the network's configuration sets it.
     """
 
     min_finite_fraction: float = 0.5
@@ -228,10 +232,13 @@ class ChecksConfig:
     min_height_fraction: float = 0.05
     max_height_uncertainty: float = math.inf
     min_explained_fraction: float = 0.0
+    max_corner_range_ratio: float = math.inf
 
     def __post_init__(self):
         check_fraction(self, "min_finite_fraction")
-        check_positive(self, "max_room_height", "max_corner_distance", "max_height_uncertainty")
+        check_positive(
+            self, "max_room_height", "max_corner_distance", "max_height_uncertainty", "max_corner_range_ratio"
+        )
         check_fraction(self, "min_height_fraction", 0.5, closed=False)
         check_fraction(self, "min_explained_fraction")
 

@@ -83,8 +83,8 @@ _STATUS_REASONS = {
     LayoutStatus.SOLVER_FAILED: "the joint layout solver failed",
     LayoutStatus.DEGENERATE_LAYOUT: (
         "implausible layout: consecutive walls parallel, ceiling not above or floor not below the camera "
-        "by min_height_fraction of the room height, room taller than max_room_height or corners farther than "
-        "max_corner_distance"
+        "by min_height_fraction of the room height, room taller than max_room_height, corners farther than "
+        "max_corner_distance or far beyond what the boundaries see (max_corner_range_ratio)"
     ),
     LayoutStatus.UNCERTAIN_SCALE: (
         "the boundaries do not fix the room's scale: the room height's standard deviation exceeds "
