@@ -49,7 +49,8 @@ def assemble_layout(
     to_metric = jnp.where(prior_room_height > 0, prior_room_height / room_height, 1.0)
     plausible = to_metric * room_height <= checks.max_room_height
     plausible &= to_metric * farthest <= checks.max_corner_distance
-    plausible &= farthest <= checks.max_corner_range_ratio * seen_range(evidence, ceiling_height, floor_height)
+    # (no usable row to judge by: NaN, which the comparison passes)
+    plausible &= ~(farthest > checks.max_corner_range_ratio * seen_range(evidence, ceiling_height, floor_height))
     # the ceiling above and the floor below the camera, neither of them at it (with a fraction below 0.5 the two
     # clearances also make the room height positive)
     clearance = checks.min_height_fraction * room_height
