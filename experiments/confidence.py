@@ -64,12 +64,11 @@ def _layouts(data: dict, config: ncjax.PipelineConfig) -> ncjax.Layout:
     return jax.device_get(run(rows, data["rc"], keys, config))
 
 
-def explained_and_iou(data: dict, config: ncjax.PipelineConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per render: the layout's explained fraction, its up-to-scale 3D IoU (NaN without a layout) and its status."""
-    layouts = _layouts(data, config)
+def explained_and_iou(data: dict, layouts: ncjax.Layout) -> tuple[np.ndarray, np.ndarray]:
+    """Per render: its layout's explained fraction and up-to-scale 3D IoU (NaN without a layout)."""
     per_room = layout_scores([jax.tree.map(lambda x: x[i], layouts) for i in range(len(data["rc"]))], data["truth"])
     iou = np.array([room.get("iou3d_up_to_scale", np.nan) for room in per_room])
-    return np.asarray(layouts.explained_fraction), iou, np.asarray(layouts.status)
+    return np.asarray(layouts.explained_fraction), iou
 
 
 def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np.ndarray]:
@@ -95,9 +94,9 @@ def conflicts_and_ious(data: dict, config: ncjax.PipelineConfig) -> dict[str, np
     }
 
 
-def corner_range_failures(data: dict, config: ncjax.PipelineConfig) -> np.ndarray:
-    """Per :data:`RANGE_RATIOS` ratio and render: whether the corner range check alone fails its layout."""
-    without = _layouts(data, config.replace(checks={"max_corner_range_ratio": np.inf})).status
+def corner_range_failures(data: dict, config: ncjax.PipelineConfig, without: np.ndarray) -> np.ndarray:
+    """Per :data:`RANGE_RATIOS` ratio and render: whether the corner range check alone fails its layout
+    (``without``: the statuses without the check)."""
     failed = []
     for ratio in RANGE_RATIOS:
         status = _layouts(data, config.replace(checks={"max_corner_range_ratio": ratio})).status
@@ -146,11 +145,12 @@ def main(argv: list[str] | None = None) -> int:
     explained, iou, found, range_failures = [], [], [], []
     for world in ("manhattan", "atlanta"):
         data = tuning_boundaries(world, args.rooms, 4, args.out)
-        e, i, _ = explained_and_iou(data, config.replace(checks={"max_corner_range_ratio": np.inf}))
+        unchecked = _layouts(data, config.replace(checks={"max_corner_range_ratio": np.inf}))
+        e, i = explained_and_iou(data, unchecked)
         explained.append(e)
         iou.append(i)
         found.append(conflicts_and_ious(data, NETWORK_PIPELINE_CONFIG))
-        range_failures.append(corner_range_failures(data, config))
+        range_failures.append(corner_range_failures(data, config, np.asarray(unchecked.status)))
     explained, iou = np.concatenate(explained), np.concatenate(iou)
     found = {key: np.concatenate([part[key] for part in found]) for key in found[0]}
     quantiles = np.quantile(explained, [0.0, 0.01, 0.05, 0.5])
