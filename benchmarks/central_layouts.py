@@ -17,7 +17,8 @@ A written layout the metrics cannot back-project (a corner at or across the hori
 height 1) counts as no layout, and the count of such layouts is printed. The mean 3D IoU is given twice: over the
 images with a layout, and over all images with 0 for those without, then per status of the written layouts (``OK``,
 or flagged ``LOW_CONFIDENCE``: does the flag pick the worse layouts?). Each image's status and explained fraction come
-from its JSON record."""
+from its JSON record. The same table is written to ``central_layouts.csv`` in the output folder (an image without a
+layout has 2D and 3D IoU 0 and no other metric), for ``benchmarks/compare_runs.py``."""
 
 from __future__ import annotations
 
@@ -38,10 +39,13 @@ import numpy as np
 from ncjax.cli.main import main as ncjax_main
 from ncjax.evaluation.central_metrics import evaluate_corners
 from ncjax.evaluation.panorama_labels import labelled_image_paths
+from ncjax.evaluation.panorama_scores import csv_bytes
+from ncjax.io.files import write_atomic
 from ncjax.io.formats import format_path
 from ncjax.io.formats_read import read_layout
 
 COLUMNS = ("iou2d", "iou3d", "corner_error", "pixel_error", "depth_rmse", "delta1")
+CSV_NAME = "central_layouts.csv"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,12 +81,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"| image | status | explained | {' | '.join(COLUMNS)} |")
     print("|---" * (len(COLUMNS) + 3) + "|")
-    rows, unscored = [], 0
+    rows, unscored, table = [], 0, []
     for image, label in pairs:
         record_path = args.out / f"{image.stem}.json"
         if not record_path.exists():  # the image could not be read: reported by ncjax reconstruct
             print(f"| {image.stem} | unreadable | |")
             rows.append(None)
+            table.append(_csv_row(image.stem, "unreadable", None, None))
             continue
         record = json.loads(record_path.read_text())
         explained = record.get("explained_fraction")
@@ -91,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         if not written.exists():
             print(f"| {image.stem} {flags} no layout |")
             rows.append(None)
+            table.append(_csv_row(image.stem, record["status"], explained, None))
             continue
         truth = read_layout(label)
         predicted = read_layout(written, truth.width, truth.height)
@@ -99,9 +105,11 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as error:  # a corner at the horizon is no point at camera height 1
             print(f"| {image.stem} {flags} not scored: {error} |")
             rows.append(None)
+            table.append(_csv_row(image.stem, record["status"], explained, None))
             unscored += 1
             continue
         rows.append(scores | {"status": record["status"]})
+        table.append(_csv_row(image.stem, record["status"], explained, scores))
         print(f"| {image.stem} {flags} " + " | ".join(f"{scores[c]:.3f}" for c in COLUMNS) + " |")
     found = [row for row in rows if row is not None]
     means = {c: float(np.nanmean([row[c] for row in found])) if found else math.nan for c in COLUMNS}
@@ -116,7 +124,17 @@ def main(argv: list[str] | None = None) -> int:
     for status in sorted({row["status"] for row in found}):
         ious = [row["iou3d"] for row in found if row["status"] == status]
         print(f"  {status}: {len(ious)} layouts, mean 3D IoU {np.mean(ious):.3f}")
+    mean_row = {c: float(np.mean([row[c] for row in table])) if c.startswith("iou") else means[c] for c in COLUMNS}
+    table.append(_csv_row(f"mean ({len(rows)} images)", "", None, mean_row))
+    write_atomic(args.out / CSV_NAME, csv_bytes(table))
+    print(f"wrote {args.out / CSV_NAME}")
     return 0
+
+
+def _csv_row(name: str, status: str, explained: float | None, scores: dict | None) -> dict:
+    """One line of the CSV: without scores (no layout) 2D and 3D IoU 0 and no other metric."""
+    metrics = {c: (0.0 if c.startswith("iou") else "") if scores is None else scores[c] for c in COLUMNS}
+    return {"name": name, "status": status, "explained": "" if explained is None else explained} | metrics
 
 
 if __name__ == "__main__":

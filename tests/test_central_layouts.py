@@ -44,3 +44,7 @@ def test_a_written_layout_the_metrics_cannot_back_project_counts_as_none(tmp_pat
     printed = capsys.readouterr().out
     assert "| room | LOW_CONFIDENCE | 0.01 | not scored: " in printed and "horizon" in printed
     assert "0 of 1 images gave a layout" in printed and "1 written layouts could not be scored" in printed
+    table = (out / "central_layouts.csv").read_text().splitlines()
+    assert table[0] == "name,status,explained,iou2d,iou3d,corner_error,pixel_error,depth_rmse,delta1"
+    assert table[1] == "room,LOW_CONFIDENCE,0.01,0.0,0.0,,,,"  # no layout: IoU 0, as the printed mean counts it
+    assert table[2].startswith("mean (1 images),,,0.0,0.0,nan,")
