@@ -18,7 +18,8 @@ height 1) counts as no layout, and the count of such layouts is printed. The mea
 images with a layout, and over all images with 0 for those without, then per status of the written layouts (``OK``,
 or flagged ``LOW_CONFIDENCE``: does the flag pick the worse layouts?). Each image's status and explained fraction come
 from its JSON record. The same table is written to ``central_layouts.csv`` in the output folder (an image without a
-layout has 2D and 3D IoU 0 and no other metric), for ``benchmarks/compare_runs.py``."""
+layout has 2D and 3D IoU 0 and no other metric; the mean line averages the IoU over all images and the other metrics
+over the layouts), for ``benchmarks/compare_runs.py``."""
 
 from __future__ import annotations
 
