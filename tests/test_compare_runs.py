@@ -65,3 +65,10 @@ def test_missing_file_or_no_shared_image(runs, tmp_path, capsys):
     lonely = write(tmp_path / "lonely.csv", [("name", "iou_3d"), ("z", 0.3)])
     assert compare([runs[0], lonely]) == 2
     assert "share no image" in capsys.readouterr().err
+
+
+def test_lower_is_better_for_errors_only():
+    better = script_module("benchmarks", "compare_runs").better
+    assert better("depth_rmse", 1.0, 0.5) == better("corner_error", 2.0, 1.0) == better("delta1", 0.5, 0.6) == 1
+    assert better("iou3d", 0.6, 0.5) == better("floor_error_px", 1.0, 2.0) == -1
+    assert better("iou3d", float("nan"), 0.5) == better("iou3d", 0.5, 0.5) == 0
