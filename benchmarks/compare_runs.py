@@ -9,9 +9,9 @@ matched by their ``name``; rows whose name starts with ``mean`` are the runs' ow
 It prints one line per image with each column as ``base -> other (change)``, sorted by the change of ``--sort``
 (default: the first column) with the ``--top`` largest moves only if given, then per column the mean of both runs over
 the images they share and how many images got better and worse: lower is better for errors (a column named
-``*error*`` or ``*rmse*``), higher for everything else. The counts make a change's reach plain where one image's
-swing would otherwise hide in a mean (experiments/RESULTS.md, "Real photographs"). Bad input (a missing file, no
-shared image, an unknown column) is one line on stderr and exit code 2.
+``*error*`` or ``*rmse*``; ``*signed*``: nearer zero), higher for everything else. The counts make a change's reach
+plain where one image's swing would otherwise hide in a mean (experiments/RESULTS.md, "Real photographs"). Bad input
+(a missing file, no shared image, an unknown column) is one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -54,6 +54,10 @@ def better(column: str, base: float, other: float) -> int:
     """+1 if ``other`` is better than ``base`` in this column, -1 if worse, 0 if equal or not comparable."""
     if not (math.isfinite(base) and math.isfinite(other)) or base == other:
         return 0
+    if "signed" in column:  # a signed error is better nearer zero
+        base, other = abs(base), abs(other)
+        if base == other:
+            return 0
     lower_is_better = any(word in column for word in LOWER_IS_BETTER)
     return 1 if (other < base) == lower_is_better else -1
 

@@ -72,3 +72,5 @@ def test_lower_is_better_for_errors_only():
     assert better("depth_rmse", 1.0, 0.5) == better("corner_error", 2.0, 1.0) == better("delta1", 0.5, 0.6) == 1
     assert better("iou3d", 0.6, 0.5) == better("floor_error_px", 1.0, 2.0) == -1
     assert better("iou3d", float("nan"), 0.5) == better("iou3d", 0.5, 0.5) == 0
+    assert better("floor_signed_error_px", -3.0, 1.0) == 1 and better("floor_signed_error_px", -3.0, -4.0) == -1
+    assert better("floor_signed_error_px", -3.0, 3.0) == 0
