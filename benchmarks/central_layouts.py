@@ -82,13 +82,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(f"| image | status | explained | {' | '.join(COLUMNS)} |")
     print("|---" * (len(COLUMNS) + 3) + "|")
-    rows, unscored, table = [], 0, []
+    entries, unscored = [], 0  # per image: (name, status, explained fraction, scores or None)
     for image, label in pairs:
         record_path = args.out / f"{image.stem}.json"
         if not record_path.exists():  # the image could not be read: reported by ncjax reconstruct
             print(f"| {image.stem} | unreadable | |")
-            rows.append(None)
-            table.append(_csv_row(image.stem, "unreadable", None, None))
+            entries.append((image.stem, "unreadable", None, None))
             continue
         record = json.loads(record_path.read_text())
         explained = record.get("explained_fraction")
@@ -96,8 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         written = format_path(args.out / image.stem, "label_cor")
         if not written.exists():
             print(f"| {image.stem} {flags} no layout |")
-            rows.append(None)
-            table.append(_csv_row(image.stem, record["status"], explained, None))
+            entries.append((image.stem, record["status"], explained, None))
             continue
         truth = read_layout(label)
         predicted = read_layout(written, truth.width, truth.height)
@@ -105,13 +103,13 @@ def main(argv: list[str] | None = None) -> int:
             scores = evaluate_corners(predicted, truth)
         except ValueError as error:  # a corner at the horizon is no point at camera height 1
             print(f"| {image.stem} {flags} not scored: {error} |")
-            rows.append(None)
-            table.append(_csv_row(image.stem, record["status"], explained, None))
+            entries.append((image.stem, record["status"], explained, None))
             unscored += 1
             continue
-        rows.append(scores | {"status": record["status"]})
-        table.append(_csv_row(image.stem, record["status"], explained, scores))
+        entries.append((image.stem, record["status"], explained, scores))
         print(f"| {image.stem} {flags} " + " | ".join(f"{scores[c]:.3f}" for c in COLUMNS) + " |")
+    rows = [None if scores is None else scores | {"status": status} for _, status, _, scores in entries]
+    table = [_csv_row(*entry) for entry in entries]
     found = [row for row in rows if row is not None]
     means = {c: float(np.nanmean([row[c] for row in found])) if found else math.nan for c in COLUMNS}
     print(f"| mean of {len(found)} layouts | " + " | ".join(f"{means[c]:.3f}" for c in COLUMNS) + " |")
