@@ -36,17 +36,16 @@ from ncjax.evaluation import layout_metrics
 from ncjax.evaluation.panorama_labels import pixel_angles, raw_prediction_room, wall_distances
 from ncjax.io.export import status_has_geometry
 from ncjax.io.images import read_panorama_file
-from ncjax.network.predict import default_model, predict_boundaries
+from ncjax.network.predict import default_model
 from ncjax.pipeline.assemble import finish_layout
 from ncjax.pipeline.prior import DEFAULT_CAMERA_HEIGHT, HeightPrior, rescale_to_prior
 from ncjax.pipeline.run import fit_walls, prior_config
 from ncjax.pipeline.types import Rows
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-from common import central_layout, corners_iou, labelled_rows, written_layout
+from common import central_layout, corners_iou, labelled_rows, single_view_rows, written_layout
 
 BRANCHES = ("manhattan", "atlanta")
-ROLLS = 4  # the default 4 views are 2 rolls, each also mirrored; 4 rolls give 8 distinct single views
 
 
 def branch_layouts(rows: Rows, cam: ncjax.NonCentralPanorama) -> list[ncjax.Layout]:
@@ -87,21 +86,6 @@ def column_agreement(layout: ncjax.Layout, raw: dict, cam: ncjax.NonCentralPanor
     shared = np.sum(np.minimum(layout_range, rows_range) ** 2) * min(heights)
     volumes = np.sum(layout_range**2) * heights[0] + np.sum(rows_range**2) * heights[1]
     return float(shared / (volumes - shared))
-
-
-def single_view_rows(image: np.ndarray, model) -> list[Rows]:
-    """The network's rows of each single view of a panorama (rolled by ``k / ROLLS`` of a turn, plain and
-    mirrored), in the panorama's own columns."""
-    width = image.shape[1]
-    views = []
-    for k in range(ROLLS):
-        shift = width * k // ROLLS
-        for mirrored in (False, True):
-            view = np.roll(image, shift, axis=1)
-            view = np.ascontiguousarray(view[:, ::-1] if mirrored else view)
-            rows = [np.asarray(r) for r in predict_boundaries(view, model, views=1)]
-            views.append(Rows(*(np.roll(r[::-1] if mirrored else r, -shift) for r in rows)))
-    return views
 
 
 def medoid(candidates: list[dict]) -> int:

@@ -7,9 +7,9 @@
   reconstruction of renders (:func:`layouts_of`).
 - The scores of layouts against the truth (:func:`layout_scores`, :func:`scores_summary`, :func:`failure_causes`),
   of their rows (:func:`used_row_errors`) and of their corner covariances (:func:`corner_calibration`).
-- The labelled photographs through the network and the central pipeline (:func:`labelled_rows`,
-  :func:`central_layout`, :func:`written_layout`, :func:`corners_iou`), and renders made to look like photographs
-  (:func:`photo_like_image`).
+- The labelled photographs through the network (:func:`labelled_rows`, and each single view alone:
+  :func:`single_view_rows`) and the central pipeline (:func:`central_layout`, :func:`written_layout`,
+  :func:`corners_iou`), and renders made to look like photographs (:func:`photo_like_image`).
 
 Python puts a script's folder first on its path, so the scripts of ``experiments/`` import this module by name.
 """
@@ -48,6 +48,7 @@ from ncjax.pipeline.types import Rows
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG, reconstruct_batch
 from ncjax.synth.augment import random_augment
 from ncjax.synth.dataset import list_samples, read_sample, rendering_rgb8, write_dataset
+from ncjax.synth.rooms import RoomConfig
 from ncjax.viz.plan import CHI2_2D_95
 
 OUT = Path(__file__).parent / "out"
@@ -58,6 +59,8 @@ TEST_SEEDS = {"manhattan": 99, "atlanta": 98}
 TUNING_SEEDS = {"manhattan": 71, "atlanta": 72}
 # seeds of no training stage (model card): 11-16, 21-22, 31-33, 61-63, 82-84; tests and tuning 71-72, 96-99
 PHOTO_LIKE_SEED = 401
+# the default 4 views are 2 rolls, each also mirrored; 4 rolls give 8 distinct single views
+SINGLE_VIEW_ROLLS = 4
 
 
 # ----------------------------------------------------------------------------- renders and their truth
@@ -336,12 +339,12 @@ def labelled_rows(folder: Path, model) -> Iterator[tuple[Path, ncjax.NonCentralP
         yield image_path, cam, label, ncjax.predict_boundaries(image, model)
 
 
-def central_layout(ceiling_v, floor_v, corner_prob, cam: ncjax.NonCentralPanorama) -> ncjax.Layout:
-    """The central pipeline's layout of these rows (``NETWORK_PIPELINE_CONFIG``, world auto, camera height 1.6 m)."""
+def central_layout(
+    ceiling_v, floor_v, corner_prob, cam: ncjax.NonCentralPanorama, config: PipelineConfig = NETWORK_PIPELINE_CONFIG
+) -> ncjax.Layout:
+    """The central pipeline's layout of these rows (``config``, world auto, camera height 1.6 m)."""
     prior = HeightPrior("camera_height", DEFAULT_CAMERA_HEIGHT)
-    layout = ncjax.layout_from_boundaries(
-        ceiling_v, floor_v, corner_prob, cam, "auto", NETWORK_PIPELINE_CONFIG, prior=prior
-    )
+    layout = ncjax.layout_from_boundaries(ceiling_v, floor_v, corner_prob, cam, "auto", config, prior=prior)
     return jax.device_get(layout)
 
 
@@ -362,6 +365,36 @@ def corners_iou(corners: LayoutCorners | None, label: LayoutCorners) -> float:
         return evaluate_corners(corners, label)["iou3d"]
     except ValueError:  # a corner at or across the horizon: no point at camera height 1
         return 0.0
+
+
+def single_view_rows(image: np.ndarray, model) -> list[Rows]:
+    """The network's rows of each single view of a panorama (rolled by ``k / SINGLE_VIEW_ROLLS`` of a turn, plain and
+    mirrored), in the panorama's own columns."""
+    width = image.shape[1]
+    views = []
+    for k in range(SINGLE_VIEW_ROLLS):
+        shift = width * k // SINGLE_VIEW_ROLLS
+        for mirrored in (False, True):
+            view = np.roll(image, shift, axis=1)
+            view = np.ascontiguousarray(view[:, ::-1] if mirrored else view)
+            rows = [np.asarray(r) for r in predict_boundaries(view, model, views=1)]
+            views.append(Rows(*(np.roll(r[::-1] if mirrored else r, -shift) for r in rows)))
+    return views
+
+
+def room_ranges(settings: list[str]) -> dict[str, tuple[float, float]]:
+    """``--room`` settings ``FIELD=LOW:HIGH`` as :class:`~ncjax.synth.rooms.RoomConfig` range fields."""
+    ranges = {}
+    for setting in settings:
+        field, _, bounds = setting.partition("=")
+        low, _, high = bounds.partition(":")
+        if not field.endswith("_range") or field not in RoomConfig.__dataclass_fields__:
+            raise ValueError(f"--room {setting!r}: not a range of RoomConfig (size_range, camera_height_range, ...)")
+        try:
+            ranges[field] = (float(low), float(high))
+        except ValueError:
+            raise ValueError(f"--room {setting!r}: expected {field}=LOW:HIGH in metres") from None
+    return ranges
 
 
 _augment = jax.jit(random_augment)

@@ -21,7 +21,9 @@ corner P / R. ``--seed`` draws the batch order and dropout (the rooms' maps stay
 same rooms read the photographs' mean floor within 0.1-0.4 px of one another, the rooms drawn move it about a pixel
 (experiments/RESULTS.md). The final weights go to ``--export`` (float16), a model file ``--model`` of
 ``benchmarks/real_panoramas.py``, ``benchmarks/central_layouts.py`` and ``experiments/network_table.py``
-takes.
+takes. ``--room FIELD=LOW:HIGH`` renders every source's rooms with that ``RoomConfig`` range instead (the capture
+geometry of photographs: ``experiments/capture_geometry.py``); ``--statistics-noise P`` moves the maps' per-image
+channel statistics at random while the head trains (:func:`perturbed_statistics`).
 
     uv run python experiments/frozen_backbone.py --data synth-decor-home:601:500 synth-decor-open:602:500 \\
         --backbone imagenet --epochs 8 --export experiments/out/frozen_imagenet.safetensors
@@ -30,6 +32,7 @@ takes.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import pathlib
@@ -57,6 +60,8 @@ from ncjax.training.loop import (
     horizonnet_loss,
     set_train_mode,
 )
+
+from common import room_ranges
 
 OUT = pathlib.Path(__file__).parent / "out"
 HEIGHT, WIDTH = 512, 1024
@@ -114,19 +119,25 @@ def _augmented(key: jax.Array, batch: dict[str, jax.Array]) -> dict[str, jax.Arr
     return augment_batch(key, batch, TrainConfig())
 
 
-def cached_features(source: str, backbone: str, model: HorizonNet) -> dict[str, dict[str, np.ndarray]]:
-    """Per split (train, valid), the frozen backbone's maps (``map0``..``map3``, float16) of ``source``'s rooms
-    through one random training camera each, and their labels; computed once, then read from the cache."""
+def cached_features(
+    source: str, backbone: str, model: HorizonNet, rooms: dict[str, tuple[float, float]]
+) -> dict[str, dict[str, np.ndarray]]:
+    """Per split (train, valid), the frozen backbone's maps (``map0``..``map3``, float16) of ``source``'s rooms (their
+    ``RoomConfig`` ranges replaced by ``rooms``) through one random training camera each, and their labels; computed
+    once, then read from the cache."""
     kind = source.split(":")[0]
     seed, count = parse_synth_source(source)
-    path = OUT / f"frozen_{backbone}_{kind}_{seed}_{count}.npz"
+    config = SYNTH_SOURCES[kind]
+    config = dataclasses.replace(config, room=dataclasses.replace(config.room, **rooms))
+    changed = "".join(f"_{field.removesuffix('_range')}{low:g}-{high:g}" for field, (low, high) in rooms.items())
+    path = OUT / f"frozen_{backbone}_{kind}_{seed}_{count}{changed}.npz"
     if path.exists():
         with np.load(path) as stored:
             splits = {name.split("/")[0] for name in stored.files}
             return {
                 split: {n.split("/")[1]: stored[n] for n in stored.files if n.startswith(split)} for split in splits
             }
-    rendered = rendered_splits(seed, count, HEIGHT, WIDTH, config=SYNTH_SOURCES[kind])
+    rendered = rendered_splits(seed, count, HEIGHT, WIDTH, config=config)
     result = {}
     for split in ("train", "valid"):
         arrays, parts = rendered[split], []
@@ -175,19 +186,39 @@ def head_optimizer(model: HorizonNet, train_config: TrainConfig) -> nnx.Optimize
     )
 
 
+def perturbed_statistics(key: jax.Array, maps: list[jax.Array], probability: float) -> list[jax.Array]:
+    """Each map's per-image channel means and standard deviations moved at random, with ``probability`` per map:
+    each by a normal draw scaled by that statistic's spread over the batch (DSU: Li et al. 2022, "Uncertainty
+    modeling for out-of-distribution generalization"). A photograph's features differ from a render's most in
+    such statistics if the head, taught to ignore them, reads photographs better."""
+    perturbed = []
+    for index, features in enumerate(maps):
+        apply_key, mean_key, std_key = jax.random.split(jax.random.fold_in(key, index), 3)
+        mean = jnp.mean(features, axis=(1, 2), keepdims=True)
+        std = jnp.sqrt(jnp.var(features, axis=(1, 2), keepdims=True) + 1e-6)
+        new_mean = mean + jax.random.normal(mean_key, mean.shape) * jnp.std(mean, axis=0, keepdims=True)
+        new_std = std + jax.random.normal(std_key, std.shape) * jnp.std(std, axis=0, keepdims=True)
+        moved = (features - mean) / std * new_std + new_mean
+        perturbed.append(jnp.where(jax.random.uniform(apply_key) < probability, moved, features))
+    return perturbed
+
+
 def _rolled(maps: list[jax.Array], labels: list[jax.Array], shift: jax.Array):
     """Maps and labels rolled by ``shift`` coarsest columns (``shift * 32`` image columns)."""
     maps = [jnp.roll(m, shift * (COARSEST_STRIDE // s), axis=2) for m, s in zip(maps, FEATURE_STRIDES, strict=True)]
     return maps, [jnp.roll(label, shift * COARSEST_STRIDE, axis=1) for label in labels]
 
 
-@functools.partial(nnx.jit, static_argnames="deepest")
-def train_step(model, optimizer, maps, labels, key, deepest=False):
+@functools.partial(nnx.jit, static_argnames=("deepest", "statistics_noise"))
+def train_step(model, optimizer, maps, labels, key, deepest=False, statistics_noise=0.0):
     roll_key, dropout_key = jax.random.split(key)
     maps, labels = _rolled(maps, labels, jax.random.randint(roll_key, (), 0, WIDTH // COARSEST_STRIDE))
 
     def loss_fn(model):
-        features = model.compressed_columns(head_inputs(model, maps, deepest), WIDTH)
+        inputs = head_inputs(model, maps, deepest)
+        if statistics_noise > 0:
+            inputs = perturbed_statistics(jax.random.fold_in(key, 1), inputs, statistics_noise)
+        features = model.compressed_columns(inputs, WIDTH)
         prediction = model.sequence_head(features, dropout_key=dropout_key)
         return horizonnet_loss(prediction, *labels, HEIGHT, model.config.corner_base)["loss"]
 
@@ -239,6 +270,19 @@ def main(argv: list[str] | None = None) -> int:
         help="the head's batch order and dropout (the rooms' features stay the same): heads of several seeds "
         "show how far a head moves by chance",
     )
+    parser.add_argument(
+        "--statistics-noise",
+        type=float,
+        default=0.0,
+        help="probability per map and step of moving its per-image channel statistics at random (DSU); 0: never",
+    )
+    parser.add_argument(
+        "--room",
+        action="append",
+        default=[],
+        metavar="FIELD=LOW:HIGH",
+        help="a RoomConfig range for every source's rooms (repeatable): camera_height_range=1.35:1.75, ...",
+    )
     parser.add_argument("--time-budget", type=float, default=float("inf"), help="seconds of training, then stop")
     parser.add_argument("--validation-limit", type=int, default=64)
     parser.add_argument("--checkpoint", type=pathlib.Path, help="default: next to --export")
@@ -248,6 +292,9 @@ def main(argv: list[str] | None = None) -> int:
         for source in args.data:
             if parse_synth_source(source) is None:
                 raise ValueError(f"{source!r} is not a rendered source KIND:SEED:N ({', '.join(SYNTH_SOURCES)})")
+        rooms = room_ranges(args.room)
+        for source in args.data:  # RoomConfig checks the ranges together (the camera below the ceiling, ...)
+            dataclasses.replace(SYNTH_SOURCES[source.split(":")[0]].room, **rooms)
         model = frozen_model(args.backbone, args.init_head)
     except (ValueError, FileNotFoundError) as error:
         print(f"frozen_backbone: error: {error}", file=sys.stderr)
@@ -255,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     checkpoint = args.checkpoint or args.export.with_suffix(".checkpoint.safetensors")
 
     model.eval()
-    cached = [cached_features(source, args.backbone, model) for source in args.data]
+    cached = [cached_features(source, args.backbone, model, rooms) for source in args.data]
     train_arrays, valid = (
         {k: np.concatenate([c[split][k] for c in cached]) for k in cached[0][split]} for split in ("train", "valid")
     )
@@ -290,7 +337,17 @@ def main(argv: list[str] | None = None) -> int:
             maps = [jnp.asarray(train_arrays[f"map{i}"][chosen]) for i in range(4)]
             labels = [jnp.asarray(train_arrays[k][chosen]) for k in LABEL_KEYS]
             losses.append(
-                float(train_step(model, optimizer, maps, labels, jax.random.fold_in(dropout_key, step), deepest))
+                float(
+                    train_step(
+                        model,
+                        optimizer,
+                        maps,
+                        labels,
+                        jax.random.fold_in(dropout_key, step),
+                        deepest,
+                        args.statistics_noise,
+                    )
+                )
             )
             step += 1
             if time.perf_counter() - start > args.time_budget:

@@ -280,6 +280,75 @@ def test_frozen_backbone_refuses_a_source_it_cannot_render_before_any_work(tmp_p
     assert not list(tmp_path.iterdir())
 
 
+def test_frozen_backbone_refuses_a_room_setting_before_any_work(tmp_path, capsys):
+    module = experiment("frozen_backbone")
+    export = str(tmp_path / "m.safetensors")
+    for setting, message in [
+        ("colour_range=1:2", "not a range of RoomConfig"),
+        ("size_range=big", "expected size_range=LOW:HIGH"),
+        ("camera_height_range=1:2.5", "the camera must stay below the ceiling"),
+    ]:
+        assert module.main(["--data", "synth-decor-home:1:2", "--room", setting, "--export", export]) == 2
+        assert message in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_frozen_backbone_statistics_noise_moves_each_image_by_the_batchs_spread():
+    module = experiment("frozen_backbone")
+    rng = np.random.default_rng(0)
+    one = rng.normal(size=(1, 4, 8, 3)).astype(np.float32)
+    alike = [jnp.asarray(np.repeat(one, 4, axis=0))]  # no spread over the batch: nothing to move by
+    np.testing.assert_allclose(module.perturbed_statistics(jax.random.key(0), alike, 1.0)[0], alike[0], atol=1e-5)
+    varied = [jnp.asarray(rng.normal(size=(4, 4, 8, 3)) * [[[[1.0]]], [[[2.0]]], [[[0.5]]], [[[3.0]]]] + 1.0)]
+    np.testing.assert_array_equal(module.perturbed_statistics(jax.random.key(0), varied, 0.0)[0], varied[0])
+    moved = np.asarray(module.perturbed_statistics(jax.random.key(0), varied, 1.0)[0])
+    assert not np.allclose(moved.mean(axis=(1, 2)), np.asarray(varied[0]).mean(axis=(1, 2)))
+    # within each image and channel only the mean and the scale change: the pattern stays
+    for image in range(4):
+        for channel in range(3):
+            before, after = np.asarray(varied[0])[image, ..., channel].ravel(), moved[image, ..., channel].ravel()
+            assert abs(np.corrcoef(before, after)[0, 1]) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_capture_geometry_reads_a_rooms_proportions_in_camera_heights():
+    module = experiment("capture_geometry")
+    square = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    ceiling, distance, size = module.proportions(square, 0.6)
+    assert ceiling == 0.6 and size == pytest.approx(2.0)
+    assert 1.0 < distance < np.sqrt(2.0)  # between a wall's foot and a corner
+    fixed = {"camera_height_range": (1.5, 1.5), "height_range": (2.5, 2.5)}
+    rooms = module.render_proportions("synth-decor-home", 8, fixed)
+    np.testing.assert_allclose(rooms[:, 0], 1.0 / 1.5, rtol=1e-5)  # 1 m of ceiling above a 1.5 m camera
+
+
+def test_boundary_fusion_reads_one_distance_off_both_exact_rows_and_keeps_the_straighter_boundary():
+    from ncjax.evaluation.panorama_labels import boundary_rows, central_camera, wall_distances
+    from ncjax.geometry.camera import angles_to_pixel
+
+    module = experiment("boundary_fusion")
+    width = 1024
+    cam = central_camera(width, width // 2)
+    plan = np.array([[-1.5, -1.2], [2.0, -1.2], [2.0, 1.8], [-1.5, 1.8]])  # camera height 1
+    ceiling_height = 0.65
+    azimuth, _ = module.pixel_angles(cam, np.arange(width), np.zeros(width))
+    true_distance = wall_distances(plan, azimuth)
+    ceiling_v, floor_v = boundary_rows(true_distance, ceiling_height, cam)
+    from_floor, from_ceiling, ratio = module.wall_distances(cam, ceiling_v, floor_v)
+    assert ratio == pytest.approx(ceiling_height, rel=1e-6)
+    np.testing.assert_allclose(from_floor, true_distance, rtol=1e-6)
+    np.testing.assert_allclose(from_ceiling, true_distance, rtol=1e-6)
+    # a doorway: over 40 columns the floor row follows the next room's floor, 1 m beyond the wall
+    doorway = slice(500, 540)
+    through = true_distance.copy()
+    through[doorway] += 1.0
+    _, floor_through = boundary_rows(through, ceiling_height, cam)
+    from_floor, from_ceiling, _ = module.wall_distances(cam, ceiling_v, floor_through, ratio)
+    assert not np.allclose(from_floor[doorway], true_distance[doorway])
+    corner_columns, _ = angles_to_pixel(cam, np.arctan2(plan[:, 1], plan[:, 0]), np.zeros(len(plan)))
+    chosen = module.straighter(cam, from_floor, from_ceiling, np.asarray(corner_columns), 0.03)
+    np.testing.assert_allclose(chosen, true_distance, rtol=1e-4)
+
+
 @pytest.mark.slow
 def test_frozen_backbone_trains_the_head_and_leaves_the_backbone_as_it_was():
     from flax import nnx
