@@ -519,6 +519,27 @@ def test_boundary_points_at_a_height_lie_on_their_rays():
     assert not bool(jnp.any(behind))
 
 
+@pytest.mark.parametrize("rc", [0.0, 0.4])
+def test_boundary_ranges_are_the_boundary_points_range_from_the_axis_and_nan_where_there_is_none(rc):
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=rc)
+    rng = np.random.default_rng(5)
+    _, horizon = ncjax.geometry.angles_to_pixel(cam, jnp.asarray(0.3), jnp.asarray(0.0))
+    rows = jnp.asarray(np.concatenate([rng.uniform(0, HEIGHT, WIDTH - 2), [float(horizon), np.nan]]), jnp.float32)
+    columns = np.arange(WIDTH)
+    _, elevation = ncjax.geometry.pixel_to_angles(cam, jnp.asarray(columns, jnp.float32), rows)
+    for height in (1.2, -1.5):
+        _, ranges = ncjax.geometry.reprojection.boundary_ranges(cam, rows, height)
+        slope = np.tan(np.asarray(elevation, np.float64))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            expected = np.where(slope * height > 0, rc + height / slope, np.nan)
+        np.testing.assert_allclose(np.asarray(ranges), expected, rtol=1e-4)
+        assert np.isnan(np.asarray(ranges)[-2:]).all()  # the horizon's row and a missing one: no point
+        gradient = jax.grad(lambda r, h=height: jnp.nansum(ncjax.geometry.reprojection.boundary_ranges(cam, r, h)[1]))(
+            rows
+        )
+        assert np.isfinite(np.asarray(gradient)[:-1]).all()
+
+
 def test_wall_at_heights_is_the_weighted_principal_axis():
     """Noisy points: the fit is numpy's weighted total least squares line (eigenvector of the weighted scatter)."""
     rng = np.random.default_rng(3)

@@ -114,6 +114,20 @@ def boundary_points(
     return jnp.stack([radius * jnp.cos(azimuth), radius * jnp.sin(azimuth)], -1), ok
 
 
+def boundary_ranges(
+    cam: NonCentralPanorama, rows: Float[Array, " W"], height: Float[ArrayLike, ""]
+) -> tuple[Float[Array, " W"], Float[Array, " W"]]:
+    """Azimuth and range from the axis of each column's boundary point at ``height`` (:func:`boundary_points`):
+    ``rc + height / tan(phi)``; NaN where the ray never reaches that height (a row at or beyond the horizon, or NaN).
+    """
+    columns = jnp.arange(rows.shape[0], dtype=rows.dtype)
+    azimuth, _ = pixel_to_angles(cam, columns, rows)
+    points, reached = boundary_points(cam, columns, rows, height)
+    # the point's coordinate along its own azimuth: its range, with a gradient also where it is not reached
+    along = points[..., 0] * jnp.cos(azimuth) + points[..., 1] * jnp.sin(azimuth)
+    return azimuth, jnp.where(reached, along, jnp.nan)
+
+
 def fit_plan_lines(
     points: Float[Array, "n 2"], weights: Float[Array, " n"], segments: Int[Array, " n"], num_segments: int
 ) -> tuple[Float[Array, "S 2"], Float[Array, " S"]]:

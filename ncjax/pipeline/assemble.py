@@ -8,7 +8,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ..geometry.plucker import horizontal_wall_line
-from ..geometry.reprojection import boundary_points
+from ..geometry.reprojection import boundary_ranges
 from ..solvers.wall import canonical_orientation
 from .adjust import is_manhattan, loop_corners
 from .config import PipelineConfig
@@ -106,13 +106,12 @@ def seen_range(
     evidence: WallEvidence, ceiling_height: Float[ArrayLike, ""], floor_height: Float[ArrayLike, ""]
 ) -> Float[Array, ""]:
     """The 95th percentile of the usable boundary rows' ranges from the camera's axis, their points at these
-    heights (:func:`~ncjax.geometry.reprojection.boundary_points`): how far the rows see."""
+    heights (:func:`~ncjax.geometry.reprojection.boundary_ranges`): how far the rows see."""
     cam, rows = evidence.cam, evidence.rows
-    columns = jnp.arange(cam.width, dtype=rows.ceiling.dtype)
 
     def ranges(row, height):
-        points, reached = boundary_points(cam, columns, jnp.where(evidence.finite, row, 0.0), height)
-        return jnp.where(reached & evidence.usable, jnp.linalg.norm(points, axis=-1), jnp.nan)
+        _, distance = boundary_ranges(cam, jnp.where(evidence.finite, row, 0.0), height)
+        return jnp.where(evidence.usable, distance, jnp.nan)
 
     both = jnp.concatenate([ranges(rows.ceiling, ceiling_height), ranges(rows.floor, floor_height)])
     return jnp.nanquantile(both, SEEN_RANGE_QUANTILE)

@@ -14,7 +14,7 @@ take of those points:
    (:func:`prior_heights`).
 2. Each row is then a 3D boundary point at horizontal range
    ``t = h / tan(phi)`` from its column's centre, ``rc + t`` from the axis
-   (:func:`boundary_ranges`).
+   (:func:`ncjax.geometry.reprojection.boundary_ranges`).
 3. A virtual rig of radius ``rc'`` (half the nearest points' range: strong
    parallax) sees those points at the rows of :func:`virtual_rows`; the
    geometric pipeline (both worlds, occlusions, the adjustment) runs on them,
@@ -44,7 +44,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
+from ..geometry.camera import NonCentralPanorama, angles_to_pixel
+from ..geometry.reprojection import boundary_ranges
 from .floor_check import ceiling_floor_ratio
 from .types import Layout, LayoutStatus
 
@@ -104,20 +105,6 @@ def prior_heights(ratio: Float[ArrayLike, ""], prior: HeightPrior) -> tuple[Floa
     else:
         floor_height = value / (ratio - 1.0)
     return ratio * floor_height, floor_height
-
-
-def boundary_ranges(
-    cam: NonCentralPanorama, rows: Float[Array, " W"], height: Float[ArrayLike, ""]
-) -> tuple[Float[Array, " W"], Float[Array, " W"]]:
-    """Azimuth and range from the axis of each column's boundary point at ``height`` (NaN behind the camera).
-
-    The column's ray leaves ``rc (cos varphi, sin varphi, 0)`` at elevation ``phi`` and meets
-    ``z = height`` at horizontal range ``height / tan(phi)`` from that centre (paper eq. pluckerray).
-    """
-    columns = jnp.arange(rows.shape[0], dtype=rows.dtype)
-    azimuth, elevation = pixel_to_angles(cam, columns, rows)
-    along = height / jnp.tan(elevation)
-    return azimuth, jnp.where(along > 0, cam.rc + along, jnp.nan)
 
 
 def virtual_rows(
