@@ -349,6 +349,36 @@ def test_boundary_fusion_reads_one_distance_off_both_exact_rows_and_keeps_the_st
     np.testing.assert_allclose(chosen, true_distance, rtol=1e-4)
 
 
+def test_see_through_classifier_is_circular_and_takes_the_ceiling_only_where_told():
+    from flax import nnx
+
+    from ncjax.evaluation.panorama_labels import boundary_rows, central_camera, pixel_angles, wall_distances
+
+    module = experiment("see_through")
+    classifier = module.ColumnClassifier(6, 4, nnx.Rngs(0), hidden=8)
+    features = jnp.asarray(np.random.default_rng(0).normal(size=(2, 32, 6)), jnp.float32)
+    logits = classifier(features)
+    assert logits.shape == (2, 128)
+    np.testing.assert_allclose(classifier(jnp.roll(features, 5, axis=1)), jnp.roll(logits, 20, axis=1), atol=1e-5)
+
+    width = 1024
+    cam = central_camera(width, width // 2)
+    plan = np.array([[-1.5, -1.2], [2.0, -1.2], [2.0, 1.8], [-1.5, 1.8]])
+    azimuth, _ = pixel_angles(cam, np.arange(width), np.zeros(width))
+    distance = wall_distances(plan, azimuth)
+    ceiling_v, floor_v = boundary_rows(distance, 0.65, cam)
+    through = distance.copy()
+    through[500:540] += 1.0  # a doorway's floor line, 1 m beyond the wall
+    _, floor_through = boundary_rows(through, 0.65, cam)
+    panorama = SimpleNamespace(width=width, height=width // 2, floor_v=floor_v, plan=plan, ceiling_height=0.65)
+    nowhere = module.fused_scores(panorama, ceiling_v, floor_through, np.zeros(width, bool))
+    assert nowhere[1] == pytest.approx(nowhere[0], rel=1e-4) and nowhere[0] > 0.5  # 40 columns ~20 px off
+    assert nowhere[3] == pytest.approx(nowhere[2], abs=1e-4) and nowhere[5] == 0.0
+    everywhere = module.fused_scores(panorama, ceiling_v, floor_through, np.ones(width, bool))
+    assert everywhere[1] < 0.01 and everywhere[3] > nowhere[3]  # the ceiling's wall, nearer, taken in the doorway
+    assert everywhere[5] >= 39 / width  # at least the doorway (elsewhere the two agree but for rounding)
+
+
 @pytest.mark.slow
 def test_frozen_backbone_trains_the_head_and_leaves_the_backbone_as_it_was():
     from flax import nnx
