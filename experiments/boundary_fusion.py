@@ -56,7 +56,7 @@ MIN_ELEVATION = 1e-3  # radians: a boundary this near the horizon fixes no dista
 RANSAC_ITERATIONS = 300
 
 
-def wall_distances(cam, ceiling_v, floor_v, ratio=None):
+def row_distances(cam, ceiling_v, floor_v, ratio=None):
     """Per column the wall distance (camera height 1) the floor row gives and the one the ceiling row gives through
     ``ratio`` (``h_c / h_f``; default the panorama's median); NaN where a ceiling row is not above the horizon."""
     columns = np.arange(len(floor_v))
@@ -120,9 +120,9 @@ def straighter(cam, from_floor, from_ceiling, corner_columns, tolerance: float) 
 
 def chosen_distances(cam, ceiling_v, floor_v, corner_prob, views, label_floor_v, tolerance) -> dict[str, np.ndarray]:
     """Each chooser's per-column wall distance."""
-    from_floor, from_ceiling, ratio = wall_distances(cam, ceiling_v, floor_v)
+    from_floor, from_ceiling, ratio = row_distances(cam, ceiling_v, floor_v)
     either = np.where(np.isfinite(from_ceiling), from_ceiling, from_floor)
-    single = [wall_distances(cam, np.asarray(v.ceiling), np.asarray(v.floor), ratio) for v in views]
+    single = [row_distances(cam, np.asarray(v.ceiling), np.asarray(v.floor), ratio) for v in views]
     floor_spread = np.std([np.log(f) for f, _, _ in single], axis=0)
     ceiling_spread = np.std([np.log(c) for _, c, _ in single], axis=0)  # NaN where a view sees no ceiling row
     steadier = np.where(np.isfinite(from_ceiling) & (ceiling_spread < floor_spread), from_ceiling, from_floor)
@@ -130,7 +130,7 @@ def chosen_distances(cam, ceiling_v, floor_v, corner_prob, views, label_floor_v,
     weighted = np.exp(
         (floor_weight * np.log(from_floor) + ceiling_weight * np.log(either)) / (floor_weight + ceiling_weight)
     )
-    label_distance, _, _ = wall_distances(cam, ceiling_v, label_floor_v, ratio)
+    label_distance, _, _ = row_distances(cam, ceiling_v, label_floor_v, ratio)
     ceiling_nearer_label = np.abs(np.log(either / label_distance)) < np.abs(np.log(from_floor / label_distance))
     corners = predicted_corners(corner_prob, NETWORK_PIPELINE_CONFIG)
     return {

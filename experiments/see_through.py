@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from boundary_fusion import wall_distances
+from boundary_fusion import row_distances
 from doorway_rows import column_classes
 from flax import nnx
 from tqdm import tqdm
@@ -147,7 +147,7 @@ def fused_scores(panorama, ceiling_v: np.ndarray, floor_v: np.ndarray, opening: 
     """Floor error and raw 3D IoU of the network's rows and of the rows with the ceiling's distance taken in the
     ``opening`` columns where it is nearer, and the share of columns said opening and taken."""
     cam = central_camera(panorama.width, panorama.height)
-    from_floor, from_ceiling, _ = wall_distances(cam, ceiling_v, floor_v)
+    from_floor, from_ceiling, _ = row_distances(cam, ceiling_v, floor_v)
     through = opening & np.isfinite(from_ceiling) & (from_ceiling < from_floor)
     fused_v = elevation_rows(cam, -np.arctan(1.0 / np.where(through, from_ceiling, from_floor)))
     return (

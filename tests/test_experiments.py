@@ -333,7 +333,7 @@ def test_boundary_fusion_reads_one_distance_off_both_exact_rows_and_keeps_the_st
     azimuth, _ = module.pixel_angles(cam, np.arange(width), np.zeros(width))
     true_distance = wall_distances(plan, azimuth)
     ceiling_v, floor_v = boundary_rows(true_distance, ceiling_height, cam)
-    from_floor, from_ceiling, ratio = module.wall_distances(cam, ceiling_v, floor_v)
+    from_floor, from_ceiling, ratio = module.row_distances(cam, ceiling_v, floor_v)
     assert ratio == pytest.approx(ceiling_height, rel=1e-6)
     np.testing.assert_allclose(from_floor, true_distance, rtol=1e-6)
     np.testing.assert_allclose(from_ceiling, true_distance, rtol=1e-6)
@@ -342,7 +342,7 @@ def test_boundary_fusion_reads_one_distance_off_both_exact_rows_and_keeps_the_st
     through = true_distance.copy()
     through[doorway] += 1.0
     _, floor_through = boundary_rows(through, ceiling_height, cam)
-    from_floor, from_ceiling, _ = module.wall_distances(cam, ceiling_v, floor_through, ratio)
+    from_floor, from_ceiling, _ = module.row_distances(cam, ceiling_v, floor_through, ratio)
     assert not np.allclose(from_floor[doorway], true_distance[doorway])
     corner_columns, _ = angles_to_pixel(cam, np.arctan2(plan[:, 1], plan[:, 0]), np.zeros(len(plan)))
     chosen = module.straighter(cam, from_floor, from_ceiling, np.asarray(corner_columns), 0.03)
