@@ -117,8 +117,11 @@ def boundary_points(
 def boundary_ranges(
     cam: NonCentralPanorama, rows: Float[Array, " W"], height: Float[ArrayLike, ""]
 ) -> tuple[Float[Array, " W"], Float[Array, " W"]]:
-    """Azimuth and range from the axis of each column's boundary point at ``height`` (:func:`boundary_points`):
-    ``rc + height / tan(phi)``; NaN where the ray never reaches that height (a row at or beyond the horizon, or NaN).
+    """Azimuth and range from the axis of each column's boundary point at ``height`` (:func:`boundary_points`).
+
+    The column's ray leaves ``rc (cos varphi, sin varphi, 0)`` at elevation ``phi`` and meets ``z = height`` at
+    horizontal range ``height / tan(phi)`` from that centre (paper eq. pluckerray): ``rc + height / tan(phi)`` from
+    the axis; NaN where the ray never reaches that height (a row at or beyond the horizon, or a NaN row).
     """
     columns = jnp.arange(rows.shape[0], dtype=rows.dtype)
     azimuth, _ = pixel_to_angles(cam, columns, rows)
