@@ -16,6 +16,8 @@ rows a per-column choice between the two gives (mean error, px of a 512-row imag
 - ``straighter``: per wall (the columns between two of the pipeline's corner peaks), the boundary whose point lies
   nearer the line RANSAC fits in the floor plan through both boundaries' points (inliers within ``--tolerance``
   of the wall's median distance), then refined by total least squares;
+- ``nearer oracle``: the ceiling's distance where it is both nearer than the floor's and nearer the label (what
+  a perfect detector of the columns whose floor row sees beyond the wall could reach);
 - ``oracle``: the boundary nearer the label (the ceiling to what a chooser could reach).
 
 With ``--layouts`` it also lays out the ``straighter`` rows with the central pipeline (``NETWORK_PIPELINE_CONFIG``,
@@ -51,7 +53,7 @@ from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
 from common import central_layout, corners_iou, single_view_rows, written_layout
 
-CHOOSERS = ("floor", "ceiling", "nearer", "steadier", "weighted", "straighter", "oracle")
+CHOOSERS = ("floor", "ceiling", "nearer", "steadier", "weighted", "straighter", "nearer oracle", "oracle")
 MIN_ELEVATION = 1e-3  # radians: a boundary this near the horizon fixes no distance
 RANSAC_ITERATIONS = 300
 
@@ -140,6 +142,7 @@ def chosen_distances(cam, ceiling_v, floor_v, corner_prob, views, label_floor_v,
         "steadier": steadier,
         "weighted": np.where(np.isfinite(weighted), weighted, from_floor),
         "straighter": straighter(cam, from_floor, from_ceiling, corners, tolerance),
+        "nearer oracle": np.where(ceiling_nearer_label & (either < from_floor), either, from_floor),
         "oracle": np.where(ceiling_nearer_label, either, from_floor),
     }
 
@@ -193,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
         error, iou = np.array(errors[name]), np.array(ious[name])
         better, worse = int(np.sum(iou > reference + 1e-9)), int(np.sum(iou < reference - 1e-9))
         print(
-            f"{name:11s} {error.mean():5.1f} ({error[closed].mean():5.1f})  {np.nanmean(iou):.3f} "
+            f"{name:14s} {error.mean():5.1f} ({error[closed].mean():5.1f})  {np.nanmean(iou):.3f} "
             f"({np.nanmean(iou[closed]):.3f})  {better} / {worse}"
         )
     if args.layouts:
