@@ -18,7 +18,6 @@ train --data`` kinds: ``--rooms`` rooms each drawn by the kind's ``RoomConfig``,
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -35,7 +34,7 @@ from ncjax.evaluation.panorama_labels import (
 from ncjax.synth.rooms import RoomStatus, random_room
 from ncjax.training.data import SYNTH_SOURCES
 
-from common import room_ranges
+from common import room_ranges, source_config
 
 WIDTH = 1024  # columns over which the walls' distances are taken
 PERCENTILES = (5, 25, 50, 75, 95)
@@ -58,7 +57,7 @@ def photograph_proportions(folder: Path) -> np.ndarray:
 
 def render_proportions(kind: str, count: int, rooms: dict[str, tuple[float, float]]) -> np.ndarray:
     """:func:`proportions` of ``count`` rooms of a training source (seed 0), its room ranges replaced by ``rooms``."""
-    config = dataclasses.replace(SYNTH_SOURCES[kind].room, **rooms)
+    config = source_config(kind, rooms).room
     drawn = jax.device_get(
         jax.jit(jax.vmap(lambda key: random_room(key, config)))(jax.random.split(jax.random.key(0), count))
     )

@@ -17,6 +17,7 @@ Python puts a script's folder first on its path, so the scripts of ``experiments
 from __future__ import annotations
 
 import collections
+import dataclasses
 import functools
 import hashlib
 import math
@@ -49,6 +50,7 @@ from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG, reconstruct_batch
 from ncjax.synth.augment import random_augment
 from ncjax.synth.dataset import list_samples, read_sample, rendering_rgb8, write_dataset
 from ncjax.synth.rooms import RoomConfig
+from ncjax.training.data import SYNTH_SOURCES
 from ncjax.viz.plan import CHI2_2D_95
 
 OUT = Path(__file__).parent / "out"
@@ -367,19 +369,32 @@ def corners_iou(corners: LayoutCorners | None, label: LayoutCorners) -> float:
         return 0.0
 
 
-def single_view_rows(image: np.ndarray, model) -> list[Rows]:
-    """The network's rows of each single view of a panorama (rolled by ``k / SINGLE_VIEW_ROLLS`` of a turn, plain and
-    mirrored), in the panorama's own columns."""
+def each_view(image: np.ndarray, rolls: int, read) -> list[tuple[np.ndarray, ...]]:
+    """``read``'s per-column outputs (a tuple of arrays) on each view of a panorama (rolled by ``k / rolls`` of a turn,
+    plain and mirrored), mapped back to the panorama's own columns."""
     width = image.shape[1]
-    views = []
-    for k in range(SINGLE_VIEW_ROLLS):
-        shift = width * k // SINGLE_VIEW_ROLLS
+    outputs = []
+    for k in range(rolls):
+        shift = width * k // rolls
         for mirrored in (False, True):
             view = np.roll(image, shift, axis=1)
             view = np.ascontiguousarray(view[:, ::-1] if mirrored else view)
-            rows = [np.asarray(r) for r in predict_boundaries(view, model, views=1)]
-            views.append(Rows(*(np.roll(r[::-1] if mirrored else r, -shift) for r in rows)))
-    return views
+            columns = [np.asarray(a) for a in read(view)]
+            outputs.append(tuple(np.roll(a[::-1] if mirrored else a, -shift) for a in columns))
+    return outputs
+
+
+def single_view_rows(image: np.ndarray, model) -> list[Rows]:
+    """The network's rows of each single view of a panorama (:func:`each_view`, :data:`SINGLE_VIEW_ROLLS` rolls)."""
+    views = each_view(image, SINGLE_VIEW_ROLLS, lambda view: predict_boundaries(view, model, views=1))
+    return [Rows(*rows) for rows in views]
+
+
+def source_config(kind: str, rooms: dict[str, tuple[float, float]]):
+    """The :class:`~ncjax.synth.render.SynthConfig` of a training source, its ``RoomConfig`` ranges replaced by
+    ``rooms`` (:func:`room_ranges`); ``RoomConfig`` checks them together (the camera below the ceiling, ...)."""
+    config = SYNTH_SOURCES[kind]
+    return dataclasses.replace(config, room=dataclasses.replace(config.room, **rooms))
 
 
 def room_ranges(settings: list[str]) -> dict[str, tuple[float, float]]:

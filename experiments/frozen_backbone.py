@@ -32,7 +32,6 @@ channel statistics at random while the head trains (:func:`perturbed_statistics`
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import functools
 import json
 import pathlib
@@ -61,7 +60,7 @@ from ncjax.training.loop import (
     set_train_mode,
 )
 
-from common import room_ranges
+from common import room_ranges, source_config
 
 OUT = pathlib.Path(__file__).parent / "out"
 HEIGHT, WIDTH = 512, 1024
@@ -127,8 +126,7 @@ def cached_features(
     once, then read from the cache."""
     kind = source.split(":")[0]
     seed, count = parse_synth_source(source)
-    config = SYNTH_SOURCES[kind]
-    config = dataclasses.replace(config, room=dataclasses.replace(config.room, **rooms))
+    config = source_config(kind, rooms)
     changed = "".join(f"_{field.removesuffix('_range')}{low:g}-{high:g}" for field, (low, high) in rooms.items())
     path = OUT / f"frozen_{backbone}_{kind}_{seed}_{count}{changed}.npz"
     if path.exists():
@@ -293,8 +291,8 @@ def main(argv: list[str] | None = None) -> int:
             if parse_synth_source(source) is None:
                 raise ValueError(f"{source!r} is not a rendered source KIND:SEED:N ({', '.join(SYNTH_SOURCES)})")
         rooms = room_ranges(args.room)
-        for source in args.data:  # RoomConfig checks the ranges together (the camera below the ceiling, ...)
-            dataclasses.replace(SYNTH_SOURCES[source.split(":")[0]].room, **rooms)
+        for source in args.data:
+            source_config(source.split(":")[0], rooms)
         model = frozen_model(args.backbone, args.init_head)
     except (ValueError, FileNotFoundError) as error:
         print(f"frozen_backbone: error: {error}", file=sys.stderr)

@@ -48,7 +48,7 @@ from ncjax.synth.dataset import rendered_samples
 from ncjax.synth.render import Semantic
 from ncjax.training.data import SYNTH_SOURCES, parse_synth_source
 
-from common import photo_like_image
+from common import each_view, photo_like_image
 
 OUT = Path(__file__).parent / "out"
 DEFAULT_DATA = ("synth-decor-open:501:200", "synth-decor-home:502:200", "synth-decor-hall:503:100")
@@ -133,14 +133,11 @@ def train(features: np.ndarray, labels: np.ndarray, step: int, epochs: int) -> C
 
 def photograph_openings(classifier: ColumnClassifier, model, image: np.ndarray) -> np.ndarray:
     """Per column the opening probability, averaged over the image rolled by half a turn and each mirrored."""
-    width, probabilities = image.shape[1], []
-    for shift in (0, width // 2):
-        for mirrored in (False, True):
-            view = np.roll(image, shift, axis=1)
-            view = np.ascontiguousarray(view[:, ::-1] if mirrored else view)
-            p = np.asarray(jax.nn.sigmoid(classifier(column_features(model, jnp.asarray(view[None])))))[0]
-            probabilities.append(np.roll(p[::-1] if mirrored else p, -shift))
-    return np.mean(probabilities, axis=0)
+
+    def read(view):
+        return (jax.nn.sigmoid(classifier(column_features(model, jnp.asarray(view[None]))))[0],)
+
+    return np.mean([probability for (probability,) in each_view(image, 2, read)], axis=0)
 
 
 def fused_scores(panorama, ceiling_v: np.ndarray, floor_v: np.ndarray, opening: np.ndarray) -> tuple[float, ...]:
