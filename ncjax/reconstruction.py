@@ -46,6 +46,7 @@ from .pipeline.config import (
     FloorCheckConfig,
     OcclusionConfig,
     PipelineConfig,
+    PlanConfig,
     PriorConfig,
     UncertaintyConfig,
 )
@@ -72,6 +73,7 @@ NETWORK_PIPELINE_CONFIG = PipelineConfig(
     occlusion=OcclusionConfig(threshold=8.0),
     uncertainty=UncertaintyConfig(wall_offset_ratio=2.0, wall_offset_noise=1.0, corner_column_noise=2.0),
     checks=ChecksConfig(max_height_uncertainty=0.15, min_explained_fraction=0.6, max_corner_range_ratio=3.0),
+    plan=PlanConfig(fallback=True),
     prior=PriorConfig(max_scale_conflict=3.0),
 )
 

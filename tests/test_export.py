@@ -70,6 +70,7 @@ def make_layout(plan, ceiling_height=H_C, floor_height=H_F, *, inserted=(), capa
         inserted=jnp.asarray(pad(np.isin(np.arange(n), inserted), False)),
         corner_columns=f32(pad(columns)),
         manhattan=jnp.asarray(manhattan),
+        plan=jnp.asarray(False),
         explained_fraction=f32(0.9),
         corner_covariance=f32(pad(np.tile(np.diag([4e-4, 1e-4]), (n, 1, 1)))),
         height_covariance=f32(np.diag([1e-4, 4e-4])),

@@ -16,7 +16,7 @@ failed layout are ``null`` and its lists empty, except for a flagged layout (``U
 ``LOW_CONFIDENCE``, ``SCALE_CONFLICT``), which keeps them with ``ok`` false: see :func:`has_geometry`)::
 
     name, schema_version, ok, status (LayoutStatus name), status_code, world
-    (requested: manhattan/atlanta/auto), branch (manhattan/atlanta),
+    (requested: manhattan/atlanta/auto), branch (manhattan/atlanta, or plan: :mod:`ncjax.pipeline.plan`),
     explained_fraction (share of the boundary pixels the layout reprojects within
     the inlier threshold, a quality indicator; added in ncjax 0.1.0, same schema version), rc,
     image_size [W, H] (the image file as given: the record's pixels are its pixels),
@@ -85,6 +85,13 @@ def failure_label(layout: Layout) -> str:
     if has_geometry(layout):
         return FLAGGED_STATUSES[LayoutStatus(int(np.asarray(layout.status)))].upper()
     return f"no layout: {status_name(layout)}"
+
+
+def branch_name(layout: Layout) -> str:
+    """Which walls the layout holds: ``"plan"`` (:mod:`ncjax.pipeline.plan`), ``"manhattan"`` or ``"atlanta"``."""
+    if bool(np.asarray(layout.plan)):
+        return "plan"
+    return "manhattan" if bool(np.asarray(layout.manhattan)) else "atlanta"
 
 
 def has_geometry(layout: Layout) -> bool:
@@ -204,7 +211,7 @@ def layout_record(
         "status": status_name(layout),
         "status_code": int(np.asarray(layout.status)),
         "world": world,
-        "branch": "manhattan" if bool(np.asarray(layout.manhattan)) else "atlanta",
+        "branch": branch_name(layout),
         "explained_fraction": _number(np.asarray(layout.explained_fraction)),
         "rc": _number(np.asarray(cam.rc)),
         "image_size": [file_width, file_height],

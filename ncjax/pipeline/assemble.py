@@ -27,8 +27,10 @@ def assemble_layout(
     explained_fraction: Float[Array, ""],
     uncertainty: LayoutUncertainty,
     config: PipelineConfig,
+    plan: bool = False,
 ) -> Layout:
-    """Step 6: corners where consecutive walls meet, Plücker lines and the status.
+    """Step 6: corners where consecutive walls meet, Plücker lines and the status (``plan``: the walls are the
+    plan layout's, :mod:`ncjax.pipeline.plan`).
 
     Reads ``config.checks``, the prior's room height ``config.prior.room_height`` (a prior's virtual rig is
     judged at the prior's scale) and ``config.uncertainty.covariance``.
@@ -92,6 +94,7 @@ def assemble_layout(
         inserted=final.inserted,
         corner_columns=jnp.where(mask, final.corner_columns, 0.0),
         manhattan=jnp.asarray(manhattan),
+        plan=jnp.asarray(plan),
         explained_fraction=explained_fraction,
         corner_covariance=jnp.where(
             mask[:, None, None], _undetermined_as_infinite(uncertainty.corner_covariance, covariance_computed), 0.0

@@ -9,41 +9,19 @@ from jaxtyping import Array, ArrayLike, Bool, Float
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d
 from ..geometry.polygon import previous_in_loop
-from ..geometry.reprojection import column_directions
 from ..solvers.settings import scaled
 from .adjust import FREE_ANGLE, corner_column_offset
 from .config import BranchConfig
 from .evidence import previous_of
-from .types import BranchWalls, FinalWalls, WallEvidence
+from .types import BranchWalls, WallEvidence
 from .walls import (
     boundary_gap,
     final_walls,
     group_directions,
-    point_on_wall,
+    place_unobserved_walls,
     several_corners,
-    signed_distance,
     solve_final_walls,
 )
-
-
-def _place_atlanta_walls(
-    cam: NonCentralPanorama, final: FinalWalls, directions: Float[Array, "K 2"], distances: Float[Array, " K"]
-) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
-    """Unobserved Atlanta walls: occlusion walls in the corner ray's vertical plane (the paper's
-    Fig. Atocc), unfitted walls through their two corners on the neighbouring walls."""
-    count = jnp.maximum(jnp.sum(final.mask), 1)
-    index = jnp.arange(final.mask.shape[0])
-    previous, following = (index - 1) % count, (index + 1) % count
-    start = point_on_wall(cam, directions[previous], distances[previous], final.corner_columns)
-    end = point_on_wall(cam, directions[following], distances[following], final.corner_columns[following])
-    chord = end - start
-    length = jnp.linalg.norm(chord, axis=-1, keepdims=True)
-    through_corners = jnp.where(length > 0, chord / jnp.where(length > 0, length, 1.0), directions)
-    radial = column_directions(cam, final.corner_columns)
-    new_direction = jnp.where(final.inserted[:, None], radial, through_corners)
-    new_distance = jnp.where(final.inserted, 0.0, signed_distance(through_corners, start))
-    keep = final.observed[:, None]
-    return jnp.where(keep, directions, new_direction), jnp.where(final.observed, distances, new_distance)
 
 
 def _solve_atlanta_walls(evidence, merge, insert, min_columns, max_room_height) -> BranchWalls:
@@ -52,7 +30,7 @@ def _solve_atlanta_walls(evidence, merge, insert, min_columns, max_room_height) 
     solved, ok = solve_final_walls(
         evidence, final, group_directions(evidence, merge, final), lambda plan: plan, max_room_height
     )
-    directions, distances = _place_atlanta_walls(evidence.cam, final, solved.directions, solved.distances)
+    directions, distances = place_unobserved_walls(evidence.cam, final, solved.directions, solved.distances)
     labels = jnp.full(merge.shape[0], FREE_ANGLE)
     return BranchWalls(final, ok, directions, distances, solved.ceiling_height, solved.floor_height, labels)
 

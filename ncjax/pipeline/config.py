@@ -270,6 +270,38 @@ class PriorConfig:
         check_non_negative(self, "room_height")
 
 
+@settings(static=("fallback", "samples", "iterations"))
+class PlanConfig:
+    """The plan layout (:mod:`~ncjax.pipeline.plan`, not in the paper): where the chosen branch's layout is flagged
+    ``LOW_CONFIDENCE``, walls read robustly off the floor rows' plan replace it if that layout has geometry.
+
+    Attributes:
+        fallback: compute the plan layout and use it so. Off by default; the network's configuration sets it.
+        samples: each wall's robust line starts from the least-median line through two of this many of its points
+            at evenly spaced ranks (:func:`~ncjax.pipeline.plan.least_median_lines`).
+        iterations: reweightings of each wall's robust line (:func:`~ncjax.pipeline.plan.robust_plan_lines`).
+        tukey: a point farther from its wall's line than this many times the wall's robust spread counts for
+            nothing (Tukey's biweight constant: 95% efficiency for Gaussian errors).
+        min_spread: the robust spread is at least this fraction of the wall's points' median range.
+        min_turn: walls whose lines turn by less than this (degrees) do not meet at their corner: a wall is
+            inserted there in the corner ray's plane, as at an occlusion.
+        horizon_margin: floor rows whose elevation lies within this many radians of the horizon make no plan point.
+    """
+
+    fallback: bool = False
+    samples: int = 7
+    iterations: int = 10
+    tukey: float = 4.685
+    min_spread: float = 0.01
+    min_turn: float = 30.0
+    horizon_margin: float = 0.03
+
+    def __post_init__(self):
+        check_positive(self, "tukey", "min_spread", "min_turn", "horizon_margin")
+        if self.samples < 2 or self.iterations < 1:
+            raise ValueError(f"samples must be >= 2 and iterations >= 1, got {self.samples} and {self.iterations}")
+
+
 @settings(static=("capacity", "compact_capacity", "chunk_size"))
 class PipelineConfig:
     """Parameters of the pipeline (frozen, hashable structure; a pytree whose leaves are the traced thresholds).
@@ -290,6 +322,7 @@ class PipelineConfig:
         adjustment: step 5.
         uncertainty: step 5's covariance.
         checks: step 6.
+        plan: the plan layout that replaces a ``LOW_CONFIDENCE`` one.
         prior: the height prior's route.
     """
 
@@ -304,6 +337,7 @@ class PipelineConfig:
     adjustment: AdjustmentConfig = AdjustmentConfig()
     uncertainty: UncertaintyConfig = UncertaintyConfig()
     checks: ChecksConfig = ChecksConfig()
+    plan: PlanConfig = PlanConfig()
     prior: PriorConfig = PriorConfig()
 
     def __new__(cls, *args, **kwargs):

@@ -236,6 +236,7 @@ def gather_evidence(
         ceiling_trusted=ceiling_trusted,
         floor_trusted=floor_trusted,
         floor_measured=jnp.ones_like(usable),
+        input_floor=rows.floor,
         weights=weights.astype(ceiling_v.dtype),
         row_weights=row_weights,
         fitted=fitted,

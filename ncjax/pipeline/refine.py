@@ -81,8 +81,8 @@ def refine(
     second's.
 
     Returns:
-        The adjusted walls (:func:`ncjax.pipeline.adjust.adjust_layout`), the fraction of the usable
-        columns' ceiling and floor rows they reproject within ``inlier_threshold``, and their
+        The adjusted walls (:func:`ncjax.pipeline.adjust.adjust_layout`), the fraction of the rows they explain
+        (:func:`explained_fraction`), and their
         :func:`ncjax.pipeline.uncertainty.layout_uncertainty` on the rows of the second adjustment.
     """
     cam, adjustment, labels = evidence.cam, config.adjustment, branch.labels
@@ -107,11 +107,24 @@ def refine(
         uncertainty = layout_uncertainty(cam, inliers, walls, labels, adjustment, config.uncertainty)
     else:
         uncertainty = not_computed(walls.distances.shape[0], walls.distances.dtype)
-    # every usable column counts, on whichever wall this layout gives it, so that the two branches compare
-    usable = evidence.usable[:: adjustment.stride]
+    return walls, explained_fraction(evidence, branch.final, walls, config), uncertainty
+
+
+def explained_fraction(
+    evidence: WallEvidence, final: FinalWalls, walls: Walls, config: PipelineConfig
+) -> Float[Array, ""]:
+    """The fraction of the usable columns' ceiling and floor rows (every ``adjustment.stride``-th column) that
+    ``walls`` reproject within the inlier threshold (``Layout.explained_fraction``).
+
+    Every usable column counts, on whichever wall of ``final`` it lies, so that layouts of different walls compare.
+    """
+    cam, stride = evidence.cam, config.adjustment.stride
+    observations = _observations(evidence, final, stride)
+    threshold = config.ransac.inlier_threshold * scaled(1.0, cam.height, 512)
+    usable = evidence.usable[::stride]
     seen = usable & (observations.column_wall >= 0)
     ceiling_error, floor_error = _row_errors(cam, _using(observations, seen, seen), walls)
     explained = jnp.sum(seen & (jnp.abs(ceiling_error) < threshold)) + jnp.sum(
         seen & (jnp.abs(floor_error) < threshold)
     )
-    return walls, explained / jnp.maximum(2 * jnp.sum(usable), 1), uncertainty
+    return explained / jnp.maximum(2 * jnp.sum(usable), 1)

@@ -44,6 +44,9 @@
    keeps one yaw.
 6. Corners where consecutive walls meet.
 
+Where the kept layout is flagged ``LOW_CONFIDENCE`` (the network's configuration), the plan layout
+(:mod:`ncjax.pipeline.plan`, not in the paper: walls read robustly off the floor rows' plan) replaces it.
+
 ``world="auto"`` (not in the paper) runs both branches and keeps the one whose
 status is more usable (``OK``, then flagged: written with its geometry, then
 failed); between equals, the Manhattan layout if it reprojects more of the
@@ -82,6 +85,7 @@ from .config import PipelineConfig
 from .evidence import gather_evidence
 from .floor_check import ceiling_consistent_floor
 from .manhattan import manhattan_frame, manhattan_walls
+from .plan import plan_layout
 from .prior import HeightPrior, prior_rows, rescale_to_prior
 from .types import FLAGGED_STATUSES, BranchWalls, Layout, LayoutStatus, Rows, WallEvidence
 from .walls import room_height as solved_room_height
@@ -100,13 +104,19 @@ class FittedWalls(eqx.Module):
         branches: step 4's walls: one branch's, or with ``world="auto"`` the Manhattan and Atlanta
             branches' stacked on a leading axis.
         in_frame: every RANSAC wall lies within ``manhattan_tolerance`` of a Manhattan frame (``auto``'s tie).
-        prior_room_height: the room height a height prior gives (0: no prior), ``config.prior.room_height``.
+        prior_heights: the ``(h_c, h_f)`` a height prior gives, at which its virtual rig's rows are the
+            image's boundary points (zeros: no prior).
     """
 
     evidence: WallEvidence
     branches: BranchWalls
     in_frame: Bool[Array, ""]
-    prior_room_height: Float[Array, ""]
+    prior_heights: Float[Array, " 2"]
+
+    @property
+    def prior_room_height(self) -> Float[Array, ""]:
+        """The room height a height prior gives (0: no prior), ``config.prior.room_height``."""
+        return self.prior_heights[0] - self.prior_heights[1]
 
 
 def _branch_walls(evidence: WallEvidence, config: PipelineConfig, world: str) -> tuple[BranchWalls, Bool[Array, ""]]:
@@ -141,9 +151,9 @@ def _fit_walls_of_rows(
     # step 0 always runs: at the default threshold (inf) it replaces no row
     floor_v, replaced = ceiling_consistent_floor(cam, rows.ceiling, rows.floor, config.floor_check.threshold)
     evidence = gather_evidence(Rows(rows.ceiling, floor_v, rows.corner_prob), cam, key, config, heights)
-    evidence = eqx.tree_at(lambda e: e.floor_measured, evidence, ~replaced)
+    evidence = eqx.tree_at(lambda e: (e.floor_measured, e.input_floor), evidence, (~replaced, rows.floor))
     branches, in_frame = _branch_walls(evidence, config, world)
-    return FittedWalls(evidence, branches, in_frame, jnp.asarray(config.prior.room_height))
+    return FittedWalls(evidence, branches, in_frame, jnp.zeros(2, floor_v.dtype))
 
 
 def prior_config(config: PipelineConfig, prior_room_height: Float[ArrayLike, ""]) -> PipelineConfig:
@@ -186,7 +196,11 @@ def fit_walls(
     known = heights if config.prior.wall_heights else None
     virtual_rows = Rows(ceiling_virtual, floor_virtual, rows.corner_prob)
     walls = _fit_walls_of_rows(virtual_rows, virtual, key, config, world, known)
-    return eqx.tree_at(lambda w: w.branches, walls, at_room_height(walls.branches, room_height))
+    return eqx.tree_at(
+        lambda w: (w.branches, w.prior_heights),
+        walls,
+        (at_room_height(walls.branches, room_height), jnp.stack(heights).astype(walls.prior_heights.dtype)),
+    )
 
 
 def at_room_height(branches: BranchWalls, room_height: Float[ArrayLike, ""]) -> BranchWalls:
@@ -205,17 +219,38 @@ def _finish_branches(walls: FittedWalls, config: PipelineConfig, world: str) -> 
     """Steps 5-6 of :func:`fit_walls`'s walls, and ``world="auto"``'s choice of a branch."""
     evidence = walls.evidence
     if world != "auto":
-        return finish_layout(evidence, walls.branches, config)
-    # both branches' walls adjusted as one batch: the program holds steps 5-6 once
-    layouts = jax.vmap(finish_layout, in_axes=(None, 0, None))(evidence, walls.branches, config)
-    manhattan, atlanta = (jax.tree.map(lambda x, i=i: x[i], layouts) for i in range(2))
-    use_manhattan = choose_manhattan(
-        (manhattan.status, atlanta.status),
-        (manhattan.explained_fraction, atlanta.explained_fraction),
-        walls.in_frame,
-        config.branches.manhattan_margin,
-    )
-    return jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
+        layout = finish_layout(evidence, walls.branches, config)
+    else:
+        # both branches' walls adjusted as one batch: the program holds steps 5-6 once
+        layouts = jax.vmap(finish_layout, in_axes=(None, 0, None))(evidence, walls.branches, config)
+        manhattan, atlanta = (jax.tree.map(lambda x, i=i: x[i], layouts) for i in range(2))
+        use_manhattan = choose_manhattan(
+            (manhattan.status, atlanta.status),
+            (manhattan.explained_fraction, atlanta.explained_fraction),
+            walls.in_frame,
+            config.branches.manhattan_margin,
+        )
+        layout = jax.tree.map(lambda m, a: jnp.where(use_manhattan, m, a), manhattan, atlanta)
+    if not config.plan.fallback:
+        return layout
+    # a prior's virtual rows are the image's boundary points at the prior's heights only
+    with_prior = walls.prior_heights[1] < 0
+    heights = jnp.where(with_prior, walls.prior_heights, jnp.stack([layout.ceiling_height, layout.floor_height]))
+    return plan_fallback(evidence, layout, heights, config)
+
+
+def plan_fallback(
+    evidence: WallEvidence, layout: Layout, heights: Float[Array, " 2"], config: PipelineConfig
+) -> Layout:
+    """``layout``, or where it is flagged ``LOW_CONFIDENCE`` the plan layout (:mod:`ncjax.pipeline.plan`) at
+    ``heights`` (``h_c``, ``h_f``) when that one has geometry (:func:`status_rank`): the rows the branch's walls do
+    not explain, read robustly. A plan layout with a corner on or inside the circle of optical centres (where
+    inserted walls through the axis meet a wall whose line passes near it) is no room and is not used."""
+    plan = plan_layout(evidence, heights, layout.height_covariance, config)
+    corner_ranges = jnp.linalg.norm(plan.floor_corners[:, :2], axis=-1)
+    outside = jnp.all(~plan.mask | (corner_ranges > evidence.cam.rc))
+    use_plan = (layout.status == LayoutStatus.LOW_CONFIDENCE) & (status_rank(plan.status) > 0) & outside
+    return jax.tree.map(lambda p, b: jnp.where(use_plan, p, b), plan, layout)
 
 
 def finish(walls: FittedWalls, prior: HeightPrior | None, config: PipelineConfig, world: str) -> Layout:

@@ -130,6 +130,8 @@ class Layout(eqx.Module):
         inserted: (K,) walls inserted for an occlusion (not seen in the image).
         corner_columns: (K,) image column of each corner as detected.
         manhattan: whether the Manhattan branch produced the layout.
+        plan: whether the plan layout (:mod:`ncjax.pipeline.plan`: walls read robustly off the floor rows' plan)
+            replaced the branch's, which was flagged ``LOW_CONFIDENCE``.
         explained_fraction: the fraction of the usable columns' ceiling and floor
             rows that the layout reprojects within ``PipelineConfig.inlier_threshold``
             (a quality indicator: on our test renders the 3D IoU grows with it;
@@ -164,6 +166,7 @@ class Layout(eqx.Module):
     inserted: Bool[Array, "*batch K"]
     corner_columns: Float[Array, "*batch K"]
     manhattan: Bool[Array, "*batch"]
+    plan: Bool[Array, "*batch"]
     explained_fraction: Float[Array, "*batch"]
     corner_covariance: Float[Array, "*batch K 2 2"]
     height_covariance: Float[Array, "*batch 2 2"]
@@ -221,10 +224,11 @@ class WallEvidence(eqx.Module):
     (:func:`ncjax.pipeline.adjust.boundary_weights` on the inlier rows of the fitted walls: cut at the inlier
     threshold, so a boundary much noisier than half of it reads as less noisy than it is). ``floor_measured``: the
     floor row is the input's, not one that step 0 put where the ceiling row says (those help the walls' fits, but
-    the final adjustment and its covariance use measured rows only). ``heights``: the fitted walls' joint solve
-    (:func:`ncjax.solvers.layout.solve_atlanta_layout` on their RANSAC directions), for its ceiling and floor
-    heights. ``row_noise``: the rows' noise about the RANSAC walls (pixels; 1.4826 x their median absolute error).
-    ``cam`` and ``rows``: the camera and the rows (after step 0) the evidence was gathered from.
+    the final adjustment and its covariance use measured rows only); ``input_floor``: every column's floor row as
+    the input gave it, before step 0 (the plan layout's, :mod:`~ncjax.pipeline.plan`). ``heights``: the fitted
+    walls' joint solve (:func:`ncjax.solvers.layout.solve_atlanta_layout` on their RANSAC directions), for its
+    ceiling and floor heights. ``row_noise``: the rows' noise about the RANSAC walls (pixels; 1.4826 x their
+    median absolute error). ``cam`` and ``rows``: the camera and the rows (after step 0) the evidence was gathered from.
     """
 
     cam: NonCentralPanorama
@@ -242,6 +246,7 @@ class WallEvidence(eqx.Module):
     ceiling_trusted: Bool[Array, " W"]
     floor_trusted: Bool[Array, " W"]
     floor_measured: Bool[Array, " W"]
+    input_floor: Float[Array, " W"]
     weights: Float[Array, " K"]
     row_weights: Float[Array, " 2"]
     fitted: Bool[Array, " K"]

@@ -129,6 +129,27 @@ def signed_distance(direction: Float[Array, "K 2"], point: Float[Array, "K 2"]) 
     return cross_2d(direction, point)  # e2 . p with e2 = (-uy, ux)
 
 
+def place_unobserved_walls(
+    cam: NonCentralPanorama, final: FinalWalls, directions: Float[Array, "K 2"], distances: Float[Array, " K"]
+) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
+    """The walls ``final`` does not observe, placed (free angles): occlusion walls in the corner ray's vertical
+    plane (the paper's Fig. Atocc), unfitted walls through their two corners on the neighbouring walls; the observed
+    walls keep ``directions`` and ``distances``."""
+    count = jnp.maximum(jnp.sum(final.mask), 1)
+    index = jnp.arange(final.mask.shape[0])
+    previous, following = (index - 1) % count, (index + 1) % count
+    start = point_on_wall(cam, directions[previous], distances[previous], final.corner_columns)
+    end = point_on_wall(cam, directions[following], distances[following], final.corner_columns[following])
+    chord = end - start
+    length = jnp.linalg.norm(chord, axis=-1, keepdims=True)
+    through_corners = jnp.where(length > 0, chord / jnp.where(length > 0, length, 1.0), directions)
+    radial = column_directions(cam, final.corner_columns)
+    new_direction = jnp.where(final.inserted[:, None], radial, through_corners)
+    new_distance = jnp.where(final.inserted, 0.0, signed_distance(through_corners, start))
+    keep = final.observed[:, None]
+    return jnp.where(keep, directions, new_direction), jnp.where(final.observed, distances, new_distance)
+
+
 def several_corners(evidence: WallEvidence) -> Bool[Array, ""]:
     return jnp.sum(evidence.corner_mask) > 1
 
