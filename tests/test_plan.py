@@ -12,6 +12,7 @@ from test_prior import HEIGHT, WIDTH, rooms
 
 import ncjax
 from ncjax.evaluation import layout_metrics as metrics
+from ncjax.geometry.polygon import is_simple
 from ncjax.geometry.reprojection import fit_plan_lines
 from ncjax.io.export import branch_name
 from ncjax.pipeline.config import ChecksConfig, PipelineConfig, PlanConfig
@@ -122,3 +123,14 @@ def test_a_low_confidence_layout_is_replaced_by_the_plan_layout():
     assert metrics.iou_3d(replaced, room) > 0.97
     unflagged = [layout(fallback, 0.0) for fallback in (False, True)]
     jax.tree.map(np.testing.assert_array_equal, *unflagged)
+
+
+@given(st.floats(0.5, 5.0), st.floats(0.5, 5.0), st.integers(0, 3))
+def test_a_rectangle_is_simple_and_its_bow_tie_is_not(width, depth, start):
+    corners = np.array([[0.0, 0.0], [width, 0.0], [width, depth], [0.0, depth]])
+    corners = np.roll(corners, start, axis=0)
+    padded = jnp.asarray(np.concatenate([corners, np.zeros((2, 2))]), jnp.float32)
+    mask = jnp.array([True] * 4 + [False] * 2)
+    assert bool(is_simple(padded, mask))
+    bow_tie = padded.at[jnp.array([1, 2])].set(padded[jnp.array([2, 1])])
+    assert not bool(is_simple(bow_tie, mask))

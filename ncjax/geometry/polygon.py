@@ -55,3 +55,10 @@ def segments_cross(p: Array, q: Array, a: Array, b: Array) -> Array:
     d1, d2 = cross_2d(q - p, a - p), cross_2d(q - p, b - p)
     d3, d4 = cross_2d(b - a, p - a), cross_2d(b - a, q - a)
     return (d1 * d2 < 0) & (d3 * d4 < 0)
+
+
+def is_simple(corners: Float[Array, "K 2"], mask: Bool[Array, " K"]) -> Bool[Array, ""]:
+    """Whether no two walls of the polygon cross (:func:`segments_cross`)."""
+    edges = polygon_edges(corners, mask)
+    crosses = segments_cross(edges[:, None, 0], edges[:, None, 1], edges[None, :, 0], edges[None, :, 1])
+    return ~jnp.any(crosses & mask[:, None] & mask[None, :])

@@ -285,6 +285,8 @@ class PlanConfig:
         min_spread: the robust spread is at least this fraction of the wall's points' median range.
         min_turn: walls whose lines turn by less than this (degrees) do not meet at their corner: a wall is
             inserted there in the corner ray's plane, as at an occlusion.
+        min_wall_columns: a wall with fewer plan points (columns of a 1024-column panorama) has no line of its
+            own: it runs between its neighbours' ends.
         horizon_margin: floor rows whose elevation lies within this many radians of the horizon make no plan point.
     """
 
@@ -294,10 +296,11 @@ class PlanConfig:
     tukey: float = 4.685
     min_spread: float = 0.01
     min_turn: float = 30.0
+    min_wall_columns: float = 16.0
     horizon_margin: float = 0.03
 
     def __post_init__(self):
-        check_positive(self, "tukey", "min_spread", "min_turn", "horizon_margin")
+        check_positive(self, "tukey", "min_spread", "min_turn", "min_wall_columns", "horizon_margin")
         if self.samples < 2 or self.iterations < 1:
             raise ValueError(f"samples must be >= 2 and iterations >= 1, got {self.samples} and {self.iterations}")
 

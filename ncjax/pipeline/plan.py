@@ -15,12 +15,14 @@ from the floor rows alone, where a doorway's rows are a minority of their wall's
 2. per RANSAC wall (the columns between two corner peaks), a line through its points: the least-median line of a
    fixed design of point pairs, then iteratively reweighted total least squares with Tukey's biweight
    (:func:`robust_plan_lines`): points farther from the line than ``tukey`` times the wall's robust spread count
-   for nothing;
+   for nothing; a wall of fewer than ``min_wall_columns`` points runs between its neighbours' ends;
 3. at each corner the two walls meet where their lines cross, unless they turn by less than ``min_turn`` degrees
    or cross behind the corner's ray or beyond ``checks.max_corner_range_ratio`` times the points' 95th-percentile
    range: there a wall is inserted in the corner ray's vertical plane, as at an occlusion (:func:`occluded_corners`).
 
-No least squares through all the rows: the result is judged as every layout is
+A plan layout whose walls cross, or with a corner inside the circle of optical centres, is not used
+(:func:`~ncjax.pipeline.run.plan_fallback`). No least squares through all the rows: the result is judged as every
+layout is
 (:func:`~ncjax.pipeline.assemble.assemble_layout`); it keeps the flagged layout's height covariance (the same
 heights' scale) and has no corner covariance (infinite: not determined).
 """
@@ -35,6 +37,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from ..geometry.camera import NonCentralPanorama, pixel_to_angles
 from ..geometry.plucker import cross_2d, wall_planes_meet
 from ..geometry.reprojection import boundary_points, column_directions, fit_plan_lines
+from ..solvers.settings import scaled
 from .adjust import FREE_ANGLE
 from .assemble import assemble_layout
 from .config import PipelineConfig, PlanConfig
@@ -43,9 +46,6 @@ from .refine import explained_fraction
 from .types import BranchWalls, Layout, WallEvidence
 from .uncertainty import LayoutUncertainty
 from .walls import final_walls, place_unobserved_walls
-
-# the least number of plan points a wall needs for a line of its own (else it is placed through its corners)
-MIN_WALL_POINTS = 3
 
 
 def floor_plan_points(
@@ -167,11 +167,12 @@ def plan_walls(evidence: WallEvidence, heights: Float[Array, " 2"], config: Pipe
     ceiling_height, floor_height = heights[0], heights[1]
     points, counted = floor_plan_points(evidence, floor_height, plan.horizon_margin)
     directions, distances, counts = robust_plan_lines(points, counted, evidence.column_wall, capacity, plan)
-    has_line = evidence.corner_mask & (counts >= MIN_WALL_POINTS)
+    # a narrow wall's few points give a direction too noisy to meet its neighbours by: it joins their ends
+    has_line = evidence.corner_mask & (counts >= scaled(plan.min_wall_columns, cam.width, 1024))
     ranges = jnp.where(counted, jnp.linalg.norm(points, axis=-1), jnp.nan)
     max_range = config.checks.max_corner_range_ratio * jnp.nanquantile(ranges, 0.95)
     insert = occluded_corners(cam, evidence, (directions, distances), has_line, max_range, plan.min_turn)
-    final = final_walls(evidence, jnp.zeros(capacity, bool), insert, False, MIN_WALL_POINTS)
+    final = final_walls(evidence, jnp.zeros(capacity, bool), insert, False, 1)
     observed = final.mask & ~final.inserted & has_line[final.start_wall]
     final = eqx.tree_at(lambda f: f.observed, final, observed)
     directions, distances = place_unobserved_walls(

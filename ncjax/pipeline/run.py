@@ -79,6 +79,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
+from ..geometry.polygon import is_simple
 from .assemble import finish_layout
 from .atlanta import atlanta_walls
 from .config import PipelineConfig
@@ -244,12 +245,14 @@ def plan_fallback(
 ) -> Layout:
     """``layout``, or where it is flagged ``LOW_CONFIDENCE`` the plan layout (:mod:`ncjax.pipeline.plan`) at
     ``heights`` (``h_c``, ``h_f``) when that one has geometry (:func:`status_rank`): the rows the branch's walls do
-    not explain, read robustly. A plan layout with a corner on or inside the circle of optical centres (where
-    inserted walls through the axis meet a wall whose line passes near it) is no room and is not used."""
+    not explain, read robustly. A plan layout whose walls cross (where two walls' lines meet beyond a narrow wall
+    between them) or with a corner on or inside the circle of optical centres (where walls inserted through the
+    axis meet a wall whose line passes near it) is no room and is not used."""
     plan = plan_layout(evidence, heights, layout.height_covariance, config)
-    corner_ranges = jnp.linalg.norm(plan.floor_corners[:, :2], axis=-1)
-    outside = jnp.all(~plan.mask | (corner_ranges > evidence.cam.rc))
-    use_plan = (layout.status == LayoutStatus.LOW_CONFIDENCE) & (status_rank(plan.status) > 0) & outside
+    plan_corners = plan.floor_corners[:, :2]
+    room = is_simple(plan_corners, plan.mask)
+    room &= jnp.all(~plan.mask | (jnp.linalg.norm(plan_corners, axis=-1) > evidence.cam.rc))
+    use_plan = (layout.status == LayoutStatus.LOW_CONFIDENCE) & (status_rank(plan.status) > 0) & room
     return jax.tree.map(lambda p, b: jnp.where(use_plan, p, b), plan, layout)
 
 

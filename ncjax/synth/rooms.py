@@ -29,7 +29,7 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d as _cross2
 from ..geometry.plucker import horizontal_wall_line, rotation_z
-from ..geometry.polygon import next_index, polygon_area, polygon_edges, previous_index, segments_cross
+from ..geometry.polygon import is_simple, next_index, polygon_area, polygon_edges, previous_index, segments_cross
 
 
 class RoomStatus(enum.IntEnum):
@@ -151,12 +151,6 @@ def _compact(points: Float[Array, "N 2"], valid: Bool[Array, " N"], capacity: in
     """Move the valid points to the front (keeping their order), pad to ``capacity``."""
     order = jnp.argsort(~valid, stable=True)[:capacity]
     return points[order], valid[order]
-
-
-def _is_simple(corners: Float[Array, "K 2"], mask: Bool[Array, " K"]) -> Bool[Array, ""]:
-    edges = polygon_edges(corners, mask)
-    crosses = segments_cross(edges[:, None, 0], edges[:, None, 1], edges[None, :, 0], edges[None, :, 1])
-    return ~jnp.any(crosses & mask[:, None] & mask[None, :])
 
 
 def point_in_polygon(point: Float[Array, 2], corners: Float[Array, "K 2"], mask: Bool[Array, " K"]) -> Bool[Array, ""]:
@@ -435,7 +429,7 @@ def _random_room_once(key: PRNGKeyArray, config: RoomConfig) -> Room:
     camera_xy, camera_status = _place_camera(keys[7], corners, mask, rc, config)
     edge_lengths = jnp.linalg.norm(corners[next_index(mask)] - corners, axis=-1)
     well_formed = (
-        _is_simple(corners, mask)
+        is_simple(corners, mask)
         & (polygon_area(corners, mask) > 0)
         & jnp.all(jnp.where(mask, edge_lengths, jnp.inf) > 0.5 * config.min_step)
     )
