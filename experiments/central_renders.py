@@ -49,7 +49,8 @@ from common import BATCH, OUT, PHOTO_LIKE_SEED, model_suffix, network_config, ph
 KINDS = ("synth-decor-home", "synth-decor-open")
 # world, and the options replacing NETWORK_PIPELINE_CONFIG's ("margin": world auto with manhattan_margin; "own
 # heights": RANSAC's walls with their own heights, the paper's single-wall solver; then the network settings of
-# NETWORK_PIPELINE_CONFIG chosen on the tuning renders, and the inlier threshold, each changed alone)
+# NETWORK_PIPELINE_CONFIG chosen on the tuning renders, and the inlier threshold, each changed alone; "plan
+# everywhere": every layout that leaves a row unexplained flagged, so that the plan layout replaces it)
 SETTINGS = {
     "auto": ("auto", {}),
     "manhattan": ("manhattan", {}),
@@ -65,6 +66,8 @@ SETTINGS = {
     "occlusion 12": ("auto", {"occlusion_threshold": 12.0}),
     "inlier 4": ("auto", {"inlier_threshold": 4.0}),
     "no range check": ("auto", {"checks.max_corner_range_ratio": math.inf}),
+    "no plan fallback": ("auto", {"plan.fallback": False}),
+    "plan everywhere": ("auto", {"checks.min_explained_fraction": 1.0}),
 }
 DEFAULT_SETTINGS = ("auto", "manhattan", "atlanta", "margin 0.1", "margin 0.2", "own heights")
 

@@ -618,3 +618,14 @@ def test_weight_interpolation_refuses_a_weight_off_the_line_and_writes_nothing(t
     assert module.main(["--start", "lite0-1024", "--end", "lite0-1024", "--weights", "1.5", "--out", str(out)]) == 2
     assert "--weights must lie in [0, 1]" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_plan_fallback_settings_differ_only_in_the_plan(tmp_path, capsys):
+    module = experiment("plan_fallback")
+    branches, fallback, everywhere = (module.SETTINGS[name] for name in ("branches", "fallback", "plan everywhere"))
+    assert (branches.plan.fallback, fallback.plan.fallback, everywhere.plan.fallback) == (False, True, True)
+    assert everywhere.checks.min_explained_fraction == 1.0
+    assert fallback == ncjax.reconstruction.NETWORK_PIPELINE_CONFIG
+    with pytest.raises(SystemExit):
+        module.main(["--data", str(tmp_path / "missing")])
+    assert "no folder" in capsys.readouterr().err
