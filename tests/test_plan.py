@@ -134,3 +134,27 @@ def test_a_rectangle_is_simple_and_its_bow_tie_is_not(width, depth, start):
     assert bool(is_simple(padded, mask))
     bow_tie = padded.at[jnp.array([1, 2])].set(padded[jnp.array([2, 1])])
     assert not bool(is_simple(bow_tie, mask))
+
+
+@pytest.mark.slow
+def test_the_fallback_leaves_the_gradients_of_a_layout_it_does_not_replace():
+    """The plan layout carries no gradient: where it is not chosen the layout's gradient is the branches' alone."""
+    batch, labels = rooms("manhattan", (0.05, 0.05), 2)
+    room, label = jax.tree.map(lambda x: x[1], (batch, labels))
+    cam = room.camera(WIDTH, HEIGHT)
+    prior = HeightPrior("camera_height", 1.5)
+
+    def gradient(fallback):
+        config = PipelineConfig(plan=PlanConfig(fallback=fallback))
+
+        def spread(floor_v):
+            layout = ncjax.layout_from_boundaries(
+                label.ceiling_v, floor_v, label.corner_target, cam, "auto", config, prior=prior
+            )
+            return jnp.sum(layout.floor_corners[..., :2] ** 2)
+
+        return jax.grad(spread)(label.floor_v + 0.3)
+
+    with_fallback = gradient(True)
+    assert bool(jnp.all(jnp.isfinite(with_fallback))) and float(jnp.abs(with_fallback).sum()) > 0
+    np.testing.assert_allclose(with_fallback, gradient(False), rtol=1e-5, atol=1e-6)

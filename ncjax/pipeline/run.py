@@ -245,10 +245,12 @@ def plan_fallback(
 ) -> Layout:
     """``layout``, or where it is flagged ``LOW_CONFIDENCE`` the plan layout (:mod:`ncjax.pipeline.plan`) at
     ``heights`` (``h_c``, ``h_f``) when that one has geometry (:func:`status_rank`): the rows the branch's walls do
-    not explain, read robustly. A plan layout whose walls cross (where two walls' lines meet beyond a narrow wall
-    between them) or with a corner on or inside the circle of optical centres (where walls inserted through the
-    axis meet a wall whose line passes near it) is no room and is not used."""
-    plan = plan_layout(evidence, heights, layout.height_covariance, config)
+    not explain, read robustly (carrying no gradient). A plan layout whose walls cross (where two walls' lines meet
+    beyond a narrow wall between them) or with a corner on or inside the circle of optical centres (where walls
+    inserted through the axis meet a wall whose line passes near it) is no room and is not used."""
+    # no gradient: medians and reweighting are not the least squares the pipeline differentiates, and a plan
+    # layout that is not chosen must not put NaNs into the chosen one's gradient
+    plan = plan_layout(*jax.lax.stop_gradient((evidence, heights, layout.height_covariance)), config)
     plan_corners = plan.floor_corners[:, :2]
     room = is_simple(plan_corners, plan.mask)
     room &= jnp.all(~plan.mask | (jnp.linalg.norm(plan_corners, axis=-1) > evidence.cam.rc))
