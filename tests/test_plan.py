@@ -16,7 +16,7 @@ from ncjax.geometry.polygon import is_simple
 from ncjax.geometry.reprojection import fit_plan_lines
 from ncjax.io.export import branch_name
 from ncjax.pipeline.config import ChecksConfig, PipelineConfig, PlanConfig
-from ncjax.pipeline.plan import plan_layout, robust_plan_lines
+from ncjax.pipeline.plan import plan_layout, robust_plan_lines, segment_medians
 from ncjax.pipeline.prior import HeightPrior
 from ncjax.pipeline.run import fit_walls
 from ncjax.pipeline.types import Rows
@@ -158,3 +158,19 @@ def test_the_fallback_leaves_the_gradients_of_a_layout_it_does_not_replace():
     with_fallback = gradient(True)
     assert bool(jnp.all(jnp.isfinite(with_fallback))) and float(jnp.abs(with_fallback).sum()) > 0
     np.testing.assert_allclose(with_fallback, gradient(False), rtol=1e-5, atol=1e-6)
+
+
+@given(st.lists(st.tuples(st.integers(-1, 4), st.floats(-5.0, 5.0, width=32)), min_size=12, max_size=12))
+def test_segment_medians_are_numpys(pairs):
+    segments = np.array([segment for segment, _ in pairs], np.int32)
+    values = np.array([value for _, value in pairs], np.float32)
+    medians = np.asarray(segment_medians_of_twelve(jnp.asarray(values), jnp.asarray(segments)))
+    for segment in range(4):
+        inside = values[segments == segment]
+        expected = np.median(inside) if len(inside) else np.nan
+        np.testing.assert_allclose(medians[segment], expected, rtol=1e-6, atol=1e-6)
+
+
+@jax.jit
+def segment_medians_of_twelve(values, segments):
+    return segment_medians(values, segments, 4)  # segment 4 (and -1): no segment

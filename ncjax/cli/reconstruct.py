@@ -55,7 +55,8 @@ from .summary import SUMMARY_FILE, failure_message, read_summary, skipped_row, s
 
 WORLD_HELP = (
     "room model: manhattan (walls at right angles), atlanta (vertical walls at any angles), or auto "
-    "(per panorama, the one whose layout explains more of the boundaries; default)"
+    "(per panorama, the one whose layout explains more of the boundaries; default); a layout that explains too "
+    "few of them (LOW_CONFIDENCE) is replaced by walls read robustly off the floor boundary (branch plan)"
 )
 
 

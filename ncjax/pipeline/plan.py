@@ -22,9 +22,8 @@ from the floor rows alone, where a doorway's rows are a minority of their wall's
 
 A plan layout whose walls cross, or with a corner inside the circle of optical centres, is not used
 (:func:`~ncjax.pipeline.run.plan_fallback`). No least squares through all the rows: the result is judged as every
-layout is
-(:func:`~ncjax.pipeline.assemble.assemble_layout`); it keeps the flagged layout's height covariance (the same
-heights' scale) and has no corner covariance (infinite: not determined).
+layout is (:func:`~ncjax.pipeline.assemble.assemble_layout`); it keeps the flagged layout's height covariance (the
+same heights' scale) and has no corner covariance (infinite: not determined).
 """
 
 from __future__ import annotations
@@ -63,12 +62,27 @@ def floor_plan_points(
     return jnp.where(counted[:, None], points, 0.0), counted
 
 
+def segment_medians(values: Float[Array, " W"], segments: Int[Array, " W"], count: int) -> Float[Array, " S"]:
+    """The median of ``values`` in each of ``count`` segments (``segments`` outside ``[0, count)``: none; NaN for an
+    empty segment): one sort of all the values by segment and value, not one per segment."""
+    segments = jnp.where((segments >= 0) & (segments < count), segments, count)
+    order = jnp.lexsort((values, segments))
+    ordered = values[order]
+    sizes = jax.ops.segment_sum(jnp.ones_like(segments), segments, count + 1)[:count]
+    starts = jnp.cumsum(sizes) - sizes
+    last = values.shape[0] - 1
+    lower = ordered[jnp.clip(starts + (sizes - 1) // 2, 0, last)]
+    upper = ordered[jnp.clip(starts + sizes // 2, 0, last)]
+    return jnp.where(sizes > 0, 0.5 * (lower + upper), jnp.nan)
+
+
 def least_median_lines(
-    points: Float[Array, "W 2"], in_wall: Bool[Array, "K W"], samples: int
+    points: Float[Array, "W 2"], wall: Int[Array, " W"], capacity: int, samples: int
 ) -> tuple[Float[Array, "K 2"], Float[Array, " K"]]:
-    """Per wall (a row of ``in_wall``), of the lines through two of its points at ``samples`` evenly spaced ranks
-    (a fixed design: a doorway's stretch of rows leaves some pairs on the wall), the one whose median distance
-    from the wall's points is least (least median of squares, Rousseeuw 1984)."""
+    """Per wall (``wall``: each point's, ``capacity``: none), of the lines through two of its points at ``samples``
+    evenly spaced ranks (a fixed design: a doorway's stretch of rows leaves some pairs on the wall), the one whose
+    median distance from the wall's points is least (least median of squares, Rousseeuw 1984)."""
+    in_wall = wall[None, :] == jnp.arange(capacity)[:, None]  # (K, W)
     counts = jnp.sum(in_wall, axis=1)
     rank = jnp.cumsum(in_wall, axis=1) - 1  # (K, W): each point's rank in its wall
     targets = jnp.round(jnp.linspace(0.0, 1.0, samples)[None, :] * jnp.maximum(counts - 1, 0)[:, None])  # (K, S)
@@ -79,10 +93,12 @@ def least_median_lines(
     length = jnp.linalg.norm(chord, axis=-1, keepdims=True)
     directions = jnp.where(length > 0, chord / jnp.where(length > 0, length, 1.0), jnp.array([1.0, 0.0]))
     distances = cross_2d(directions, sample_points[:, first])  # (K, P)
-    residual = jnp.abs(cross_2d(directions[:, :, None, :], points[None, None]) - distances[:, :, None])
-    median = jnp.nanmedian(jnp.where(in_wall[:, None, :], residual, jnp.nan), axis=-1)  # (K, P)
+    index = jnp.minimum(wall, capacity - 1)
+    # each point's distance from its own wall's candidate lines, (P, W)
+    residual = jnp.abs(cross_2d(directions[index].swapaxes(0, 1), points[None]) - distances[index].T)
+    median = jax.vmap(segment_medians, in_axes=(0, None, None))(residual, wall, capacity).T  # (K, P)
     best = jnp.argmin(jnp.where(jnp.isfinite(median), median, jnp.inf), axis=1)
-    pick = jnp.arange(in_wall.shape[0])
+    pick = jnp.arange(capacity)
     return directions[pick, best], distances[pick, best]
 
 
@@ -107,15 +123,14 @@ def robust_plan_lines(
         ``(directions, distances, counts)``: the lines and each wall's number of counted points.
     """
     wall = jnp.where(counted & (column_wall >= 0), column_wall, capacity)  # capacity: no wall
-    in_wall = wall[None, :] == jnp.arange(capacity)[:, None]  # (K, W)
     index = jnp.minimum(wall, capacity - 1)
     ranges = jnp.linalg.norm(points, axis=-1)
-    floor_spread = config.min_spread * jnp.nanmedian(jnp.where(in_wall, ranges, jnp.nan), axis=1)
+    floor_spread = config.min_spread * segment_medians(ranges, wall, capacity)
 
     def median_residual(lines):
         directions, distances = lines
         residual = jnp.abs(cross_2d(directions[index], points) - distances[index])
-        return residual, jnp.nanmedian(jnp.where(in_wall, residual[None, :], jnp.nan), axis=1)
+        return residual, segment_medians(residual, wall, capacity)
 
     def biweights(lines, _):
         residual, median = median_residual(lines)
@@ -127,7 +142,7 @@ def robust_plan_lines(
     # two starts, each wall keeping the end nearer most of its points: the least-median line (a stretch of up to
     # half the points off the wall) and the total-least-squares one (the whole wall's direction)
     starts = (
-        least_median_lines(points, in_wall, config.samples),
+        least_median_lines(points, wall, capacity, config.samples),
         fit_plan_lines(points, (wall < capacity).astype(points.dtype), wall, capacity),
     )
     ends = [jax.lax.scan(biweights, start, length=config.iterations)[0] for start in starts]
@@ -135,7 +150,7 @@ def robust_plan_lines(
     directions, distances = jax.tree.map(
         lambda a, b: jnp.where(first_nearer.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), *ends
     )
-    return directions, distances, jnp.sum(in_wall, axis=1)
+    return directions, distances, jax.ops.segment_sum(jnp.ones_like(wall), wall, capacity + 1)[:capacity]
 
 
 def occluded_corners(
