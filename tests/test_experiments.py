@@ -629,3 +629,34 @@ def test_plan_fallback_settings_differ_only_in_the_plan(tmp_path, capsys):
     with pytest.raises(SystemExit):
         module.main(["--data", str(tmp_path / "missing")])
     assert "no folder" in capsys.readouterr().err
+
+
+def test_stretched_views_map_rows_back_and_move_a_ring_to_its_stretched_elevation():
+    module = experiment("stretched_views")
+    rows = np.linspace(0.0, 511.0, 37)
+    for factor in (0.8, 1.25, 1.6):
+        # a room stretched by k then by 1 / k is the room itself
+        back = module.stretched_rows(module.stretched_rows(rows, 512, factor), 512, 1 / factor)
+        np.testing.assert_allclose(back, rows, atol=1e-9)
+    np.testing.assert_allclose(module.stretched_rows(rows, 512, 1.0), rows, atol=1e-9)
+    image = np.zeros((64, 128, 3), np.uint8)
+    image[40] = 255  # a horizontal ring below the horizon
+    stretched = module.stretch_image(image, 1.6)
+    # walls farther for their height: the ring comes nearer the horizon, where stretched_rows of its new row is 40
+    row = int(np.argmax(stretched[:, 0, 0]))
+    assert 32 <= row < 40
+    assert abs(module.stretched_rows(np.array([row]), 64, 1.6)[0] - 40) < 1.0
+
+
+def test_parallax_budget_refits_the_true_scale_exactly_and_other_scales_worse_the_smaller_the_rig():
+    module = experiment("parallax_budget")
+    truth = module.true_room(5.0)
+    with jax.enable_x64(True):
+        # each column sees the nearest wall: its floor row is the lowest of the four walls' it faces
+        cam = ncjax.NonCentralPanorama(128, 64, 0.3)
+        ceiling_v, floor_v = (np.asarray(x) for x in module.room_rows(cam, jnp.asarray(truth)))
+        assert np.all(np.isfinite(floor_v)) and np.all(floor_v > 32) and np.all(ceiling_v < 32)
+        assert module.refit_error(cam, truth, 1.0, "both") < 1e-6
+        errors = [module.refit_error(ncjax.NonCentralPanorama(128, 64, rc), truth, 1.25, "both") for rc in (0.1, 0.4)]
+        # a rig's parallax grows with its radius: a quarter too large a room is further from the rows of a larger one
+        assert 0 < errors[0] < errors[1]
