@@ -23,7 +23,6 @@ from ..training.data import (
     training_data,
 )
 from ..training.loop import TrainConfig, train
-from .arguments import DefaultsHelpFormatter
 from .options import add_config_options, config_from_options
 
 # ----------------------------------------------------------------------------- command line
@@ -221,12 +220,3 @@ def run_train(args: argparse.Namespace) -> int:
         save_model(result.model, args.export, dtype=args.export_dtype)
         print(f"saved the model to {args.export} ({args.export_dtype})")
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Stand-alone ``ncjax train`` (same as the console script's sub-command)."""
-    parser = argparse.ArgumentParser(
-        prog="ncjax train", description="Train Non-central HorizonNet.", formatter_class=DefaultsHelpFormatter
-    )
-    add_train_arguments(parser)
-    return run_train(parser.parse_args(argv))

@@ -39,7 +39,7 @@ def default_model() -> HorizonNet:
     if not DEFAULT_MODEL_PATH.is_file():
         raise FileNotFoundError(
             f"the default network weights are missing ({DEFAULT_MODEL_PATH}); train a model with "
-            "ncjax.cli.train.main (ncjax train) and save it there with ncjax.save_model, or pass "
+            "`ncjax train ... --export PATH` and copy it there, or pass "
             "model=ncjax.load_model(path)"
         )
     return _load_cached(str(DEFAULT_MODEL_PATH))

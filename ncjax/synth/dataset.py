@@ -286,9 +286,6 @@ class DatasetSample:
     semantic: np.ndarray | None
     metadata: dict | None
 
-    def camera(self) -> NonCentralPanorama:
-        return NonCentralPanorama(self.image.shape[1], self.image.shape[0], rc=self.rc)
-
 
 def list_samples(directory: str) -> list[str]:
     """Names of the complete samples of a dataset folder (ours or the authors'), sorted."""
