@@ -20,7 +20,12 @@ kept clear of each), the line that best fits the rows of one boundary at an assu
 walls' rows, for heights from 0.2 to 10 m: rows that fix the scale fit best near one height.
 
     uv run python experiments/parallax_budget.py [--sizes 3 5 8 12] [--radii 0.05 0.2 0.4 0.6 1.0]
-    uv run python experiments/parallax_budget.py --panorama ../shared/data/noncentral-real/L101_R06101.png
+    uv run python experiments/parallax_budget.py --panorama ../shared/data/noncentral-real/L101_R06101.png \
+        [--ratio-columns 0:31]
+
+It also prints the rows' ratio of the ceiling's height above the camera to the floor's below it (per column,
+``tan(phi_c) / -tan(phi_f)``), which a camera-height prior turns into the room's height: over all columns, and over
+``--ratio-columns``.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 import ncjax
-from ncjax.geometry.camera import NonCentralPanorama
+from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
 from ncjax.geometry.reprojection import wall_boundary_rows
 from ncjax.io.images import rc_from_name, read_panorama
 from ncjax.pipeline.corners import configured_corners
@@ -146,17 +151,34 @@ def wall_residuals(cam, rows: np.ndarray, columns: np.ndarray, height: float, bo
     return fit.fun
 
 
-def profile(path: Path) -> None:
-    """Print the median absolute row residual of the best walls at each assumed height (module docstring)."""
+def height_ratios(cam, ceiling_v: np.ndarray, floor_v: np.ndarray) -> np.ndarray:
+    """Each column's ``h_c / -h_f`` = ``tan(phi_c) / -tan(phi_f)``: both rays leave one centre, so the ratio of the
+    ceiling's height above the camera to the floor's below it, whatever the walls (what a height prior scales)."""
+    columns = np.arange(cam.width, dtype=np.float64)
+    _, ceiling_elevation = pixel_to_angles(cam, columns, ceiling_v)
+    _, floor_elevation = pixel_to_angles(cam, columns, floor_v)
+    return np.asarray(jnp.tan(ceiling_elevation) / -jnp.tan(floor_elevation))
+
+
+def profile(path: Path, ratio_columns: tuple[int, int] | None) -> None:
+    """Print the median absolute row residual of the best walls at each assumed height (module docstring), and the
+    rows' ratio of the ceiling's height to the floor's over all columns and over ``ratio_columns`` [start, end)."""
     rc = rc_from_name(path.name)
     if rc is None:
         raise SystemExit(f"parallax_budget: error: {path.name} gives no radius (e.g. L101_R06101.png: rc 0.6101 m)")
     image = read_panorama(path)
     ceiling_v, floor_v, corner_prob = (np.asarray(a, np.float64) for a in ncjax.predict_boundaries(image, views=4))
     stretches = wall_stretches(corner_prob)
+    cam = NonCentralPanorama(image.shape[1], image.shape[0], rc)
     with jax.enable_x64(True):  # the fits in float64 (the network above runs in float32)
-        profile_table(NonCentralPanorama(image.shape[1], image.shape[0], rc), ceiling_v, floor_v, stretches)
+        profile_table(cam, ceiling_v, floor_v, stretches)
     print(f"{path.name}: rc {rc} m, {len(stretches)} walls of >= {MIN_WALL_COLUMNS} columns")
+    ratios = height_ratios(cam, ceiling_v, floor_v)
+    low, median, high = np.nanquantile(ratios, [0.1, 0.5, 0.9])
+    print(f"ceiling height / floor depth, per column: median {median:.2f} (10-90% {low:.2f}-{high:.2f})")
+    if ratio_columns is not None:
+        start, end = ratio_columns
+        print(f"  over columns {start}-{end - 1}: median {np.nanmedian(ratios[start:end]):.2f}")
 
 
 def profile_table(cam, ceiling_v: np.ndarray, floor_v: np.ndarray, stretches: list[np.ndarray]) -> None:
@@ -195,11 +217,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", type=float, nargs="+", default=[3.0, 5.0, 8.0, 12.0], help="room widths (m)")
     parser.add_argument("--radii", type=float, nargs="+", default=[0.05, 0.2, 0.4, 0.6, 1.0], help="rc (m)")
     parser.add_argument("--panorama", type=Path, help="a rig's capture: the profile of its network rows instead")
+    parser.add_argument(
+        "--ratio-columns", metavar="START:END", help="with --panorama, also the height ratio over these columns"
+    )
     args = parser.parse_args(argv)
     if args.panorama is not None:
         if not args.panorama.is_file():
             parser.error(f"no file {args.panorama}")
-        profile(args.panorama)
+        ratio_columns = None
+        if args.ratio_columns is not None:
+            try:
+                ratio_columns = tuple(int(x) for x in args.ratio_columns.split(":"))
+            except ValueError:
+                ratio_columns = ()
+            if len(ratio_columns) != 2 or not 0 <= ratio_columns[0] < ratio_columns[1]:
+                parser.error(f"--ratio-columns must be START:END with 0 <= START < END, got {args.ratio_columns}")
+        profile(args.panorama, ratio_columns)
         return 0
     if min(args.sizes) <= 0 or min(args.radii) <= 0:
         parser.error("room sizes and radii must be > 0")
