@@ -13,11 +13,12 @@ panorama is 1024 x 512. Printed: ``e(s)`` for ``s`` = 0.8 and 1.25 (a fifth smal
 room size and ``rc``, and the same for the rows of the floor alone and of the ceiling alone (the other boundary
 hidden: desks along the walls, a fan); "-" where the nearest wall is nearer than 1.5 radii.
 
-With ``--panorama FILE`` (a rig's capture; ``rc`` from its name, as ``ncjax reconstruct --rc auto``) it measures
-the same on the network's rows instead: per wall (the columns between two of the pipeline's corner peaks, 5 columns
-kept clear of each), the line that best fits the rows of one boundary at an assumed height of that boundary
-(angle and distance free, robust soft-L1 loss of the row residuals), and the median absolute residual over all
-walls' rows, for heights from 0.2 to 10 m: rows that fix the scale fit best near one height.
+With ``--panorama FILE`` (a rig's capture; ``rc`` from its name, as ``ncjax reconstruct --rc auto``; levelled as
+``ncjax reconstruct`` levels it) it measures the same on the network's rows instead: per wall (the columns between
+two of the pipeline's corner peaks, 5 columns kept clear of each), the line that best fits the rows of one boundary
+at an assumed height of that boundary (angle and distance free, robust soft-L1 loss of the row residuals), and the
+median absolute residual over all walls' rows, for heights from 0.2 to 10 m: rows that fix the scale fit best near
+one height.
 
     uv run python experiments/parallax_budget.py [--sizes 3 5 8 12] [--radii 0.05 0.2 0.4 0.6 1.0]
     uv run python experiments/parallax_budget.py --panorama ../shared/data/noncentral-real/L101_R06101.png \
@@ -39,6 +40,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 import ncjax
+from ncjax.cli.outputs import MIN_RIG_TILT, align_to_gravity
 from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
 from ncjax.geometry.reprojection import wall_boundary_rows
 from ncjax.io.images import rc_from_name, read_panorama
@@ -167,6 +169,7 @@ def profile(path: Path, ratio_columns: tuple[int, int] | None) -> None:
     if rc is None:
         raise SystemExit(f"parallax_budget: error: {path.name} gives no radius (e.g. L101_R06101.png: rc 0.6101 m)")
     image = read_panorama(path)
+    image, _ = align_to_gravity(image, MIN_RIG_TILT)  # levelled first, as ncjax reconstruct levels a rig's
     ceiling_v, floor_v, corner_prob = (np.asarray(a, np.float64) for a in ncjax.predict_boundaries(image, views=4))
     stretches = wall_stretches(corner_prob)
     cam = NonCentralPanorama(image.shape[1], image.shape[0], rc)

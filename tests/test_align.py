@@ -196,6 +196,20 @@ def test_level_panorama_undoes_the_tilt():
     assert np.abs(_band(estimated) - _band(level)).mean() < 2.0
 
 
+def test_a_panorama_tilted_less_than_the_minimum_is_kept_and_its_tilt_recorded():
+    from ncjax.cli.outputs import MIN_RIG_TILT, align_to_gravity
+
+    tilted = room_panorama(0.06, 0.0, noise=0.0)  # under a rig's minimum: within the estimate's own error
+    kept, record = align_to_gravity(tilted, MIN_RIG_TILT)
+    assert kept is tilted and record["reliable"] and record["rotation"] is None
+    assert math.hypot(record["roll_deg"], record["pitch_deg"]) < MIN_RIG_TILT  # recorded all the same
+    levelled, record = align_to_gravity(tilted)  # a central panorama's: always levelled
+    assert record["rotation"] is not None and not np.array_equal(levelled, tilted)
+    steep = room_panorama(2.0, -1.0, noise=0.0)
+    levelled, record = align_to_gravity(steep, MIN_RIG_TILT)
+    assert record["rotation"] is not None and abs(record["roll_deg"] - 2.0) < 0.3
+
+
 # ----------------------------------------------------------------- estimation
 
 

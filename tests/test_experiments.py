@@ -660,3 +660,20 @@ def test_parallax_budget_refits_the_true_scale_exactly_and_other_scales_worse_th
         errors = [module.refit_error(ncjax.NonCentralPanorama(128, 64, rc), truth, 1.25, "both") for rc in (0.1, 0.4)]
         # a rig's parallax grows with its radius: a quarter too large a room is further from the rows of a larger one
         assert 0 < errors[0] < errors[1]
+
+
+def test_rig_tilt_rows_of_a_tilted_rig_come_back_nearly_level_when_levelled():
+    module = experiment("rig_tilt")
+    room = jax.tree.map(lambda x: x[0], module.generate_rooms(1, 0.6))
+    rng = np.random.default_rng(0)
+    untilted = module.room_rows(room, 0.0, rng)
+    for name in ("tilted", "levelled"):  # no tilt: the dense points' rows are the level rig's
+        for mine, level in zip(untilted[name], untilted["level"], strict=True):
+            assert np.abs(mine - level).max() < 0.05
+    rows = module.room_rows(room, 1.0, rng)
+
+    def rms(name):
+        return np.sqrt(np.mean([(a - b) ** 2 for a, b in zip(rows[name], rows["level"], strict=True)]))
+
+    # a degree moves the rows by about 2.8 px; levelled, what is left is the centres' rc / range of it
+    assert rms("tilted") > 1.5 and rms("levelled") < 0.25 * rms("tilted"), (rms("tilted"), rms("levelled"))

@@ -154,6 +154,27 @@ def test_label_cor_of_a_levelled_panorama_is_in_the_input_image(tmp_path):
         np.testing.assert_allclose(found[np.argsort(found[:, 0])], expected, atol=1e-3)
 
 
+def test_label_cor_of_a_levelled_rig_panorama_is_where_the_tilted_rig_sees_each_corner(tmp_path):
+    """A rig's panorama levelled before the reconstruction: the tilted rig's ray through each written pixel, taken into
+    the levelled frame, passes through its corner (its optical centre off the level circle)."""
+    from ncjax.geometry.gravity import rotation_from_tilt
+
+    record = record_of(L_SHAPE, cam=NON_CENTRAL)
+    rotation = rotation_from_tilt(3.0, -2.0)
+    (path,) = write_layout_formats(tmp_path / "room", record, NON_CENTRAL, ["label_cor"], rotation=rotation)
+    points = np.loadtxt(path)
+    for key, found in (("ceiling_corners", points[0::2]), ("floor_corners", points[1::2])):
+        rays = np.asarray(ncjax.geometry.pixel_to_ray(NON_CENTRAL, found[:, 0], found[:, 1]), np.float64)
+        direction = rays[:, :3] @ rotation.T  # the rig's frame -> the levelled frame
+        origin = np.cross(rays[:, :3], rays[:, 3:]) @ rotation.T  # the point of each ray nearest the rig's centre
+        corners = np.asarray(record[key])
+        # each corner (in the written left-to-right order) lies on one of the rays
+        offsets = corners[None] - origin[:, None]
+        along = np.einsum("rk,rck->rc", direction, offsets)
+        distance = np.linalg.norm(offsets - along[..., None] * direction[:, None], axis=-1)
+        assert np.all(distance.min(axis=1) < 2e-3), distance.min(axis=1)
+
+
 def test_horizonnet_json_keys(tmp_path):
     data = json.loads(write_one(tmp_path, record_of(L_SHAPE), CENTRAL, "horizonnet").read_text())
     assert data["z0"] == 50.0 and data["z1"] == pytest.approx(50.0 * H_F / H_C)

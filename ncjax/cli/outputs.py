@@ -5,6 +5,7 @@ from __future__ import annotations
 import concurrent.futures
 import functools
 import importlib
+import math
 import os
 import sys
 import threading
@@ -51,6 +52,10 @@ def scale_fields(result, prior) -> dict:
 
 
 MESH_SUFFIXES = ("obj", "ply", "glb")
+# A rig's panorama is levelled only when its tilt exceeds this (degrees): level renders read 0.02 degrees at the median
+# and 0.07 at most, a rig tilted by 0.1 degrees loses 0.1% of its room height (experiments/rig_tilt.py), and
+# resampling a rig's image is itself approximate (RESULTS.md, "Levelling tilted panoramas").
+MIN_RIG_TILT = 0.1
 
 
 def output_names(name: str) -> tuple[str, ...]:
@@ -173,10 +178,13 @@ def write_outputs(
     return record
 
 
-def align_to_gravity(image: np.ndarray) -> tuple[np.ndarray, dict]:
-    """A central panorama levelled (:mod:`ncjax.geometry.levelling`), and the JSON record of its tilt.
+def align_to_gravity(image: np.ndarray, min_tilt: float = 0.0) -> tuple[np.ndarray, dict]:
+    """A panorama levelled (:mod:`ncjax.geometry.levelling`), and the JSON record of its tilt.
 
-    An image whose vertical the line segments do not fix reliably is kept as it is (``reliable`` false).
+    A central panorama is levelled exactly. A non-central rig's optical centres stay on its tilted circle, moved by
+    at most ``rc`` times the tilt: resampling leaves about ``rc / range`` of the tilt (experiments/rig_tilt.py).
+    An image whose vertical the line segments do not fix reliably (``reliable`` false), or whose tilt is under
+    ``min_tilt`` degrees (:data:`MIN_RIG_TILT` for a rig's), is kept as it is (``rotation`` null).
     """
     from ..geometry.levelling import estimate_tilt, level_panorama
 
@@ -184,7 +192,9 @@ def align_to_gravity(image: np.ndarray) -> tuple[np.ndarray, dict]:
     record = {"reliable": estimate.reliable, "segments": int(estimate.segments), "roll_deg": None, "pitch_deg": None}
     if not estimate.reliable:
         return image, record | {"rotation": None}
+    record |= {"roll_deg": round(float(estimate.roll), 3), "pitch_deg": round(float(estimate.pitch), 3)}
+    if math.hypot(estimate.roll, estimate.pitch) < min_tilt:
+        return image, record | {"rotation": None}
     rotation = np.asarray(estimate.rotation)
     levelled = level_panorama(image, rotation)
-    record |= {"roll_deg": round(float(estimate.roll), 3), "pitch_deg": round(float(estimate.pitch), 3)}
     return levelled, record | {"rotation": np.round(rotation, 8).tolist()}

@@ -50,7 +50,13 @@ from .inputs import (
     read_image,
 )
 from .options import add_config_options, add_renamed_options, config_from_options
-from .outputs import ReconstructedImage, align_to_gravity, import_mesh_modules_in_background, write_outputs
+from .outputs import (
+    MIN_RIG_TILT,
+    ReconstructedImage,
+    align_to_gravity,
+    import_mesh_modules_in_background,
+    write_outputs,
+)
 from .summary import SUMMARY_FILE, failure_message, read_summary, skipped_row, summary_row, update_summary
 
 WORLD_HELP = (
@@ -331,8 +337,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                     tally.failed(path, str(error))
                     stop.check()
                     continue
-                # a tilted non-central rig cannot be levelled by resampling its image: only central panoramas are
-                image, gravity = align_to_gravity(image) if radius == 0 and args.align else (image, None)
+                # a rig levelled by resampling keeps its optical centres on the tilted circle, which leaves about
+                # rc / range of its tilt (experiments/rig_tilt.py): far less than the tilt itself, if that is not tiny
+                min_tilt = MIN_RIG_TILT if radius > 0 else 0.0
+                image, gravity = align_to_gravity(image, min_tilt) if args.align else (image, None)
                 group = groups[image.shape[:2]]
                 group.append(PendingImage(path, name, image, radius, gravity, file_size))
                 if len(group) == batch_size:
@@ -390,8 +398,9 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-align",
         dest="align",
         action="store_false",
-        help="keep a central panorama as it is; by default its roll and pitch are estimated from the image's "
-        "lines and undone before the network (the JSON records them)",
+        help="keep a panorama as it is; by default its roll and pitch are estimated from the image's lines and "
+        "undone before the network (the JSON records them): exactly for a central panorama, to about rc / range of "
+        "its tilt for a rig's (one tilted by less than 0.1 degrees is kept as it is)",
     )
     add_export_argument(parser)
     add_texture_argument(parser)

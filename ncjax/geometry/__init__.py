@@ -8,8 +8,8 @@
 - ``fastmath``: a float32 arctangent that vectorises.
 - ``gravity``: roll and pitch of a tilted central panorama, and maps of points and pixels between its
   frame and the levelled frame (numpy); which image sizes are full panoramas.
-- ``levelling``: the roll and pitch of a central panorama from its vertical lines (OpenCV), and the
-  panorama resampled level.
+- ``levelling``: the roll and pitch of a panorama from its vertical lines (OpenCV), and the panorama
+  resampled level (exactly for a central one, nearly for a rig's).
 """
 
 from .camera import (

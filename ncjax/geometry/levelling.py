@@ -1,4 +1,4 @@
-"""Gravity alignment of tilted central panoramas: estimate the roll and pitch, level the image, map results back.
+"""Gravity alignment of tilted panoramas: estimate the roll and pitch, level the image, map results back.
 
 Frames: see :mod:`ncjax.geometry.gravity`. ``rotation`` takes the input
 camera's frame to the levelled frame (z along the true vertical), ``p_level = rotation @ p_input``;
@@ -25,7 +25,11 @@ Use (a layout found on the levelled image expressed in the input image; ``to_inp
     u, v = direction_to_pixel(corners, W, H)   # the corners in the input image's pixels
 
 Only central panoramas are levelled exactly: a tilted non-central camera's circle of optical
-centres leaves the horizontal plane, which no resampling of the image undoes.
+centres leaves the horizontal plane, which no resampling of the image undoes. It leaves it by at
+most ``rc`` times the tilt, so the resampled image of a tilted rig is that of a level one to about
+``rc / range`` of the tilt, where the tilt itself moves its rows by the whole angle
+(experiments/rig_tilt.py: at 1 degree, the room height's median error 3.1% tilted, 0.2% levelled).
+The estimate reads a rig's panorama as a central one: a vertical line falls in one column of both.
 """
 
 from __future__ import annotations

@@ -261,9 +261,10 @@ def write_layout_formats(
             ``floor_corners`` are used).
         cam: the panorama's camera: its size and ``rc`` give the corner pixels.
         formats: format names (a list or a comma list).
-        rotation: for a central panorama levelled before the reconstruction (:mod:`ncjax.geometry.levelling`),
+        rotation: for a panorama levelled before the reconstruction (:mod:`ncjax.geometry.levelling`),
             the rotation from its input frame to the levelled one: the corner pixels are then those of
-            the input image; the 3D corners of mp3d and zind stay in the levelled frame (z up).
+            the input image (the corners turned into the input camera's frame, then projected by ``cam``:
+            exact for a tilted rig too); the 3D corners of mp3d and zind stay in the levelled frame (z up).
 
     Returns:
         The paths written, in the order of ``formats``.
