@@ -8,7 +8,7 @@ differ from the truth's by an RMS of ``e(s)`` pixels. Rows whose errors along a 
 the room from its copy scaled by ``s``: ``e(s)`` is the budget of row error within which the rows fix the scale.
 
 Rooms are rectangles (Manhattan; the refit: the yaw, the four walls' distances and the free height), the
-camera off the room's centre by (15%, 10%) of its sides, 1.2 m above the floor, the ceiling 2.7 m above it; the
+camera off the room's centre by (15%, 10%) of its sides, 1.2 m above the floor, the ceiling 2.7 m above the floor; the
 panorama is 1024 x 512. Printed: ``e(s)`` for ``s`` = 0.8 and 1.25 (a fifth smaller, a quarter larger) per
 room size and ``rc``, and the same for the rows of the floor alone and of the ceiling alone (the other boundary
 hidden: desks along the walls, a fan); "-" where the nearest wall is nearer than 1.5 radii.
