@@ -1,6 +1,6 @@
-"""How well does ``ncjax.geometry.levelling.estimate_tilt`` recover the roll and pitch of tilted central panoramas?
+"""How well does ``ncjax.geometry.levelling.estimate_tilt`` recover the roll and pitch of tilted panoramas?
 
-Rooms: ``--n`` synthetic rooms (Manhattan and Atlanta, furnished, ``rc = 0``) rendered
+Rooms: ``--n`` synthetic rooms (Manhattan and Atlanta, furnished, ``rc = 0``, or a rig's radius in ``--rc``) rendered
 level at ``--size`` by ``ncjax.synth`` into ``experiments/out/gravity_renders_<n>_<size>_<seed>/``
 (on first use). Each is tilted by a random roll and pitch, uniform in
 [-``--max-tilt``, ``--max-tilt``] degrees (seeded), by resampling
@@ -14,6 +14,10 @@ render (rows within 60 degrees of the horizon), and the wall-clock seconds per i
 
     uv run python experiments/gravity_alignment.py                 # 20 rooms at 512 x 1024
     uv run python experiments/gravity_alignment.py --n 4 --size 256x512
+    uv run python experiments/gravity_alignment.py --rc 0.3:1.0 --max-tilt 2
+
+With ``--rc`` the renders are a rig's, tilted by the same resampling: the image of a tilted rig to within its optical
+centres' rc times the tilt (experiments/rig_tilt.py), which is what the estimate reads.
 """
 
 from __future__ import annotations
@@ -38,11 +42,12 @@ OUT = Path(__file__).parent / "out"
 RENDER_SEED = 2024  # the rooms' seed (the tilts have their own, --seed)
 
 
-def renders(n: int, height: int, width: int, out: Path) -> list[np.ndarray]:
-    """``n`` level central panoramas (RGB uint8), rendered on first use."""
-    folder = out / f"gravity_renders_{n}_{height}x{width}_{RENDER_SEED}"
+def renders(n: int, height: int, width: int, out: Path, rc: tuple[float, float] = (0.0, 0.0)) -> list[np.ndarray]:
+    """``n`` level panoramas (RGB uint8) of a rig of radius in ``rc`` (central by default), rendered on first use."""
+    radii = "" if rc == (0.0, 0.0) else f"_rc{rc[0]:g}-{rc[1]:g}"
+    folder = out / f"gravity_renders_{n}_{height}x{width}_{RENDER_SEED}{radii}"
     if not (folder.is_dir() and len(list_samples(str(folder))) == n):
-        config = ncjax.SynthConfig(room=ncjax.RoomConfig(world="mix", rc_range=(0.0, 0.0)), width=width, height=height)
+        config = ncjax.SynthConfig(room=ncjax.RoomConfig(world="mix", rc_range=rc), width=width, height=height)
         with tqdm(total=n, desc=f"render {height}x{width}") as bar:
             write_dataset(str(folder), n, RENDER_SEED, config, batch_size=4, overwrite=True, progress=bar.update)
     return [read_sample(str(folder), name).image for name in list_samples(str(folder))]
@@ -65,9 +70,18 @@ def main(argv: list[str] | None = None) -> dict[str, np.ndarray]:
     parser.add_argument("--max-tilt", type=float, default=10.0, help="largest roll and pitch, degrees (default 10)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random tilts (default 0)")
     parser.add_argument("--out", type=Path, default=OUT, help="folder of the cached renders")
+    parser.add_argument(
+        "--rc", default="0", help="the rig's radius, metres, or a range LOW:HIGH (default 0: central panoramas)"
+    )
     args = parser.parse_args(argv)
     height, width = (int(x) for x in args.size.lower().split("x"))
-    images = renders(args.n, height, width, args.out)
+    try:
+        bounds = [float(x) for x in args.rc.split(":")]
+    except ValueError:
+        bounds = []
+    if len(bounds) not in (1, 2) or min(bounds) < 0 or bounds[0] > bounds[-1]:
+        parser.error(f"--rc must be a radius >= 0 or a range LOW:HIGH, got {args.rc}")
+    images = renders(args.n, height, width, args.out, (bounds[0], bounds[-1]))
     rng = np.random.default_rng(args.seed)
     tilts = rng.uniform(-args.max_tilt, args.max_tilt, size=(args.n, 2))
     estimate_tilt(images[0])  # warm-up (OpenCV's first calls)
@@ -90,7 +104,10 @@ def main(argv: list[str] | None = None) -> dict[str, np.ndarray]:
         results["segments"].append(estimate.segments)
         difference = np.abs(levelled[rows].astype(np.float64) - image[rows].astype(np.float64)).mean()
         results["residual"].append(difference)
-    print(f"{args.n} rooms at {height}x{width}, roll and pitch uniform in +-{args.max_tilt:g} deg (seed {args.seed})")
+    print(
+        f"{args.n} rooms at {height}x{width}, rc {args.rc} m, roll and pitch uniform in +-{args.max_tilt:g} deg "
+        f"(seed {args.seed})"
+    )
     print(summary("|roll error| (deg)", results["roll"]))
     print(summary("|pitch error| (deg)", results["pitch"]))
     print(summary("vertical error (deg)", results["vertical"]))
