@@ -42,7 +42,7 @@ from scipy.optimize import least_squares
 import ncjax
 from ncjax.cli.outputs import MIN_RIG_TILT, align_to_gravity
 from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
-from ncjax.geometry.reprojection import wall_boundary_rows
+from ncjax.geometry.reprojection import boundary_points, wall_boundary_rows
 from ncjax.io.images import rc_from_name, read_panorama
 from ncjax.pipeline.corners import configured_corners
 
@@ -84,7 +84,8 @@ def true_room(size: float) -> np.ndarray:
     """(yaw, distances, h_c, h_f) of a ``size`` x ``ASPECT size`` room, the camera off its centre."""
     width, depth = size, ASPECT * size
     dx, dy = CAMERA_OFFSET[0] * width, CAMERA_OFFSET[1] * depth
-    # walls y = +-depth/2 - dy and x = +-width/2 - dx, each as e2 . p = d with e2 = (-uy, ux)
+    # walls y = -depth/2 - dy, x = width/2 + dx, y = depth/2 - dy, x = -width/2 + dx (the room's centre at (dx, -dy)),
+    # each as e2 . p = d with e2 = (-uy, ux)
     distances = [-(depth / 2 + dy), -(width / 2 + dx), -(depth / 2 - dy), -(width / 2 - dx)]
     return np.array([0.0, *distances, ROOM_HEIGHT - CAMERA_HEIGHT, -CAMERA_HEIGHT])
 
@@ -143,12 +144,14 @@ def wall_residuals(cam, rows: np.ndarray, columns: np.ndarray, height: float, bo
     def residuals(line):
         return np.asarray(padded_residuals(cam, jnp.asarray(line), *arguments))[: len(usable)]
 
-    # start: the wall facing the stretch's middle column at the range its middle row gives; a wall of direction u
-    # and distance d holds the points p with (-uy, ux) . p = d, so one facing a ray of azimuth a has u at a + 90 deg
+    # start: the wall facing the stretch's middle column through its boundary point at the assumed height; a wall of
+    # direction u and distance d holds the points p with (-uy, ux) . p = d, so one facing a ray of azimuth a has u at
+    # a + 90 degrees and d = -|p|
     middle = usable[len(usable) // 2]
-    azimuth = np.pi - 2 * np.pi * (middle + 0.5) / cam.width
-    elevation = abs(np.pi / 2 - np.pi * (rows[middle] + 0.5) / cam.height)
-    reach = float(cam.rc) + height / max(np.tan(elevation), 1e-3)
+    point, reached = boundary_points(cam, float(middle), float(rows[middle]), height if boundary == 0 else -height)
+    point = np.asarray(point, np.float64)
+    azimuth = float(np.arctan2(point[1], point[0]))
+    reach = float(np.linalg.norm(point)) if bool(reached) else float(cam.rc) + height
     fit = least_squares(residuals, np.array([azimuth + np.pi / 2, -reach]), loss="soft_l1", f_scale=2.0)
     return fit.fun
 
@@ -169,6 +172,8 @@ def profile(path: Path, ratio_columns: tuple[int, int] | None) -> None:
     if rc is None:
         raise SystemExit(f"parallax_budget: error: {path.name} gives no radius (e.g. L101_R06101.png: rc 0.6101 m)")
     image = read_panorama(path)
+    if ratio_columns is not None and ratio_columns[1] > image.shape[1]:
+        raise SystemExit(f"parallax_budget: error: --ratio-columns ends past the image's {image.shape[1]} columns")
     image, _ = align_to_gravity(image, MIN_RIG_TILT)  # levelled first, as ncjax reconstruct levels a rig's
     ceiling_v, floor_v, corner_prob = (np.asarray(a, np.float64) for a in ncjax.predict_boundaries(image, views=4))
     stretches = wall_stretches(corner_prob)

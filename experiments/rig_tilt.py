@@ -33,10 +33,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import ncjax
+from ncjax.cli.outputs import align_to_gravity
 from ncjax.evaluation import layout_metrics
-from ncjax.geometry.camera import angles_to_pixel, pixel_to_angles, project
-from ncjax.geometry.gravity import rotation_from_tilt
-from ncjax.geometry.levelling import estimate_tilt, level_panorama
+from ncjax.geometry.camera import project
+from ncjax.geometry.gravity import input_to_level_pixels, rotation_from_tilt
 from ncjax.synth.dataset import list_samples, read_sample
 
 from common import ground_truth, test_renders
@@ -71,19 +71,6 @@ def tilted_rows(points: np.ndarray, cam, tilt: np.ndarray) -> tuple[np.ndarray, 
     return np.asarray(u, np.float64), np.asarray(v, np.float64)
 
 
-def levelled_pixels(u: np.ndarray, v: np.ndarray, cam, tilt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The pixels a central levelling moves tilted pixels to: their directions turned back by ``tilt``."""
-    azimuth, elevation = (np.asarray(x, np.float64) for x in pixel_to_angles(cam, u, v))
-    directions = np.stack(
-        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)], -1
-    )
-    level = directions @ tilt.T  # tilt @ d: back to the room's frame
-    azimuth = np.arctan2(level[:, 1], level[:, 0])
-    elevation = np.arcsin(np.clip(level[:, 2], -1.0, 1.0))
-    u, v = angles_to_pixel(cam, azimuth, elevation)
-    return np.asarray(u, np.float64), np.asarray(v, np.float64)
-
-
 def room_rows(room, tau: float, rng: np.random.Generator) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """The level, tilted and levelled rows (ceiling, floor) of one room."""
     cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=room.rc)
@@ -96,7 +83,8 @@ def room_rows(room, tau: float, rng: np.random.Generator) -> dict[str, tuple[np.
     for points in (dense.ceiling_points, dense.floor_points):
         u, v = tilted_rows(np.asarray(points, np.float64), cam, tilt)
         tilted.append(column_rows(u, v, WIDTH))
-        levelled.append(column_rows(*levelled_pixels(u, v, cam, tilt), WIDTH))
+        # where a central levelling moves each tilted pixel: its direction turned back by the tilt
+        levelled.append(column_rows(*input_to_level_pixels(u, v, tilt, WIDTH, HEIGHT), WIDTH))
     rows["tilted"], rows["levelled"] = tuple(tilted), tuple(levelled)
     return rows
 
@@ -131,14 +119,9 @@ def level_renders(count: int) -> None:
         samples = [read_sample(str(folder), name) for name in list_samples(str(folder))[:count]]
         images = np.stack([sample.image for sample in samples])
         radii = np.array([sample.rc for sample in samples], np.float32)
-        estimates = [estimate_tilt(image) for image in images]
-        levelled = np.stack(
-            [
-                level_panorama(image, e.rotation) if e.reliable else image
-                for image, e in zip(images, estimates, strict=True)
-            ]
-        )
-        tilts = [np.hypot(e.roll, e.pitch) if e.reliable else 0.0 for e in estimates]
+        aligned = [align_to_gravity(image) for image in images]  # every one levelled, however little its tilt
+        levelled = np.stack([image for image, _ in aligned])
+        tilts = [np.hypot(r["roll_deg"], r["pitch_deg"]) if r["reliable"] else 0.0 for _, r in aligned]
         cells = []
         for batch in (images, levelled):
             result = ncjax.reconstruct_batch(batch, radii, world, batch_size=8)

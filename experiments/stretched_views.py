@@ -16,18 +16,21 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
 import ncjax
 from ncjax.evaluation.panorama_labels import load_network, load_panoramas, read_labelled_image
 from ncjax.evaluation.panorama_scores import raw_layout_ious, row_error
+from ncjax.geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 
 
 def stretched_rows(rows: np.ndarray, height: int, factor: float) -> np.ndarray:
     """The rows of an equirectangular panorama of ``height`` rows whose elevations ``phi`` become
-    ``atan(factor tan(phi))`` (pixel centres at integers, the top row looking up)."""
-    elevation = np.pi / 2 - np.pi * (rows + 0.5) / height
-    return (np.pi / 2 - np.arctan(factor * np.tan(elevation))) * height / np.pi - 0.5
+    ``atan(factor tan(phi))``."""
+    cam = NonCentralPanorama(2 * height, height, rc=0.0)
+    _, elevation = pixel_to_angles(cam, 0.0, np.asarray(rows, np.float64))
+    return np.asarray(angles_to_pixel(cam, 0.0, jnp.arctan(factor * jnp.tan(elevation)))[1], np.float64)
 
 
 def stretch_image(image: np.ndarray, factor: float) -> np.ndarray:

@@ -168,7 +168,7 @@ def test_label_cor_of_a_levelled_rig_panorama_is_where_the_tilted_rig_sees_each_
         direction = rays[:, :3] @ rotation.T  # the rig's frame -> the levelled frame
         origin = np.cross(rays[:, :3], rays[:, 3:]) @ rotation.T  # the point of each ray nearest the rig's centre
         corners = np.asarray(record[key])
-        # each corner (in the written left-to-right order) lies on one of the rays
+        # each written pixel's ray passes through one of the corners
         offsets = corners[None] - origin[:, None]
         along = np.einsum("rk,rck->rc", direction, offsets)
         distance = np.linalg.norm(offsets - along[..., None] * direction[:, None], axis=-1)

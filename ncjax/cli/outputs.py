@@ -52,7 +52,7 @@ def scale_fields(result, prior) -> dict:
 
 
 MESH_SUFFIXES = ("obj", "ply", "glb")
-# A rig's panorama is levelled only when its tilt exceeds this (degrees): level renders read 0.02 degrees at the median
+# A rig's panorama is levelled only when its tilt reaches this (degrees): level renders read 0.02 degrees at the median
 # and 0.07 at most, a rig tilted by 0.1 degrees loses 0.1% of its room height (experiments/rig_tilt.py), and
 # resampling a rig's image is itself approximate (RESULTS.md, "Levelling tilted panoramas").
 MIN_RIG_TILT = 0.1
@@ -185,6 +185,15 @@ def align_to_gravity(image: np.ndarray, min_tilt: float = 0.0) -> tuple[np.ndarr
     at most ``rc`` times the tilt: resampling leaves about ``rc / range`` of the tilt (experiments/rig_tilt.py).
     An image whose vertical the line segments do not fix reliably (``reliable`` false), or whose tilt is under
     ``min_tilt`` degrees (:data:`MIN_RIG_TILT` for a rig's), is kept as it is (``rotation`` null).
+
+    Args:
+        image: RGB uint8 (H, W, 3), W = 2 H.
+        min_tilt: the smallest tilt (degrees, roll and pitch together) that is undone.
+
+    Returns:
+        ``(image, record)``: the levelled image (or ``image`` itself), and the JSON's ``gravity`` record:
+        ``reliable``, ``segments``, ``roll_deg`` and ``pitch_deg`` (null when unreliable), ``rotation`` (the
+        input -> levelled rotation, null where the image was kept).
     """
     from ..geometry.levelling import estimate_tilt, level_panorama
 

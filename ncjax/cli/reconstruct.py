@@ -400,7 +400,7 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_false",
         help="keep a panorama as it is; by default its roll and pitch are estimated from the image's lines and "
         "undone before the network (the JSON records them): exactly for a central panorama, to about rc / range of "
-        "its tilt for a rig's (one tilted by less than 0.1 degrees is kept as it is)",
+        f"its tilt for a rig's (one tilted by less than {MIN_RIG_TILT:g} degrees is kept as it is)",
     )
     add_export_argument(parser)
     add_texture_argument(parser)

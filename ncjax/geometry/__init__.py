@@ -6,7 +6,7 @@
 - ``reprojection``: a wall's boundary rows in the image, boundary points and their ranges, and plan lines through
   boundary points.
 - ``fastmath``: a float32 arctangent that vectorises.
-- ``gravity``: roll and pitch of a tilted central panorama, and maps of points and pixels between its
+- ``gravity``: roll and pitch of a tilted panorama (read as a central one), and maps of points and pixels between its
   frame and the levelled frame (numpy); which image sizes are full panoramas.
 - ``levelling``: the roll and pitch of a panorama from its vertical lines (OpenCV), and the panorama
   resampled level (exactly for a central one, nearly for a rig's).

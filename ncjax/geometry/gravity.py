@@ -1,4 +1,4 @@
-"""Frames of a tilted central panorama: the roll/pitch rotation, and maps of points and pixels between frames.
+"""Frames of a tilted panorama read as a central one: the roll/pitch rotation, and maps of points and pixels.
 
 Also which image sizes are full panoramas (:func:`panorama_size_error`).
 
