@@ -395,3 +395,36 @@ def test_a_prior_s_walls_reach_the_adjustment_at_its_room_height_with_their_shap
     np.testing.assert_allclose(started.distances, solved.distances * factor[:, None], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(started.floor_height, solved.floor_height * factor, rtol=1e-5)
     np.testing.assert_array_equal(started.directions, solved.directions)
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    st.floats(0.5, 2.0),
+    st.floats(-2.0, -0.5),
+    st.sampled_from(PRIOR_KINDS),
+    st.floats(0.01, 0.2),
+    st.floats(0.01, 0.2),
+    st.floats(-0.9, 0.9),
+)
+def test_rescaled_heights_covariance_is_that_of_the_heights_given_the_prior(
+    ceiling, floor, kind, sigma_c, sigma_f, rho
+):
+    covariance = np.array([[sigma_c**2, rho * sigma_c * sigma_f], [rho * sigma_c * sigma_f, sigma_f**2]])
+    layout = with_heights(make_layout(L_SHAPE), ceiling, floor, covariance)
+    prior = HeightPrior(kind, 1.7)
+    rescaled = rescale_to_prior(layout, prior)
+    result = np.asarray(rescaled.height_covariance, np.float64)
+    # draws of the heights, each rescaled to the prior: their covariance to first order (small sigmas)
+    rng = np.random.default_rng(0)
+    draws = rng.multivariate_normal([ceiling, floor], covariance * 1e-4, size=20000)
+    quantity = np.array([prior_quantity(kind, c, f) for c, f in draws])
+    scaled = draws * (1.7 / quantity)[:, None]
+    np.testing.assert_allclose(result * 1e-4, np.cov(scaled.T), rtol=0.1, atol=1e-9)
+    # the height the prior states has no variance
+    gradient = np.array(
+        [
+            prior_quantity(kind, 1.0, 0.0) - prior_quantity(kind, 0.0, 0.0),
+            prior_quantity(kind, 0.0, 1.0) - prior_quantity(kind, 0.0, 0.0),
+        ]
+    )
+    assert gradient @ result @ gradient < 1e-6 * max(np.abs(result).max(), 1e-12) + 1e-10

@@ -29,8 +29,9 @@ take of those points:
    changes no reprojection.
 
 Exact on exact rows (the tests reproduce rendered rooms). The covariances are
-those of the fit on the virtual rows with the heights it found, given that the
-prior is right: the prior's own error scales every length and is not in them.
+those of the fit on the virtual rows given that the prior is right: the heights'
+carried through the rescaling (:func:`rescale_to_prior`), so that the height the
+prior states has none; the prior's own error scales every length and is not in them.
 """
 
 from __future__ import annotations
@@ -144,9 +145,27 @@ def prior_rows(
 
 
 def rescale_to_prior(layout: Layout, prior: HeightPrior) -> Layout:
-    """``layout`` scaled so that the height ``prior`` states holds exactly (unchanged if it has no such height)."""
-    measured = prior_quantity(prior.kind, layout.ceiling_height, layout.floor_height)
-    return scale_layout(layout, jnp.where(measured > 0, prior.value / jnp.where(measured > 0, measured, 1.0), 1.0))
+    """``layout`` scaled so that the height ``prior`` states holds exactly (unchanged if it has no such height).
+
+    The heights' covariance is carried through the rescaling ``h -> h p / q(h)`` to first order (``q`` the prior's
+    quantity, :func:`prior_quantity`; ``p`` its value): the covariance of the heights given the prior, in which the
+    height the prior states has none and the other keeps only the uncertainty of their ratio. The corners' covariances
+    are scaled with the lengths, the share of the scale's uncertainty in them kept (the layout holds no covariance
+    between corners and heights to take it out).
+    """
+    heights = jnp.stack([layout.ceiling_height, layout.floor_height])
+    measured = prior_quantity(prior.kind, heights[0], heights[1])
+    usable = measured > 0
+    scaled = scale_layout(layout, jnp.where(usable, prior.value / jnp.where(usable, measured, 1.0), 1.0))
+
+    def rescaled(h):
+        return h * prior.value / prior_quantity(prior.kind, h[0], h[1])
+
+    jacobian = jax.jacfwd(rescaled)(jnp.where(usable, heights, jnp.array([1.0, -1.0], heights.dtype)))
+    given_prior = jacobian @ layout.height_covariance @ jacobian.T
+    # an unbounded covariance (rows that leave the heights free) stays unbounded
+    known = usable & jnp.all(jnp.isfinite(layout.height_covariance))
+    return dataclasses.replace(scaled, height_covariance=jnp.where(known, given_prior, scaled.height_covariance))
 
 
 def prior_quantity(kind: str, ceiling_height: Float[ArrayLike, "*b"], floor_height: Float[ArrayLike, "*b"]):
