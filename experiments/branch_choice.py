@@ -43,7 +43,7 @@ from ncjax.pipeline.run import fit_walls, prior_config
 from ncjax.pipeline.types import Rows
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-from common import central_layout, corners_iou, labelled_rows, single_view_rows, written_layout
+from common import central_layout, corners_iou, labelled_rows, print_mean_ious, single_view_rows, written_layout
 
 BRANCHES = ("manhattan", "atlanta")
 
@@ -136,9 +136,7 @@ def main(argv: list[str] | None = None) -> int:
             chosen["medoid of the 9 row sets' 18 layouts"].append(candidates[best][1])
             chosen["their mean"].append(float(np.mean([iou for _, iou in candidates])))
             chosen["their best by the label"].append(max(iou for _, iou in candidates))
-    print()
-    for name, values in chosen.items():
-        print(f"mean 3D IoU, {name}: {np.mean(values):.3f} ({len(values)} panoramas)")
+    print_mean_ious(chosen)
     return 0
 
 

@@ -369,6 +369,13 @@ def corners_iou(corners: LayoutCorners | None, label: LayoutCorners) -> float:
         return 0.0
 
 
+def print_mean_ious(scores: dict[str, list[float]]) -> None:
+    """A blank line, then each way's mean 3D IoU over its panoramas (the experiments on labelled photographs)."""
+    print()
+    for name, values in scores.items():
+        print(f"mean 3D IoU, {name}: {np.mean(values):.3f} ({len(values)} panoramas)")
+
+
 def each_view(image: np.ndarray, rolls: int, read) -> list[tuple[np.ndarray, ...]]:
     """``read``'s per-column outputs (a tuple of arrays) on each view of a panorama (rolled by ``k / rolls`` of a turn,
     plain and mirrored), mapped back to the panorama's own columns."""

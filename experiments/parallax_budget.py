@@ -41,10 +41,11 @@ from scipy.optimize import least_squares
 
 import ncjax
 from ncjax.cli.outputs import MIN_RIG_TILT, align_to_gravity
-from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
+from ncjax.geometry.camera import NonCentralPanorama
 from ncjax.geometry.reprojection import boundary_points, wall_boundary_rows
 from ncjax.io.images import rc_from_name, read_panorama
 from ncjax.pipeline.corners import configured_corners
+from ncjax.pipeline.floor_check import column_height_ratios
 
 WIDTH, HEIGHT = 1024, 512
 CAMERA_HEIGHT, ROOM_HEIGHT = 1.2, 2.7
@@ -156,15 +157,6 @@ def wall_residuals(cam, rows: np.ndarray, columns: np.ndarray, height: float, bo
     return fit.fun
 
 
-def height_ratios(cam, ceiling_v: np.ndarray, floor_v: np.ndarray) -> np.ndarray:
-    """Each column's ``h_c / -h_f`` = ``tan(phi_c) / -tan(phi_f)``: both rays leave one centre, so the ratio of the
-    ceiling's height above the camera to the floor's below it, whatever the walls (what a height prior scales)."""
-    columns = np.arange(cam.width, dtype=np.float64)
-    _, ceiling_elevation = pixel_to_angles(cam, columns, ceiling_v)
-    _, floor_elevation = pixel_to_angles(cam, columns, floor_v)
-    return np.asarray(jnp.tan(ceiling_elevation) / -jnp.tan(floor_elevation))
-
-
 def profile(path: Path, ratio_columns: tuple[int, int] | None) -> None:
     """Print the median absolute row residual of the best walls at each assumed height (module docstring), and the
     rows' ratio of the ceiling's height to the floor's over all columns and over ``ratio_columns`` [start, end)."""
@@ -181,7 +173,8 @@ def profile(path: Path, ratio_columns: tuple[int, int] | None) -> None:
     with jax.enable_x64(True):  # the fits in float64 (the network above runs in float32)
         profile_table(cam, ceiling_v, floor_v, stretches)
     print(f"{path.name}: rc {rc} m, {len(stretches)} walls of >= {MIN_WALL_COLUMNS} columns")
-    ratios = height_ratios(cam, ceiling_v, floor_v)
+    # h_c / -h_f per column: the ratio of the ceiling's height above the camera to the floor's below it
+    ratios = -np.asarray(column_height_ratios(cam, *(jnp.asarray(v, jnp.float32) for v in (ceiling_v, floor_v))))
     low, median, high = np.nanquantile(ratios, [0.1, 0.5, 0.9])
     print(f"ceiling height / floor depth, per column: median {median:.2f} (10-90% {low:.2f}-{high:.2f})")
     if ratio_columns is not None:

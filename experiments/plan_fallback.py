@@ -24,13 +24,11 @@ import argparse
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 from ncjax.io.export import branch_name
 from ncjax.network.predict import default_model
 from ncjax.pipeline.types import LayoutStatus
 
-from common import central_layout, corners_iou, labelled_rows, network_config, written_layout
+from common import central_layout, corners_iou, labelled_rows, network_config, print_mean_ious, written_layout
 
 SETTINGS = {
     "branches": network_config(**{"plan.fallback": False}),
@@ -60,9 +58,7 @@ def main(argv: list[str] | None = None) -> int:
                 explained = float(layout.explained_fraction)
                 cells.append(f"{iou:.3f} ({status}, {branch_name(layout)}, {explained:.2f})")
             print(f"| {image_path.stem} | " + " | ".join(cells) + " |", flush=True)
-    print()
-    for name, values in scores.items():
-        print(f"mean 3D IoU, {name}: {np.mean(values):.3f} ({len(values)} panoramas)")
+    print_mean_ious(scores)
     return 0
 
 

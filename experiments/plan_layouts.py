@@ -40,7 +40,7 @@ from ncjax.network.predict import default_model
 from ncjax.pipeline.corners import configured_corners
 from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
 
-from common import central_layout, corners_iou, labelled_rows, written_layout
+from common import central_layout, corners_iou, labelled_rows, print_mean_ious, written_layout
 
 YAWS = np.radians(np.arange(0.0, 90.0, 0.25))
 CORNER_MARGIN = 4  # columns next to a corner peak left out of its walls
@@ -176,9 +176,7 @@ def main(argv: list[str] | None = None) -> int:
             scores["better of the two"].append(max(plan, pipeline))
             cells = f"{pipeline:.3f} ({pipeline_rows:.2f}) | {plan:.3f} ({plan_rows:.2f})"
             print(f"| {image_path.stem} | {cells} |", flush=True)
-    print()
-    for name, values in scores.items():
-        print(f"mean 3D IoU, {name}: {np.mean(values):.3f} ({len(values)} panoramas)")
+    print_mean_ious(scores)
     return 0
 
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -71,42 +72,65 @@ def tilted_rows(points: np.ndarray, cam, tilt: np.ndarray) -> tuple[np.ndarray, 
     return np.asarray(u, np.float64), np.asarray(v, np.float64)
 
 
-def room_rows(room, tau: float, rng: np.random.Generator) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """The level, tilted and levelled rows (ceiling, floor) of one room."""
-    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=room.rc)
+class ExactBoundaries(NamedTuple):
+    """What a room's tilted views are made from, computed once per room."""
+
+    rc: float
+    level: tuple[np.ndarray, np.ndarray]  # the level rig's ceiling and floor rows
+    target: np.ndarray  # its corner target
+    points: tuple[np.ndarray, np.ndarray]  # the visible ceiling and floor boundary points, DENSITY per column
+
+
+def exact_boundaries(room) -> ExactBoundaries:
+    """The level rig's rows and corner target of ``room``, and its visible boundary points."""
+    level = ncjax.synth.room_labels(room, ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=room.rc))
     dense = ncjax.synth.room_labels(room, ncjax.NonCentralPanorama(DENSITY * WIDTH, HEIGHT, rc=room.rc))
-    level = ncjax.synth.room_labels(room, cam)
+    return ExactBoundaries(
+        float(room.rc),
+        (np.asarray(level.ceiling_v, np.float64), np.asarray(level.floor_v, np.float64)),
+        np.asarray(level.corner_target),
+        (np.asarray(dense.ceiling_points, np.float64), np.asarray(dense.floor_points, np.float64)),
+    )
+
+
+def room_rows(boundaries: ExactBoundaries, tau: float, rng: np.random.Generator) -> dict[str, tuple[np.ndarray, ...]]:
+    """The level, tilted and levelled rows (ceiling, floor) of one room, tilted by ``tau`` about a random axis."""
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=boundaries.rc)
     axis = rng.uniform(0.0, 2.0 * np.pi)
     tilt = rotation_from_tilt(tau * np.cos(axis), tau * np.sin(axis))
-    rows = {"level": (np.asarray(level.ceiling_v, np.float64), np.asarray(level.floor_v, np.float64))}
     tilted, levelled = [], []
-    for points in (dense.ceiling_points, dense.floor_points):
-        u, v = tilted_rows(np.asarray(points, np.float64), cam, tilt)
+    for points in boundaries.points:
+        u, v = tilted_rows(points, cam, tilt)
         tilted.append(column_rows(u, v, WIDTH))
         # where a central levelling moves each tilted pixel: its direction turned back by the tilt
         levelled.append(column_rows(*input_to_level_pixels(u, v, tilt, WIDTH, HEIGHT), WIDTH))
-    rows["tilted"], rows["levelled"] = tuple(tilted), tuple(levelled)
-    return rows
+    return {"level": boundaries.level, "tilted": tuple(tilted), "levelled": tuple(levelled)}
 
 
-def scores(rooms, rows: list[tuple[np.ndarray, np.ndarray]], targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each room's relative room-height error (NaN: no layout) and 3D IoU (0: no layout)."""
-    ceiling_v = np.stack([r[0] for r in rows])
-    floor_v = np.stack([r[1] for r in rows])
-    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=jnp.asarray(rooms.rc))
-    layouts = ncjax.layout_from_boundaries(ceiling_v, floor_v, targets, cam, world="manhattan")
+def ok_scores(layouts, truths: list, true_heights: list[float]) -> tuple[np.ndarray, np.ndarray]:
+    """Each layout's relative room-height error (NaN: not ok) and 3D IoU against its truth (0: not ok)."""
     errors, ious = [], []
-    for i in range(len(rows)):
+    for i, (truth, true_height) in enumerate(zip(truths, true_heights, strict=True)):
         layout = jax.tree.map(lambda x, i=i: x[i], layouts)
-        room = jax.tree.map(lambda x, i=i: x[i], rooms)
-        if not bool(layout.ok):
-            errors.append(np.nan)
-            ious.append(0.0)
-            continue
-        true_height = float(room.ceiling_height - room.floor_height)
-        errors.append(abs(float(layout.ceiling_height - layout.floor_height) / true_height - 1.0))
-        ious.append(layout_metrics.iou_3d(layout, room))
+        ok = bool(layout.ok)
+        ious.append(layout_metrics.iou_3d(layout, truth) if ok else 0.0)
+        height = float(layout.ceiling_height - layout.floor_height)
+        errors.append(abs(height / true_height - 1.0) if ok else np.nan)
     return np.array(errors), np.array(ious)
+
+
+def rows_cell(rooms, rows: list[tuple[np.ndarray, np.ndarray]], targets: np.ndarray) -> str:
+    """The table cell of the rooms laid out from ``rows``: the room height's relative error median / p90 and the mean
+    3D IoU (%)."""
+    cam = ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=jnp.asarray(rooms.rc))
+    layouts = ncjax.layout_from_boundaries(
+        np.stack([r[0] for r in rows]), np.stack([r[1] for r in rows]), targets, cam, world="manhattan"
+    )
+    count = len(rows)
+    truths = [jax.tree.map(lambda x, i=i: x[i], rooms) for i in range(count)]
+    errors, ious = ok_scores(layouts, truths, [float(r.ceiling_height - r.floor_height) for r in truths])
+    median, p90 = 100 * np.nanquantile(errors, [0.5, 0.9])
+    return f"{median:.1f} / {p90:.1f}, {100 * ious.mean():.1f}"
 
 
 def level_renders(count: int) -> None:
@@ -122,17 +146,12 @@ def level_renders(count: int) -> None:
         aligned = [align_to_gravity(image) for image in images]  # every one levelled, however little its tilt
         levelled = np.stack([image for image, _ in aligned])
         tilts = [np.hypot(r["roll_deg"], r["pitch_deg"]) if r["reliable"] else 0.0 for _, r in aligned]
+        truths = [ground_truth(sample, world) for sample in samples]
+        true_heights = [sample.metadata["ceiling_height"] - sample.metadata["floor_height"] for sample in samples]
         cells = []
         for batch in (images, levelled):
             result = ncjax.reconstruct_batch(batch, radii, world, batch_size=8)
-            ious, errors = [], []
-            for i, sample in enumerate(samples):
-                layout = jax.tree.map(lambda x, i=i: x[i], result.layout)
-                ok = bool(layout.ok)
-                ious.append(layout_metrics.iou_3d(layout, ground_truth(sample, world)) if ok else 0.0)
-                true_height = sample.metadata["ceiling_height"] - sample.metadata["floor_height"]
-                height = float(layout.ceiling_height - layout.floor_height)
-                errors.append(abs(height / true_height - 1.0) if ok else np.nan)
+            errors, ious = ok_scores(result.layout, truths, true_heights)
             cells.append(f"{100 * np.mean(ious):.2f}%, {100 * np.nanmedian(errors):.2f}%")
         print(f"| {world} | {np.median(tilts):.3f} / {np.max(tilts):.3f} | " + " | ".join(cells) + " |", flush=True)
 
@@ -148,27 +167,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--rooms must be >= 1, --rc > 0, the tilts and --renders >= 0")
     rooms = generate_rooms(args.rooms, args.rc)
     count = int(rooms.rc.shape[0])
-    targets = np.stack(
-        [
-            np.asarray(
-                ncjax.synth.room_labels(
-                    jax.tree.map(lambda x, i=i: x[i], rooms), ncjax.NonCentralPanorama(WIDTH, HEIGHT, rc=args.rc)
-                ).corner_target
-            )
-            for i in range(count)
-        ]
-    )
+    boundaries = [exact_boundaries(jax.tree.map(lambda x, i=i: x[i], rooms)) for i in range(count)]
+    targets = np.stack([b.target for b in boundaries])
     rng = np.random.default_rng(SEED)
     print(f"{count} Manhattan rooms, rc {args.rc} m; room height's relative error median / p90 (%), mean 3D IoU (%)")
     print("| tilt (degrees) | level rig | tilted | tilted, levelled as a central panorama |")
     print("| --- | --- | --- | --- |")
+    level = rows_cell(rooms, [b.level for b in boundaries], targets)  # the same for every tilt
     for tau in args.tilts:
-        per_room = [room_rows(jax.tree.map(lambda x, i=i: x[i], rooms), tau, rng) for i in range(count)]
-        cells = []
-        for name in ("level", "tilted", "levelled"):
-            errors, ious = scores(rooms, [r[name] for r in per_room], targets)
-            median, p90 = 100 * np.nanquantile(errors, [0.5, 0.9])
-            cells.append(f"{median:.1f} / {p90:.1f}, {100 * ious.mean():.1f}")
+        per_room = [room_rows(b, tau, rng) for b in boundaries]
+        cells = [level] + [rows_cell(rooms, [r[name] for r in per_room], targets) for name in ("tilted", "levelled")]
         print(f"| {tau:g} | " + " | ".join(cells) + " |", flush=True)
     if args.renders:
         level_renders(args.renders)

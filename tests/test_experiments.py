@@ -678,13 +678,13 @@ def test_parallax_budget_rooms_are_the_synth_rooms_and_other_scales_move_the_row
 
 def test_rig_tilt_rows_of_a_tilted_rig_come_back_nearly_level_when_levelled():
     module = experiment("rig_tilt")
-    room = jax.tree.map(lambda x: x[0], module.generate_rooms(1, 0.6))
+    boundaries = module.exact_boundaries(jax.tree.map(lambda x: x[0], module.generate_rooms(1, 0.6)))
     rng = np.random.default_rng(0)
-    untilted = module.room_rows(room, 0.0, rng)
+    untilted = module.room_rows(boundaries, 0.0, rng)
     for name in ("tilted", "levelled"):  # no tilt: the dense points' rows are the level rig's
         for mine, level in zip(untilted[name], untilted["level"], strict=True):
             assert np.abs(mine - level).max() < 0.05
-    rows = module.room_rows(room, 1.0, rng)
+    rows = module.room_rows(boundaries, 1.0, rng)
 
     def rms(name):
         return np.sqrt(np.mean([(a - b) ** 2 for a, b in zip(rows[name], rows["level"], strict=True)]))

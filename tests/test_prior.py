@@ -104,6 +104,21 @@ def with_heights(layout, ceiling, floor, covariance, status=ncjax.LayoutStatus.O
     )
 
 
+def heights_covariance(sigma_c: float, sigma_f: float, rho: float) -> np.ndarray:
+    """The (h_c, h_f) covariance of those standard deviations and correlation."""
+    return np.array([[sigma_c**2, rho * sigma_c * sigma_f], [rho * sigma_c * sigma_f, sigma_f**2]])
+
+
+def quantity_gradient(kind: str, ceiling: float, floor: float, step: float = 1e-6) -> np.ndarray:
+    """The gradient of the prior's quantity in (h_c, h_f), by central differences."""
+    return np.array(
+        [
+            prior_quantity(kind, ceiling + step, floor) - prior_quantity(kind, ceiling - step, floor),
+            prior_quantity(kind, ceiling, floor + step) - prior_quantity(kind, ceiling, floor - step),
+        ]
+    ) / (2 * step)
+
+
 @settings(max_examples=30, deadline=None)
 @given(
     st.floats(0.3, 3.0),
@@ -115,16 +130,10 @@ def with_heights(layout, ceiling, floor, covariance, status=ncjax.LayoutStatus.O
     st.floats(-0.9, 0.9),
 )
 def test_scale_conflict_is_the_log_distance_over_both_spreads(ceiling, floor, kind, value, sigma_c, sigma_f, rho):
-    covariance = np.array([[sigma_c**2, rho * sigma_c * sigma_f], [rho * sigma_c * sigma_f, sigma_f**2]])
+    covariance = heights_covariance(sigma_c, sigma_f, rho)
     geometry = with_heights(make_layout(L_SHAPE), ceiling, floor, covariance)
     measured = prior_quantity(kind, ceiling, floor)
-    step = 1e-6  # the quantity's gradient by central differences
-    gradient = np.array(
-        [
-            prior_quantity(kind, ceiling + step, floor) - prior_quantity(kind, ceiling - step, floor),
-            prior_quantity(kind, ceiling, floor + step) - prior_quantity(kind, ceiling, floor - step),
-        ]
-    ) / (2 * step)
+    gradient = quantity_gradient(kind, ceiling, floor)
     spread = np.sqrt(gradient @ covariance @ gradient / measured**2 + PRIOR_RELATIVE_SIGMA**2)
     expected = abs(np.log(measured / value)) / spread
     np.testing.assert_allclose(scale_conflict(geometry, HeightPrior(kind, value)), expected, rtol=1e-4, atol=1e-5)
@@ -409,7 +418,7 @@ def test_a_prior_s_walls_reach_the_adjustment_at_its_room_height_with_their_shap
 def test_rescaled_heights_covariance_is_that_of_the_heights_given_the_prior(
     ceiling, floor, kind, sigma_c, sigma_f, rho
 ):
-    covariance = np.array([[sigma_c**2, rho * sigma_c * sigma_f], [rho * sigma_c * sigma_f, sigma_f**2]])
+    covariance = heights_covariance(sigma_c, sigma_f, rho)
     layout = with_heights(make_layout(L_SHAPE), ceiling, floor, covariance)
     prior = HeightPrior(kind, 1.7)
     rescaled = rescale_to_prior(layout, prior)
@@ -421,10 +430,5 @@ def test_rescaled_heights_covariance_is_that_of_the_heights_given_the_prior(
     scaled = draws * (1.7 / quantity)[:, None]
     np.testing.assert_allclose(result * 1e-4, np.cov(scaled.T), rtol=0.1, atol=1e-9)
     # the height the prior states has no variance
-    gradient = np.array(
-        [
-            prior_quantity(kind, 1.0, 0.0) - prior_quantity(kind, 0.0, 0.0),
-            prior_quantity(kind, 0.0, 1.0) - prior_quantity(kind, 0.0, 0.0),
-        ]
-    )
+    gradient = quantity_gradient(kind, ceiling, floor)
     assert gradient @ result @ gradient < 1e-6 * max(np.abs(result).max(), 1e-12) + 1e-10

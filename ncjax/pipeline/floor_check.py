@@ -9,20 +9,28 @@ from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angl
 from ..solvers.settings import scaled
 
 
-def ceiling_floor_ratio(
+def column_height_ratios(
     cam: NonCentralPanorama, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"]
-) -> Float[Array, ""]:
-    """The panorama's median of ``tan(phi_c) / tan(phi_f)`` over its columns: ``h_c / h_f`` (negative).
+) -> Float[Array, " W"]:
+    """Each column's ``tan(phi_c) / tan(phi_f)``: ``h_c / h_f`` (negative) as that column's rows give it.
 
     A column's rays all leave one centre on the circle, in one vertical plane
     (paper eq. pluckerray), so they meet the wall at one horizontal range
     ``t``: ``tan(phi_c) = h_c / t`` and ``tan(phi_f) = h_f / t``, whatever the
-    walls. Columns with a missing row are left out (NaN if all are).
+    walls. NaN where a row is missing.
     """
     columns = jnp.arange(ceiling_v.shape[0], dtype=ceiling_v.dtype)
     _, ceiling_elevation = pixel_to_angles(cam, columns, ceiling_v)
     _, floor_elevation = pixel_to_angles(cam, columns, floor_v)
-    return jnp.nanmedian(jnp.tan(ceiling_elevation) / jnp.tan(floor_elevation))
+    return jnp.tan(ceiling_elevation) / jnp.tan(floor_elevation)
+
+
+def ceiling_floor_ratio(
+    cam: NonCentralPanorama, ceiling_v: Float[Array, " W"], floor_v: Float[Array, " W"]
+) -> Float[Array, ""]:
+    """The panorama's median of :func:`column_height_ratios` over its columns: ``h_c / h_f`` (negative). Columns
+    with a missing row are left out (NaN if all are)."""
+    return jnp.nanmedian(column_height_ratios(cam, ceiling_v, floor_v))
 
 
 def ceiling_consistent_floor(
