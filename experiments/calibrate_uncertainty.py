@@ -125,6 +125,11 @@ def pooled(data: dict[str, dict], config: ncjax.PipelineConfig) -> dict:
 SETTING = ("wall_offset_ratio", "wall_offset_noise", "corner_column_noise")
 
 
+def shipped_setting() -> tuple[float, float, float]:
+    """The three error sources as ``NETWORK_PIPELINE_CONFIG`` sets them."""
+    return tuple(getattr(NETWORK_PIPELINE_CONFIG.uncertainty, name) for name in SETTING)
+
+
 def with_setting(setting: tuple[float, float, float], scale_test: bool) -> ncjax.PipelineConfig:
     """``NETWORK_PIPELINE_CONFIG`` with the three error sources of ``setting``, its scale test on or off."""
     config = NETWORK_PIPELINE_CONFIG.replace(uncertainty=dict(zip(SETTING, setting, strict=True)))
@@ -200,7 +205,7 @@ def main(argv=None):
         off_target = max(abs(result[name] - TARGET) for name in ("corner_coverage", "height_coverage"))
         if (off_target, result["sigma_median"]) < best_rank:
             best, best_rank = setting, (off_target, result["sigma_median"])
-    current = tuple(getattr(NETWORK_PIPELINE_CONFIG, name) for name in SETTING)
+    current = shipped_setting()
     lines += [
         "",
         f"Chosen on the tuning renders: {setting_name(best, True) if best else 'none'}; "

@@ -172,9 +172,9 @@ def solvers_only(ceiling_v, floor_v, corner_prob, cam, world: str):
     columns = jnp.arange(WIDTH, dtype=ceiling_v.dtype)
     ceiling_rays = ncjax.geometry.pixel_to_ray(cam, columns, ceiling_v)
     floor_rays = ncjax.geometry.pixel_to_ray(cam, columns, floor_v)
-    corners, mask, _, _ = find_corners(
-        corner_prob, CAPACITY, 2, config.corners.threshold
-    )  # the paper's peaks: no minimum count
+    # the paper's peaks: no minimum count, no peak split in two
+    paper_peaks = dataclasses.replace(config.corners, min_corners=0, exact_target_tolerance=0.0)
+    corners, mask, _, _ = find_corners(corner_prob, CAPACITY, 2, paper_peaks)
     wall_index = column_walls(corners, mask, WIDTH)
     own = wall_index[None, :] == jnp.arange(CAPACITY)[:, None]
     walls = jax.vmap(lambda m: ncjax.solvers.solve_wall(ceiling_rays, floor_rays, m, m))(own)

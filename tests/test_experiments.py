@@ -48,6 +48,33 @@ def test_pipeline_table_small(tmp_path):
     assert exact[-1] < 50.0 and exact[5] < 0.01  # failure rate (%), CE (m) on exact boundaries
 
 
+@pytest.mark.slow
+def test_the_papers_solvers_route_recovers_a_box_room_from_its_exact_rows():
+    """The tables' "Solvers" route (walls split at the corner peaks, each fitted alone, then the layout solver) on
+    the exact rows and corner target of a four-wall Manhattan room gives its four corners."""
+    common = script_module("experiments", "common")
+    config = ncjax.RoomConfig(world="manhattan", occlusion="none", rc_range=(0.5, 0.5), min_walls=4, max_walls=4)
+    room = ncjax.synth.random_room(jax.random.key(3), config)
+    cam = room.camera(common.WIDTH, common.HEIGHT)
+    label = ncjax.synth.room_labels(room, cam)
+    layout = jax.jit(common.solvers_only, static_argnums=4)(
+        label.ceiling_v, label.floor_v, label.corner_target, cam, "manhattan"
+    )
+    assert bool(layout["ok"]) and int(jnp.sum(layout["mask"])) == 4
+    found = np.asarray(layout["floor_corners"])[np.asarray(layout["mask"])][:, :2]
+    truth = np.asarray(label.floor_corners)[np.asarray(label.corner_mask)][:, :2]
+    distance = np.linalg.norm(found[:, None] - truth[None], axis=-1)
+    assert distance.min(1).max() < 1e-2, distance
+
+
+def test_calibrate_uncertainty_reads_the_shipped_setting_back_into_the_shipped_config():
+    module = experiment("calibrate_uncertainty")
+    from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG
+
+    assert module.with_setting(module.shipped_setting(), scale_test=True) == NETWORK_PIPELINE_CONFIG
+    assert module.with_setting((0.0, 0.0, 0.0), scale_test=False) != NETWORK_PIPELINE_CONFIG
+
+
 def test_network_table_bins_rooms_by_their_narrowest_wall():
     module = experiment("network_table")
 
