@@ -758,8 +758,8 @@ def test_compact_slots_give_the_same_layouts_and_rooms_that_need_more_are_rerun(
         *rows, cams, config=dataclasses.replace(full, compact_capacity=8), world="manhattan"
     )
     walls = np.asarray(layout.mask).sum(1)
-    # the third room's exact rows hold a wall 1.7 columns wide beside an occlusion, which neither capacity
-    # lays out: the comparison below checks that they fail alike
+    # the third room's exact rows hold walls 1 and 1.7 columns wide (the latter's two corners one peak of the
+    # exact target), which neither capacity lays out: the comparison below checks that they fail alike
     assert layout.mask.shape == (6, 16) and np.asarray(layout.ok).tolist() == [True, True, False, True, True, True]
     assert (walls > 8).any() and (walls <= 8).any(), walls  # both the compact run and the rerun count
     empty = ~np.asarray(layout.mask)
