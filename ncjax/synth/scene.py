@@ -30,7 +30,7 @@ say so.
 
 Coordinates are the room's camera frame (metres, z up, floor at
 ``room.floor_height``); a piece of furniture is a composite of up to
-:data:`~ncjax.synth.furniture.PARTS_PER_PIECE` boxes that can rotate about z.
+:data:`PARTS_PER_PIECE` boxes that can rotate about z.
 """
 
 from __future__ import annotations
@@ -44,9 +44,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from .decor import ceiling_beams, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
+from .decor import LAMP_PARTS, ceiling_beams, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
 from .elements import Boxes, Decor, Doorways, Lights, Openings
-from .furniture import FURNITURE_TYPES, TEMPLATES, furniture_candidate, piece_boxes, piece_materials
+from .furniture import FURNITURE_TYPES, PARTS_PER_PIECE, TEMPLATES, furniture_candidate, piece_boxes, piece_materials
 from .materials import Material, Pattern, colour_in_hsv_box, surface_materials
 from .placement import (
     Footprints,
@@ -85,7 +85,7 @@ class SceneConfig:
             :mod:`ncjax.synth.scene`); the settings from ``decal_slots`` to
             ``sun_probability`` and the beams' apply to them only.
         furniture_slots: F, the most pieces of furniture (each up to
-            :data:`~ncjax.synth.furniture.PARTS_PER_PIECE` boxes).
+            :data:`PARTS_PER_PIECE` boxes).
         lamp_slots: L, the most ceiling lights (each a box and a point light; with
             decor, up to :data:`~ncjax.synth.decor.LAMP_PARTS` boxes or a flush panel).
         opening_slots: D, the most doors and windows.
@@ -200,6 +200,15 @@ class SceneConfig:
         ):
             if getattr(self, first) + getattr(self, second) > 1.0:
                 raise ValueError(f"{first} + {second} must be at most 1")
+
+    @property
+    def box_slots(self) -> int:
+        """B, the box capacity: furniture parts, then ceiling lights (then, with decor, door leaves, then beams
+        where a room may have them)."""
+        if self.decor:
+            beams = self.beam_slots if self.beam_probability > 0.0 else 0
+            return self.furniture_slots * PARTS_PER_PIECE + self.lamp_slots * LAMP_PARTS + self.opening_slots + beams
+        return self.furniture_slots * PARTS_PER_PIECE + self.lamp_slots
 
 
 class Scene(eqx.Module):
