@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
         cells = " | ".join(f"{iou:.3f} ({agree:.3f})" for iou, agree in zip(ious, agreements, strict=True))
         print(f"| {path.stem} | {auto:.3f} | {cells} |", flush=True)
         if args.single_views:
-            image, _ = read_panorama_file(path)
+            image = read_panorama_file(path).image
             for view_rows in single_view_rows(image, model):
                 view_layouts = [jax.device_get(layout) for layout in run(view_rows, cam)]
                 layouts += view_layouts

@@ -334,7 +334,7 @@ def labelled_rows(folder: Path, model) -> Iterator[tuple[Path, ncjax.NonCentralP
     file's brought to the size it is reconstructed at) and ``model``'s ``(ceiling_v, floor_v, corner_prob)`` (4 views,
     edge snap)."""
     for image_path, label_path in labelled_image_paths(folder):
-        image, file_size = read_panorama_file(image_path)
+        image, file_size, _ = read_panorama_file(image_path)
         height, width = image.shape[:2]
         cam = ncjax.NonCentralPanorama(width, height, rc=0.0)
         label = rescaled(read_layout(label_path, *file_size), width, height)

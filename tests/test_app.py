@@ -14,6 +14,7 @@ from ncjax.cli.demo import DEMO_DIR
 from ncjax.cli.summary import failure_message
 from ncjax.io.export import status_has_geometry
 from ncjax.io.images import MAX_WIDTH, PanoramaError, PanoramaResizeWarning, read_panorama
+from ncjax.io.photo_sphere import SphereCrop, gpano_packet, png_with_xmp
 from ncjax.pipeline.types import FLAGGED_STATUSES
 
 DEMO_TRUTH = json.loads((DEMO_DIR / "ground_truth.json").read_text())
@@ -22,6 +23,7 @@ BIG = (4096, 2048)  # (W, H) of the demo upsampled: a panorama ncjax reconstruct
 # the shipped model + pipeline on the demo give all 12 corners, CE 0.070 m, 3D IoU 95.5% (RESULTS.md): a broken
 # network or pipeline falls far below these bounds, a retrained model moves within them
 DEMO_LIMITS = {"ce": 0.3, "iou": 85.0}
+SPHERE = SphereCrop(1024, 512, 0, 96, 1024, 320, "XMP GPano")  # the demo's rows within 56 degrees of the horizon
 
 
 def demo_image(size=None):
@@ -179,7 +181,12 @@ def batch_run(tmp_path_factory):
         "near_R06825": write_png(folder / "near_R06825.png", demo_image((1024, 511))),
         # wider than 2048: reconstructed at 2048 x 1024, its outputs in the file's pixels
         "big_R06825": write_png(folder / "big_R06825.png", cv2.resize(rgb, BIG, interpolation=cv2.INTER_CUBIC)),
+        # a photo sphere without its poles (rows 96-415: elevations +56 to -56 degrees), placed by its XMP
+        "sphere_R06825": str(folder / "sphere_R06825.png"),
     }
+    (folder / "sphere_R06825.png").write_bytes(
+        png_with_xmp(rgb[SPHERE.top : SPHERE.top + SPHERE.height], gpano_packet(SPHERE))
+    )
     (folder / "cut_R06825.png").write_bytes(cv2.imencode(".png", rgb)[1].tobytes()[:20000])
     out = folder / "out"
     errors = io.StringIO()
@@ -221,6 +228,31 @@ def test_reconstruct_writes_every_output_of_good_images(batch_run):
     # Dropping the alpha channel gives exactly the layout of the RGB file.
     records = [json.loads((out / f"{n}.json").read_text()) for n in ("room_R06825", "rgba_R06825")]
     assert records[0]["ceiling_corners"] == records[1]["ceiling_corners"]
+
+
+@pytest.mark.slow
+def test_a_photo_sphere_gives_the_layout_of_its_full_panorama_in_its_pixels(batch_run):
+    """The demo without its poles, placed by its XMP GPano metadata: padded to the full sphere, it gives the full
+    demo's layout (its boundaries lie within 40 degrees of the horizon), exported in the full panorama's pixels."""
+    from ncjax.io.formats_read import read_layout
+
+    _, out, errors, _ = batch_run
+    assert (
+        "sphere_R06825.png: 1024 x 320 pixels cover elevations +56 to -56 degrees of a 1024 x 512 panorama "
+        "(XMP GPano); padded with black to the full sphere, reconstructed at 1024 x 512"
+    ) in errors
+    sphere, full = (json.loads((out / f"{name}.json").read_text()) for name in ("sphere_R06825", "room_R06825"))
+    assert full["sphere_crop"] is None and sphere["image_size"] == sphere["reconstructed_size"] == [1024, 512]
+    assert sphere["sphere_crop"] == SPHERE._asdict()
+    assert sphere["status"] == full["status"] and len(sphere["floor_corners"]) == len(full["floor_corners"])
+    # measured: corners within 0.07 m of the full panorama's (its own corner error against the truth is 0.07 m),
+    # room heights 0.018 m apart
+    corners = np.array(sphere["floor_corners"]) - np.array(full["floor_corners"])
+    assert np.abs(corners).max() < 0.15, corners
+    assert abs(sphere["room_height"] - full["room_height"]) < 0.05, (sphere["room_height"], full["room_height"])
+    pixels = [read_layout(out / f"{name}.label_cor.txt", 1024, 512) for name in ("sphere_R06825", "room_R06825")]
+    rows = np.asarray(pixels[0].floor) - np.asarray(pixels[1].floor)
+    assert np.abs(rows).max() < 3.0, rows  # in the full panorama's pixels, not the file's (96 rows apart)
 
 
 @pytest.mark.slow

@@ -50,7 +50,7 @@ def run_demo(args: argparse.Namespace) -> int:
     with open(DEMO_DIR / "ground_truth.json") as file:
         truth = json.load(file)
     path = DEMO_DIR / truth["image"]
-    image, file_size = read_panorama_file(path)
+    image, file_size, _ = read_panorama_file(path)
     rc = radius_of(str(path), None)
     print(
         f"ncjax demo: {truth['image']} ({image.shape[1]} x {image.shape[0]}, rc = {rc} m from its name, "

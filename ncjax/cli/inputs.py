@@ -12,7 +12,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..io.images import PanoramaError, PanoramaResizeWarning, rc_from_name, read_panorama_file
+from ..io.images import PanoramaError, PanoramaFile, PanoramaResizeWarning, rc_from_name, read_panorama_file
+from ..io.photo_sphere import SphereCrop
 
 MAX_RC = 3.0  # metres; the capture rigs have radii of tens of centimetres
 
@@ -73,22 +74,23 @@ def radius_of(path: str, rc: float | None) -> float:
     return from_name
 
 
-def read_image(path: str, rc: float | None, say_resized) -> tuple[np.ndarray, float, tuple[int, int]]:
-    """The panorama of ``path``, its radius (``--rc``, or from its name) and the (W, H) of its file;
-    ``say_resized`` reports a resize.
+def read_image(path: str, rc: float | None, say_resized, pad_to_sphere: bool = False) -> tuple[PanoramaFile, float]:
+    """The panorama of ``path`` (:func:`~ncjax.io.images.read_panorama_file`: the image, the size of the panorama
+    its file's pixels belong to, where they lie in it) and its radius (``--rc``, or from its name); ``say_resized``
+    reports a resize or a padding to the full sphere.
 
     Raises:
         PanoramaError: the file cannot be used (the message says why).
     """
     with warnings.catch_warnings(record=True) as notes:
         warnings.simplefilter("always", PanoramaResizeWarning)
-        image, file_size = read_panorama_file(path)
+        panorama = read_panorama_file(path, pad_to_sphere)
     for note in notes:
         if issubclass(note.category, PanoramaResizeWarning):
             say_resized(str(note.message))
         else:
             warnings.showwarning(note.message, note.category, note.filename, note.lineno)
-    return image, radius_of(path, rc), file_size
+    return panorama, radius_of(path, rc)
 
 
 class PendingImage(NamedTuple):
@@ -100,7 +102,9 @@ class PendingImage(NamedTuple):
         image: the panorama to reconstruct (resized and levelled where needed), RGB uint8.
         rc: its radius, metres.
         gravity: how it was levelled (:func:`~.outputs.align_to_gravity`), or None.
-        file_size: (W, H) of its file, whose pixels the exports give.
+        file_size: (W, H) of the panorama its file's pixels belong to, whose pixels the exports give.
+        sphere_crop: where its file's pixels lie in that panorama (:class:`~ncjax.io.photo_sphere.SphereCrop`), or
+            None when the file is the full panorama.
     """
 
     path: str
@@ -109,6 +113,7 @@ class PendingImage(NamedTuple):
     rc: float
     gravity: dict | None
     file_size: tuple[int, int]
+    sphere_crop: SphereCrop | None = None
 
 
 def one_line(error: BaseException) -> str:

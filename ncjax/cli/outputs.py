@@ -9,11 +9,14 @@ import math
 import os
 import sys
 import threading
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from ..pipeline.types import LayoutStatus
+
+if TYPE_CHECKING:
+    from ..io.photo_sphere import SphereCrop
 
 
 @functools.cache
@@ -82,8 +85,11 @@ class ReconstructedImage(NamedTuple):
             and floor rows, the corner probability, the scale source and the geometry's own layout.
         rc: the radius of its circle of optical centres, metres.
         gravity: how it was levelled (:func:`align_to_gravity`), or None.
-        file_size: (W, H) of the image file as given, when it was resized to ``image`` (None: ``image``'s size):
-            the pixels of the exports (:func:`write_outputs`).
+        file_size: (W, H) of the image file as given, when it was resized to ``image`` (None: ``image``'s size), or
+            of its full panorama at the file's scale when it was padded to it (``sphere_crop``): the pixels of the
+            exports (:func:`write_outputs`).
+        sphere_crop: where the file's pixels lie in its full panorama
+            (:class:`~ncjax.io.photo_sphere.SphereCrop`), or None when the file is the full panorama.
     """
 
     name: str
@@ -92,6 +98,7 @@ class ReconstructedImage(NamedTuple):
     rc: float
     gravity: dict | None = None
     file_size: tuple[int, int] | None = None
+    sphere_crop: SphereCrop | None = None
 
 
 # what writing the meshes and the viewer imports (trimesh and shapely: 0.6 s on 2 cores)
@@ -144,11 +151,12 @@ def write_outputs(
     from ..viz.room_texture import textured_room
     from ..viz.viewer import write_viewer
 
-    name, image, result, rc, gravity, file_size = reconstructed
+    name, image, result, rc, gravity, file_size, crop = reconstructed
     layout, ceiling_v, floor_v, corner_prob, *_ = result
     cam = NonCentralPanorama(image.shape[1], image.shape[0], rc=rc)
     file_cam = cam if file_size is None else NonCentralPanorama(*file_size, rc=rc)
-    extra = scale_fields(result, prior) | {"gravity": gravity}
+    sphere_crop = None if crop is None else crop._asdict()
+    extra = scale_fields(result, prior) | {"gravity": gravity, "sphere_crop": sphere_crop}
     record = layout_record(layout, cam, name=name, world=world, extra=extra, image_size=file_size)
 
     def write_pictures(stem: str) -> None:

@@ -142,12 +142,12 @@ def _reconstruct_group(
                     item.path, f"{item.path}: the reconstruction failed ({type(error).__name__}: {first_line}){hint}"
                 )
             continue
-        for index, (path, name, image, rc, gravity, file_size) in enumerate(chunk):
+        for index, (path, name, image, rc, gravity, file_size, sphere_crop) in enumerate(chunk):
             one = jax.tree.map(lambda x: x[index], tuple(result))
             try:
                 record = write_outputs(
                     settings.out,
-                    ReconstructedImage(name, image, one, float(rc), gravity, file_size),
+                    ReconstructedImage(name, image, one, float(rc), gravity, file_size, sphere_crop),
                     settings.world,
                     export=settings.export,
                     prior=settings.prior,
@@ -332,7 +332,9 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                     tally.skipped(path, name)
                     continue
                 try:
-                    image, radius, file_size = read_image(path, rc, lambda line: tally.bar.write(line, file=sys.stderr))
+                    panorama, radius = read_image(
+                        path, rc, lambda line: tally.bar.write(line, file=sys.stderr), args.pad_to_sphere
+                    )
                 except PanoramaError as error:
                     tally.failed(path, str(error))
                     stop.check()
@@ -340,9 +342,9 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                 # a rig levelled by resampling keeps its optical centres on the tilted circle, which leaves about
                 # rc / range of its tilt (experiments/rig_tilt.py): far less than the tilt itself, if that is not tiny
                 min_tilt = MIN_RIG_TILT if radius > 0 else 0.0
-                image, gravity = align_to_gravity(image, min_tilt) if args.align else (image, None)
+                image, gravity = align_to_gravity(panorama.image, min_tilt) if args.align else (panorama.image, None)
                 group = groups[image.shape[:2]]
-                group.append(PendingImage(path, name, image, radius, gravity, file_size))
+                group.append(PendingImage(path, name, image, radius, gravity, panorama.file_size, panorama.crop))
                 if len(group) == batch_size:
                     reconstruct(group)
                     group.clear()
@@ -401,6 +403,14 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         help="keep a panorama as it is; by default its roll and pitch are estimated from the image's lines and "
         "undone before the network (the JSON records them): exactly for a central panorama, to about rc / range of "
         f"its tilt for a rig's (one tilted by less than {MIN_RIG_TILT:g} degrees is kept as it is)",
+    )
+    parser.add_argument(
+        "--pad-to-sphere",
+        action="store_true",
+        help="a panorama wider than 2:1 without photo-sphere metadata goes all the way round but not up to the "
+        "poles: pad it with black above and below to the full sphere, taking its rows as centred on the horizon "
+        "(square pixels); one whose XMP GPano metadata says where it lies is padded there without this option, and "
+        "the outputs' pixels are those of the full panorama (the JSON's sphere_crop gives the file's place in it)",
     )
     add_export_argument(parser)
     add_texture_argument(parser)

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 from ..geometry.gravity import panorama_size_error
-from ..io.images import PanoramaError, read_rgb
+from ..io.images import PanoramaError, read_image_file
+from ..io.photo_sphere import SphereCropError, pad_to_sphere, sphere_crop
 from ..network.checkpoint import load_model
 from ..network.model import HorizonNet
 from ..network.predict import default_model
@@ -189,11 +190,17 @@ def labelled_image_paths(directory: pathlib.Path) -> list[tuple[pathlib.Path, pa
 
 
 def read_labelled_image(path: pathlib.Path) -> np.ndarray:
-    """A full panorama file as RGB uint8 (H, W, 3), W = 2 H, at its own size (its label's pixels)."""
+    """A full panorama file as RGB uint8 (H, W, 3), W = 2 H, at its own size (its label's pixels); a photo sphere
+    padded to its full panorama at the file's scale (:mod:`ncjax.io.photo_sphere`), whose pixels its label gives."""
     try:
-        image = read_rgb(path)
+        image, data = read_image_file(path)
+        crop = sphere_crop(data, image.shape[1], image.shape[0], assume_horizon_centred=False)
     except PanoramaError as error:
         raise InputError(str(error)) from None
+    except SphereCropError as error:
+        raise InputError(f"{path}: {error}") from None
+    if crop is not None:
+        image = pad_to_sphere(image, crop, crop.full_width)
     size_error = panorama_size_error(image.shape[1], image.shape[0])
     if size_error:
         raise InputError(f"{path}: {size_error}")

@@ -9,14 +9,18 @@ Stitching tools often write a row or a column more or fewer: an image within
 :data:`ASPECT_TOLERANCE` of 2:1 is resized to exactly 2:1 with a
 :class:`PanoramaResizeWarning` (the rows then move by at most that fraction
 of their elevation, under a pixel for rows within 45 degrees of the horizon at
-512 rows); any other shape is refused. A panorama wider than :data:`MAX_WIDTH`
+512 rows). A file that goes all the way round but not up to the poles is padded
+with black to the full sphere (:mod:`ncjax.io.photo_sphere`): where its XMP
+GPano metadata places it (phone photo spheres, stitchers), or, asked to
+(``pad_to_sphere``), centred on the horizon. Any other shape is refused. A panorama wider than :data:`MAX_WIDTH`
 is reconstructed at ``MAX_WIDTH x MAX_WIDTH / 2`` (the same warning): the
 network reads 1024 x 512 anyway, 4096 columns gave no measurably smaller
 room-height error than 2048 on our renders (``experiments/resolution.py``),
 and memory and time grow with the image (a batch of four 4096 x 2048
 panoramas peaks at 5.6 GB, four 2048 x 1024 at 2.4 GB; 4096 columns take
 2.2-2.5 times as long). A resized panorama's layout is still exported in the
-pixels of the file as given: :func:`read_panorama_file` returns the file's size.
+pixels of the file as given, a padded one's in those of its full panorama at the
+file's scale: :func:`read_panorama_file` returns that size.
 """
 
 from __future__ import annotations
@@ -24,11 +28,14 @@ from __future__ import annotations
 import os
 import re
 import warnings
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from ..geometry.gravity import panorama_size_error
+from . import photo_sphere
+from .photo_sphere import SphereCrop, SphereCropError, sphere_crop, vertical_coverage
 
 ASPECT_TOLERANCE = 0.005  # relative departure of width / height from 2 that is resized instead of refused
 MAX_WIDTH = 2048  # the widest panorama ncjax reconstruct works at
@@ -43,6 +50,10 @@ class PanoramaError(ValueError):
 
 class PanoramaResizeWarning(UserWarning):
     """A panorama file a little off 2:1, or wider than :data:`MAX_WIDTH`, was resized (the message gives both sizes)."""
+
+
+class PanoramaPaddedWarning(PanoramaResizeWarning):
+    """A panorama file that covers only part of the sphere was padded to all of it (the message says how)."""
 
 
 def _truncation(data: bytes) -> str | None:
@@ -94,11 +105,11 @@ def working_size(width: int, height: int) -> tuple[int, str] | None:
     return min(2 * round(width / 2), MAX_WIDTH), " and ".join(reasons)
 
 
-def read_rgb(path: str | os.PathLike) -> np.ndarray:
-    """Read an image file as RGB uint8 (H, W, 3), at its own size.
+def read_image_file(path: str | os.PathLike) -> tuple[np.ndarray, bytes]:
+    """An image file as RGB uint8 (H, W, 3) at its own size, and the file's bytes (for its metadata).
 
     Raises:
-        PanoramaError: missing, unreadable, truncated, not an image, or an unsupported pixel format.
+        PanoramaError: as :func:`read_rgb`.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -117,37 +128,83 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
         image = to_rgb8(image)
     except PanoramaError as error:
         raise PanoramaError(f"{path}: {error}") from None
-    return image
+    return image, data
 
 
-def read_panorama(path: str | os.PathLike) -> np.ndarray:
-    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H (:func:`read_panorama_file` without the file's size)."""
-    return read_panorama_file(path)[0]
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """Read an image file as RGB uint8 (H, W, 3), at its own size.
+
+    Raises:
+        PanoramaError: missing, unreadable, truncated, not an image, or an unsupported pixel format.
+    """
+    return read_image_file(path)[0]
 
 
-def read_panorama_file(path: str | os.PathLike) -> tuple[np.ndarray, tuple[int, int]]:
-    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H, and the (W, H) of the file as given.
+def read_panorama(path: str | os.PathLike, pad_to_sphere: bool = False) -> np.ndarray:
+    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H (:func:`read_panorama_file`'s image)."""
+    return read_panorama_file(path, pad_to_sphere).image
 
-    The two sizes differ when the file was resized (below): the file's is the one whose pixels the
-    layout's exports give, the array's the one the panorama is reconstructed at.
+
+class PanoramaFile(NamedTuple):
+    """A panorama read from a file (:func:`read_panorama_file`).
+
+    Attributes:
+        image: the full panorama to reconstruct, RGB uint8 (H, W, 3), W = 2 H.
+        file_size: (W, H) of the panorama the file's pixels belong to: the file's own size, or for a file that
+            covers only part of the sphere (``crop``), its full panorama's at the file's scale. The layout's exports
+            give pixels of this size.
+        crop: where the file's pixels lie in that full panorama, or None for a file that is the full panorama.
+    """
+
+    image: np.ndarray
+    file_size: tuple[int, int]
+    crop: SphereCrop | None
+
+
+def read_panorama_file(path: str | os.PathLike, pad_to_sphere: bool = False) -> PanoramaFile:
+    """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H, and the size of the panorama its file's pixels belong to.
+
+    A file whose XMP GPano metadata places it in a larger full panorama (a photo sphere without its poles), or,
+    with ``pad_to_sphere``, a file wider than 2:1 (taken as centred on the horizon), is padded with black to its
+    full panorama (:mod:`ncjax.io.photo_sphere`), with a :class:`PanoramaPaddedWarning`. The returned sizes differ
+    when the file was resized or padded (below): the file's is the one whose pixels the layout's exports give, the
+    image's the one the panorama is reconstructed at.
 
     Warns:
         PanoramaResizeWarning: the file is within :data:`ASPECT_TOLERANCE` of
             2:1 and was resized to exactly 2:1, or it was wider than
             :data:`MAX_WIDTH` and was resized to that width.
+        PanoramaPaddedWarning: the file covers only part of the sphere and was padded to all of it.
 
     Raises:
         PanoramaError: missing, unreadable, truncated, not an image, an
-            unsupported pixel format, or not 2:1.
+            unsupported pixel format, unusable photo-sphere metadata, not the full circle, or not 2:1.
     """
-    image = read_rgb(path)
-    file_size = (image.shape[1], image.shape[0])
+    image, data = read_image_file(path)
+    height, width = image.shape[:2]
+    try:
+        crop = sphere_crop(data, width, height, pad_to_sphere)
+    except SphereCropError as error:
+        raise PanoramaError(f"{path}: {error}") from None
+    if crop is not None:
+        working_width = min(2 * (crop.full_width // 2), MAX_WIDTH)
+        padded = photo_sphere.pad_to_sphere(image, crop, working_width)
+        top, bottom = vertical_coverage(crop)
+        warnings.warn(
+            f"{path}: {width} x {height} pixels cover elevations {top:+.0f} to {bottom:+.0f} degrees of a "
+            f"{crop.full_width} x {crop.full_height} panorama ({crop.source}); padded with black to the full sphere, "
+            f"reconstructed at {padded.shape[1]} x {padded.shape[0]}",
+            PanoramaPaddedWarning,
+            stacklevel=2,
+        )
+        return PanoramaFile(padded, (crop.full_width, crop.full_height), crop)
+    file_size = (width, height)
     resize = working_size(*file_size)
     if resize is not None:
-        width, reason = resize
-        resized = cv2.resize(image, (width, width // 2), interpolation=cv2.INTER_AREA)
+        working_width, reason = resize
+        resized = cv2.resize(image, (working_width, working_width // 2), interpolation=cv2.INTER_AREA)
         warnings.warn(
-            f"{path}: {image.shape[1]} x {image.shape[0]} pixels {reason}; "
+            f"{path}: {width} x {height} pixels {reason}; "
             f"resized to {resized.shape[1]} x {resized.shape[0]} as a full 360 x 180 degree panorama",
             PanoramaResizeWarning,
             stacklevel=2,
@@ -155,8 +212,14 @@ def read_panorama_file(path: str | os.PathLike) -> tuple[np.ndarray, tuple[int, 
         image = resized
     size_error = panorama_size_error(*image.shape[1::-1])
     if size_error:
-        raise PanoramaError(f"{path}: {size_error}")
-    return image, file_size
+        hint = (
+            "; one that goes all the way round and is centred on the horizon can be padded to the full sphere "
+            "(--pad-to-sphere, pad_to_sphere=True)"
+            if image.shape[1] > 2 * image.shape[0]
+            else ""
+        )
+        raise PanoramaError(f"{path}: {size_error}{hint}")
+    return PanoramaFile(image, file_size, None)
 
 
 def check_rgb(image) -> np.ndarray:

@@ -1,0 +1,156 @@
+"""Panoramas that cover the full circle but not the poles: their XMP GPano place, and the padding to the full sphere."""
+
+import struct
+
+import cv2
+import numpy as np
+import pytest
+
+from ncjax.io.images import PanoramaError, PanoramaPaddedWarning, read_panorama, read_panorama_file
+from ncjax.io.photo_sphere import (
+    SphereCrop,
+    SphereCropError,
+    gpano_crop,
+    gpano_fields,
+    gpano_packet,
+    pad_to_sphere,
+    png_with_xmp,
+    vertical_coverage,
+)
+
+
+def gpano_xmp(fields: dict, elements: bool = False) -> bytes:
+    """An XMP packet holding ``fields`` in the GPano namespace, as attributes or as elements."""
+    if elements:
+        body = "".join(f"<GPano:{k}>{v}</GPano:{k}>" for k, v in fields.items())
+        description = f'<rdf:Description rdf:about="">{body}</rdf:Description>'
+    else:
+        attributes = " ".join(f'GPano:{k}="{v}"' for k, v in fields.items())
+        description = f'<rdf:Description rdf:about="" {attributes}/>'
+    return (
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#" '
+        f'xmlns:GPano="http://ns.google.com/photos/1.0/panorama/">{description}</rdf:RDF></x:xmpmeta>'
+    ).encode()
+
+
+def jpeg_with_xmp(rgb: np.ndarray, xmp: bytes) -> bytes:
+    """A JPEG of ``rgb`` with ``xmp`` in an APP1 segment right after SOI, as cameras write it."""
+    jpeg = cv2.imencode(".jpg", rgb[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    payload = b"http://ns.adobe.com/xap/1.0/\x00" + xmp
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(payload) + 2) + payload + jpeg[2:]
+
+
+def sphere_fields(full=(2048, 1024), crop=(2048, 640), left=0, top=192, **more):
+    return {
+        "ProjectionType": "equirectangular",
+        "FullPanoWidthPixels": full[0],
+        "FullPanoHeightPixels": full[1],
+        "CroppedAreaImageWidthPixels": crop[0],
+        "CroppedAreaImageHeightPixels": crop[1],
+        "CroppedAreaLeftPixels": left,
+        "CroppedAreaTopPixels": top,
+        **more,
+    }
+
+
+def test_gpano_fields_read_attributes_and_elements_alike():
+    fields = sphere_fields()
+    for elements in (False, True):
+        read = gpano_fields(b"\xff\xd8 some bytes " + gpano_xmp(fields, elements) + b" more bytes")
+        assert {k: read[k] for k in fields} == {k: str(v) for k, v in fields.items()}
+    assert gpano_fields(b'no packet GPano:FullPanoWidthPixels="2048"') == {}  # only inside an XMP packet
+
+
+def test_gpano_packet_is_read_back_as_its_crop():
+    crop = SphereCrop(4096, 2048, 100, 300, 4096, 1200, "XMP GPano")
+    assert gpano_crop(gpano_fields(png_with_xmp(np.zeros((4, 8, 3), np.uint8), gpano_packet(crop))), 4096, 1200) == crop
+
+
+def test_gpano_crop_is_scaled_to_a_file_resized_after_its_metadata():
+    crop = gpano_crop({k: str(v) for k, v in sphere_fields().items()}, 2048, 640)
+    assert crop[:6] == (2048, 1024, 0, 192, 2048, 640)
+    half = gpano_crop({k: str(v) for k, v in sphere_fields(left=100).items()}, 1024, 320)
+    assert half[:6] == (1024, 512, 50, 96, 1024, 320)
+    assert vertical_coverage(crop) == pytest.approx((90 - 192 * 180 / 1024, 90 - 832 * 180 / 1024))
+    # the full panorama itself, or no place at all, is no crop
+    assert gpano_crop({k: str(v) for k, v in sphere_fields(crop=(2048, 1024), top=0).items()}, 2048, 1024) is None
+    assert gpano_crop({"ProjectionType": "equirectangular"}, 2048, 640) is None
+
+
+@pytest.mark.parametrize(
+    "fields, size, message",
+    [
+        (sphere_fields(crop=(1536, 640)), (1536, 640), "covers 270 of 360 degrees around"),
+        (sphere_fields(ProjectionType="cylindrical"), (2048, 640), "projection is 'cylindrical'"),
+        (sphere_fields(top=500), (2048, 640), "lie outside its full panorama"),
+        (sphere_fields(), (2048, 700), "which a 2048 x 700 image is not"),
+        (sphere_fields(full=(2048, 800)), (2048, 640), "not 360 x 180 degrees"),
+        (sphere_fields(CroppedAreaTopPixels="top"), (2048, 640), "is not a number"),
+        ({"FullPanoWidthPixels": "2048"}, (2048, 640), "has no FullPanoHeightPixels"),
+    ],
+    ids=["partial-circle", "projection", "outside", "shape", "full-not-2-to-1", "not-a-number", "missing"],
+)
+def test_unusable_gpano_metadata_is_refused_with_its_reason(fields, size, message):
+    with pytest.raises(SphereCropError, match=message):
+        gpano_crop({k: str(v) for k, v in fields.items()}, *size)
+
+
+def test_pad_to_sphere_places_the_rows_and_turns_the_columns():
+    rng = np.random.default_rng(0)
+    image = rng.integers(1, 256, (40, 128, 3), dtype=np.uint8)
+    crop = gpano_crop({k: str(v) for k, v in sphere_fields((128, 64), (128, 40), left=8, top=10).items()}, 128, 40)
+    full = pad_to_sphere(image, crop, 128)
+    assert full.shape == (64, 128, 3)
+    assert np.array_equal(full[10:50], np.roll(image, 8, axis=1))  # file column c is the full panorama's c + left
+    assert not full[:10].any() and not full[50:].any()
+
+
+@pytest.mark.parametrize("container", ["png", "jpeg"])
+def test_a_photo_sphere_is_read_padded_to_its_full_panorama(tmp_path, container):
+    rng = np.random.default_rng(1)
+    full = cv2.resize(rng.integers(0, 256, (32, 64, 3), dtype=np.uint8), (512, 256), interpolation=cv2.INTER_CUBIC)
+    rows = full[48:208]  # elevations +56.25 to -56.25 degrees
+    xmp = gpano_xmp(sphere_fields((512, 256), (512, 160), top=48))
+    path = tmp_path / f"sphere.{container}"
+    path.write_bytes((png_with_xmp if container == "png" else jpeg_with_xmp)(rows, xmp))
+    message = "512 x 160 pixels cover elevations \\+56 to -56 degrees of a 512 x 256 panorama \\(XMP GPano\\)"
+    with pytest.warns(PanoramaPaddedWarning, match=message):
+        image, file_size, crop = read_panorama_file(path)
+    assert image.shape == (256, 512, 3) and file_size == (512, 256) and crop.top == 48
+    assert not image[:48].any() and not image[208:].any()
+    tolerance = 0 if container == "png" else 4  # JPEG's loss
+    assert np.abs(image[48:208].astype(int) - rows.astype(int)).mean() <= tolerance
+
+
+def test_a_panorama_wider_than_2_to_1_is_padded_about_the_horizon_only_when_asked(tmp_path):
+    rows = np.full((200, 512, 3), 90, np.uint8)
+    path = tmp_path / "band.png"
+    assert cv2.imwrite(str(path), rows)
+    with pytest.raises(PanoramaError, match="512 x 200 pixels is not a full 360 x 180 .*\\(--pad-to-sphere"):
+        read_panorama(path)
+    with pytest.warns(PanoramaPaddedWarning, match="\\(--pad-to-sphere\\)"):
+        image = read_panorama(path, pad_to_sphere=True)
+    assert image.shape == (256, 512, 3)
+    assert not image[:28].any() and (image[28:228] == 90).all() and not image[228:].any()
+    # taller than 2:1 is no partial sphere: still refused
+    tall = tmp_path / "tall.png"
+    assert cv2.imwrite(str(tall), np.zeros((300, 512, 3), np.uint8))
+    with pytest.raises(PanoramaError, match="not a full 360 x 180 degree panorama \\(width must be 2 x height"):
+        read_panorama(tall, pad_to_sphere=True)
+
+
+def test_a_photo_sphere_that_misses_part_of_the_circle_is_refused(tmp_path):
+    path = tmp_path / "partial.png"
+    path.write_bytes(png_with_xmp(np.zeros((160, 384, 3), np.uint8), gpano_xmp(sphere_fields((512, 256), (384, 160)))))
+    with pytest.raises(PanoramaError, match="partial.png: it covers 270 of 360 degrees around"):
+        read_panorama(path)
+
+
+def test_a_wide_photo_sphere_is_padded_at_the_working_width(tmp_path):
+    rows = np.full((1000, 4096, 3), 200, np.uint8)
+    path = tmp_path / "big.png"
+    path.write_bytes(png_with_xmp(rows, gpano_xmp(sphere_fields((4096, 2048), (4096, 1000), top=500))))
+    with pytest.warns(PanoramaPaddedWarning, match="reconstructed at 2048 x 1024"):
+        image, file_size, crop = read_panorama_file(path)
+    assert image.shape == (1024, 2048, 3) and file_size == (4096, 2048)
+    assert not image[:250].any() and (image[250:750] == 200).all() and not image[750:].any()
