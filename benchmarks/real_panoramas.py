@@ -41,6 +41,7 @@ import argparse
 import os
 import pathlib
 import sys
+from collections.abc import Callable
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads busy-wait on a loaded CPU
 
@@ -89,8 +90,9 @@ def parse_arguments(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def run(args: argparse.Namespace) -> None:
-    """Score every labelled panorama of ``args.data``, print the table, write the CSV and the contact sheet."""
+def run(args: argparse.Namespace, transform: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+    """Score every labelled panorama of ``args.data``, print the table, write the CSV and the contact sheet;
+    ``transform`` (RGB uint8 in and out, the same size) changes each image before the network and the sheet."""
     panoramas = load_panoramas(args.data, args.limit)
     if args.out.exists() and not args.out.is_dir():
         raise InputError(f"--out {args.out} exists and is not a folder")
@@ -100,6 +102,7 @@ def run(args: argparse.Namespace) -> None:
     tqdm.write(table_header())
     for panorama in tqdm(panoramas, desc="panoramas", unit="image"):
         image = read_labelled_image(panorama.image_path)
+        image = image if transform is None else transform(image)
         prediction = tuple(np.asarray(a, np.float64) for a in ncjax.predict_boundaries(image, model, views=args.views))
         peaks = predicted_corners(prediction[2], config)
         scores = score_image(panorama, prediction[0], prediction[1], peaks)

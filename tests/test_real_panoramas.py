@@ -163,3 +163,43 @@ def test_benchmark_on_renders(rendered_folder, tmp_path):
         for key in ("precision_1pct", "recall_1pct", "precision_2.5pct", "recall_2.5pct", "iou_2d", "iou_3d"):
             assert 0.0 <= figures[key] <= 1.0
         assert figures["iou_2d"] > 0.8 and figures["iou_3d"] > 0.7
+
+
+def scored_rows(out: Path) -> dict[str, dict[str, float]]:
+    with open(out / "real_panoramas.csv") as file:
+        return {
+            row["name"]: {k: float(v) for k, v in row.items() if k not in ("name", "tags")}
+            for row in csv.DictReader(file)
+        }
+
+
+@pytest.mark.slow
+def test_benchmark_pads_photo_spheres_and_applies_a_transform(rendered_folder, tmp_path):
+    """The renders cut to photo spheres (rows within 70 degrees of the horizon, XMP GPano) score in their full
+    panoramas' pixels, as the renders do; a transform given to ``run`` reaches the network."""
+    from ncjax.io.photo_sphere import SphereCrop, gpano_packet, png_with_xmp
+
+    folder, names = rendered_folder
+    spheres = tmp_path / "spheres"
+    spheres.mkdir()
+    crop = SphereCrop(WIDTH, HEIGHT, 0, HEIGHT // 9, WIDTH, HEIGHT - 2 * (HEIGHT // 9), "XMP GPano")
+    for name in names:
+        image = cv2.imread(str(folder / "img" / f"{name}.png"))[..., ::-1]
+        rows = image[crop.top : crop.top + crop.height]
+        (spheres / f"{name}.png").write_bytes(png_with_xmp(rows, gpano_packet(crop)))
+        (spheres / f"{name}.txt").write_bytes((folder / "label_cor" / f"{name}.txt").read_bytes())
+    module = benchmark_module()
+    runs = {}
+    for run, data, transform in (
+        ("full", folder, None),
+        ("spheres", spheres, None),
+        ("blacked out", folder, lambda image: np.zeros_like(image)),
+    ):
+        args = module.parse_arguments(["--data", str(data), "--out", str(tmp_path / run), "--views", "1"])
+        module.run(args, transform)
+        runs[run] = scored_rows(tmp_path / run)
+    for name in names:
+        full, sphere = runs["full"][name], runs["spheres"][name]
+        assert sphere["floor_error_px"] < full["floor_error_px"] + 2.0, (full, sphere)
+        assert sphere["ceiling_error_px"] < full["ceiling_error_px"] + 2.0, (full, sphere)
+        assert runs["blacked out"][name]["floor_error_px"] > full["floor_error_px"] + 10.0

@@ -67,7 +67,7 @@ def radius_of(path: str, rc: float | None) -> float:
     if from_name is None:
         raise PanoramaError(
             f"{path}: --rc auto needs the radius in the file name, e.g. L101_R06101.png for rc = 0.6101 m; "
-            "pass --rc RADIUS instead"
+            "pass --rc RADIUS instead (--rc 0 for an ordinary 360-degree camera)"
         )
     if not 0.0 < from_name <= MAX_RC:
         raise PanoramaError(f"{path}: the radius in the file name, {from_name} m, is not in (0, {MAX_RC}] m")
