@@ -50,6 +50,7 @@ from ncjax.reconstruction import NETWORK_PIPELINE_CONFIG, reconstruct_batch
 from ncjax.synth.augment import random_augment
 from ncjax.synth.dataset import list_samples, read_sample, rendering_rgb8, write_dataset
 from ncjax.synth.rooms import RoomConfig
+from ncjax.synth.scene import SceneConfig
 from ncjax.training.data import SYNTH_SOURCES
 from ncjax.viz.plan import CHI2_2D_95
 
@@ -397,11 +398,32 @@ def single_view_rows(image: np.ndarray, model) -> list[Rows]:
     return [Rows(*rows) for rows in views]
 
 
-def source_config(kind: str, rooms: dict[str, tuple[float, float]]):
+def source_config(kind: str, rooms: dict[str, tuple[float, float]], scene: dict[str, float] | None = None):
     """The :class:`~ncjax.synth.render.SynthConfig` of a training source, its ``RoomConfig`` ranges replaced by
-    ``rooms`` (:func:`room_ranges`); ``RoomConfig`` checks them together (the camera below the ceiling, ...)."""
+    ``rooms`` (:func:`room_ranges`; ``RoomConfig`` checks them together: the camera below the ceiling, ...) and its
+    ``SceneConfig`` probabilities by ``scene`` (:func:`scene_probabilities`)."""
     config = SYNTH_SOURCES[kind]
-    return dataclasses.replace(config, room=dataclasses.replace(config.room, **rooms))
+    return dataclasses.replace(
+        config,
+        room=dataclasses.replace(config.room, **rooms),
+        scene=dataclasses.replace(config.scene, **(scene or {})),
+    )
+
+
+def scene_probabilities(settings: list[str]) -> dict[str, float]:
+    """``--scene`` settings ``FIELD=P`` as :class:`~ncjax.synth.scene.SceneConfig` probability fields."""
+    probabilities = {}
+    for setting in settings:
+        field, _, value = setting.partition("=")
+        if not field.endswith("_probability") or field not in SceneConfig.__dataclass_fields__:
+            raise ValueError(f"--scene {setting!r}: not a probability of SceneConfig (furniture_probability, ...)")
+        try:
+            probabilities[field] = float(value)
+        except ValueError:
+            raise ValueError(f"--scene {setting!r}: expected {field}=P, a probability") from None
+        if not 0.0 <= probabilities[field] <= 1.0:
+            raise ValueError(f"--scene {setting!r}: a probability is in [0, 1]")
+    return probabilities
 
 
 def room_ranges(settings: list[str]) -> dict[str, tuple[float, float]]:

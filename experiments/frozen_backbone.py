@@ -22,7 +22,8 @@ same rooms read the photographs' mean floor within 0.1-0.4 px of one another, th
 (experiments/RESULTS.md). The final weights go to ``--export`` (float16), a model file ``--model`` of
 ``benchmarks/real_panoramas.py``, ``benchmarks/central_layouts.py`` and ``experiments/network_table.py``
 takes. ``--room FIELD=LOW:HIGH`` renders every source's rooms with that ``RoomConfig`` range instead (the capture
-geometry of photographs: ``experiments/capture_geometry.py``); ``--statistics-noise P`` moves the maps' per-image
+geometry of photographs: ``experiments/capture_geometry.py``), ``--scene FIELD=P`` with that ``SceneConfig``
+probability (``furniture_probability=0``: empty rooms); ``--statistics-noise P`` moves the maps' per-image
 channel statistics at random while the head trains (:func:`perturbed_statistics`).
 
     uv run python experiments/frozen_backbone.py --data synth-decor-home:601:500 synth-decor-open:602:500 \\
@@ -60,7 +61,7 @@ from ncjax.training.loop import (
     set_train_mode,
 )
 
-from common import room_ranges, source_config
+from common import room_ranges, scene_probabilities, source_config
 
 OUT = pathlib.Path(__file__).parent / "out"
 HEIGHT, WIDTH = 512, 1024
@@ -119,15 +120,20 @@ def _augmented(key: jax.Array, batch: dict[str, jax.Array]) -> dict[str, jax.Arr
 
 
 def cached_features(
-    source: str, backbone: str, model: HorizonNet, rooms: dict[str, tuple[float, float]]
+    source: str,
+    backbone: str,
+    model: HorizonNet,
+    rooms: dict[str, tuple[float, float]],
+    scene: dict[str, float] | None = None,
 ) -> dict[str, dict[str, np.ndarray]]:
     """Per split (train, valid), the frozen backbone's maps (``map0``..``map3``, float16) of ``source``'s rooms (their
-    ``RoomConfig`` ranges replaced by ``rooms``) through one random training camera each, and their labels; computed
-    once, then read from the cache."""
+    ``RoomConfig`` ranges replaced by ``rooms``, their ``SceneConfig`` probabilities by ``scene``) through one random
+    training camera each, and their labels; computed once, then read from the cache."""
     kind = source.split(":")[0]
     seed, count = parse_synth_source(source)
-    config = source_config(kind, rooms)
+    config = source_config(kind, rooms, scene)
     changed = "".join(f"_{field.removesuffix('_range')}{low:g}-{high:g}" for field, (low, high) in rooms.items())
+    changed += "".join(f"_{field.removesuffix('_probability')}{p:g}" for field, p in (scene or {}).items())
     path = OUT / f"frozen_{backbone}_{kind}_{seed}_{count}{changed}.npz"
     if path.exists():
         with np.load(path) as stored:
@@ -281,6 +287,14 @@ def main(argv: list[str] | None = None) -> int:
         metavar="FIELD=LOW:HIGH",
         help="a RoomConfig range for every source's rooms (repeatable): camera_height_range=1.35:1.75, ...",
     )
+    parser.add_argument(
+        "--scene",
+        action="append",
+        default=[],
+        metavar="FIELD=P",
+        help="a SceneConfig probability for every source's rooms (repeatable): furniture_probability=0 (empty "
+        "rooms), ...",
+    )
     parser.add_argument("--time-budget", type=float, default=float("inf"), help="seconds of training, then stop")
     parser.add_argument("--validation-limit", type=int, default=64)
     parser.add_argument("--checkpoint", type=pathlib.Path, help="default: next to --export")
@@ -290,9 +304,9 @@ def main(argv: list[str] | None = None) -> int:
         for source in args.data:
             if parse_synth_source(source) is None:
                 raise ValueError(f"{source!r} is not a rendered source KIND:SEED:N ({', '.join(SYNTH_SOURCES)})")
-        rooms = room_ranges(args.room)
+        rooms, scene = room_ranges(args.room), scene_probabilities(args.scene)
         for source in args.data:
-            source_config(source.split(":")[0], rooms)
+            source_config(source.split(":")[0], rooms, scene)
         model = frozen_model(args.backbone, args.init_head)
     except (ValueError, FileNotFoundError) as error:
         print(f"frozen_backbone: error: {error}", file=sys.stderr)
@@ -300,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     checkpoint = args.checkpoint or args.export.with_suffix(".checkpoint.safetensors")
 
     model.eval()
-    cached = [cached_features(source, args.backbone, model, rooms) for source in args.data]
+    cached = [cached_features(source, args.backbone, model, rooms, scene) for source in args.data]
     train_arrays, valid = (
         {k: np.concatenate([c[split][k] for c in cached]) for k in cached[0][split]} for split in ("train", "valid")
     )

@@ -320,6 +320,26 @@ def test_frozen_backbone_refuses_a_room_setting_before_any_work(tmp_path, capsys
     assert not list(tmp_path.iterdir())
 
 
+def test_frozen_backbone_scene_settings_reach_the_rooms_and_bad_ones_are_refused_before_any_work(tmp_path, capsys):
+    module = experiment("frozen_backbone")
+    common = experiment("common")
+    empty = common.source_config("synth-decor-home", {}, common.scene_probabilities(["furniture_probability=0"]))
+    assert empty.scene.furniture_probability == 0.0
+    assert (
+        empty.scene.neutral_paint_probability
+        == common.SYNTH_SOURCES["synth-decor-home"].scene.neutral_paint_probability
+    )
+    export = str(tmp_path / "m.safetensors")
+    for setting, message in [
+        ("furniture_slots=0", "not a probability of SceneConfig"),
+        ("furniture_probability=none", "expected furniture_probability=P"),
+        ("furniture_probability=1.5", "a probability is in [0, 1]"),
+    ]:
+        assert module.main(["--data", "synth-decor-home:1:2", "--scene", setting, "--export", export]) == 2
+        assert message in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
 def test_frozen_backbone_statistics_noise_moves_each_image_by_the_batchs_spread():
     module = experiment("frozen_backbone")
     rng = np.random.default_rng(0)
