@@ -307,37 +307,32 @@ def test_frozen_backbone_refuses_a_source_it_cannot_render_before_any_work(tmp_p
     assert not list(tmp_path.iterdir())
 
 
-def test_frozen_backbone_refuses_a_room_setting_before_any_work(tmp_path, capsys):
+@pytest.mark.parametrize(
+    "option, setting, message",
+    [
+        ("--room", "colour_range=1:2", "not a range of RoomConfig"),
+        ("--room", "size_range=big", "expected size_range=LOW:HIGH"),
+        ("--room", "camera_height_range=1:2.5", "the camera must stay below the ceiling"),
+        ("--scene", "furniture_slots=0", "not a probability of SceneConfig"),
+        ("--scene", "furniture_probability=none", "expected furniture_probability=P"),
+        ("--scene", "furniture_probability=1.5", "a probability is in [0, 1]"),
+    ],
+)
+def test_frozen_backbone_refuses_a_room_or_scene_setting_before_any_work(tmp_path, capsys, option, setting, message):
     module = experiment("frozen_backbone")
     export = str(tmp_path / "m.safetensors")
-    for setting, message in [
-        ("colour_range=1:2", "not a range of RoomConfig"),
-        ("size_range=big", "expected size_range=LOW:HIGH"),
-        ("camera_height_range=1:2.5", "the camera must stay below the ceiling"),
-    ]:
-        assert module.main(["--data", "synth-decor-home:1:2", "--room", setting, "--export", export]) == 2
-        assert message in capsys.readouterr().err
+    assert module.main(["--data", "synth-decor-home:1:2", option, setting, "--export", export]) == 2
+    assert message in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
 
 
-def test_frozen_backbone_scene_settings_reach_the_rooms_and_bad_ones_are_refused_before_any_work(tmp_path, capsys):
-    module = experiment("frozen_backbone")
+def test_frozen_backbone_scene_settings_reach_the_rooms():
     common = experiment("common")
+    home = common.SYNTH_SOURCES["synth-decor-home"]
     empty = common.source_config("synth-decor-home", {}, common.scene_probabilities(["furniture_probability=0"]))
-    assert empty.scene.furniture_probability == 0.0
-    assert (
-        empty.scene.neutral_paint_probability
-        == common.SYNTH_SOURCES["synth-decor-home"].scene.neutral_paint_probability
-    )
-    export = str(tmp_path / "m.safetensors")
-    for setting, message in [
-        ("furniture_slots=0", "not a probability of SceneConfig"),
-        ("furniture_probability=none", "expected furniture_probability=P"),
-        ("furniture_probability=1.5", "a probability is in [0, 1]"),
-    ]:
-        assert module.main(["--data", "synth-decor-home:1:2", "--scene", setting, "--export", export]) == 2
-        assert message in capsys.readouterr().err
-    assert not list(tmp_path.iterdir())
+    assert empty.scene.furniture_probability == 0.0 and home.scene.furniture_probability > 0.0
+    assert empty.scene.neutral_paint_probability == home.scene.neutral_paint_probability
+    assert empty.room == home.room
 
 
 def test_frozen_backbone_statistics_noise_moves_each_image_by_the_batchs_spread():
