@@ -14,6 +14,7 @@ from ncjax.io.photo_sphere import (
     gpano_fields,
     gpano_packet,
     pad_to_sphere,
+    photographed_pixels,
     png_with_xmp,
     vertical_coverage,
 )
@@ -103,6 +104,23 @@ def test_pad_to_sphere_places_the_rows_and_turns_the_columns():
     assert full.shape == (64, 128, 3)
     assert np.array_equal(full[10:50], np.roll(image, 8, axis=1))  # file column c is the full panorama's c + left
     assert not full[:10].any() and not full[50:].any()
+    assert np.array_equal(photographed_pixels(crop, 128), full.any(axis=-1))
+
+
+def test_the_photographed_part_of_a_levelled_photo_sphere_is_levelled_with_it():
+    from ncjax.cli.outputs import photographed_part
+    from ncjax.geometry.levelling import level_panorama
+
+    crop = SphereCrop(512, 256, 0, 48, 512, 160, "XMP GPano")
+    image = pad_to_sphere(np.full((160, 512, 3), 200, np.uint8), crop, 512)
+    assert photographed_part(image, None, None) is None
+    assert np.array_equal(photographed_part(image, crop, {"rotation": None}), image.any(axis=-1))
+    angle = np.radians(4.0)
+    rotation = np.array([[1, 0, 0], [0, np.cos(angle), -np.sin(angle)], [0, np.sin(angle), np.cos(angle)]])
+    levelled = level_panorama(image, rotation)
+    part = photographed_part(levelled, crop, {"rotation": rotation.tolist()})
+    assert not np.array_equal(part, image.any(axis=-1))  # the band's edges moved with the image
+    assert (part == (levelled.max(axis=-1) > 100)).mean() > 0.995  # all but the edges' blended pixels
 
 
 @pytest.mark.parametrize("container", ["png", "jpeg"])

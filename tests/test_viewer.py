@@ -120,6 +120,28 @@ def test_what_no_ray_sees_is_marked_not_smeared():
     assert 0.02 < room.unseen.mean() < 0.6
 
 
+def test_what_the_photograph_does_not_hold_is_unseen():
+    # a photo sphere padded to the full sphere: rows above 45 degrees were never photographed
+    layout = make_layout(RECTANGLE)
+    photographed = np.zeros((HEIGHT, WIDTH), bool)
+    photographed[HEIGHT // 4 :] = True
+    whole = textured_room(layout, direction_panorama(), CAM, texture_size=256)
+    padded = textured_room(layout, direction_panorama(), CAM, texture_size=256, photographed=photographed)
+    ceiling = padded.surfaces[-1]
+    weights = np.linalg.lstsq(np.c_[ceiling.vertices[:, :2], np.ones(len(ceiling.vertices))], ceiling.uv, rcond=None)
+    uv = np.r_[0.5, 0.3, 1.0] @ weights[0]  # the ceiling above the camera's side: elevation over 45 degrees
+    size = padded.texture.shape[0]
+    row, column = int((1 - uv[1]) * size), int(uv[0] * size)
+    assert padded.unseen[row, column] and not whole.unseen[row, column]
+    assert tuple(padded.texture[row, column]) == UNSEEN_COLOUR
+    # the walls' lower parts and the floor stay as they were; only texels the padding takes become unseen
+    assert not (whole.unseen & ~padded.unseen).any()
+    changed = padded.unseen & ~whole.unseen
+    assert changed.any() and np.array_equal(padded.texture[~padded.unseen], whole.texture[~padded.unseen])
+    everywhere = textured_room(layout, direction_panorama(), CAM, 256, np.ones((HEIGHT, WIDTH), bool))
+    assert np.array_equal(everywhere.texture, whole.texture) and np.array_equal(everywhere.unseen, whole.unseen)
+
+
 def test_texture_size_is_a_setting():
     layout = make_layout(L_SHAPE)
     for size in (64, 300):

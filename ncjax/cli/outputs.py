@@ -173,7 +173,7 @@ def write_outputs(
         drawn = pictures.submit(write_pictures, stem)
         write_json(f"{stem}.json", record)
         if has_geometry(layout):
-            room = textured_room(layout, image, cam, texture_size)
+            room = textured_room(layout, image, cam, texture_size, photographed_part(image, crop, gravity))
             write_mesh(stem, layout, room)
             write_viewer(f"{stem}.html", room, record)
             try:
@@ -184,6 +184,21 @@ def write_outputs(
                 print(f"{name}: layout formats not written ({error})", file=sys.stderr)
         drawn.result()  # its error, if any, is this image's: nothing is renamed into out
     return record
+
+
+def photographed_part(image: np.ndarray, crop: SphereCrop | None, gravity: dict | None) -> np.ndarray | None:
+    """Where ``image``, a photo sphere padded to the full sphere (``crop``) and maybe levelled (``gravity``), holds
+    the photograph, (H, W) bool; None for a file that was the full panorama."""
+    if crop is None:
+        return None
+    from ..io.photo_sphere import photographed_pixels
+
+    photographed = photographed_pixels(crop, image.shape[1])
+    if gravity is None or gravity["rotation"] is None:
+        return photographed
+    from ..geometry.levelling import level_panorama
+
+    return level_panorama(photographed.astype(np.uint8), np.array(gravity["rotation"]), "nearest").astype(bool)
 
 
 def align_to_gravity(image: np.ndarray, min_tilt: float = 0.0) -> tuple[np.ndarray, dict]:

@@ -155,21 +155,35 @@ def vertical_coverage(crop: SphereCrop) -> tuple[float, float]:
     return 90.0 - crop.top * degrees_per_row, 90.0 - (crop.top + crop.height) * degrees_per_row
 
 
+def padded_rows(crop: SphereCrop, width: int) -> tuple[int, int]:
+    """The first row and the number of rows the image of ``crop`` takes in its full panorama at ``width`` columns."""
+    factor = width / crop.full_width
+    rows = max(1, min(round(crop.height * factor), width // 2))
+    return min(round(crop.top * factor), width // 2 - rows), rows
+
+
 def pad_to_sphere(image: np.ndarray, crop: SphereCrop, width: int) -> np.ndarray:
     """``image`` (H, W, C) put into its full panorama at ``width`` columns (``width / 2`` rows), black elsewhere.
 
     The image is resized by ``width / crop.full_width`` (area interpolation when shrinking) and turned to the full
-    panorama's first column; its rows are placed at ``crop.top`` times that factor.
+    panorama's first column; its rows are placed at :func:`padded_rows`.
     """
     factor = width / crop.full_width
-    rows = max(1, min(round(image.shape[0] * factor), width // 2))
+    top, rows = padded_rows(crop, width)
     interpolation = cv2.INTER_AREA if factor < 1 else cv2.INTER_LINEAR
     resized = cv2.resize(image, (width, rows), interpolation=interpolation) if factor != 1 else image
     resized = np.roll(resized, round(crop.left * factor), axis=1)
-    top = min(round(crop.top * factor), width // 2 - rows)
     full = np.zeros((width // 2, width, *image.shape[2:]), image.dtype)
     full[top : top + rows] = resized
     return full
+
+
+def photographed_pixels(crop: SphereCrop, width: int) -> np.ndarray:
+    """Where the full panorama of ``crop`` at ``width`` columns holds the image (:func:`pad_to_sphere`), (H, W) bool."""
+    top, rows = padded_rows(crop, width)
+    photographed = np.zeros((width // 2, width), bool)
+    photographed[top : top + rows] = True
+    return photographed
 
 
 def gpano_packet(crop: SphereCrop) -> bytes:

@@ -6,8 +6,9 @@ floor and the ceiling their plan's bounding box. A texel is the surface point at
 the panorama's at :func:`~ncjax.geometry.camera.project` of that point, bilinear, so a non-central panorama's
 texture is placed by its own rays. A point that no ray of the panorama sees gets :data:`UNSEEN_COLOUR`
 instead of a colour smeared from elsewhere: a point inside the circle of optical centres, a point whose ray
-from its optical centre crosses another wall of the layout first (hidden by an occlusion), and every
-point of a wall inserted for an occlusion (the panorama shows what stands in front of it).
+from its optical centre crosses another wall of the layout first (hidden by an occlusion), every
+point of a wall inserted for an occlusion (the panorama shows what stands in front of it), and a point whose
+pixel the photograph does not hold (a photo sphere's padding).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ def textured_room(
     image: UInt8[np.ndarray, "H W 3"],
     cam: NonCentralPanorama,
     texture_size: int | None = None,
+    photographed: Bool[np.ndarray, "H W"] | None = None,
 ) -> TexturedRoom:
     """The room of ``layout`` with ``image`` resampled onto its walls, floor and ceiling.
 
@@ -47,6 +49,8 @@ def textured_room(
         texture_size: the side N of the square texture, in texels; the charts are scaled together to fill it.
             None: the panorama's width (at least :data:`MIN_TEXTURE_SIZE`). The texture then has twice the
             panorama's pixels, as many as carry its detail onto the near floor and walls, and stays small.
+        photographed: where ``image`` holds the photograph (None: everywhere); a texel whose pixels fall outside
+            it is unseen (a photo sphere padded to the full sphere, :mod:`ncjax.io.photo_sphere`).
 
     Returns:
         The surfaces (walls in image order, floor, ceiling; normals out of the room as in
@@ -87,7 +91,7 @@ def textured_room(
             hidden = np.ones(points.shape[:2], bool)
         else:
             hidden = np.broadcast_to(_hidden(points[:1], cam, plan, index, scale), points.shape[:2])
-        _paint(texture, unseen, corners[index], *_colours(image, *pixels, hidden))
+        _paint(texture, unseen, corners[index], *_colours(image, *pixels, hidden, photographed))
     surfaces = []
     for k in range(n):
         rows, columns = shapes[k]
@@ -225,10 +229,19 @@ def _colours(
     u: Float[np.ndarray, "r c"],
     v: Float[np.ndarray, "r c"],
     hidden: Bool[np.ndarray, "r c"],
+    photographed: Bool[np.ndarray, "H W"] | None = None,
 ) -> tuple[UInt8[np.ndarray, "r c 3"], Bool[np.ndarray, "r c"]]:
     """The panorama's colour at each pixel (bilinear; the columns wrap around), and where it has none: hidden,
-    or no pixel."""
+    no pixel, or one of the four pixels it mixes outside ``photographed``."""
     unseen = hidden | ~np.isfinite(u) | ~np.isfinite(v)
+    if photographed is not None:
+        height, width = photographed.shape
+        left = np.floor(np.where(unseen, 0.0, u)).astype(int)
+        top = np.clip(np.floor(np.where(unseen, 0.0, v)).astype(int), 0, height - 1)
+        bottom = np.minimum(top + 1, height - 1)
+        for row in (top, bottom):
+            for column in (left % width, (left + 1) % width):
+                unseen |= ~photographed[row, column]
     u = np.where(unseen, 0.0, u).astype(np.float32)
     v = np.clip(np.where(unseen, 0.0, v), 0.0, image.shape[0] - 1.0).astype(np.float32)
     # OpenCV's bilinear weights are multiples of 1/32: a twentieth of a level where the panorama changes by 2 a
