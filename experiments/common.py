@@ -17,11 +17,16 @@ Python puts a script's folder first on its path, so the scripts of ``experiments
 from __future__ import annotations
 
 import collections
+import contextlib
+import csv
 import dataclasses
 import functools
 import hashlib
+import importlib
+import io
 import math
-from collections.abc import Iterator
+import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import jax
@@ -470,3 +475,36 @@ def network_setting(name: str):
     for part in RENAMED.get(name, name).split("."):
         value = getattr(value, part)
     return value
+
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def benchmark_module(name: str):
+    """``benchmarks/<name>.py`` as a module (its ``main``, and whatever else it offers)."""
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+
+
+def quietly(function: Callable, *args):
+    """``function(*args)`` with its printing kept back; what it wrote to stderr is shown when it raises or returns a
+    non-zero exit code."""
+    errors = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(errors):
+            result = function(*args)
+    except BaseException:
+        sys.stderr.write(errors.getvalue())
+        raise
+    if isinstance(result, int) and result != 0:
+        sys.stderr.write(errors.getvalue())
+    return result
+
+
+def csv_means(path: Path) -> dict[str, dict[str, str]]:
+    """A benchmark CSV's rows whose name starts with "mean", by name."""
+    with open(path, newline="") as file:
+        return {row["name"]: row for row in csv.DictReader(file) if row["name"].startswith("mean")}

@@ -12,18 +12,15 @@ originals (its ``run`` with a transform); the table gives its means (rows in px 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import csv
-import io
 import pathlib
-import sys
 from collections.abc import Callable
 
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
-import real_panoramas  # noqa: E402  (the benchmark, run with a transform)
+from common import benchmark_module, csv_means, quietly
+
+real_panoramas = benchmark_module("real_panoramas")  # the benchmark, run with a transform
 
 OUT = pathlib.Path(__file__).resolve().parent / "out" / "input_transforms"
 
@@ -91,12 +88,10 @@ def main(argv: list[str] | None = None) -> int:
         out = args.out / name
         benchmark_args = real_panoramas.parse_arguments(["--data", str(args.data), "--out", str(out)])
         try:
-            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-                real_panoramas.run(benchmark_args, transform)
+            quietly(real_panoramas.run, benchmark_args, transform)
         except real_panoramas.InputError as error:
             parser.error(str(error))
-        with open(out / real_panoramas.CSV_NAME, newline="") as file:
-            means = {row["name"].split(" (")[0]: row for row in csv.DictReader(file) if row["name"].startswith("mean")}
+        means = {name.split(" (")[0]: row for name, row in csv_means(out / real_panoramas.CSV_NAME).items()}
         every, closed = means["mean"], means.get("mean closed")
         closed_rows = "-" if closed is None else f"{float(closed['ceiling_error_px']):.1f}"
         closed_rows += "" if closed is None else f" / {float(closed['floor_error_px']):.1f}"

@@ -15,18 +15,14 @@ guess it.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import csv
-import importlib
-import io
 import pathlib
 import shutil
-import sys
 
 from ncjax.evaluation.panorama_labels import labelled_image_paths, read_labelled_image
-from ncjax.io.photo_sphere import SphereCrop, gpano_packet, png_with_xmp
+from ncjax.io.photo_sphere import XMP_GPANO, SphereCrop, gpano_packet, png_with_xmp
 
-BENCHMARKS = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
+from common import benchmark_module, csv_means, quietly
+
 OUT = pathlib.Path(__file__).resolve().parent / "out" / "vertical_coverage"
 
 
@@ -38,31 +34,12 @@ def photo_spheres(data: pathlib.Path, coverage: float, folder: pathlib.Path) -> 
         height, width = image.shape[:2]
         rows = 2 * round(height * coverage / 360)
         top = (height - rows) // 2
-        crop = SphereCrop(width, height, 0, top, width, rows, "XMP GPano")
+        crop = SphereCrop(width, height, top, width, rows, XMP_GPANO)
         (folder / f"{image_path.stem}.png").write_bytes(png_with_xmp(image[top : top + rows], gpano_packet(crop)))
         shutil.copy(label_path, folder / label_path.name)
         tags = image_path.with_suffix(".json")
         if tags.is_file():
             shutil.copy(tags, folder / tags.name)
-
-
-def benchmark(name: str, argv: list[str]) -> None:
-    """Run ``benchmarks/<name>.py`` in this process, its printing kept out of the table."""
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        module = importlib.import_module(name)
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        code = module.main(argv)
-    if code != 0:
-        raise SystemExit(f"vertical_coverage: {name} exited with code {code}")
-
-
-def mean_rows(path: pathlib.Path) -> dict[str, dict[str, str]]:
-    """The CSV's rows whose name starts with "mean", by name."""
-    with open(path, newline="") as file:
-        return {row["name"]: row for row in csv.DictReader(file) if row["name"].startswith("mean")}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,11 +50,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not labelled_image_paths(args.data):
         parser.error(f"{args.data}: no panorama with a label_cor <stem>.txt")
+    if not all(0 < coverage <= 180 for coverage in args.coverages):
+        parser.error(f"--coverages: each in (0, 180] degrees, got {args.coverages}")
     print("| vertical coverage | ceiling px | floor px | P / R 1% | raw 3D IoU | closed: floor px | central layouts |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for coverage in args.coverages:
-        if not 0 < coverage <= 180:
-            parser.error(f"--coverages: {coverage} is not in (0, 180]")
         name = f"{coverage:g}"
         if coverage == 180:
             images = args.data
@@ -85,12 +62,14 @@ def main(argv: list[str] | None = None) -> int:
             images = args.out / f"spheres_{name}"
             photo_spheres(args.data, coverage, images)
         rows_out, layouts_out = args.out / f"rows_{name}", args.out / f"layouts_{name}"
-        benchmark("real_panoramas", ["--data", str(images), "--out", str(rows_out)])
-        benchmark("central_layouts", ["--data", str(images), "--out", str(layouts_out)])
-        means = mean_rows(rows_out / "real_panoramas.csv")
+        for benchmark, out in (("real_panoramas", rows_out), ("central_layouts", layouts_out)):
+            code = quietly(benchmark_module(benchmark).main, ["--data", str(images), "--out", str(out)])
+            if code != 0:
+                raise SystemExit(f"vertical_coverage: {benchmark} exited with code {code}")
+        means = csv_means(rows_out / "real_panoramas.csv")
         everything = next(row for key, row in means.items() if key.startswith("mean ("))
         closed = next((row for key, row in means.items() if key.startswith("mean closed")), None)
-        layouts = next(iter(mean_rows(layouts_out / "central_layouts.csv").values()))
+        layouts = next(iter(csv_means(layouts_out / "central_layouts.csv").values()))
         cells = [
             f"{float(everything['ceiling_error_px']):.1f}",
             f"{float(everything['floor_error_px']):.1f}",

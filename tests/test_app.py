@@ -14,7 +14,7 @@ from ncjax.cli.demo import DEMO_DIR
 from ncjax.cli.summary import failure_message
 from ncjax.io.export import status_has_geometry
 from ncjax.io.images import MAX_WIDTH, PanoramaError, PanoramaResizeWarning, read_panorama
-from ncjax.io.photo_sphere import SphereCrop, gpano_packet, png_with_xmp
+from ncjax.io.photo_sphere import HORIZON_CENTRED, XMP_GPANO, SphereCrop, gpano_packet, png_with_xmp
 from ncjax.pipeline.types import FLAGGED_STATUSES
 
 DEMO_TRUTH = json.loads((DEMO_DIR / "ground_truth.json").read_text())
@@ -23,7 +23,7 @@ BIG = (4096, 2048)  # (W, H) of the demo upsampled: a panorama ncjax reconstruct
 # the shipped model + pipeline on the demo give all 12 corners, CE 0.070 m, 3D IoU 95.5% (RESULTS.md): a broken
 # network or pipeline falls far below these bounds, a retrained model moves within them
 DEMO_LIMITS = {"ce": 0.3, "iou": 85.0}
-SPHERE = SphereCrop(1024, 512, 0, 96, 1024, 320, "XMP GPano")  # the demo's rows within 56 degrees of the horizon
+SPHERE = SphereCrop(1024, 512, 96, 1024, 320, XMP_GPANO)  # the demo's rows within 56 degrees of the horizon
 
 
 def demo_image(size=None):
@@ -253,6 +253,24 @@ def test_a_photo_sphere_gives_the_layout_of_its_full_panorama_in_its_pixels(batc
     pixels = [read_layout(out / f"{name}.label_cor.txt", 1024, 512) for name in ("sphere_R06825", "room_R06825")]
     rows = np.asarray(pixels[0].floor) - np.asarray(pixels[1].floor)
     assert np.abs(rows).max() < 3.0, rows  # in the full panorama's pixels, not the file's (96 rows apart)
+
+
+@pytest.mark.slow
+def test_pad_to_sphere_pads_a_band_without_metadata_about_the_horizon(batch_run, tmp_path):
+    """The demo's rows within 56 degrees of the horizon in a file without metadata: refused without
+    ``--pad-to-sphere``, read as centred on the horizon with it, as its photo sphere is by its XMP."""
+    _, out, _, _ = batch_run
+    band = write_png(tmp_path / "band_R06825.png", demo_image()[SPHERE.top : SPHERE.top + SPHERE.height])
+    assert cli.main(["reconstruct", band, "--rc", "auto", "--out", str(tmp_path / "refused")]) == 1
+    command = ["reconstruct", band, "--rc", "auto", "--out", str(tmp_path / "out"), "--batch", "1", "--pad-to-sphere"]
+    assert cli.main(command) == 0
+    padded, sphere = (
+        json.loads(path.read_text()) for path in (tmp_path / "out/band_R06825.json", out / "sphere_R06825.json")
+    )
+    assert padded["sphere_crop"] == SPHERE._replace(source=HORIZON_CENTRED)._asdict()
+    # the same padded image, the same layout (to the rounding of the geometry's cheaply or fully optimised programs)
+    np.testing.assert_allclose(padded["floor_corners"], sphere["floor_corners"], atol=1e-3)
+    assert padded["room_height"] == pytest.approx(sphere["room_height"], abs=1e-3)
 
 
 @pytest.mark.slow

@@ -177,12 +177,12 @@ def scored_rows(out: Path) -> dict[str, dict[str, float]]:
 def test_benchmark_pads_photo_spheres_and_applies_a_transform(rendered_folder, tmp_path):
     """The renders cut to photo spheres (rows within 70 degrees of the horizon, XMP GPano) score in their full
     panoramas' pixels, as the renders do; a transform given to ``run`` reaches the network."""
-    from ncjax.io.photo_sphere import SphereCrop, gpano_packet, png_with_xmp
+    from ncjax.io.photo_sphere import XMP_GPANO, SphereCrop, gpano_packet, png_with_xmp
 
     folder, names = rendered_folder
     spheres = tmp_path / "spheres"
     spheres.mkdir()
-    crop = SphereCrop(WIDTH, HEIGHT, 0, HEIGHT // 9, WIDTH, HEIGHT - 2 * (HEIGHT // 9), "XMP GPano")
+    crop = SphereCrop(WIDTH, HEIGHT, HEIGHT // 9, WIDTH, HEIGHT - 2 * (HEIGHT // 9), XMP_GPANO)
     for name in names:
         image = cv2.imread(str(folder / "img" / f"{name}.png"))[..., ::-1]
         rows = image[crop.top : crop.top + crop.height]

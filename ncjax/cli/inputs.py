@@ -74,20 +74,20 @@ def radius_of(path: str, rc: float | None) -> float:
     return from_name
 
 
-def read_image(path: str, rc: float | None, say_resized, pad_to_sphere: bool = False) -> tuple[PanoramaFile, float]:
+def read_image(path: str, rc: float | None, report, assume_horizon_centred: bool = False) -> tuple[PanoramaFile, float]:
     """The panorama of ``path`` (:func:`~ncjax.io.images.read_panorama_file`: the image, the size of the panorama
-    its file's pixels belong to, where they lie in it) and its radius (``--rc``, or from its name); ``say_resized``
-    reports a resize or a padding to the full sphere.
+    its file's pixels belong to, where its rows lie in it) and its radius (``--rc``, or from its name); ``report``
+    takes the line that says the file was resized or padded to the full sphere.
 
     Raises:
         PanoramaError: the file cannot be used (the message says why).
     """
     with warnings.catch_warnings(record=True) as notes:
         warnings.simplefilter("always", PanoramaResizeWarning)
-        panorama = read_panorama_file(path, pad_to_sphere)
+        panorama = read_panorama_file(path, assume_horizon_centred)
     for note in notes:
         if issubclass(note.category, PanoramaResizeWarning):
-            say_resized(str(note.message))
+            report(str(note.message))
         else:
             warnings.showwarning(note.message, note.category, note.filename, note.lineno)
     return panorama, radius_of(path, rc)

@@ -9,14 +9,12 @@ import math
 import os
 import sys
 import threading
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
+from ..io.photo_sphere import SphereCrop
 from ..pipeline.types import LayoutStatus
-
-if TYPE_CHECKING:
-    from ..io.photo_sphere import SphereCrop
 
 
 @functools.cache

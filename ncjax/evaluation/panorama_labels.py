@@ -23,8 +23,8 @@ import numpy as np
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 from ..geometry.gravity import panorama_size_error
-from ..io.images import PanoramaError, read_image_file
-from ..io.photo_sphere import SphereCropError, pad_to_sphere, sphere_crop
+from ..io.images import PanoramaError, photo_sphere_crop, read_image_file
+from ..io.photo_sphere import pad_to_sphere
 from ..network.checkpoint import load_model
 from ..network.model import HorizonNet
 from ..network.predict import default_model
@@ -194,11 +194,9 @@ def read_labelled_image(path: pathlib.Path) -> np.ndarray:
     padded to its full panorama at the file's scale (:mod:`ncjax.io.photo_sphere`), whose pixels its label gives."""
     try:
         image, data = read_image_file(path)
-        crop = sphere_crop(data, image.shape[1], image.shape[0], assume_horizon_centred=False)
+        crop = photo_sphere_crop(path, data, image.shape[1], image.shape[0])
     except PanoramaError as error:
         raise InputError(str(error)) from None
-    except SphereCropError as error:
-        raise InputError(f"{path}: {error}") from None
     if crop is not None:
         image = pad_to_sphere(image, crop, crop.full_width)
     size_error = panorama_size_error(image.shape[1], image.shape[0])

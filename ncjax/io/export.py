@@ -19,7 +19,8 @@ failed layout are ``null`` and its lists empty, except for a flagged layout (``U
     (requested: manhattan/atlanta/auto), branch (manhattan/atlanta, or plan: :mod:`ncjax.pipeline.plan`),
     explained_fraction (share of the boundary pixels the layout reprojects within
     the inlier threshold, a quality indicator; added in ncjax 0.1.0, same schema version), rc,
-    image_size [W, H] (the image file as given: the record's pixels are its pixels),
+    image_size [W, H] (the image file as given, or a photo sphere's full panorama at the file's scale,
+    :mod:`ncjax.io.photo_sphere`: the record's pixels are its pixels),
     reconstructed_size [W, H] (the size the panorama was reconstructed at, the rows' and the
     overlay's: image_size unless the file was resized, :mod:`ncjax.io.images`; added in ncjax
     0.1.0, same schema version), units, frame, ceiling_height, floor_height, room_height,
@@ -190,8 +191,9 @@ def layout_record(
         world: the world model that was requested: "manhattan", "atlanta" or "auto".
         extra: more JSON-serialisable keys to add (e.g. the image path); they
             may not replace the schema's keys.
-        image_size: (W, H) of the image file as given, when it was resized to ``cam``'s size before the
-            reconstruction: ``image_size`` and ``corner_columns`` are then in its pixels (None: ``cam``'s size).
+        image_size: (W, H) of the image file as given (or of a photo sphere's full panorama at the file's scale),
+            when it was resized or padded to ``cam``'s size before the reconstruction: ``image_size`` and
+            ``corner_columns`` are then in its pixels (None: ``cam``'s size).
 
     Returns:
         A dict that ``json.dumps(..., allow_nan=False)`` accepts.

@@ -12,8 +12,8 @@ of their elevation, under a pixel for rows within 45 degrees of the horizon at
 512 rows). A file that goes all the way round but not up to the poles is padded
 with black to the full sphere (:mod:`ncjax.io.photo_sphere`): where its XMP
 GPano metadata places it (phone photo spheres, stitchers), or, asked to
-(``pad_to_sphere``), centred on the horizon. Any other shape is refused. A panorama wider than :data:`MAX_WIDTH`
-is reconstructed at ``MAX_WIDTH x MAX_WIDTH / 2`` (the same warning): the
+(``assume_horizon_centred``), centred on the horizon. Any other shape is refused.
+A panorama wider than :data:`MAX_WIDTH` is reconstructed at ``MAX_WIDTH x MAX_WIDTH / 2`` (the same warning): the
 network reads 1024 x 512 anyway, 4096 columns gave no measurably smaller
 room-height error than 2048 on our renders (``experiments/resolution.py``),
 and memory and time grow with the image (a batch of four 4096 x 2048
@@ -34,8 +34,7 @@ import cv2
 import numpy as np
 
 from ..geometry.gravity import panorama_size_error
-from . import photo_sphere
-from .photo_sphere import SphereCrop, SphereCropError, sphere_crop, vertical_coverage
+from .photo_sphere import SphereCrop, SphereCropError, pad_to_sphere, source_name, sphere_crop, vertical_coverage
 
 ASPECT_TOLERANCE = 0.005  # relative departure of width / height from 2 that is resized instead of refused
 MAX_WIDTH = 2048  # the widest panorama ncjax reconstruct works at
@@ -106,10 +105,10 @@ def working_size(width: int, height: int) -> tuple[int, str] | None:
 
 
 def read_image_file(path: str | os.PathLike) -> tuple[np.ndarray, bytes]:
-    """An image file as RGB uint8 (H, W, 3) at its own size, and the file's bytes (for its metadata).
+    """Read an image file as RGB uint8 (H, W, 3) at its own size, and the file's bytes (for its metadata).
 
     Raises:
-        PanoramaError: as :func:`read_rgb`.
+        PanoramaError: missing, unreadable, truncated, not an image, or an unsupported pixel format.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -131,18 +130,28 @@ def read_image_file(path: str | os.PathLike) -> tuple[np.ndarray, bytes]:
     return image, data
 
 
-def read_rgb(path: str | os.PathLike) -> np.ndarray:
-    """Read an image file as RGB uint8 (H, W, 3), at its own size.
+def photo_sphere_crop(
+    path: str | os.PathLike, data: bytes, width: int, height: int, assume_horizon_centred: bool = False
+) -> SphereCrop | None:
+    """Where a file's ``width x height`` image lies in its full panorama, if it is a photo sphere without its poles:
+    wider than 2:1 (by more than :data:`ASPECT_TOLERANCE`) and placed by its XMP GPano metadata or, with
+    ``assume_horizon_centred``, centred on the horizon (:func:`~ncjax.io.photo_sphere.sphere_crop`). None for any
+    other file, whatever metadata it carries: a full panorama, or one near enough 2:1 to be resized to it.
 
     Raises:
-        PanoramaError: missing, unreadable, truncated, not an image, or an unsupported pixel format.
+        PanoramaError: its metadata cannot be used, or it does not go all the way round.
     """
-    return read_image_file(path)[0]
+    if width <= 2 * height or nearly_full_panorama(width, height):
+        return None
+    try:
+        return sphere_crop(data, width, height, assume_horizon_centred)
+    except SphereCropError as error:
+        raise PanoramaError(f"{path}: {error}") from None
 
 
-def read_panorama(path: str | os.PathLike, pad_to_sphere: bool = False) -> np.ndarray:
+def read_panorama(path: str | os.PathLike, assume_horizon_centred: bool = False) -> np.ndarray:
     """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H (:func:`read_panorama_file`'s image)."""
-    return read_panorama_file(path, pad_to_sphere).image
+    return read_panorama_file(path, assume_horizon_centred).image
 
 
 class PanoramaFile(NamedTuple):
@@ -150,10 +159,9 @@ class PanoramaFile(NamedTuple):
 
     Attributes:
         image: the full panorama to reconstruct, RGB uint8 (H, W, 3), W = 2 H.
-        file_size: (W, H) of the panorama the file's pixels belong to: the file's own size, or for a file that
-            covers only part of the sphere (``crop``), its full panorama's at the file's scale. The layout's exports
-            give pixels of this size.
-        crop: where the file's pixels lie in that full panorama, or None for a file that is the full panorama.
+        file_size: (W, H) of the panorama the file's pixels belong to: the file's own size, or for a photo sphere
+            (``crop``) its full panorama's at the file's scale. The layout's exports give pixels of this size.
+        crop: where the file's rows lie in that full panorama, or None for a file that is a full panorama.
     """
 
     image: np.ndarray
@@ -161,20 +169,20 @@ class PanoramaFile(NamedTuple):
     crop: SphereCrop | None
 
 
-def read_panorama_file(path: str | os.PathLike, pad_to_sphere: bool = False) -> PanoramaFile:
+def read_panorama_file(path: str | os.PathLike, assume_horizon_centred: bool = False) -> PanoramaFile:
     """Read a full panorama as RGB uint8 (H, W, 3), W = 2 H, and the size of the panorama its file's pixels belong to.
 
-    A file whose XMP GPano metadata places it in a larger full panorama (a photo sphere without its poles), or,
-    with ``pad_to_sphere``, a file wider than 2:1 (taken as centred on the horizon), is padded with black to its
-    full panorama (:mod:`ncjax.io.photo_sphere`), with a :class:`PanoramaPaddedWarning`. The returned sizes differ
-    when the file was resized or padded (below): the file's is the one whose pixels the layout's exports give, the
-    image's the one the panorama is reconstructed at.
+    A photo sphere without its poles (:func:`photo_sphere_crop`: placed by its XMP GPano metadata, or, with
+    ``assume_horizon_centred``, any file wider than 2:1 taken as centred on the horizon) is padded with black to its
+    full panorama (:func:`~ncjax.io.photo_sphere.pad_to_sphere`), with a :class:`PanoramaPaddedWarning`. The returned
+    sizes differ when the file was resized or padded: the file's is the one whose pixels the layout's exports give,
+    the image's the one the panorama is reconstructed at.
 
     Warns:
         PanoramaResizeWarning: the file is within :data:`ASPECT_TOLERANCE` of
             2:1 and was resized to exactly 2:1, or it was wider than
             :data:`MAX_WIDTH` and was resized to that width.
-        PanoramaPaddedWarning: the file covers only part of the sphere and was padded to all of it.
+        PanoramaPaddedWarning: the file is a photo sphere without its poles and was padded to the full sphere.
 
     Raises:
         PanoramaError: missing, unreadable, truncated, not an image, an
@@ -182,18 +190,17 @@ def read_panorama_file(path: str | os.PathLike, pad_to_sphere: bool = False) -> 
     """
     image, data = read_image_file(path)
     height, width = image.shape[:2]
-    try:
-        crop = sphere_crop(data, width, height, pad_to_sphere)
-    except SphereCropError as error:
-        raise PanoramaError(f"{path}: {error}") from None
+    crop = photo_sphere_crop(path, data, width, height, assume_horizon_centred)
     if crop is not None:
-        working_width = min(2 * (crop.full_width // 2), MAX_WIDTH)
-        padded = photo_sphere.pad_to_sphere(image, crop, working_width)
+        padded = pad_to_sphere(image, crop, min(2 * (crop.full_width // 2), MAX_WIDTH))
+        size_error = panorama_size_error(*padded.shape[1::-1])
+        if size_error:
+            raise PanoramaError(f"{path}: padded to the full sphere, {size_error}")
         top, bottom = vertical_coverage(crop)
         warnings.warn(
             f"{path}: {width} x {height} pixels cover elevations {top:+.0f} to {bottom:+.0f} degrees of a "
-            f"{crop.full_width} x {crop.full_height} panorama ({crop.source}); padded with black to the full sphere, "
-            f"reconstructed at {padded.shape[1]} x {padded.shape[0]}",
+            f"{crop.full_width} x {crop.full_height} panorama ({source_name(crop)}); padded with black to the full "
+            f"sphere, reconstructed at {padded.shape[1]} x {padded.shape[0]}",
             PanoramaPaddedWarning,
             stacklevel=2,
         )
@@ -214,7 +221,7 @@ def read_panorama_file(path: str | os.PathLike, pad_to_sphere: bool = False) -> 
     if size_error:
         hint = (
             "; one that goes all the way round and is centred on the horizon can be padded to the full sphere "
-            "(--pad-to-sphere, pad_to_sphere=True)"
+            "(ncjax reconstruct --pad-to-sphere)"
             if image.shape[1] > 2 * image.shape[0]
             else ""
         )

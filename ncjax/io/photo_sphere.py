@@ -15,6 +15,7 @@ A panorama that does not go all the way round is refused: a room's layout needs 
 
 from __future__ import annotations
 
+import math
 import re
 import struct
 import zlib
@@ -24,25 +25,32 @@ import cv2
 import numpy as np
 
 _XMP_PACKET = re.compile(rb"<x:xmpmeta.*?</x:xmpmeta>", re.DOTALL)
-_GPANO_ATTRIBUTE = re.compile(r"GPano:(\w+)\s*=\s*[\"']([^\"']*)[\"']")
-_GPANO_ELEMENT = re.compile(r"<GPano:(\w+)>\s*([^<]*?)\s*</GPano:\1>")
-_SIZE_TOLERANCE = 0.01  # relative mismatch between the file's and the metadata's crop shape that is refused
+_GPANO_NAMESPACE = "http://ns.google.com/photos/1.0/panorama/"
+_PREFIX = re.compile(r"xmlns:([\w.-]+)\s*=\s*[\"']" + re.escape(_GPANO_NAMESPACE) + r"[\"']")
+# a panorama's sizes may be off by this fraction (a stitcher's rounding), as ncjax.io.images.ASPECT_TOLERANCE
+_TOLERANCE = 0.005
+XMP_GPANO = "xmp_gpano"  # SphereCrop.source: placed by the file's XMP GPano metadata
+HORIZON_CENTRED = "horizon_centred"  # SphereCrop.source: taken as centred on the horizon (--pad-to-sphere)
+_SOURCE_NAMES = {XMP_GPANO: "XMP GPano", HORIZON_CENTRED: "--pad-to-sphere"}
 
 
 class SphereCrop(NamedTuple):
-    """Where an image's pixels lie in the full panorama, in the image's own pixel scale.
+    """Where an image's rows lie in the full panorama, in the image's own pixel scale.
+
+    The image goes all the way round: its columns are the full panorama's (a turn about the vertical, which
+    GPano's ``CroppedAreaLeftPixels`` of a full circle would be, changes no layout and is left out).
 
     Attributes:
-        full_width, full_height: the full panorama's size (``full_width = 2 full_height``; ``full_width`` is the
-            image's width: it covers the full circle).
-        left, top: the full panorama's column and row of the image's pixel (0, 0).
-        width, height: the image's size.
-        source: where this came from, for messages (``"XMP GPano"`` or ``"--pad-to-sphere"``).
+        full_width, full_height: the full panorama's size: the image's width, and half of it (rounded down).
+        top: the full panorama's row of the image's first row.
+        width: the image's width.
+        height: the full panorama's rows the image spans: its own height, unless its pixels are not quite square
+            (a file resized after its metadata was written; it is resized to this).
+        source: :data:`XMP_GPANO` or :data:`HORIZON_CENTRED`.
     """
 
     full_width: int
     full_height: int
-    left: int
     top: int
     width: int
     height: int
@@ -54,12 +62,16 @@ class SphereCropError(ValueError):
 
 
 def gpano_fields(data: bytes) -> dict[str, str]:
-    """The GPano fields of a file's XMP packet (attribute or element form), empty when there are none."""
-    packet = _XMP_PACKET.search(data)
-    if packet is None:
-        return {}
-    text = packet.group(0).decode("utf-8", errors="replace")
-    return dict(_GPANO_ATTRIBUTE.findall(text)) | dict(_GPANO_ELEMENT.findall(text))
+    """The GPano fields of a file's XMP packets (attribute or element form, under whatever prefix the packet binds
+    to the GPano namespace), empty when there are none."""
+    fields = {}
+    for packet in _XMP_PACKET.finditer(data):
+        text = packet.group(0).decode("utf-8", errors="replace")
+        for prefix in set(_PREFIX.findall(text)) | {"GPano"}:
+            name = re.escape(prefix)
+            fields |= dict(re.findall(rf"\b{name}:(\w+)\s*=\s*[\"']([^\"']*)[\"']", text))
+            fields |= dict(re.findall(rf"<{name}:(\w+)(?:\s[^>]*)?>\s*([^<]*?)\s*</{name}:\1>", text))
+    return fields
 
 
 def _integer(fields: dict[str, str], name: str, default: int | None = None) -> int:
@@ -69,21 +81,25 @@ def _integer(fields: dict[str, str], name: str, default: int | None = None) -> i
             raise SphereCropError(f"its XMP GPano metadata has no {name}")
         return default
     try:
-        number = round(float(value))
+        number = float(value)
     except ValueError:
         raise SphereCropError(f"its XMP GPano {name} is not a number: {value!r}") from None
-    if number < 0:
-        raise SphereCropError(f"its XMP GPano {name} is negative: {number}")
-    return number
+    if not math.isfinite(number) or number < 0:
+        raise SphereCropError(f"its XMP GPano {name} is not a size in pixels: {value!r}")
+    return round(number)
+
+
+def _near(a: float, b: float, tolerance: float = _TOLERANCE) -> bool:
+    return abs(a - b) <= max(2.0, tolerance * max(a, b))
 
 
 def gpano_crop(fields: dict[str, str], width: int, height: int) -> SphereCrop | None:
-    """The place of a ``width x height`` image in its full panorama from its GPano ``fields``
+    """The place of a ``width x height`` image, wider than 2:1, in its full panorama from its GPano ``fields``
     (:func:`gpano_fields`), None when they do not describe one.
 
     Raises:
         SphereCropError: the metadata is not equirectangular, contradicts the image's shape, lies outside its
-            full panorama, or the image does not cover the full circle.
+            full panorama, or the image does not cover the full circle exactly.
     """
     if "FullPanoWidthPixels" not in fields:
         return None
@@ -94,58 +110,61 @@ def gpano_crop(fields: dict[str, str], width: int, height: int) -> SphereCrop | 
     full_height = _integer(fields, "FullPanoHeightPixels")
     crop_width = _integer(fields, "CroppedAreaImageWidthPixels", full_width)
     crop_height = _integer(fields, "CroppedAreaImageHeightPixels", full_height)
-    left = _integer(fields, "CroppedAreaLeftPixels", 0)
     top = _integer(fields, "CroppedAreaTopPixels", 0)
-    if min(full_width, full_height, crop_width, crop_height) == 0:
-        raise SphereCropError("its XMP GPano sizes include a zero")
-    if abs(full_width - 2 * full_height) > max(2.0, _SIZE_TOLERANCE * full_width):
+    for name, value in (("FullPanoWidthPixels", full_width), ("FullPanoHeightPixels", full_height)):
+        if value == 0:
+            raise SphereCropError(f"its XMP GPano {name} is 0")
+    if not _near(full_width, 2 * full_height):
         raise SphereCropError(
             f"its XMP GPano full panorama is {full_width} x {full_height} pixels, not 360 x 180 degrees (2:1)"
         )
-    if crop_width < full_width:
+    if not _near(crop_width, full_width):
         raise SphereCropError(
-            f"it covers {360 * crop_width / full_width:.0f} of 360 degrees around (XMP GPano); a room's layout needs "
-            "the full circle"
+            f"it covers {360 * crop_width / full_width:.1f} of 360 degrees around ({crop_width} of its full "
+            f"panorama's {full_width} columns, XMP GPano); a room's layout needs exactly the full circle"
         )
-    if top + crop_height > full_height:
+    if crop_height == 0 or top + crop_height > full_height:
         raise SphereCropError(
-            f"its XMP GPano rows {top}-{top + crop_height} lie outside its full panorama's {full_height} rows"
+            f"its XMP GPano rows {top}-{top + crop_height} are not within its full panorama's {full_height} rows"
         )
-    if crop_height == full_height:
-        return None  # the full panorama itself
     scale = width / crop_width  # the file may have been resized after its metadata was written
-    if abs(height - scale * crop_height) > max(1.0, _SIZE_TOLERANCE * height):
+    if not _near(height, scale * crop_height, 2 * _TOLERANCE):
         raise SphereCropError(
-            f"its XMP GPano crop is {crop_width} x {crop_height} pixels, which a {width} x {height} image is not "
-            "at any one scale"
+            f"its XMP GPano crop is {crop_width} x {crop_height} pixels, but the image is {width} x {height}: not "
+            "that shape at any scale"
         )
     full_height_here = width // 2
-    top_here = min(round(top * scale), max(full_height_here - height, 0))
-    return SphereCrop(width, full_height_here, round(left * scale) % width, top_here, width, height, "XMP GPano")
+    rows = min(max(1, round(crop_height * full_height_here / full_height)), full_height_here)
+    top_here = min(round(top * full_height_here / full_height), full_height_here - rows)
+    return SphereCrop(width, full_height_here, top_here, width, rows, XMP_GPANO)
 
 
 def horizon_centred_crop(width: int, height: int) -> SphereCrop:
     """The place of a ``width x height`` image (wider than 2:1) in its full panorama, assuming it goes all the way
     round, its pixels are square and its rows are centred on the horizon."""
     full_height = width // 2
-    return SphereCrop(width, full_height, 0, (full_height - height) // 2, width, height, "--pad-to-sphere")
+    return SphereCrop(width, full_height, (full_height - height) // 2, width, height, HORIZON_CENTRED)
 
 
 def sphere_crop(data: bytes, width: int, height: int, assume_horizon_centred: bool) -> SphereCrop | None:
-    """Where a file's ``width x height`` image lies in its full panorama, None when it is the full panorama.
+    """Where a file's ``width x height`` image, wider than 2:1, lies in its full panorama, or None when nothing
+    says.
 
-    Its XMP GPano metadata decides when it has some; otherwise an image wider than 2:1 is taken as centred on the
-    horizon when ``assume_horizon_centred`` (:func:`horizon_centred_crop`).
+    Its XMP GPano metadata decides when it has some; otherwise the image is taken as centred on the horizon when
+    ``assume_horizon_centred`` (:func:`horizon_centred_crop`).
 
     Raises:
         SphereCropError: as :func:`gpano_crop`.
     """
     crop = gpano_crop(gpano_fields(data), width, height)
-    if crop is None and assume_horizon_centred and width > 2 * height:
-        crop = horizon_centred_crop(width, height)
-    if crop is None or (crop.full_height == height and crop.top == 0 and crop.left == 0):
-        return None
+    if crop is None and assume_horizon_centred:
+        return horizon_centred_crop(width, height)
     return crop
+
+
+def source_name(crop: SphereCrop) -> str:
+    """How ``crop`` was found, for messages: "XMP GPano" or "--pad-to-sphere"."""
+    return _SOURCE_NAMES[crop.source]
 
 
 def vertical_coverage(crop: SphereCrop) -> tuple[float, float]:
@@ -165,16 +184,15 @@ def padded_rows(crop: SphereCrop, width: int) -> tuple[int, int]:
 def pad_to_sphere(image: np.ndarray, crop: SphereCrop, width: int) -> np.ndarray:
     """``image`` (H, W, C) put into its full panorama at ``width`` columns (``width / 2`` rows), black elsewhere.
 
-    The image is resized by ``width / crop.full_width`` (area interpolation when shrinking) and turned to the full
-    panorama's first column; its rows are placed at :func:`padded_rows`.
+    The image is resized to ``width`` columns and :func:`padded_rows` rows (area interpolation when shrinking) and
+    placed at the first of them.
     """
-    factor = width / crop.full_width
     top, rows = padded_rows(crop, width)
-    interpolation = cv2.INTER_AREA if factor < 1 else cv2.INTER_LINEAR
-    resized = cv2.resize(image, (width, rows), interpolation=interpolation) if factor != 1 else image
-    resized = np.roll(resized, round(crop.left * factor), axis=1)
+    interpolation = cv2.INTER_AREA if width < crop.full_width else cv2.INTER_LINEAR
+    if image.shape[:2] != (rows, width):
+        image = cv2.resize(image, (width, rows), interpolation=interpolation)
     full = np.zeros((width // 2, width, *image.shape[2:]), image.dtype)
-    full[top : top + rows] = resized
+    full[top : top + rows] = image
     return full
 
 
@@ -194,7 +212,7 @@ def gpano_packet(crop: SphereCrop) -> bytes:
         "FullPanoHeightPixels": crop.full_height,
         "CroppedAreaImageWidthPixels": crop.width,
         "CroppedAreaImageHeightPixels": crop.height,
-        "CroppedAreaLeftPixels": crop.left,
+        "CroppedAreaLeftPixels": 0,
         "CroppedAreaTopPixels": crop.top,
     }
     attributes = " ".join(f'GPano:{name}="{value}"' for name, value in fields.items())
