@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..io.photo_sphere import SphereCrop
+from ..io.photo_sphere import SphereCrop, photographed_pixels
 from ..pipeline.types import LayoutStatus
 
 
@@ -189,8 +189,6 @@ def photographed_part(image: np.ndarray, crop: SphereCrop | None, gravity: dict 
     the photograph, (H, W) bool; None for a file that was the full panorama."""
     if crop is None:
         return None
-    from ..io.photo_sphere import photographed_pixels
-
     photographed = photographed_pixels(crop, image.shape[1])
     if gravity is None or gravity["rotation"] is None:
         return photographed

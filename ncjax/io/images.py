@@ -34,9 +34,16 @@ import cv2
 import numpy as np
 
 from ..geometry.gravity import panorama_size_error
-from .photo_sphere import SphereCrop, SphereCropError, pad_to_sphere, source_name, sphere_crop, vertical_coverage
+from .photo_sphere import (
+    ASPECT_TOLERANCE,  # relative departure of width / height from 2 that is resized instead of refused
+    SphereCrop,
+    SphereCropError,
+    pad_to_sphere,
+    source_name,
+    sphere_crop,
+    vertical_coverage,
+)
 
-ASPECT_TOLERANCE = 0.005  # relative departure of width / height from 2 that is resized instead of refused
 MAX_WIDTH = 2048  # the widest panorama ncjax reconstruct works at
 _JPEG_END = b"\xff\xd9"
 _PNG_END = b"IEND\xaeB`\x82"

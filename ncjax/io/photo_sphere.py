@@ -27,8 +27,7 @@ import numpy as np
 _XMP_PACKET = re.compile(rb"<x:xmpmeta.*?</x:xmpmeta>", re.DOTALL)
 _GPANO_NAMESPACE = "http://ns.google.com/photos/1.0/panorama/"
 _PREFIX = re.compile(r"xmlns:([\w.-]+)\s*=\s*[\"']" + re.escape(_GPANO_NAMESPACE) + r"[\"']")
-# a panorama's sizes may be off by this fraction (a stitcher's rounding), as ncjax.io.images.ASPECT_TOLERANCE
-_TOLERANCE = 0.005
+ASPECT_TOLERANCE = 0.005  # relative departure of a panorama's sizes from 2:1 taken as a stitcher's rounding
 XMP_GPANO = "xmp_gpano"  # SphereCrop.source: placed by the file's XMP GPano metadata
 HORIZON_CENTRED = "horizon_centred"  # SphereCrop.source: taken as centred on the horizon (--pad-to-sphere)
 _SOURCE_NAMES = {XMP_GPANO: "XMP GPano", HORIZON_CENTRED: "--pad-to-sphere"}
@@ -89,7 +88,7 @@ def _integer(fields: dict[str, str], name: str, default: int | None = None) -> i
     return round(number)
 
 
-def _near(a: float, b: float, tolerance: float = _TOLERANCE) -> bool:
+def _near(a: float, b: float, tolerance: float = ASPECT_TOLERANCE) -> bool:
     return abs(a - b) <= max(2.0, tolerance * max(a, b))
 
 
@@ -128,7 +127,7 @@ def gpano_crop(fields: dict[str, str], width: int, height: int) -> SphereCrop | 
             f"its XMP GPano rows {top}-{top + crop_height} are not within its full panorama's {full_height} rows"
         )
     scale = width / crop_width  # the file may have been resized after its metadata was written
-    if not _near(height, scale * crop_height, 2 * _TOLERANCE):
+    if not _near(height, scale * crop_height, 2 * ASPECT_TOLERANCE):
         raise SphereCropError(
             f"its XMP GPano crop is {crop_width} x {crop_height} pixels, but the image is {width} x {height}: not "
             "that shape at any scale"
@@ -218,7 +217,7 @@ def gpano_packet(crop: SphereCrop) -> bytes:
     attributes = " ".join(f'GPano:{name}="{value}"' for name, value in fields.items())
     return (
         '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
-        f'<rdf:Description rdf:about="" xmlns:GPano="http://ns.google.com/photos/1.0/panorama/" {attributes}/>'
+        f'<rdf:Description rdf:about="" xmlns:GPano="{_GPANO_NAMESPACE}" {attributes}/>'
         "</rdf:RDF></x:xmpmeta>"
     ).encode()
 
