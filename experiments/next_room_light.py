@@ -23,11 +23,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncjax.geometry.camera import NonCentralPanorama
+from ncjax.io.tone_mapping import luminance
 from ncjax.synth.dataset import rendered_samples
 from ncjax.synth.pathtrace import path_trace
 from ncjax.synth.pathtrace_denoise import guide_buffers
 from ncjax.synth.pathtrace_scene import SurfaceKind
-from ncjax.synth.photograph import luminance
 from ncjax.synth.photoreal import PhotorealConfig, next_room_irradiance, window_light, window_views
 from ncjax.synth.render import radiance_from_colours
 from ncjax.training.data import SYNTH_SOURCES

@@ -31,6 +31,12 @@ def demo_image(size=None):
     return image if size is None else cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
 
+def linear_light(rgb):
+    """The linear light an 8-bit sRGB image encodes (IEC 61966-2-1), float32 in [0, 1]."""
+    c = rgb.astype(np.float32) / 255.0
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
 def write_png(path, image_rgb_or_grey):
     array = image_rgb_or_grey
     if array.ndim == 3 and array.shape[-1] == 3:
@@ -183,7 +189,10 @@ def batch_run(tmp_path_factory):
         "big_R06825": write_png(folder / "big_R06825.png", cv2.resize(rgb, BIG, interpolation=cv2.INTER_CUBIC)),
         # a photo sphere without its poles (rows 96-415: elevations +56 to -56 degrees), placed by its XMP
         "sphere_R06825": str(folder / "sphere_R06825.png"),
+        # the demo's light as an HDR file: its sRGB encoding undone, in other units (the metering sets them)
+        "hdr_R06825": str(folder / "hdr_R06825.hdr"),
     }
+    assert cv2.imwrite(files["hdr_R06825"], np.ascontiguousarray(37.0 * linear_light(rgb)[..., ::-1]))
     (folder / "sphere_R06825.png").write_bytes(
         png_with_xmp(rgb[SPHERE.top : SPHERE.top + SPHERE.height], gpano_packet(SPHERE))
     )
@@ -253,6 +262,21 @@ def test_a_photo_sphere_gives_the_layout_of_its_full_panorama_in_its_pixels(batc
     pixels = [read_layout(out / f"{name}.label_cor.txt", 1024, 512) for name in ("sphere_R06825", "room_R06825")]
     rows = np.asarray(pixels[0].floor) - np.asarray(pixels[1].floor)
     assert np.abs(rows).max() < 3.0, rows  # in the full panorama's pixels, not the file's (96 rows apart)
+
+
+@pytest.mark.slow
+def test_an_hdr_panorama_is_developed_and_gives_the_layout_of_the_photograph(batch_run):
+    """The demo's linear light in a Radiance file: developed (its light compressed, metered, the filmic curve: not
+    the demo's own tones), it gives the demo's layout."""
+    _, out, errors, _ = batch_run
+    assert "hdr_R06825.hdr: a linear HDR image, developed to 8 bits" in errors
+    hdr, full = (json.loads((out / f"{name}.json").read_text()) for name in ("hdr_R06825", "room_R06825"))
+    assert hdr["image_size"] == hdr["reconstructed_size"] == [1024, 512]
+    assert hdr["status"] == full["status"] and len(hdr["floor_corners"]) == len(full["floor_corners"])
+    corners = np.array(hdr["floor_corners"]) - np.array(full["floor_corners"])
+    # measured: corners within 0.07 m of the photograph's, room heights 0.034 m apart
+    assert np.abs(corners).max() < 0.15, corners
+    assert abs(hdr["room_height"] - full["room_height"]) < 0.05, (hdr["room_height"], full["room_height"])
 
 
 @pytest.mark.slow

@@ -23,6 +23,7 @@ from ncjax.io.photo_sphere import (
     gpano_packet,
     pad_to_sphere,
     photographed_pixels,
+    png_compressed_xmp,
     png_with_xmp,
     vertical_coverage,
 )
@@ -77,9 +78,24 @@ def test_gpano_fields_read_attributes_and_elements_alike():
     assert gpano_fields(other) == {"FullPanoWidthPixels": "4096", "CroppedAreaTopPixels": "12"}
 
 
-def test_gpano_packet_is_read_back_as_its_crop():
+@pytest.mark.parametrize("compressed", [False, True], ids=["iTXt", "compressed iTXt"])
+def test_gpano_packet_is_read_back_as_its_crop(compressed):
     crop = SphereCrop(4096, 2048, 300, 4096, 1200, XMP_GPANO)
-    assert gpano_crop(gpano_fields(png_with_xmp(np.zeros((4, 8, 3), np.uint8), gpano_packet(crop))), 4096, 1200) == crop
+    png = png_with_xmp(np.zeros((4, 8, 3), np.uint8), gpano_packet(crop), compressed)
+    assert (gpano_packet(crop) in png) != compressed  # compressed, the packet is not in the file's bytes
+    assert cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED).shape == (4, 8, 3)  # a valid PNG
+    assert gpano_crop(gpano_fields(png), 4096, 1200) == crop
+
+
+def test_a_compressed_chunk_that_is_not_xmp_or_does_not_decompress_is_left_out():
+    crop = SphereCrop(4096, 2048, 300, 4096, 1200, XMP_GPANO)
+    png = png_with_xmp(np.zeros((4, 8, 3), np.uint8), gpano_packet(crop), compressed=True)
+    assert png_compressed_xmp(png) == [gpano_packet(crop)]
+    assert png_compressed_xmp(png.replace(b"XML:com.adobe.xmp", b"XML:com.adobe.xmq")) == []
+    start = png.index(b"XML:com.adobe.xmp") + len(b"XML:com.adobe.xmp") + 5
+    broken = png[:start] + b"\xff" * 8 + png[start + 8 :]  # the zlib stream's head damaged
+    assert png_compressed_xmp(broken) == [] and gpano_fields(broken) == {}
+    assert png_compressed_xmp(b"\xff\xd8" + gpano_packet(crop)) == []  # a JPEG: its packets are in its bytes
 
 
 def test_gpano_crop_is_scaled_to_a_file_resized_after_its_metadata():

@@ -1,6 +1,7 @@
-"""The camera model (ncjax.synth.photograph): its tone curve and encoding against their definitions, the metering's
-normalisation, the white balance, the nadir patch, the local tone mapping of an HDR capture, and the photograph's
-type, range, determinism and JPEG file."""
+"""The camera model (ncjax.synth.photograph) and its development (ncjax.io.tone_mapping): the tone curve and
+encoding against their definitions, the metering's normalisation, the white balance, the nadir patch, the local tone
+mapping of an HDR capture, the development as their composition, and the photograph's type, range, determinism and
+JPEG file."""
 
 import io
 
@@ -10,18 +11,17 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ncjax.synth.photograph import (
-    PhotographConfig,
+from ncjax.io.tone_mapping import (
+    develop,
     filmic_tone_curve,
     grey_world_gains,
     inverse_filmic_tone_curve,
     local_tone_mapping,
     luminance,
     metered_exposure,
-    nadir_patch,
-    photograph,
     srgb_encode,
 )
+from ncjax.synth.photograph import PhotographConfig, nadir_patch, photograph
 
 HEIGHT, WIDTH = 16, 32
 
@@ -113,6 +113,36 @@ def test_photograph_is_an_8_bit_image_deterministic_per_key():
     batch = jnp.stack([radiance, 3.0 * radiance])
     batched = jax.vmap(lambda key, x: photograph(key, x, AT_NATIVE_WIDTH))(keys, batch)
     np.testing.assert_allclose(batched[1], _photograph(keys[1], batch[1], AT_NATIVE_WIDTH), atol=1.5 / 255)
+
+
+def test_a_photograph_without_defects_is_its_development():
+    """A camera without errors, vignetting, seams, nadir patch, noise or JPEG takes :func:`develop`'s image, rounded
+    to 8 bits; the development is its definition: local tone mapping, metering, white balance, tone curve, sRGB."""
+    flawless = PhotographConfig(
+        local_compression=(0.5, 0.5),
+        exposure_spread=(1.0, 1.0),
+        white_balance_error=(1.0, 1.0),
+        vignetting_strength=(0.0, 0.0),
+        seam_exposure=(1.0, 1.0),
+        seam_shift=(0.0, 0.0),
+        nadir_rows=(0.0, 0.0),
+        read_noise=(0.0, 0.0),
+        shot_noise=(0.0, 0.0),
+        native_width=4 * WIDTH,
+    )
+    radiance = jnp.asarray(_radiance(3))
+    developed = np.asarray(develop(radiance, 0.5, 1.0, jnp.ones(3)))
+    photographed = np.asarray(_photograph(jax.random.key(5), radiance, flawless))
+    np.testing.assert_allclose(photographed, developed, atol=0.5 / 255)
+    mapped = local_tone_mapping(radiance, 0.5)
+    exposed = mapped * metered_exposure(mapped, 0.18, 6.0) * grey_world_gains(mapped, 0.6)
+    np.testing.assert_allclose(developed, srgb_encode(filmic_tone_curve(exposed, 6.0)), atol=1e-6)
+    # Without the local tone mapping (None), the room's large-scale light keeps its contrast: its bright half
+    # against its dark half (the walls, not the window) differ more.
+    single = np.asarray(develop(radiance, None, 1.0, jnp.ones(3)))
+    bright, dark = slice(WIDTH // 8, 3 * WIDTH // 8), slice(5 * WIDTH // 8, 7 * WIDTH // 8)
+    contrast = [image[8:, bright].mean() - image[8:, dark].mean() for image in (single, developed)]
+    assert contrast[0] > contrast[1] > 0, contrast
 
 
 @pytest.mark.slow

@@ -10,9 +10,9 @@ import pytest
 from test_pathtrace import FLOOR, _scene
 
 from ncjax.geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
+from ncjax.io.tone_mapping import luminance
 from ncjax.synth import PhotorealConfig, RoomConfig, SceneConfig, SynthConfig
 from ncjax.synth.pathtrace import PathTraceConfig
-from ncjax.synth.photograph import luminance
 from ncjax.synth.photoreal import photoreal_image, window_light, window_views
 from ncjax.synth.render import synthesize_batch
 

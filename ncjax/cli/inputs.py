@@ -12,7 +12,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..io.images import PanoramaError, PanoramaFile, PanoramaResizeWarning, rc_from_name, read_panorama_file
+from ..io.images import (
+    PANORAMA_SUFFIXES,
+    PanoramaDevelopedWarning,
+    PanoramaError,
+    PanoramaFile,
+    PanoramaResizeWarning,
+    rc_from_name,
+    read_panorama_file,
+)
 from ..io.photo_sphere import SphereCrop
 
 MAX_RC = 3.0  # metres; the capture rigs have radii of tens of centimetres
@@ -77,16 +85,17 @@ def radius_of(path: str, rc: float | None) -> float:
 def read_image(path: str, rc: float | None, report, assume_horizon_centred: bool = False) -> tuple[PanoramaFile, float]:
     """The panorama of ``path`` (:func:`~ncjax.io.images.read_panorama_file`: the image, the size of the panorama
     its file's pixels belong to, where its rows lie in it) and its radius (``--rc``, or from its name); ``report``
-    takes the line that says the file was resized or padded to the full sphere.
+    takes the line that says the file was resized, padded to the full sphere or developed from HDR.
 
     Raises:
         PanoramaError: the file cannot be used (the message says why).
     """
     with warnings.catch_warnings(record=True) as notes:
         warnings.simplefilter("always", PanoramaResizeWarning)
+        warnings.simplefilter("always", PanoramaDevelopedWarning)
         panorama = read_panorama_file(path, assume_horizon_centred)
     for note in notes:
-        if issubclass(note.category, PanoramaResizeWarning):
+        if issubclass(note.category, (PanoramaResizeWarning, PanoramaDevelopedWarning)):
             report(str(note.message))
         else:
             warnings.showwarning(note.message, note.category, note.filename, note.lineno)
@@ -122,9 +131,6 @@ def one_line(error: BaseException) -> str:
         return f"{error.filename}: {error.strerror}"
     lines = [line.strip() for line in str(error).splitlines() if line.strip()]
     return "; ".join(lines) or type(error).__name__
-
-
-PANORAMA_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 
 
 def panorama_files(folder: str, recursive: bool = False, out: str | None = None) -> list[str]:

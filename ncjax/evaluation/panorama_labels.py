@@ -23,14 +23,13 @@ import numpy as np
 
 from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
 from ..geometry.gravity import panorama_size_error
-from ..io.images import PanoramaError, photo_sphere_crop, read_image_file
+from ..io.images import PANORAMA_SUFFIXES, PanoramaError, photo_sphere_crop, read_image_file
 from ..io.photo_sphere import pad_to_sphere
 from ..network.checkpoint import load_model
 from ..network.model import HorizonNet
 from ..network.predict import default_model
 from .network_metrics import REFERENCE_WIDTH
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 FLAT_CEILING_EXCLUSION_TAG = "ceiling_not_flat"
 SAME_CORNER_COLUMNS = 1.0  # label corners closer than this (columns of a 1024-wide image) are one corner
 MAX_FLOOR_DISTANCE = 50.0  # camera heights: a predicted floor row at or above the horizon is put this far
@@ -184,7 +183,7 @@ def labelled_image_paths(directory: pathlib.Path) -> list[tuple[pathlib.Path, pa
             continue
         for image_path in sorted(folder.iterdir()):
             label_path = label_folder / f"{image_path.stem}.txt"
-            if image_path.suffix.lower() in IMAGE_SUFFIXES and image_path.is_file() and label_path.is_file():
+            if image_path.suffix.lower() in PANORAMA_SUFFIXES and image_path.is_file() and label_path.is_file():
                 pairs.append((image_path, label_path))
     return pairs
 

@@ -4,7 +4,10 @@ Accepted: anything OpenCV decodes (PNG, JPEG, TIFF, BMP, WebP, ...) as 8- or
 16-bit greyscale, RGB or RGBA. 16-bit images are scaled to 8 bits
 (``round(x / 257)``), greyscale is repeated into three channels and the alpha
 channel is dropped (panoramas have no transparency; the colour is kept as
-stored). The panorama must be full (360 x 180 degrees, width = 2 x height).
+stored). Linear HDR panoramas (Radiance ``.hdr``, OpenEXR ``.exr``, floating-point
+TIFF) are developed to 8 bits as a 360-degree camera's HDR capture would be
+(:func:`develop_hdr`), with a :class:`PanoramaDevelopedWarning`. The panorama
+must be full (360 x 180 degrees, width = 2 x height).
 Stitching tools often write a row or a column more or fewer: an image within
 :data:`ASPECT_TOLERANCE` of 2:1 is resized to exactly 2:1 with a
 :class:`PanoramaResizeWarning` (the rows then move by at most that fraction
@@ -31,6 +34,7 @@ import warnings
 from typing import NamedTuple
 
 import cv2
+import jax.numpy as jnp
 import numpy as np
 
 from ..geometry.gravity import panorama_size_error
@@ -43,10 +47,16 @@ from .photo_sphere import (
     sphere_crop,
     vertical_coverage,
 )
+from .tone_mapping import develop
 
 MAX_WIDTH = 2048  # the widest panorama ncjax reconstruct works at
+PANORAMA_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".hdr", ".exr")
+# The factor on the log contrasts of an HDR panorama's large-scale light (tone_mapping.local_tone_mapping), as
+# real-estate capture apps compress them (experiments/hdr_development.py).
+HDR_LOCAL_COMPRESSION = 0.6
 _JPEG_END = b"\xff\xd9"
 _PNG_END = b"IEND\xaeB`\x82"
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
 _RC_IN_NAME = re.compile(r"_R(\d{5})(?:\D|$)")  # the rig's radius in a file name, 0.1 mm
 
 
@@ -62,6 +72,10 @@ class PanoramaPaddedWarning(PanoramaResizeWarning):
     """A panorama file that covers only part of the sphere was padded to all of it (the message says how)."""
 
 
+class PanoramaDevelopedWarning(UserWarning):
+    """A linear HDR panorama file was developed to 8 bits (:func:`develop_hdr`; the message says how)."""
+
+
 def _truncation(data: bytes) -> str | None:
     """Why a JPEG or PNG file is cut short, or None (OpenCV may decode a truncated JPEG silently)."""
     if data.startswith(b"\xff\xd8") and not data.rstrip(b"\x00").endswith(_JPEG_END):
@@ -72,21 +86,39 @@ def _truncation(data: bytes) -> str | None:
 
 
 def to_rgb8(image: np.ndarray) -> np.ndarray:
-    """An OpenCV-decoded array (BGR order, 8/16 bit, 1/3/4 channels) as RGB uint8 (H, W, 3)."""
-    if image.dtype == np.uint16:
-        image = np.round(image.astype(np.float32) / 257.0).astype(np.uint8)
-    elif image.dtype != np.uint8:
-        raise PanoramaError(f"unsupported pixel type {image.dtype} (8- or 16-bit images only)")
+    """An OpenCV-decoded array (BGR order, 8/16 bit or floating point, 1/3/4 channels) as RGB uint8 (H, W, 3);
+    floating point is linear HDR, developed by :func:`develop_hdr`."""
     if image.ndim == 2:
         image = image[..., None]
     channels = image.shape[-1]
-    if channels == 1:
-        return np.repeat(image, 3, axis=-1)
-    if channels == 3:
-        return image[..., ::-1].copy()
-    if channels == 4:
-        return image[..., 2::-1].copy()
-    raise PanoramaError(f"unsupported number of channels: {channels}")
+    if channels not in (1, 3, 4):
+        raise PanoramaError(f"unsupported number of channels: {channels}")
+    rgb = np.repeat(image, 3, axis=-1) if channels == 1 else image[..., 2::-1]
+    if image.dtype == np.uint8:
+        return np.ascontiguousarray(rgb)
+    if image.dtype == np.uint16:
+        return np.round(rgb.astype(np.float32) / 257.0).astype(np.uint8)
+    if image.dtype in (np.float32, np.float64):
+        return develop_hdr(rgb)
+    raise PanoramaError(f"unsupported pixel type {image.dtype} (8- or 16-bit, or floating-point HDR images only)")
+
+
+def develop_hdr(radiance: np.ndarray) -> np.ndarray:
+    """A linear HDR panorama (H, W, 3), any positive scale, developed to RGB uint8 as a 360-degree camera's HDR
+    capture is (:func:`~ncjax.io.tone_mapping.develop`, as the training renders' camera model develops): its
+    large-scale light compressed locally by :data:`HDR_LOCAL_COMPRESSION`, metered to render its log-average
+    luminance at 18% grey, part of a grey-world white balance, the filmic tone curve and sRGB. Negative values (a
+    resampled file's) count as black.
+
+    Raises:
+        PanoramaError: a pixel is not a finite number.
+    """
+    bad = int(np.count_nonzero(~np.isfinite(radiance).all(axis=-1)))
+    if bad:
+        raise PanoramaError(f"{bad} pixels of the HDR image are not finite numbers (NaN or infinity)")
+    linear = jnp.maximum(jnp.asarray(radiance, jnp.float32), 0.0)
+    display = develop(linear, HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
+    return np.round(np.asarray(display) * 255).astype(np.uint8)
 
 
 def nearly_full_panorama(width: int, height: int) -> bool:
@@ -127,14 +159,34 @@ def read_image_file(path: str | os.PathLike) -> tuple[np.ndarray, bytes]:
     truncated = _truncation(data)
     if truncated:
         raise PanoramaError(f"{path}: {truncated}")
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if data.startswith(_EXR_MAGIC):
+        # OpenCV reads OpenEXR only when asked to, before its first EXR file.
+        os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error as error:
+        raise PanoramaError(f"{path}: OpenCV cannot decode it ({one_line_cv2_error(error)})") from None
     if image is None:
         raise PanoramaError(f"{path}: not an image OpenCV can decode (corrupt or unsupported format)")
     try:
-        image = to_rgb8(image)
+        rgb = to_rgb8(image)
     except PanoramaError as error:
         raise PanoramaError(f"{path}: {error}") from None
-    return image, data
+    if image.dtype.kind == "f":
+        warnings.warn(
+            f"{path}: a linear HDR image, developed to 8 bits: its light compressed locally by "
+            f"{HDR_LOCAL_COMPRESSION}, metered to 18% grey, a filmic tone curve",
+            PanoramaDevelopedWarning,
+            stacklevel=2,
+        )
+    return rgb, data
+
+
+def one_line_cv2_error(error: cv2.error) -> str:
+    """The reason an OpenCV error gives (its ``error: (code) reason`` line), without its source file and code."""
+    text = str(error).strip().splitlines()
+    reason = next((line for line in text if "error:" in line), text[-1] if text else "")
+    return reason.split(")", 1)[-1].split(" in function")[0].strip() or type(error).__name__
 
 
 def photo_sphere_crop(

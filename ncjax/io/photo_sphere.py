@@ -25,6 +25,8 @@ import cv2
 import numpy as np
 
 _XMP_PACKET = re.compile(rb"<x:xmpmeta.*?</x:xmpmeta>", re.DOTALL)
+_XMP_KEYWORD = b"XML:com.adobe.xmp"  # the PNG text chunk that holds XMP
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _GPANO_NAMESPACE = "http://ns.google.com/photos/1.0/panorama/"
 _PREFIX = re.compile(r"xmlns:([\w.-]+)\s*=\s*[\"']" + re.escape(_GPANO_NAMESPACE) + r"[\"']")
 ASPECT_TOLERANCE = 0.005  # relative departure of a panorama's sizes from 2:1 taken as a stitcher's rounding
@@ -60,11 +62,33 @@ class SphereCropError(ValueError):
     """Photo-sphere metadata that cannot be used, or a panorama that does not cover the full circle."""
 
 
+def png_compressed_xmp(data: bytes) -> list[bytes]:
+    """The text of a PNG file's zlib-compressed XMP chunks (iTXt, keyword ``XML:com.adobe.xmp``), which a search
+    of the file's bytes cannot see; empty for any other file, or a chunk that does not decompress."""
+    texts, offset = [], len(_PNG_SIGNATURE)
+    if not data.startswith(_PNG_SIGNATURE):
+        return texts
+    while offset + 8 <= len(data):
+        (length,), kind = struct.unpack(">I", data[offset : offset + 4]), data[offset + 4 : offset + 8]
+        body = data[offset + 8 : offset + 8 + length]
+        offset += 12 + length
+        keyword, _, rest = body.partition(b"\0")
+        if kind != b"iTXt" or keyword != _XMP_KEYWORD or rest[:2] != b"\x01\x00":  # compressed, with zlib
+            continue
+        text = rest[2:].split(b"\0", 2)[-1]  # after the language tag and the translated keyword
+        try:
+            texts.append(zlib.decompress(text))
+        except zlib.error:
+            continue
+    return texts
+
+
 def gpano_fields(data: bytes) -> dict[str, str]:
-    """The GPano fields of a file's XMP packets (attribute or element form, under whatever prefix the packet binds
-    to the GPano namespace), empty when there are none."""
+    """The GPano fields of a file's XMP packets, compressed PNG ones included (attribute or element form, under
+    whatever prefix the packet binds to the GPano namespace), empty when there are none."""
     fields = {}
-    for packet in _XMP_PACKET.finditer(data):
+    packets = [match for text in (data, *png_compressed_xmp(data)) for match in _XMP_PACKET.finditer(text)]
+    for packet in packets:
         text = packet.group(0).decode("utf-8", errors="replace")
         for prefix in set(_PREFIX.findall(text)) | {"GPano"}:
             name = re.escape(prefix)
@@ -222,11 +246,13 @@ def gpano_packet(crop: SphereCrop) -> bytes:
     ).encode()
 
 
-def png_with_xmp(rgb: np.ndarray, packet: bytes) -> bytes:
-    """A PNG file of ``rgb`` (H, W, 3) carrying the XMP ``packet`` (an uncompressed iTXt chunk before its end, as
-    image editors write it): e.g. a photo sphere with :func:`gpano_packet`."""
+def png_with_xmp(rgb: np.ndarray, packet: bytes, compressed: bool = False) -> bytes:
+    """A PNG file of ``rgb`` (H, W, 3) carrying the XMP ``packet`` (an iTXt chunk before its end, as image editors
+    write it; zlib-compressed if ``compressed``): e.g. a photo sphere with :func:`gpano_packet`."""
     png = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))[1].tobytes()
-    data = b"XML:com.adobe.xmp\x00\x00\x00\x00\x00" + packet
+    # keyword, compression flag and method, empty language tag and translated keyword, text
+    flag = b"\x01\x00" if compressed else b"\x00\x00"
+    data = _XMP_KEYWORD + b"\x00" + flag + b"\x00\x00" + (zlib.compress(packet) if compressed else packet)
     chunk = struct.pack(">I", len(data)) + b"iTXt" + data + struct.pack(">I", zlib.crc32(b"iTXt" + data))
     end = png.rindex(b"IEND") - 4  # before the IEND chunk's length
     return png[:end] + chunk + png[end:]

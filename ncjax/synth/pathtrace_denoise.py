@@ -27,9 +27,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from ..geometry.camera import NonCentralPanorama
+from ..io.tone_mapping import luminance
 from .pathtrace import camera_ray
 from .pathtrace_scene import SurfaceKind, intersect, surface_appearance, surface_emission
-from .photograph import luminance
 from .scene import Scene
 
 # The a-trous filter's 1D kernel, the cubic B-spline's (its 5 x 5 outer product is one level's footprint).

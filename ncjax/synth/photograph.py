@@ -4,16 +4,19 @@ The path tracer (:mod:`ncjax.synth.pathtrace`) returns physical radiance, unboun
 a photograph is what a camera makes of it. :func:`photograph` does what the camera does, in its order:
 
 - HDR capture (optional): the bracketed exposures fused and tone-mapped locally, as real-estate capture apps do:
-  the scene's large-scale light compressed in log luminance, its detail kept (:func:`local_tone_mapping`), so
-  that windows show the view and shadowed corners lift;
-- metering: the exposure that maps a high percentile of the luminance to the tone curve's white point, so
-  that whatever is brighter (windows, lamps) blows out, as in real indoor panoramas;
+  the scene's large-scale light compressed in log luminance, its detail kept
+  (:func:`~ncjax.io.tone_mapping.local_tone_mapping`), so that windows show the view and shadowed corners lift;
+- metering: the exposure that renders the scene's log-average luminance at a mid grey, so that whatever is far
+  brighter (windows, lamps) blows out, as in real indoor panoramas;
 - white balance: part of the grey-world correction of an automatic white balance, and a small random error;
 - the lenses' vignetting and the stitcher's seams between the two lenses (a residual exposure and colour step,
   a pixel of parallax), from :mod:`ncjax.synth.augment`;
 - a filmic tone curve (Hable's, with a shoulder that rolls highlights off to white) and the sRGB encoding;
 - the nadir patch that hides the tripod: the bottom rows smeared and darkened;
 - sensor noise, and the JPEG compression of the file (:func:`~ncjax.synth.augment.jpeg_compress`).
+
+The development (metering, white balance, tone curve, encoding) is :func:`~ncjax.io.tone_mapping.develop`'s, which
+also develops the linear HDR panorama files ``ncjax reconstruct`` is given (:mod:`ncjax.io.images`).
 
 Every function takes ONE image (batch with ``jax.vmap``); random numbers come only from the key of
 :func:`photograph`. The geometry is untouched (at most the seams' pixel of shift), so labels stay exact.
@@ -27,14 +30,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from ..io.tone_mapping import MIDDLE_GREY, WHITE_BALANCE_STRENGTH, WHITE_POINT, develop
 from ..network.denoise import gaussian_blur
 from .augment import add_sensor_noise, jpeg_compress, stitching_seams, vignette
-
-# Rec. 709 / sRGB luminance of linear RGB
-_LUMINANCE = (0.2126, 0.7152, 0.0722)
-# Hable's filmic curve ("Uncharted 2"): shoulder strength, linear strength, linear angle, toe strength,
-# toe numerator and denominator.
-_HABLE = (0.15, 0.50, 0.10, 0.20, 0.02, 0.30)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,8 +42,9 @@ class PhotographConfig:
     Each range ``(low, high)`` is drawn uniformly per photograph from its key.
 
     Attributes:
-        local_compression: the factor on the log luminance of the scene's large-scale light (:func:`local_tone_mapping`:
-            1 keeps it, as a single exposure does; 0.5 halves its contrasts in log, as an HDR capture app does). Off
+        local_compression: the factor on the log luminance of the scene's large-scale light
+            (:func:`~ncjax.io.tone_mapping.local_tone_mapping`: 1 keeps it, as a single exposure does; 0.5 halves its
+            contrasts in log, as an HDR capture app does). Off
             in the training renders' development: heads trained on renders developed at 0.4-0.8 read photographs no
             better, and the realism probe tells them from photographs as well (experiments/RESULTS.md,
             "Path-traced renders").
@@ -71,10 +70,10 @@ class PhotographConfig:
     """
 
     local_compression: tuple[float, float] = (1.0, 1.0)
-    middle_grey: float = 0.18
+    middle_grey: float = MIDDLE_GREY
     exposure_spread: tuple[float, float] = (0.8, 1.25)
-    white_point: float = 6.0
-    white_balance_strength: float = 0.6
+    white_point: float = WHITE_POINT
+    white_balance_strength: float = WHITE_BALANCE_STRENGTH
     white_balance_error: tuple[float, float] = (0.95, 1.05)
     vignetting_strength: tuple[float, float] = (0.05, 0.2)
     seam_exposure: tuple[float, float] = (0.95, 1.05)
@@ -100,121 +99,6 @@ class PhotographConfig:
             raise ValueError(f"native_width must be > 0, got {self.native_width}")
         if not 0 <= self.nadir_rows[0] <= self.nadir_rows[1] < 0.5:
             raise ValueError(f"nadir_rows must be 0 <= low <= high < 0.5, got {self.nadir_rows}")
-
-
-def luminance(image: Float[Array, "*S 3"]) -> Float[Array, "*S"]:
-    """Rec. 709 luminance of linear RGB."""
-    return image @ jnp.asarray(_LUMINANCE, image.dtype)
-
-
-def log_luminance(radiance: Float[Array, "H W 3"]) -> Float[Array, "H W"]:
-    """The natural log of each pixel's luminance, black pixels lifted to 1e-4 of the image's mean: shadowed corners
-    would pull a log-average (the metering's key) to zero and a log image to minus infinity. No light is negative
-    (a resampled photograph's texels may be): it counts as black."""
-    level = jnp.maximum(luminance(radiance), 0.0)
-    return jnp.log(level + 1e-4 * jnp.mean(level) + 1e-30)
-
-
-def local_tone_mapping(
-    radiance: Float[Array, "H W 3"],
-    compression: Float[ArrayLike, ""],
-    edge_contrast: float = 0.5,
-    scale: float = 1 / 32,
-    grid: int = 8,
-) -> Float[Array, "H W 3"]:
-    """Compress the large-scale light of a radiance panorama and keep its detail (Durand and Dorsey 2002, "Fast
-    bilateral filtering for the display of high-dynamic-range images", Section 5), as an HDR capture's
-    tone mapping does.
-
-    The log luminance splits into a base (the light: windows, sun patches, shadows, the fall-off into corners) and a
-    detail (textures and edges of smaller contrast); the base is multiplied by ``compression``, the detail kept. The
-    base is the log luminance smoothed by a guided filter with itself as guide (He, Sun and Tang 2013, "Guided image
-    filtering", Eq. 4-8), run on a ``grid`` times coarser image and its coefficients brought back bilinearly (He and
-    Sun 2015, "Fast guided filter"): steps of more than ``edge_contrast`` (natural log) over a window stay in the base,
-    finer ones in the detail. The colour of each pixel is kept.
-
-    Args:
-        radiance: (H, W, 3) linear RGB, any positive scale.
-        compression: the factor on the base's log contrasts (1 changes nothing).
-        edge_contrast: the guided filter's regularisation, sqrt(epsilon), in natural log luminance.
-        scale: the filter's Gaussian window, as a fraction of the image width.
-        grid: the coarse image's reduction factor along each axis (static).
-
-    Returns:
-        (H, W, 3) linear RGB, each pixel multiplied by ``exp((compression - 1) * (base - mean base))``.
-    """
-    height, width = radiance.shape[:2]
-    log_level = log_luminance(radiance)
-    coarse = jax.image.resize(log_level, (max(height // grid, 1), max(width // grid, 1)), "linear")
-    sigma = scale * coarse.shape[1]
-    radius = int(3 * sigma) + 1
-
-    def window_means(*images):  # the Gaussian window's mean of each (h, w) image
-        return jnp.moveaxis(gaussian_blur(jnp.stack(images, -1), sigma, radius), -1, 0)
-
-    mean, mean_square = window_means(coarse, coarse**2)
-    variance = jnp.maximum(mean_square - mean**2, 0.0)
-    slope = variance / (variance + edge_contrast**2)
-    slope, offset = window_means(slope, (1 - slope) * mean)
-    slope, offset = (jax.image.resize(x, (height, width), "linear") for x in (slope, offset))
-    base = slope * log_level + offset
-    return radiance * jnp.exp((jnp.asarray(compression) - 1) * (base - jnp.mean(base)))[..., None]
-
-
-def metered_exposure(
-    radiance: Float[Array, "H W 3"], middle_grey: Float[ArrayLike, ""], white_point: Float[ArrayLike, ""]
-) -> Float[Array, ""]:
-    """The factor on the radiance that renders its log-average luminance (the scene's key: Reinhard et al. 2002,
-    "Photographic tone reproduction for digital images", Eq. 1) at ``middle_grey`` through
-    :func:`filmic_tone_curve`.
-
-    A camera's averaging meter exposes whatever it sees as a mid grey, so a dim room comes out as bright as a
-    sunny one, and what is far brighter than the room's average (windows, lamps) blows out. A black image gets
-    the factor 1.
-    """
-    key = jnp.exp(jnp.mean(log_luminance(radiance)))
-    target = inverse_filmic_tone_curve(middle_grey, white_point)
-    return jnp.where(jnp.mean(jnp.maximum(luminance(radiance), 0.0)) > 0, target / key, 1.0)
-
-
-def grey_world_gains(radiance: Float[Array, "H W 3"], strength: Float[ArrayLike, ""]) -> Float[Array, 3]:
-    """Automatic white balance: per-channel gains that make the image's mean grey, raised to ``strength``
-    (cameras correct only part of a warm room's cast); the gains keep the mean luminance."""
-    mean = jnp.mean(radiance.reshape(-1, 3), 0)
-    grey = luminance(mean)
-    gains = (grey / jnp.maximum(mean, 1e-12 * grey + 1e-30)) ** strength
-    return jnp.where(grey > 0, gains / luminance(gains), 1.0)
-
-
-def _hable(x: Float[ArrayLike, "*S"]) -> Float[Array, "*S"]:
-    a, b, c, d, e, f = _HABLE
-    return (x * (a * x + c * b) + d * e) / (x * (a * x + b) + d * f) - e / f
-
-
-def filmic_tone_curve(linear: Float[Array, "*S"], white_point: Float[ArrayLike, ""]) -> Float[Array, "*S"]:
-    """Hable's filmic curve normalised to map ``white_point`` to 1 (display-linear, clipped to [0, 1]).
-
-    Monotonic: a toe that deepens the shadows, a nearly linear middle, a shoulder that compresses the
-    highlights smoothly up to the white point, where the film saturates.
-    """
-    return jnp.clip(_hable(jnp.maximum(linear, 0.0)) / _hable(white_point), 0.0, 1.0)
-
-
-def inverse_filmic_tone_curve(display: Float[ArrayLike, "*S"], white_point: Float[ArrayLike, ""]) -> Float[Array, "*S"]:
-    """The linear value that :func:`filmic_tone_curve` maps to ``display`` in [0, 1): the positive root of the
-    quadratic that Hable's rational curve equal to ``display * curve(white_point)`` is."""
-    a, b, c, d, e, f = _HABLE
-    level = jnp.asarray(display) * _hable(jnp.asarray(white_point)) + e / f
-    # a (1 - level) x^2 + b (c - level) x + d (e - level f) = 0
-    quadratic, linear, constant = a * (1 - level), b * (c - level), d * (e - level * f)
-    return (-linear + jnp.sqrt(linear**2 - 4 * quadratic * constant)) / (2 * quadratic)
-
-
-def srgb_encode(linear: Float[Array, "*S"]) -> Float[Array, "*S"]:
-    """The sRGB transfer function (IEC 61966-2-1) of display-linear values in [0, 1]."""
-    linear = jnp.clip(linear, 0.0, 1.0)
-    curve = 1.055 * jnp.maximum(linear, 0.0031308) ** (1 / 2.4) - 0.055
-    return jnp.where(linear <= 0.0031308, 12.92 * linear, curve)
 
 
 def nadir_patch(
@@ -263,18 +147,18 @@ def photograph(
     height, width = radiance.shape[:2]
     key_parameters, key_noise = jax.random.split(key)
     u = jax.random.uniform(key_parameters, (16,))
-    if config.local_compression != (1.0, 1.0):
-        radiance = local_tone_mapping(radiance, _between(u[14], config.local_compression))
-
     log_low, log_high = jnp.log(config.exposure_spread[0]), jnp.log(config.exposure_spread[1])
-    error = jnp.exp(log_low + u[0] * (log_high - log_low))
-    exposed = radiance * error * metered_exposure(radiance, config.middle_grey, config.white_point)
-    gains = grey_world_gains(radiance, config.white_balance_strength) * _between(u[1:4], config.white_balance_error)
-    exposed = exposed * gains
-
+    image = develop(
+        radiance,
+        _between(u[14], config.local_compression) if config.local_compression != (1.0, 1.0) else None,
+        jnp.exp(log_low + u[0] * (log_high - log_low)),
+        _between(u[1:4], config.white_balance_error),
+        config.middle_grey,
+        config.white_point,
+        config.white_balance_strength,
+    )
     # Two back-to-back lenses: their axes half a turn apart, the seams a quarter turn from each.
     phase = 2 * jnp.pi * u[4]
-    image = srgb_encode(filmic_tone_curve(exposed, config.white_point))
     image = vignette(image, _between(u[5], config.vignetting_strength), 2, phase, 0.0)
     seam_columns = width * ((phase / (2 * jnp.pi) + 0.25 + jnp.array([0.0, 0.5])) % 1.0)
     seam_gains = jnp.stack([_between(u[6], config.seam_exposure), 1 / _between(u[6], config.seam_exposure)])

@@ -28,6 +28,7 @@ import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama, angles_to_ray, pixel_to_angles
+from ..io.tone_mapping import luminance
 from .pathtrace import PathTraceConfig, Sun, path_trace
 from .pathtrace_denoise import (
     DenoiseConfig,
@@ -37,7 +38,7 @@ from .pathtrace_denoise import (
     remodulated,
     upsampled_light,
 )
-from .photograph import PhotographConfig, luminance, photograph
+from .photograph import PhotographConfig, photograph
 from .scene import Scene
 
 WINDOW_VIEWS_PATH = pathlib.Path(__file__).parents[1] / "data" / "window_views" / "outdoor.npz"
@@ -193,10 +194,32 @@ def photoreal_image(
     Returns:
         (H, W, 3) sRGB in [0, 1], multiples of 1/255. Jit with ``config`` static; vmap over keys and scenes.
     """
+    key_camera = jax.random.split(key, 3)[2]  # the first two streams are photoreal_radiance's
+    return photograph(key_camera, photoreal_radiance(key, scene, cam, views, config), config.camera)
+
+
+def photoreal_radiance(
+    key: PRNGKeyArray,
+    scene: Scene,
+    cam: NonCentralPanorama,
+    views: Float[Array, "N He We 3"],
+    config: PhotorealConfig = PhotorealConfig(),
+) -> Float[Array, "H W 3"]:
+    """The linear radiance that :func:`photoreal_image` develops: traced, denoised and brought to the image's size.
+
+    Args:
+        key: a ``jax.random`` key: the window's view and the paths (the same key as :func:`photoreal_image`'s gives
+            the radiance it develops).
+        scene, cam, views, config: as for :func:`photoreal_image`.
+
+    Returns:
+        (H, W, 3) linear RGB, in the units of the window views' radiance. Jit with ``config`` static; vmap over keys
+        and scenes.
+    """
     scale = config.trace_scale
     if cam.width % scale or cam.height % scale:
         raise ValueError(f"trace_scale {scale} must divide the image size {cam.height} x {cam.width}")
-    key_view, key_trace, key_camera = jax.random.split(key, 3)
+    key_view, key_trace, _ = jax.random.split(key, 3)  # the third stream is photoreal_image's camera's
     traced = NonCentralPanorama(cam.width // scale, cam.height // scale, cam.rc, cam.fov_horizontal, cam.fov_vertical)
     view, sun = window_light(key_view, views, config)
     next_room = next_room_irradiance(view, config)
@@ -209,4 +232,4 @@ def photoreal_image(
         image_guides = guide_buffers(scene, cam)
         light = upsampled_light(light, guides, image_guides, config.denoise or DenoiseConfig())
         guides = image_guides
-    return photograph(key_camera, remodulated(light, guides), config.camera)
+    return remodulated(light, guides)
