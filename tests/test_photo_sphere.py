@@ -96,6 +96,8 @@ def test_a_compressed_chunk_that_is_not_xmp_or_does_not_decompress_is_left_out()
     broken = png[:start] + b"\xff" * 8 + png[start + 8 :]  # the zlib stream's head damaged
     assert png_compressed_xmp(broken) == [] and gpano_fields(broken) == {}
     assert png_compressed_xmp(b"\xff\xd8" + gpano_packet(crop)) == []  # a JPEG: its packets are in its bytes
+    bomb = png_with_xmp(np.zeros((4, 8, 3), np.uint8), b"<x:xmpmeta" + bytes(64 << 20) + b"</x:xmpmeta>", True)
+    assert len(bomb) < 200_000 and png_compressed_xmp(bomb) == []  # 64 MB inflated from under 200 kB: left out
 
 
 def test_gpano_crop_is_scaled_to_a_file_resized_after_its_metadata():

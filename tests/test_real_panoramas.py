@@ -12,7 +12,7 @@ from _scripts import script_module
 
 import ncjax
 from ncjax.evaluation.panorama_labels import distinct_corners, label_boundaries, read_label_cor
-from ncjax.evaluation.panorama_scores import match_one_to_one, row_error
+from ncjax.evaluation.panorama_scores import match_one_to_one, one_to_one_pairs, row_error
 from ncjax.synth.dataset import label_cor_rows
 
 WIDTH, HEIGHT = 1024, 512
@@ -99,6 +99,7 @@ def test_corners_match_one_to_one_across_the_seam():
     targets = np.array([0.2, 505.0, 900.0])
     matched = match_one_to_one(peaks, targets, tolerance=10.0, width=1024)
     assert matched.tolist() == [True, False, True, False]  # one peak per corner, the nearest across the seam
+    assert one_to_one_pairs(peaks, targets, tolerance=10.0, width=1024) == [(0, 0), (2, 1)]  # nearest pairs first
 
 
 def write_image(path: Path, width: int = 128) -> None:

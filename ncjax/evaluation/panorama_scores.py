@@ -35,19 +35,29 @@ def predicted_corners(corner_prob: np.ndarray, config: PipelineConfig) -> np.nda
     return np.asarray(columns, np.float64)[np.asarray(mask)]
 
 
-def match_one_to_one(columns: np.ndarray, targets: np.ndarray, tolerance: float, width: int) -> np.ndarray:
-    """Which ``columns`` pair with a distinct target within ``tolerance``, the nearest pairs first."""
-    matched = np.zeros(len(columns), bool)
+def one_to_one_pairs(columns: np.ndarray, targets: np.ndarray, tolerance: float, width: int) -> list[tuple[int, int]]:
+    """The ``(column, target)`` index pairs of ``columns`` and distinct targets within ``tolerance`` of each other
+    (circularly), the nearest pairs first."""
+    pairs = []
     if len(columns) == 0 or len(targets) == 0:
-        return matched
+        return pairs
     distance = circular_distance(columns[:, None], targets[None, :], width)
-    taken = np.zeros(len(targets), bool)
+    matched, taken = np.zeros(len(columns), bool), np.zeros(len(targets), bool)
     for flat in np.argsort(distance, axis=None, kind="stable"):
         i, j = np.unravel_index(flat, distance.shape)
         if distance[i, j] > tolerance:
             break
         if not matched[i] and not taken[j]:
             matched[i] = taken[j] = True
+            pairs.append((int(i), int(j)))
+    return pairs
+
+
+def match_one_to_one(columns: np.ndarray, targets: np.ndarray, tolerance: float, width: int) -> np.ndarray:
+    """Which ``columns`` pair with a distinct target within ``tolerance``, the nearest pairs first."""
+    matched = np.zeros(len(columns), bool)
+    for i, _ in one_to_one_pairs(columns, targets, tolerance, width):
+        matched[i] = True
     return matched
 
 

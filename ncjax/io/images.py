@@ -57,6 +57,8 @@ HDR_LOCAL_COMPRESSION = 0.6
 _JPEG_END = b"\xff\xd9"
 _PNG_END = b"IEND\xaeB`\x82"
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
+_OPENEXR_SWITCH = "OPENCV_IO_ENABLE_OPENEXR"
+_CV2_REASON = re.compile(r"error: \([^)]*\)\s*(.*?)(?:\s+in function .*)?$")
 _RC_IN_NAME = re.compile(r"_R(\d{5})(?:\D|$)")  # the rig's radius in a file name, 0.1 mm
 
 
@@ -116,7 +118,10 @@ def develop_hdr(radiance: np.ndarray) -> np.ndarray:
     bad = int(np.count_nonzero(~np.isfinite(radiance).all(axis=-1)))
     if bad:
         raise PanoramaError(f"{bad} pixels of the HDR image are not finite numbers (NaN or infinity)")
-    linear = jnp.maximum(jnp.asarray(radiance, jnp.float32), 0.0)
+    # The development does not depend on the light's scale (the metering sets it): brought to a peak of 1 before
+    # float32, light near float32's limits neither overflows nor underflows.
+    peak = float(np.max(radiance))
+    linear = jnp.maximum(jnp.asarray(radiance / peak if peak > 0 else radiance, jnp.float32), 0.0)
     display = develop(linear, HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
     return np.round(np.asarray(display) * 255).astype(np.uint8)
 
@@ -160,12 +165,21 @@ def read_image_file(path: str | os.PathLike) -> tuple[np.ndarray, bytes]:
     if truncated:
         raise PanoramaError(f"{path}: {truncated}")
     if data.startswith(_EXR_MAGIC):
-        # OpenCV reads OpenEXR only when asked to, before its first EXR file.
-        os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+        # OpenCV switches its OpenEXR reader off unless asked (opencv/opencv#21326: the decoder's exposure to crafted
+        # files), and reads the request once, at its first EXR file: a file given as .exr asks for it, unless the
+        # user has set the variable.
+        os.environ.setdefault(_OPENEXR_SWITCH, "1")
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # its reasons become the one line below
     try:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as error:
-        raise PanoramaError(f"{path}: OpenCV cannot decode it ({one_line_cv2_error(error)})") from None
+        reason = one_line_cv2_error(error)
+        if "OpenEXR codec is disabled" in reason:
+            reason = f"OpenCV's OpenEXR reader is switched off ({_OPENEXR_SWITCH}={os.environ.get(_OPENEXR_SWITCH)})"
+        raise PanoramaError(f"{path}: OpenCV cannot decode it: {reason}") from None
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if image is None:
         raise PanoramaError(f"{path}: not an image OpenCV can decode (corrupt or unsupported format)")
     try:
@@ -183,10 +197,11 @@ def read_image_file(path: str | os.PathLike) -> tuple[np.ndarray, bytes]:
 
 
 def one_line_cv2_error(error: cv2.error) -> str:
-    """The reason an OpenCV error gives (its ``error: (code) reason`` line), without its source file and code."""
-    text = str(error).strip().splitlines()
-    reason = next((line for line in text if "error:" in line), text[-1] if text else "")
-    return reason.split(")", 1)[-1].split(" in function")[0].strip() or type(error).__name__
+    """The reason an OpenCV error gives (``OpenCV(version) file:line: error: (code:name) reason in function 'f'``),
+    without its version, source file, code and function."""
+    text = " ".join(str(error).split())
+    match = _CV2_REASON.search(text)
+    return (match.group(1) if match else text).strip() or type(error).__name__
 
 
 def photo_sphere_crop(

@@ -27,6 +27,7 @@ import numpy as np
 _XMP_PACKET = re.compile(rb"<x:xmpmeta.*?</x:xmpmeta>", re.DOTALL)
 _XMP_KEYWORD = b"XML:com.adobe.xmp"  # the PNG text chunk that holds XMP
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_MAX_XMP_BYTES = 1 << 22  # an XMP packet is kilobytes; a chunk that inflates beyond this is not one
 _GPANO_NAMESPACE = "http://ns.google.com/photos/1.0/panorama/"
 _PREFIX = re.compile(r"xmlns:([\w.-]+)\s*=\s*[\"']" + re.escape(_GPANO_NAMESPACE) + r"[\"']")
 ASPECT_TOLERANCE = 0.005  # relative departure of a panorama's sizes from 2:1 taken as a stitcher's rounding
@@ -70,16 +71,20 @@ def png_compressed_xmp(data: bytes) -> list[bytes]:
         return texts
     while offset + 8 <= len(data):
         (length,), kind = struct.unpack(">I", data[offset : offset + 4]), data[offset + 4 : offset + 8]
-        body = data[offset + 8 : offset + 8 + length]
-        offset += 12 + length
-        keyword, _, rest = body.partition(b"\0")
-        if kind != b"iTXt" or keyword != _XMP_KEYWORD or rest[:2] != b"\x01\x00":  # compressed, with zlib
+        start, offset = offset + 8, offset + 12 + length
+        if kind != b"iTXt":
+            continue
+        keyword, _, rest = data[start : start + length].partition(b"\0")
+        if keyword != _XMP_KEYWORD or rest[:2] != b"\x01\x00":  # compressed, with zlib
             continue
         text = rest[2:].split(b"\0", 2)[-1]  # after the language tag and the translated keyword
+        inflater = zlib.decompressobj()
         try:
-            texts.append(zlib.decompress(text))
+            packet = inflater.decompress(text, _MAX_XMP_BYTES)
         except zlib.error:
             continue
+        if not inflater.unconsumed_tail:  # a packet that inflates beyond any XMP's size is left out
+            texts.append(packet)
     return texts
 
 
