@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..geometry.gravity import panorama_size_error
+from .dual_fisheye import looks_dual_fisheye
 from .photo_sphere import (
     ASPECT_TOLERANCE,  # relative departure of width / height from 2 that is resized instead of refused
     SphereCrop,
@@ -260,7 +261,8 @@ def read_panorama_file(path: str | os.PathLike, assume_horizon_centred: bool = F
 
     Raises:
         PanoramaError: missing, unreadable, truncated, not an image, an
-            unsupported pixel format, unusable photo-sphere metadata, not the full circle, or not 2:1.
+            unsupported pixel format, unusable photo-sphere metadata, not the full circle, not 2:1, or an
+            unstitched dual-fisheye image (:func:`~ncjax.io.dual_fisheye.looks_dual_fisheye`).
     """
     image, data = read_image_file(path)
     height, width = image.shape[:2]
@@ -291,6 +293,11 @@ def read_panorama_file(path: str | os.PathLike, assume_horizon_centred: bool = F
             stacklevel=2,
         )
         image = resized
+    if looks_dual_fisheye(image):
+        raise PanoramaError(
+            f"{path}: two fisheye discs on black, not an equirectangular panorama (a 360-degree camera's unstitched "
+            "dual-fisheye image?); export it stitched, as an equirectangular panorama, from the camera's app"
+        )
     size_error = panorama_size_error(*image.shape[1::-1])
     if size_error:
         hint = (
