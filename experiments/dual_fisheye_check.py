@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ncjax.io.dual_fisheye import looks_dual_fisheye
-from ncjax.io.images import PANORAMA_SUFFIXES, read_image_file
+from ncjax.io.images import PANORAMA_SUFFIXES, read_image_file, working_size
 
 
 def dual_fisheye_view(panorama: np.ndarray, fov_degrees: float = 190.0) -> np.ndarray:
@@ -34,7 +34,7 @@ def dual_fisheye_view(panorama: np.ndarray, fov_degrees: float = 190.0) -> np.nd
     off_axis = radius * np.radians(fov_degrees) / 2  # equidistant: angle from the lens axis grows with the radius
     around = np.arctan2(-y, x)
     halves = []
-    for facing in (1.0, -1.0):  # the front lens, then the back one (seen mirrored, as a camera writes it)
+    for facing in (1.0, -1.0):  # the front lens, then the back one, facing the other way
         forward = facing * np.cos(off_axis)
         right, up = facing * np.sin(off_axis) * np.cos(around), np.sin(off_axis) * np.sin(around)
         azimuth, elevation = np.arctan2(right, forward), np.arcsin(np.clip(up, -1, 1))
@@ -48,14 +48,18 @@ def dual_fisheye_view(panorama: np.ndarray, fov_degrees: float = 190.0) -> np.nd
 
 
 def full_panorama(path: pathlib.Path) -> np.ndarray | None:
-    """A panorama file as a 2:1 RGB uint8 image (a near-2:1 one resized), or None for another shape."""
+    """A panorama file as ``ncjax reconstruct`` checks it: 2:1 RGB uint8 at its working size (a near-2:1 one made
+    2:1, a wide one brought to 2048 columns), or None for another shape."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # HDR files' development notes
         image, _ = read_image_file(path)
     height, width = image.shape[:2]
     if abs(width / (2 * height) - 1) > 0.01:
         return None
-    return image if width == 2 * height else cv2.resize(image, (2 * height, height), interpolation=cv2.INTER_AREA)
+    resize = working_size(width, height)
+    if resize is None:
+        return image
+    return cv2.resize(image, (resize[0], resize[0] // 2), interpolation=cv2.INTER_AREA)
 
 
 def main(argv: list[str] | None = None) -> int:

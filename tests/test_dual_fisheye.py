@@ -33,9 +33,21 @@ def test_black_poles_a_dark_room_and_other_shapes_are_not_dual_fisheye(demo):
     poles[: len(demo) // 3] = 0  # a stitcher's black fill above 30 degrees of elevation and below -30
     poles[-len(demo) // 3 :] = 0
     assert not looks_dual_fisheye(poles)
-    assert not looks_dual_fisheye((demo // 16).astype(np.uint8))  # a dark room: its corners are dark too
+    dark = (demo // 16).astype(np.uint8)  # a dark room: its corners are dark too
+    assert not looks_dual_fisheye(dark)
+    # ... with two ceiling lamps about 72 degrees up, above the middle of each half (where a fisheye's disc is lit)
+    for column in (256, 768):
+        cv2.circle(dark, (column, 51), 20, (255, 255, 240), -1)
+    assert not looks_dual_fisheye(dark)
     assert not looks_dual_fisheye(np.zeros_like(demo))
     assert not looks_dual_fisheye(dual_fisheye_view(demo)[:, :-2])  # not 2:1
+
+
+@pytest.mark.parametrize("height", [513, 769, 1000])
+def test_sizes_whose_view_is_subsampled_unevenly_are_told_too(demo, height):
+    """Heights the 256-row view does not divide: both halves are read whole, none a column short."""
+    panorama = cv2.resize(demo, (2 * height, height), interpolation=cv2.INTER_AREA)
+    assert looks_dual_fisheye(dual_fisheye_view(panorama)) and not looks_dual_fisheye(panorama)
 
 
 def test_a_dual_fisheye_file_is_refused_in_one_line(demo, tmp_path):

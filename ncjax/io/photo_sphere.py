@@ -83,7 +83,7 @@ def png_compressed_xmp(data: bytes) -> list[bytes]:
             packet = inflater.decompress(text, _MAX_XMP_BYTES)
         except zlib.error:
             continue
-        if not inflater.unconsumed_tail:  # a packet that inflates beyond any XMP's size is left out
+        if inflater.eof and not inflater.unconsumed_tail:  # a cut stream, or one beyond any XMP's size: left out
             texts.append(packet)
     return texts
 

@@ -142,11 +142,12 @@ class Layout(eqx.Module):
             (:func:`ncjax.pipeline.uncertainty.layout_uncertainty`); all-infinite when the fit
             does not determine it (failed layouts included), NaN only with
             ``PipelineConfig(covariance=False)``.
-            Calibrated for rows with independent or short-range correlated
-            noise; a network's errors are correlated over whole walls and partly
-            absorbed by the fit, so there the ellipses are too small (about 55%
-            of the true corners inside the 95% ellipse on our test renders). It
-            does not cover a wrong wall structure.
+            The rows' noise includes an offset per wall and the detected corner
+            columns' error (``PipelineConfig.uncertainty``), calibrated on renders:
+            94-96% of the true corners inside the 95% ellipse of the network's
+            layouts of our test renders, 47% on real photographs, where rows leave
+            the walls along whole stretches (experiments/RESULTS.md). It does not
+            cover a wrong wall structure.
         height_covariance: (2, 2) covariance (m^2) of ``(h_c, h_f)``, likewise.
         status: :class:`LayoutStatus` code (int32).
         ok: ``status == OK``; corners of a failed layout are finite but meaningless.
