@@ -4,8 +4,9 @@ Accepted: anything OpenCV decodes (PNG, JPEG, TIFF, BMP, WebP, ...) as 8- or
 16-bit greyscale, RGB or RGBA. 16-bit images are scaled to 8 bits
 (``round(x / 257)``), greyscale is repeated into three channels and the alpha
 channel is dropped (panoramas have no transparency; the colour is kept as
-stored). Linear HDR panoramas (Radiance ``.hdr``, OpenEXR ``.exr``, floating-point
-TIFF) are developed to 8 bits as a 360-degree camera's HDR capture would be
+stored). A file's EXIF orientation is applied, as viewers apply it. Linear HDR
+panoramas (Radiance ``.hdr``, OpenEXR ``.exr``, floating-point TIFF) are
+developed to 8 bits as a 360-degree camera's HDR capture would be
 (:func:`develop_hdr`), with a :class:`PanoramaDevelopedWarning`. The panorama
 must be full (360 x 180 degrees, width = 2 x height).
 Stitching tools often write a row or a column more or fewer: an image within
@@ -28,6 +29,7 @@ file's scale: :func:`read_panorama_file` returns that size.
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import warnings
@@ -36,6 +38,7 @@ from typing import NamedTuple
 import cv2
 import jax.numpy as jnp
 import numpy as np
+from PIL import Image
 
 from ..geometry.gravity import panorama_size_error
 from .dual_fisheye import looks_dual_fisheye
@@ -59,6 +62,18 @@ _JPEG_END = b"\xff\xd9"
 _PNG_END = b"IEND\xaeB`\x82"
 _EXR_MAGIC = b"\x76\x2f\x31\x01"
 _OPENEXR_SWITCH = "OPENCV_IO_ENABLE_OPENEXR"
+_EXIF_ORIENTATION = 0x0112
+# EXIF orientation -> the stored pixels as shown (TIFF 6.0; Pillow's ImageOps.exif_transpose does the same)
+_UPRIGHT = {
+    1: lambda a: a,
+    2: lambda a: a[:, ::-1],  # mirrored left to right
+    3: lambda a: a[::-1, ::-1],  # turned half a turn
+    4: lambda a: a[::-1],  # mirrored top to bottom
+    5: lambda a: np.swapaxes(a, 0, 1),  # mirrored about the main diagonal
+    6: lambda a: np.rot90(a, -1),  # turned a quarter clockwise
+    7: lambda a: np.swapaxes(a[::-1, ::-1], 0, 1),  # mirrored about the other diagonal
+    8: lambda a: np.rot90(a, 1),  # turned a quarter anticlockwise
+}
 _CV2_REASON = re.compile(r"error: \([^)]*\)\s*(.*?)(?:\s+in function .*)?$")
 _RC_IN_NAME = re.compile(r"_R(\d{5})(?:\D|$)")  # the rig's radius in a file name, 0.1 mm
 
@@ -187,6 +202,7 @@ def read_image_file(path: str | os.PathLike) -> tuple[np.ndarray, bytes]:
         rgb = to_rgb8(image)
     except PanoramaError as error:
         raise PanoramaError(f"{path}: {error}") from None
+    rgb = upright(rgb, exif_orientation(data))
     if image.dtype.kind == "f":
         warnings.warn(
             f"{path}: a linear HDR image, developed to 8 bits: its light compressed locally by "
@@ -195,6 +211,27 @@ def read_image_file(path: str | os.PathLike) -> tuple[np.ndarray, bytes]:
             stacklevel=2,
         )
     return rgb, data
+
+
+def exif_orientation(data: bytes) -> int:
+    """A file's EXIF orientation (TIFF tag 274: 1 as stored, 2-8 mirrored and/or turned for display; 1 without one).
+
+    Read by Pillow from the file's header alone, without decoding its pixels. OpenCV's unchanged decoding, which
+    keeps 16 bits and alpha, leaves the orientation to the caller.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # only the header is read
+            with Image.open(io.BytesIO(data)) as header:
+                orientation = header.getexif().get(_EXIF_ORIENTATION, 1)
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError):
+        return 1  # a format Pillow does not read (HDR, EXR), or a file too large for it to open: none known
+    return orientation if orientation in _UPRIGHT else 1
+
+
+def upright(image: np.ndarray, orientation: int) -> np.ndarray:
+    """An image (H, W, ...) as stored, turned as its EXIF ``orientation`` says it is shown (1 unchanged)."""
+    return np.ascontiguousarray(_UPRIGHT[orientation](image))
 
 
 def one_line_cv2_error(error: cv2.error) -> str:
