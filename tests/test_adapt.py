@@ -1,0 +1,63 @@
+"""Test-time adaptation to a panorama's flat floor and ceiling (ncjax.network.adapt): the loss against the geometry
+of exact rows, and the adaptation lowering it on the demo panorama without touching the model it copies."""
+
+import json
+
+import cv2
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import nnx
+
+from ncjax.cli.demo import DEMO_DIR
+from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss
+from ncjax.network.predict import default_model
+
+
+def _box_room_elevations(ceiling_height: float, floor_height: float, width: int = 256):
+    """The exact ceiling and floor elevations per column of a 4 x 3 m box room seen from (0.5, -0.3) (central)."""
+    azimuth = np.linspace(-np.pi, np.pi, width, endpoint=False)
+    direction = np.stack([np.cos(azimuth), np.sin(azimuth)], -1)
+    camera, half = np.array([0.5, -0.3]), np.array([2.0, 1.5])
+    # distance to the box's wall along each column's direction
+    with np.errstate(divide="ignore"):
+        steps = np.where(direction != 0, (np.sign(direction) * half - camera) / direction, np.inf)
+    distance = steps.min(axis=-1)
+    return jnp.arctan2(ceiling_height, distance), jnp.arctan2(-floor_height, distance)
+
+
+def test_flat_rows_cost_nothing_and_a_doorway_costs_in_proportion():
+    ceiling, floor = _box_room_elevations(1.1, 1.5)
+    assert float(flatness_loss(ceiling, floor, 0.05)) == pytest.approx(0.0, abs=1e-10)
+    # rows of another room of the same shape and heights' ratio: still flat
+    assert float(flatness_loss(*_box_room_elevations(2.2, 3.0), 0.05)) == pytest.approx(0.0, abs=1e-10)
+    # the floor row of 32 columns through a doorway, 1.5 m further away: the loss grows with the stretch
+    far = jnp.arctan2(-1.5, 1.5 / jnp.tan(-floor) + 1.5)
+    losses = [float(flatness_loss(ceiling, floor.at[:n].set(far[:n]), 0.05)) for n in (16, 32)]
+    assert 0 < losses[0] < losses[1]
+    # its gradient moves those floor rows back towards the wall (lower: more negative elevation), the others not
+    grad = jax.grad(lambda f: flatness_loss(ceiling, f, 0.05))(floor.at[:32].set(far[:32]))
+    assert np.all(np.asarray(grad[:32]) > 0) and np.allclose(np.asarray(grad[64:]), 0.0, atol=1e-7)
+
+
+def test_configuration_rejects_bad_values():
+    for bad in ({"steps": 0}, {"learning_rate": 0.0}, {"huber": -1.0}):
+        with pytest.raises(ValueError):
+            AdaptConfig(**bad)
+
+
+@pytest.mark.slow
+def test_adaptation_lowers_the_loss_on_the_demo_and_leaves_the_model_it_copies():
+    name = json.loads((DEMO_DIR / "ground_truth.json").read_text())["image"]
+    image = cv2.imread(str(DEMO_DIR / name), cv2.IMREAD_COLOR)[..., ::-1].copy()
+    model = default_model()
+    before = jax.tree.map(np.asarray, nnx.state(model, ADAPTED))
+    adapted, losses = adapt_to_panorama(model, image, AdaptConfig(steps=2))
+    assert len(losses) == 3 and losses[-1] < losses[0]
+    after = jax.tree.map(np.asarray, nnx.state(model, ADAPTED))
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(after), strict=True))
+    changed = jax.tree.leaves(jax.tree.map(np.asarray, nnx.state(adapted, ADAPTED)))
+    assert any(not np.array_equal(a, b) for a, b in zip(jax.tree.leaves(before), changed, strict=True))
+    frozen = [nnx.state(m, nnx.Not(ADAPTED)) for m in (model, adapted)]
+    assert all(np.array_equal(a, b) for a, b in zip(*(jax.tree.leaves(f) for f in frozen), strict=True))
