@@ -1,6 +1,6 @@
 """The shipped network on real, labelled equirectangular panoramas: boundary rows, corners and raw-layout IoU.
 
-    uv run python benchmarks/real_panoramas.py --data DIR [--views N] [--model FILE] [--out DIR] [--limit N]
+    uv run python benchmarks/real_panoramas.py --data DIR [--views N] [--model FILE] [--out DIR] [--limit N] [--adapt]
 
 Input: a folder of full panoramas (``*.jpg``, ``*.jpeg``, ``*.png``; width = 2 x height, any size), each with
 a ``label_cor`` file of the same stem: ``<stem>.txt`` beside the image, or ``label_cor/<stem>.txt`` for an
@@ -28,6 +28,10 @@ Per image and on average it prints (and writes to ``real_panoramas.csv``):
 - the 2D and 3D IoU of the raw prediction (every column's floor row back-projected at camera height 1,
   the ceiling at the median height its ceiling rows give) and the label, up to scale (a central panorama
   has none).
+
+With ``--adapt`` the network is first fitted to each panorama's own flat floor and ceiling
+(:func:`ncjax.network.adapt.adapt_to_panorama`, its default settings; no label is used), from the same weights for
+every panorama.
 
 It also writes ``contact_sheet.png``: each panorama downscaled with the label's boundaries and corners in
 green, the prediction's in red, and the corner probability below it with the peak threshold in grey.
@@ -66,6 +70,7 @@ from ncjax.evaluation.panorama_scores import (
     table_line,
 )
 from ncjax.io.files import write_atomic
+from ncjax.network.adapt import adapt_to_panorama
 from ncjax.network.model import check_views
 
 DEFAULT_OUT = pathlib.Path(__file__).resolve().parent / "out" / "real_panoramas"
@@ -80,6 +85,9 @@ def parse_arguments(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--model", type=pathlib.Path, default=None, help="model file (default: the shipped model)")
     parser.add_argument("--out", type=pathlib.Path, default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
     parser.add_argument("--limit", type=int, default=None, help="only the first N images (by name)")
+    parser.add_argument(
+        "--adapt", action="store_true", help="fit the network to each panorama's flat floor and ceiling first"
+    )
     args = parser.parse_args(argv)
     try:
         check_views(args.views)
@@ -103,7 +111,10 @@ def run(args: argparse.Namespace, transform: Callable[[np.ndarray], np.ndarray] 
     for panorama in tqdm(panoramas, desc="panoramas", unit="image"):
         image = read_labelled_image(panorama.image_path)
         image = image if transform is None else transform(image)
-        prediction = tuple(np.asarray(a, np.float64) for a in ncjax.predict_boundaries(image, model, views=args.views))
+        network = adapt_to_panorama(model, image)[0] if args.adapt else model
+        prediction = tuple(
+            np.asarray(a, np.float64) for a in ncjax.predict_boundaries(image, network, views=args.views)
+        )
         peaks = predicted_corners(prediction[2], config)
         scores = score_image(panorama, prediction[0], prediction[1], peaks)
         rows.append(scores)

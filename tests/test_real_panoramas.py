@@ -166,6 +166,23 @@ def test_benchmark_on_renders(rendered_folder, tmp_path):
         assert figures["iou_2d"] > 0.8 and figures["iou_3d"] > 0.7
 
 
+@pytest.mark.slow
+def test_benchmark_adapts_the_network_to_each_panorama_when_asked(rendered_folder, tmp_path):
+    """``--adapt``: the network fitted to each render's flat floor and ceiling first reads its rows as well (renders
+    of furniture-free rooms, whose rows are already on the walls)."""
+    folder, _ = rendered_folder
+    runs = {}
+    for run, options in (("plain", []), ("adapted", ["--adapt"])):
+        out = tmp_path / run
+        assert benchmark_module().main(["--data", str(folder), "--out", str(out), "--views", "1", *options]) == 0
+        runs[run] = scored_rows(out)
+    for name, plain in runs["plain"].items():
+        adapted = runs["adapted"][name]
+        assert adapted["floor_error_px"] < plain["floor_error_px"] + 1.0, (name, plain, adapted)
+        assert adapted["ceiling_error_px"] < plain["ceiling_error_px"] + 1.0, (name, plain, adapted)
+    assert runs["plain"] != runs["adapted"]  # the adaptation changed the rows
+
+
 def scored_rows(out: Path) -> dict[str, dict[str, float]]:
     with open(out / "real_panoramas.csv") as file:
         return {
