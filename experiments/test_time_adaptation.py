@@ -3,7 +3,7 @@
 A room's floor and ceiling are flat and level, so in a central panorama every column sees its wall's foot and top at
 the same distance: ``tan(ceiling elevation) / tan(-floor elevation)`` is the room's ``h_c / h_f`` in every column
 where both rows lie on the wall. Rows that run through a doorway into the next room's floor, or onto a counter,
-break it. Per labelled panorama of ``--data``, the shipped model's batch-norm scales and offsets (the rest frozen,
+break it. Per labelled panorama of ``--data``, the shipped backbone's batch-norm scales and offsets (the rest frozen,
 the statistics as trained: TENT, Wang et al. 2021, with this geometric loss in place of entropy) take ``--steps``
 Adam steps of ``--learning-rate`` on the Huber loss (``--huber`` in log ratio) of each column's log ratio about their
 median (held fixed), from the shipped weights for every panorama (``ncjax.network.adapt.adapt_to_panorama``);

@@ -11,7 +11,7 @@ import pytest
 from flax import nnx
 
 from ncjax.cli.demo import DEMO_DIR
-from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss
+from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss, network_input
 from ncjax.network.predict import default_model
 
 
@@ -41,6 +41,16 @@ def test_flat_rows_cost_nothing_and_a_doorway_costs_in_proportion():
     assert np.all(np.asarray(grad[:32]) > 0) and np.allclose(np.asarray(grad[64:]), 0.0, atol=1e-7)
 
 
+def test_the_backbones_batch_norm_scales_and_offsets_are_what_adapts():
+    model = default_model()
+    adapted = {
+        jax.tree_util.keystr(path) for path, _ in jax.tree_util.tree_flatten_with_path(nnx.state(model, ADAPTED))[0]
+    }
+    norms = [module for path, module in nnx.iter_graph(model.backbone) if isinstance(module, nnx.BatchNorm)]
+    assert len(adapted) == 2 * len(norms) > 0  # a scale and an offset each, nothing else
+    assert all("['backbone']" in path and "['norm']" in path for path in adapted)
+
+
 def test_configuration_rejects_bad_values():
     for bad in ({"steps": 0}, {"learning_rate": 0.0}, {"huber": -1.0}):
         with pytest.raises(ValueError):
@@ -55,6 +65,11 @@ def test_adaptation_lowers_the_loss_on_the_demo_and_leaves_the_model_it_copies()
     before = jax.tree.map(np.asarray, nnx.state(model, ADAPTED))
     adapted, losses = adapt_to_panorama(model, image, AdaptConfig(steps=2))
     assert len(losses) == 3 and losses[-1] < losses[0]
+    # the first loss is the model's own, in eval mode (running statistics, no dropout), on the network's input
+    model.eval()
+    prediction = model(network_input(model, image))
+    own = flatness_loss(prediction.ceiling_elevation[0], prediction.floor_elevation[0], AdaptConfig().huber)
+    assert losses[0] == pytest.approx(float(own), rel=1e-4)
     after = jax.tree.map(np.asarray, nnx.state(model, ADAPTED))
     assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(before), jax.tree.leaves(after), strict=True))
     changed = jax.tree.leaves(jax.tree.map(np.asarray, nnx.state(adapted, ADAPTED)))

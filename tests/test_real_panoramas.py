@@ -180,7 +180,12 @@ def test_benchmark_adapts_the_network_to_each_panorama_when_asked(rendered_folde
         adapted = runs["adapted"][name]
         assert adapted["floor_error_px"] < plain["floor_error_px"] + 1.0, (name, plain, adapted)
         assert adapted["ceiling_error_px"] < plain["ceiling_error_px"] + 1.0, (name, plain, adapted)
-    assert runs["plain"] != runs["adapted"]  # the adaptation changed the rows
+    moved = [
+        abs(runs["adapted"][name][key] - plain[key])
+        for name, plain in runs["plain"].items()
+        for key in ("ceiling_error_px", "floor_error_px")
+    ]
+    assert np.nanmax(moved) > 0.05, moved  # the adaptation moved the rows
 
 
 def scored_rows(out: Path) -> dict[str, dict[str, float]]:

@@ -3,9 +3,10 @@
 A room's floor and ceiling are flat and level, so a central panorama's column sees its wall's foot and top at the
 same distance: ``tan(ceiling elevation) / tan(-floor elevation)`` is the room's ``h_c / h_f`` in every column whose
 rows lie on the wall. Rows that run through a doorway into the next room's floor, onto a counter or along a ceiling
-fan break it. :func:`adapt_to_panorama` takes a few gradient steps of the network's batch-norm scales and offsets
+fan break it. :func:`adapt_to_panorama` takes a few gradient steps of the backbone's batch-norm scales and offsets
 (TENT, Wang et al. 2021, "Tent: fully test-time adaptation by entropy minimization", with :func:`flatness_loss` in
-place of the entropy) on one panorama; the rest of the network and its batch-norm statistics stay as trained. On the
+place of the entropy) on one panorama, read in one view without edge snapping; the rest of the network and every
+batch-norm statistic stay as trained. On the
 real photographs it brings the rows 2-3 px nearer their labels (experiments/RESULTS.md, "Real photographs").
 """
 
@@ -24,13 +25,18 @@ from jaxtyping import Array, Float
 from .denoise import denoise_for_network
 from .model import HorizonNet
 
-ADAPTED = nnx.All(nnx.Param, nnx.PathContains("norm"))  # the batch-norm scales and offsets
+# the backbone's batch-norm scales and offsets (its ConvNorm layers' ``norm``; the height compressions' ``norms`` stay)
+ADAPTED = nnx.All(nnx.Param, nnx.PathContains("backbone"), nnx.PathContains("norm"))
 _LEVEL = 1e-3  # radians kept between a boundary and the horizon or a pole, where tan is 0 or infinite
 
 
 @dataclasses.dataclass(frozen=True)
 class AdaptConfig:
     """Settings of :func:`adapt_to_panorama` (set once, not chosen on the photographs it is measured on).
+
+    The loss has degenerate minimisers (any rows of one constant ratio, both boundaries at the horizon included):
+    what keeps the network near its trained rows is the small budget, ``steps`` times ``learning_rate`` (5e-3 on
+    each parameter by default).
 
     Attributes:
         steps: Adam steps on the panorama.
@@ -76,7 +82,7 @@ def network_input(model: HorizonNet, image: np.ndarray) -> Float[Array, "1 H W 3
 def adapt_to_panorama(
     model: HorizonNet, image: np.ndarray, config: AdaptConfig = AdaptConfig()
 ) -> tuple[HorizonNet, list[float]]:
-    """A copy of ``model`` whose batch-norm scales and offsets took ``config.steps`` Adam steps on
+    """A copy of ``model`` whose backbone's batch-norm scales and offsets took ``config.steps`` Adam steps on
     :func:`flatness_loss` of one RGB uint8 panorama (H, W, 3), and the loss before each step and after the last.
     ``model`` itself is left as it is; read the panorama's rows with the copy
     (:func:`~ncjax.network.predict.predict_boundaries`)."""
