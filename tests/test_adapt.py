@@ -11,8 +11,8 @@ import pytest
 from flax import nnx
 
 from ncjax.cli.demo import DEMO_DIR
-from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss, network_input
-from ncjax.network.predict import default_model
+from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss
+from ncjax.network.predict import default_model, network_input
 
 
 def _box_room_elevations(ceiling_height: float, floor_height: float, width: int = 256):
@@ -67,7 +67,7 @@ def test_adaptation_lowers_the_loss_on_the_demo_and_leaves_the_model_it_copies()
     assert len(losses) == 3 and losses[-1] < losses[0]
     # the first loss is the model's own, in eval mode (running statistics, no dropout), on the network's input
     model.eval()
-    prediction = model(network_input(model, image))
+    prediction = model(network_input(model, jnp.asarray(image)[None])[1])
     own = flatness_loss(prediction.ceiling_elevation[0], prediction.floor_elevation[0], AdaptConfig().huber)
     assert losses[0] == pytest.approx(float(own), rel=1e-4)
     after = jax.tree.map(np.asarray, nnx.state(model, ADAPTED))

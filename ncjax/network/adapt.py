@@ -22,8 +22,8 @@ import optax
 from flax import nnx
 from jaxtyping import Array, Float
 
-from .denoise import denoise_for_network
 from .model import HorizonNet
+from .predict import network_input
 
 # the backbone's batch-norm scales and offsets (its ConvNorm layers' ``norm``; the height compressions' ``norms`` stay)
 ADAPTED = nnx.All(nnx.Param, nnx.PathContains("backbone"), nnx.PathContains("norm"))
@@ -72,13 +72,6 @@ def flatness_loss(
     return jnp.mean(optax.huber_loss(log_ratio - centre, delta=huber))
 
 
-def network_input(model: HorizonNet, image: np.ndarray) -> Float[Array, "1 H W 3"]:
-    """An RGB uint8 panorama as the network reads it: noise brought down, resized, in [0, 1], a batch of one (as
-    :func:`~ncjax.network.predict.image_boundaries` prepares it)."""
-    pixels = denoise_for_network(jnp.asarray(image, jnp.float32)[None] / 255.0)
-    return jax.image.resize(pixels, (1, model.config.input_height, model.config.input_width, 3), "linear")
-
-
 def adapt_to_panorama(
     model: HorizonNet, image: np.ndarray, config: AdaptConfig = AdaptConfig()
 ) -> tuple[HorizonNet, list[float]]:
@@ -89,7 +82,7 @@ def adapt_to_panorama(
     copy = nnx.clone(model)
     copy.eval()
     graphdef, adapted, rest = nnx.split(copy, ADAPTED, ...)
-    pixels = network_input(copy, image)
+    pixels = network_input(copy, jnp.asarray(image)[None])[1]
     optimiser = optax.adam(config.learning_rate)
     state = optimiser.init(adapted)
     losses = []

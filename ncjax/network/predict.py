@@ -51,15 +51,23 @@ def image_boundaries(
     """Traced core of :func:`predict_boundaries`: noise brought down to the network's training range
     (:func:`~ncjax.network.denoise.denoise_for_network`), resize, network (over ``views``), rows of the input
     image, snapped to its edges unless ``edge_snap`` is None."""
-    batch, height, width = images.shape[:3]
-    size = (batch, model.config.input_height, model.config.input_width, 3)
-    pixels = denoise_for_network(images.astype(jnp.float32) / 255.0)
-    resized = jax.image.resize(pixels, size, method="linear")
+    height, width = images.shape[1:3]
+    pixels, resized = network_input(model, images)
     ceiling_v, floor_v, corner_prob = prediction_to_rows(predict_views(model, resized, views), height, width)
     if edge_snap is not None:
         snap = jax.vmap(snap_to_edges, in_axes=(0, 0, 0, None))
         ceiling_v, floor_v = snap(pixels, ceiling_v, floor_v, edge_snap)
     return ceiling_v, floor_v, corner_prob
+
+
+def network_input(
+    model: HorizonNet, images: Shaped[Array, "B H W 3"]
+) -> tuple[Float[Array, "B H W 3"], Float[Array, "B h w 3"]]:
+    """RGB uint8 panoramas as the network reads them: in [0, 1] with their noise brought down to the network's
+    training range (:func:`~ncjax.network.denoise.denoise_for_network`), at their own size and at the network's."""
+    size = (images.shape[0], model.config.input_height, model.config.input_width, 3)
+    pixels = denoise_for_network(jnp.asarray(images).astype(jnp.float32) / 255.0)
+    return pixels, jax.image.resize(pixels, size, method="linear")
 
 
 _predict = nnx.jit(image_boundaries, static_argnames=("views", "edge_snap"))
