@@ -25,7 +25,7 @@ import dataclasses
 import functools
 import os
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -55,6 +55,9 @@ from .pipeline.run import FittedWalls, finish, fit_walls
 from .pipeline.types import Layout, LayoutStatus, Rows
 from .programs import compiled_before, load_saved, program_path, result_like, user_program_directory
 from .solvers.ransac import RansacConfig
+
+if TYPE_CHECKING:  # Flax and optax load only for an adaptation
+    from .network.adapt import AdaptConfig
 
 # The pipeline's settings for the shipped network's rows, chosen on tuning renders, never the test renders (the
 # figures behind each value: experiments/RESULTS.md, "The network configuration, chosen on the tuning renders" and the
@@ -341,8 +344,9 @@ _LATER_POOL = concurrent.futures.ThreadPoolExecutor(2, initializer=_lowest_prior
 
 
 def _saved_rows(directory: str | os.PathLike, weights: ModelWeights, image_shape: tuple, network: _Network):
-    """The network's rows of one image of ``image_shape`` (1, H, W, 3) through its program saved in ``directory``.
-    The weights are arguments, the architecture part of the key: a later process builds no network."""
+    """The network's rows of one image of ``image_shape`` (1, H, W, 3) with given tensors (``weights``' or adapted
+    ones), ``rows(tensors, image)``, through its program saved in ``directory``. The weights are arguments, the
+    architecture part of the key: a later process builds no network."""
     views, edge_snap = network
 
     def boundaries(tensors, images):  # traced only when no process saved the program (Flax imported then)
@@ -354,7 +358,40 @@ def _saved_rows(directory: str | os.PathLike, weights: ModelWeights, image_shape
     image_like = jax.ShapeDtypeStruct(image_shape, jnp.uint8)
     network_key = repr(("network", weights.config, views, edge_snap))
     program = load_saved(directory, network_key, boundaries, weights.tensors, image_like)
-    return lambda image: Rows(*program(weights.tensors, image))
+    return lambda tensors, image: Rows(*program(tensors, image))
+
+
+def _adapted(model: Network, image: Shaped[np.ndarray, "1 H W 3"], adapt: AdaptConfig | None) -> Network:
+    """``model``, or its copy fitted to ``image``'s flat floor and ceiling
+    (:func:`~ncjax.network.adapt.adapt_to_panorama`)."""
+    if adapt is None:
+        return model
+    from .network.adapt import adapt_to_panorama
+
+    return adapt_to_panorama(model, np.asarray(image[0]), adapt)[0]
+
+
+def _network_reader(
+    model: Network | ModelWeights | str | os.PathLike | None,
+    directory: str | os.PathLike | None,
+    image_shape: tuple[int, ...],
+    network: _Network,
+    adapt: AdaptConfig | None,
+) -> Callable[[np.ndarray], Rows]:
+    """The rows of one image of ``image_shape`` (1, H, W, 3) read by ``model`` (:func:`reconstruct_batch`'s), adapted
+    to the image first unless ``adapt`` is None: through the network's program saved in ``directory``, the adapted
+    parameters as its arguments, or jitted in this process when ``directory`` is None."""
+    if directory is None:
+        network_model = _model_of(model)
+        return lambda image: _rows()(_adapted(network_model, image, adapt), image, network=network)
+    weights = _weights_of(DEFAULT_MODEL_PATH if model is None else model)
+    rows_with = _saved_rows(directory, weights, image_shape, network)
+    if adapt is None:
+        return functools.partial(rows_with, weights.tensors)
+    from .network.checkpoint import model_weights
+
+    network_model = _model_of(model)
+    return lambda image: rows_with(model_weights(_adapted(network_model, image, adapt)).tensors, image)
 
 
 def _chunks(count: int, size: int) -> list[np.ndarray]:
@@ -487,6 +524,7 @@ def reconstruct_batch(
     prior: HeightPrior | None = None,
     program_cache: str | os.PathLike | bool | None = True,
     batch_size: int = DEFAULT_BATCH_SIZE,
+    adapt: AdaptConfig | None = None,
 ) -> Reconstruction:
     """Metric layouts of a batch of panoramas of one size, each with its own radius.
 
@@ -530,6 +568,11 @@ def reconstruct_batch(
             process, as any jitted function.
         batch_size: images per call of the geometry's programs: the batch runs in chunks of this many, the last
             one padded, so that any number of images runs the same programs (the network runs image by image).
+        adapt: an :class:`~ncjax.network.adapt.AdaptConfig` to fit the network to each panorama's own flat floor
+            and ceiling before it reads the panorama's rows (:func:`~ncjax.network.adapt.adapt_to_panorama`, from
+            ``model``'s weights for every image, no labels): on real photographs the rows come 2-3 px nearer their
+            labels (experiments/RESULTS.md, "Real photographs"), for about 10 s an image on 2 CPU cores, and Flax
+            is loaded. None (default): the network as trained.
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).
@@ -568,16 +611,13 @@ def reconstruct_batch(
     network = _Network(views, edge_snap)
     directory = _program_folder(program_cache)
     if directory is None:
-        network_model = _model_of(model)
-        rows_of = functools.partial(_rows(), network_model, network=network)
 
         def geometry(rows, chunk, kind):
             return _geometry(rows, chunk, config, settings._replace(prior_kind=kind))
     else:  # the geometry's programs load while the network's loads and runs
         geometry = _SavedGeometry(directory, (batch_size, width), config, settings)
         geometry.load(prior_kind if route == "prior" else None)
-        weights = _weights_of(DEFAULT_MODEL_PATH if model is None else model)
-        rows_of = _saved_rows(directory, weights, (1, *images.shape[1:]), network)
+    rows_of = _network_reader(model, directory, (1, *images.shape[1:]), network, adapt)
     image_rows = [jax.device_get(rows_of(images[i : i + 1])) for i in range(count)]
     rows = jax.tree.map(lambda *r: np.concatenate(r).astype(np.float32), *image_rows)
     prior_settings = (prior_kind, float(config.prior.max_scale_conflict))
@@ -610,6 +650,7 @@ def reconstruct(
     edge_snap: EdgeSnap | None = EdgeSnap(),
     prior: HeightPrior | None = None,
     program_cache: str | os.PathLike | bool | None = True,
+    adapt: AdaptConfig | None = None,
 ) -> Layout:
     """Metric room layout of one RGB panorama: network, then geometry (paper Fig. pipeline).
 
@@ -627,6 +668,7 @@ def reconstruct(
             :func:`reconstruct_batch`).
         program_cache: where the traced programs are kept for later processes (default: the user's cache folder;
             see :func:`reconstruct_batch`).
+        adapt: fit the network to the panorama's flat floor and ceiling first (see :func:`reconstruct_batch`).
 
     Returns:
         An unbatched :class:`~ncjax.Layout`; check ``ok`` / ``status``.
@@ -648,5 +690,6 @@ def reconstruct(
         edge_snap=edge_snap,
         prior=prior,
         program_cache=program_cache,
+        adapt=adapt,
     )
     return jax.tree.map(lambda x: x[0], result.layout)

@@ -11,8 +11,11 @@ import pytest
 from flax import nnx
 
 from ncjax.cli.demo import DEMO_DIR
+from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
 from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss
-from ncjax.network.predict import default_model, network_input
+from ncjax.network.predict import default_model, network_input, predict_boundaries
+from ncjax.reconstruction import reconstruct_batch
+from ncjax.synth import Room, room_labels
 
 
 def _box_room_elevations(ceiling_height: float, floor_height: float, width: int = 256):
@@ -39,6 +42,32 @@ def test_flat_rows_cost_nothing_and_a_doorway_costs_in_proportion():
     # its gradient moves those floor rows back towards the wall (lower: more negative elevation), the others not
     grad = jax.grad(lambda f: flatness_loss(ceiling, f, 0.05))(floor.at[:32].set(far[:32]))
     assert np.all(np.asarray(grad[:32]) > 0) and np.allclose(np.asarray(grad[64:]), 0.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("rc", [0.0, 0.3])
+def test_exact_label_rows_cost_nothing_for_the_rig_too(rc):
+    # a column's rays leave one optical centre at one azimuth, so its wall's foot and top are at one distance
+    # from it whatever rc: the labels' own rows (ncjax.synth.room_labels) of an off-centre box room are flat
+    corners = jnp.array([[3.0, -1.2], [3.0, 2.0], [-1.5, 2.0], [-1.5, -1.2]])
+    room = Room(
+        corners=corners,
+        mask=jnp.ones(4, bool),
+        ceiling_height=jnp.array(1.1),
+        floor_height=jnp.array(-1.5),
+        rc=jnp.array(rc),
+        camera_position=jnp.array([0.0, 0.0, 1.5]),
+        is_atlanta=jnp.array(False),
+        status=jnp.array(0, jnp.int32),
+    )
+    cam = NonCentralPanorama(width=256, height=128, rc=rc)
+    labels = room_labels(room, cam)
+    columns = jnp.arange(256.0)
+    ceiling = pixel_to_angles(cam, columns, labels.ceiling_v)[1]
+    floor = pixel_to_angles(cam, columns, labels.floor_v)[1]
+    assert float(flatness_loss(ceiling, floor, 0.05)) == pytest.approx(0.0, abs=1e-9)
+    # the floor rows of half the columns 3 px lower (a doorway's floor, say) are not
+    lower = pixel_to_angles(cam, columns, labels.floor_v + jnp.where(columns < 128, 3.0, 0.0))[1]
+    assert float(flatness_loss(ceiling, lower, 0.05)) > 1e-4
 
 
 def test_the_backbones_batch_norm_scales_and_offsets_are_what_adapts():
@@ -76,3 +105,23 @@ def test_adaptation_lowers_the_loss_on_the_demo_and_leaves_the_model_it_copies()
     assert any(not np.array_equal(a, b) for a, b in zip(jax.tree.leaves(before), changed, strict=True))
     frozen = [nnx.state(m, nnx.Not(ADAPTED)) for m in (model, adapted)]
     assert all(np.array_equal(a, b) for a, b in zip(*(jax.tree.leaves(f) for f in frozen), strict=True))
+
+
+@pytest.mark.slow
+def test_reconstruct_reads_each_panorama_with_the_network_adapted_to_it():
+    """``reconstruct_batch(adapt=...)``: the rows the geometry gets are the adapted network's (through the saved
+    network program, with the adapted parameters as its arguments), not the shipped one's."""
+    name = json.loads((DEMO_DIR / "ground_truth.json").read_text())["image"]
+    image = cv2.imread(str(DEMO_DIR / name), cv2.IMREAD_COLOR)[..., ::-1].copy()
+    config = AdaptConfig(steps=2)
+    adapted, _ = adapt_to_panorama(default_model(), image, config)
+    expected = predict_boundaries(image, adapted)
+    result = reconstruct_batch(image[None], np.array([0.68], np.float32), adapt=config)
+    for got, want in zip((result.ceiling_v, result.floor_v, result.corner_prob), expected, strict=True):
+        np.testing.assert_allclose(np.asarray(got[0]), want, atol=2e-3)
+    shipped = predict_boundaries(image)
+    moved = [
+        np.abs(np.asarray(got[0]) - own).max()
+        for got, own in zip((result.ceiling_v, result.floor_v), shipped[:2], strict=True)
+    ]
+    assert max(moved) > 0.05, moved

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,9 +13,10 @@ from test_prior import HEIGHT, WIDTH, rooms
 
 import ncjax
 from ncjax.evaluation import layout_metrics as metrics
-from ncjax.geometry.polygon import is_simple
+from ncjax.geometry.polygon import is_simple, point_in_polygon
 from ncjax.geometry.reprojection import fit_plan_lines
 from ncjax.io.export import branch_name
+from ncjax.pipeline import run
 from ncjax.pipeline.config import ChecksConfig, PipelineConfig, PlanConfig
 from ncjax.pipeline.plan import plan_layout, robust_plan_lines, segment_medians
 from ncjax.pipeline.prior import HeightPrior
@@ -134,6 +136,40 @@ def test_a_rectangle_is_simple_and_its_bow_tie_is_not(width, depth, start):
     assert bool(is_simple(padded, mask))
     bow_tie = padded.at[jnp.array([1, 2])].set(padded[jnp.array([2, 1])])
     assert not bool(is_simple(bow_tie, mask))
+
+
+@given(st.floats(0.5, 5.0), st.floats(0.5, 5.0), st.floats(0.01, 0.99), st.floats(0.01, 0.99), st.integers(0, 3))
+def test_a_rectangle_holds_its_inner_points_and_not_those_beyond_a_wall(width, depth, u, v, start):
+    corners = np.roll(np.array([[0.0, 0.0], [width, 0.0], [width, depth], [0.0, depth]]), start, axis=0)
+    padded = jnp.asarray(np.concatenate([corners, np.zeros((2, 2))]), jnp.float32)
+    mask = jnp.array([True] * 4 + [False] * 2)
+    assert bool(point_in_polygon(jnp.array([u * width, v * depth]), padded, mask))
+    for outside in ([-u, v * depth], [width + u, v * depth], [u * width, -v], [u * width, depth + v]):
+        assert not bool(point_in_polygon(jnp.array(outside, jnp.float32), padded, mask))
+
+
+@pytest.mark.slow
+def test_a_plan_layout_that_leaves_the_camera_outside_is_not_used(monkeypatch):
+    """The doorway's rows of the test above, with the plan layout moved 10 m along x (still a simple polygon, its
+    corners far from the rig): the camera would stand outside the room, so the flagged layout stays."""
+    batch, labels = rooms("manhattan", (0.0, 0.0), 4)
+    room, label = jax.tree.map(lambda x: x[0], (batch, labels))
+    floor_v = np.asarray(label.floor_v).copy()
+    floor_v[WIDTH // 8 : WIDTH // 8 + WIDTH // 32] -= 6.0
+    shift = jnp.array([10.0, 0.0, 0.0])
+
+    def moved_plan(*args):
+        plan = plan_layout(*args)
+        corners = (plan.ceiling_corners + shift, plan.floor_corners + shift)
+        return eqx.tree_at(lambda layout: (layout.ceiling_corners, layout.floor_corners), plan, corners)
+
+    monkeypatch.setattr(run, "plan_layout", moved_plan)
+    jax.clear_caches()  # a cached trace would call the original
+    config = PipelineConfig(plan=PlanConfig(fallback=True), checks=ChecksConfig(min_explained_fraction=1.0))
+    prior = HeightPrior("camera_height", -room.floor_height)
+    rows = (label.ceiling_v, jnp.asarray(floor_v), label.corner_target)
+    layout = ncjax.layout_from_boundaries(*rows, room.camera(WIDTH, HEIGHT), "auto", config, prior=prior)
+    assert int(layout.status) == ncjax.LayoutStatus.LOW_CONFIDENCE and branch_name(layout) != "plan"
 
 
 @pytest.mark.slow

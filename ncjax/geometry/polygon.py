@@ -62,3 +62,13 @@ def is_simple(corners: Float[Array, "K 2"], mask: Bool[Array, " K"]) -> Bool[Arr
     edges = polygon_edges(corners, mask)
     crosses = segments_cross(edges[:, None, 0], edges[:, None, 1], edges[None, :, 0], edges[None, :, 1])
     return ~jnp.any(crosses & mask[:, None] & mask[None, :])
+
+
+def point_in_polygon(point: Float[Array, 2], corners: Float[Array, "K 2"], mask: Bool[Array, " K"]) -> Bool[Array, ""]:
+    """Whether ``point`` lies inside the polygon (crossing-number test)."""
+    edges = polygon_edges(corners, mask)
+    a, b = edges[:, 0], edges[:, 1]
+    straddles = (a[:, 1] > point[1]) != (b[:, 1] > point[1])
+    safe_dy = jnp.where(straddles, b[:, 1] - a[:, 1], 1.0)
+    x_cross = a[:, 0] + (point[1] - a[:, 1]) * (b[:, 0] - a[:, 0]) / safe_dy
+    return jnp.sum(straddles & (x_cross > point[0]) & mask) % 2 == 1

@@ -1,13 +1,15 @@
 """Test-time adaptation: the network fitted to one panorama's own flat floor and ceiling, without labels.
 
-A room's floor and ceiling are flat and level, so a central panorama's column sees its wall's foot and top at the
-same distance: ``tan(ceiling elevation) / tan(-floor elevation)`` is the room's ``h_c / h_f`` in every column whose
-rows lie on the wall. Rows that run through a doorway into the next room's floor, onto a counter or along a ceiling
-fan break it. :func:`adapt_to_panorama` takes a few gradient steps of the backbone's batch-norm scales and offsets
-(TENT, Wang et al. 2021, "Tent: fully test-time adaptation by entropy minimization", with :func:`flatness_loss` in
-place of the entropy) on one panorama, read in one view without edge snapping; the rest of the network and every
-batch-norm statistic stay as trained. On the
-real photographs it brings the rows 2-3 px nearer their labels (experiments/RESULTS.md, "Real photographs").
+A room's floor and ceiling are flat and level, so a panorama's column sees its wall's foot and top at the same
+distance: ``tan(ceiling elevation) / tan(-floor elevation)`` is the room's ``h_c / h_f`` in every column whose
+rows lie on the wall. This holds for the rig's non-central panoramas as well: a column's rays leave one optical
+centre at one azimuth (docs/design.md), and its elevations are measured from that centre. Rows that run through a
+doorway into the next room's floor, onto a counter or along a ceiling fan break it. :func:`adapt_to_panorama` takes
+a few gradient steps of the backbone's batch-norm scales and offsets (TENT, Wang et al. 2021, "Tent: fully test-time
+adaptation by entropy minimization", with :func:`flatness_loss` in place of the entropy) on one panorama, read in one
+view without edge snapping; the rest of the network and every batch-norm statistic stay as trained. On the real
+photographs it brings the rows 2-3 px nearer their labels (experiments/RESULTS.md, "Real photographs");
+``ncjax reconstruct --adapt`` and :func:`~ncjax.reconstruct_batch`'s ``adapt`` use it.
 """
 
 from __future__ import annotations
@@ -62,7 +64,7 @@ def flatness_loss(
     (held fixed): 0 when every column's rows see one flat, level floor and ceiling, whatever the room's shape.
 
     Args:
-        ceiling_elevation, floor_elevation: (W,) radians, one panorama's boundaries (central camera).
+        ceiling_elevation, floor_elevation: (W,) radians, one panorama's boundaries (central or not).
         huber: the loss's threshold, in the log ratio.
     """
     ceiling = jnp.clip(ceiling_elevation, _LEVEL, jnp.pi / 2 - _LEVEL)

@@ -20,7 +20,8 @@ from the floor rows alone, where a doorway's rows are a minority of their wall's
    or cross behind the corner's ray or beyond ``checks.max_corner_range_ratio`` times the points' 95th-percentile
    range: there a wall is inserted in the corner ray's vertical plane, as at an occlusion (:func:`occluded_corners`).
 
-A plan layout whose walls cross, or with a corner inside the circle of optical centres, is not used
+A plan layout whose walls cross, with a corner inside the circle of optical centres, or with the camera's axis
+outside it, is not used
 (:func:`~ncjax.pipeline.run.plan_fallback`). No least squares through all the rows: the result is judged as every
 layout is (:func:`~ncjax.pipeline.assemble.assemble_layout`); it keeps the flagged layout's height covariance (the
 same heights' scale) and has no corner covariance (infinite: not determined).

@@ -79,7 +79,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
 from ..geometry.camera import NonCentralPanorama
-from ..geometry.polygon import is_simple
+from ..geometry.polygon import is_simple, point_in_polygon
 from .assemble import finish_layout
 from .atlanta import atlanta_walls
 from .config import PipelineConfig
@@ -246,13 +246,16 @@ def plan_fallback(
     """``layout``, or where it is flagged ``LOW_CONFIDENCE`` the plan layout (:mod:`ncjax.pipeline.plan`) at
     ``heights`` (``h_c``, ``h_f``) when that one has geometry (:func:`status_rank`): the rows the branch's walls do
     not explain, read robustly (carrying no gradient). A plan layout whose walls cross (where two walls' lines meet
-    beyond a narrow wall between them) or with a corner on or inside the circle of optical centres (where walls
-    inserted through the axis meet a wall whose line passes near it) is no room and is not used."""
+    beyond a narrow wall between them), with a corner on or inside the circle of optical centres (where walls
+    inserted through the axis meet a wall whose line passes near it) or that leaves the camera's axis outside (the
+    camera stands in the room it sees) is no room and is not used."""
     # no gradient: medians and reweighting are not the least squares the pipeline differentiates, and a plan
     # layout that is not chosen must not put NaNs into the chosen one's gradient
     plan = plan_layout(*jax.lax.stop_gradient((evidence, heights, layout.height_covariance)), config)
     plan_corners = plan.floor_corners[:, :2]
-    room = is_simple(plan_corners, plan.mask)
+    room = is_simple(plan_corners, plan.mask) & point_in_polygon(
+        jnp.zeros(2, plan_corners.dtype), plan_corners, plan.mask
+    )
     room &= jnp.all(~plan.mask | (jnp.linalg.norm(plan_corners, axis=-1) > evidence.cam.rc))
     use_plan = (layout.status == LayoutStatus.LOW_CONFIDENCE) & (status_rank(plan.status) > 0) & room
     return jax.tree.map(lambda p, b: jnp.where(use_plan, p, b), plan, layout)

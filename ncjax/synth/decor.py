@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ..geometry.polygon import perpendicular
+from ..geometry.polygon import perpendicular, point_in_polygon
 from .elements import FRAME_WIDTH, Boxes, DecalKind, Decals, Doorways, Lights, Openings, Panels, SunPatches
 from .furniture import piece_materials
 from .materials import Material, Pattern, colour_in_hsv_box
@@ -35,7 +35,7 @@ from .placement import (
     room_frame,
     wall_position,
 )
-from .rooms import Room, distance_to_walls, point_in_polygon, ray_hits
+from .rooms import Room, distance_to_walls, ray_hits
 
 LAMP_PARTS = 4  # boxes per ceiling light slot (a fan needs four)
 

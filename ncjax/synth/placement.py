@@ -10,8 +10,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from ..geometry.polygon import perpendicular, polygon_edges, segments_cross
-from .rooms import Room, point_in_polygon, room_walls, wall_distances
+from ..geometry.polygon import perpendicular, point_in_polygon, polygon_edges, segments_cross
+from .rooms import Room, room_walls, wall_distances
 
 # ----------------------------------------------------------------- 2D rectangles
 

@@ -29,7 +29,15 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from ..geometry.camera import NonCentralPanorama
 from ..geometry.plucker import cross_2d as _cross2
 from ..geometry.plucker import horizontal_wall_line, rotation_z
-from ..geometry.polygon import is_simple, next_index, polygon_area, polygon_edges, previous_index, segments_cross
+from ..geometry.polygon import (
+    is_simple,
+    next_index,
+    point_in_polygon,
+    polygon_area,
+    polygon_edges,
+    previous_index,
+    segments_cross,
+)
 
 
 class RoomStatus(enum.IntEnum):
@@ -151,16 +159,6 @@ def _compact(points: Float[Array, "N 2"], valid: Bool[Array, " N"], capacity: in
     """Move the valid points to the front (keeping their order), pad to ``capacity``."""
     order = jnp.argsort(~valid, stable=True)[:capacity]
     return points[order], valid[order]
-
-
-def point_in_polygon(point: Float[Array, 2], corners: Float[Array, "K 2"], mask: Bool[Array, " K"]) -> Bool[Array, ""]:
-    """Crossing-number test."""
-    edges = polygon_edges(corners, mask)
-    a, b = edges[:, 0], edges[:, 1]
-    straddles = (a[:, 1] > point[1]) != (b[:, 1] > point[1])
-    safe_dy = jnp.where(straddles, b[:, 1] - a[:, 1], 1.0)
-    x_cross = a[:, 0] + (point[1] - a[:, 1]) * (b[:, 0] - a[:, 0]) / safe_dy
-    return jnp.sum(straddles & (x_cross > point[0]) & mask) % 2 == 1
 
 
 def wall_distances(point: Float[Array, 2], corners: Float[Array, "K 2"], mask: Bool[Array, " K"]) -> Float[Array, " K"]:

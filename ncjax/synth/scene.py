@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from ..geometry.polygon import point_in_polygon
 from .decor import LAMP_PARTS, ceiling_beams, ceiling_lights, door_leaves, plan_axis, random_decals, sun_patches
 from .elements import Boxes, Decor, Doorways, Lights, Openings
 from .furniture import FURNITURE_TYPES, PARTS_PER_PIECE, TEMPLATES, furniture_candidate, piece_boxes, piece_materials
@@ -57,7 +58,7 @@ from .placement import (
     wall_position,
     wall_position_at_camera,
 )
-from .rooms import Room, distance_to_walls, point_in_polygon
+from .rooms import Room, distance_to_walls
 
 # fold_in data of the decor's random key (far above any split count of the basic draws).
 _DECOR_STREAM = 0xDEC0
