@@ -388,9 +388,11 @@ def _network_reader(
     rows_with = _saved_rows(directory, weights, image_shape, network)
     if adapt is None:
         return functools.partial(rows_with, weights.tensors)
-    from .network.checkpoint import model_weights
+    from .network.checkpoint import model_from_weights, model_weights
+    from .network.model import HorizonNet
 
-    network_model = _model_of(model)
+    # adapted from exactly the tensors the program takes otherwise (adapt_to_panorama copies a caller's network)
+    network_model = model if isinstance(model, HorizonNet) else model_from_weights(weights)
     return lambda image: rows_with(model_weights(_adapted(network_model, image, adapt)).tensors, image)
 
 
@@ -511,6 +513,23 @@ def check_panorama(images: np.ndarray) -> None:
         raise ValueError(size_error)
 
 
+def _check_batch_settings(images: np.ndarray, world: str, views: int, batch_size: int, adapt) -> None:
+    """Raise :func:`reconstruct_batch`'s one-line errors for its images and settings."""
+    check_panorama(images)
+    if images.ndim != 4:
+        raise ValueError(f"reconstruct_batch takes a batch (B, H, W, 3), got {images.shape}; use reconstruct")
+    if world not in WORLDS:
+        raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
+    check_views(views)
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    if adapt is not None:
+        from .network.adapt import AdaptConfig
+
+        if not isinstance(adapt, AdaptConfig):
+            raise TypeError(f"adapt must be an ncjax.network.adapt.AdaptConfig or None, got {adapt!r}")
+
+
 def reconstruct_batch(
     images: Shaped[np.ndarray, "B H W 3"],
     rc: Float[ArrayLike, " B"],
@@ -568,16 +587,18 @@ def reconstruct_batch(
             process, as any jitted function.
         batch_size: images per call of the geometry's programs: the batch runs in chunks of this many, the last
             one padded, so that any number of images runs the same programs (the network runs image by image).
-        adapt: an :class:`~ncjax.network.adapt.AdaptConfig` to fit the network to each panorama's own flat floor
-            and ceiling before it reads the panorama's rows (:func:`~ncjax.network.adapt.adapt_to_panorama`, from
-            ``model``'s weights for every image, no labels): on real photographs the rows come 2-3 px nearer their
-            labels (experiments/RESULTS.md, "Real photographs"), for about 10 s an image on 2 CPU cores, and Flax
-            is loaded. None (default): the network as trained.
+        adapt: an :class:`ncjax.network.adapt.AdaptConfig` (``AdaptConfig()``: its defaults) to fit the network to
+            each panorama's own flat floor and ceiling before it reads the panorama's rows
+            (:func:`~ncjax.network.adapt.adapt_to_panorama`, from ``model``'s weights for every image, no labels):
+            on real photographs the rows come 2-3 px nearer their labels (experiments/RESULTS.md, "Real
+            photographs"), for about 4 s more a 1024 x 512 image on 2 CPU cores, and Flax is loaded. None
+            (default): the network as trained.
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).
 
     Raises:
+        TypeError: ``adapt`` neither an AdaptConfig nor None.
         ValueError: bad image array, world, rc (negative or not finite; rc = 0
             without a prior is accepted and gives ``LayoutStatus.NO_SCALE``) or prior, or a model file that is
             not an ncjax model.
@@ -585,14 +606,7 @@ def reconstruct_batch(
             shipped weights are missing.
     """
     images = np.asarray(images)
-    check_panorama(images)
-    if images.ndim != 4:
-        raise ValueError(f"reconstruct_batch takes a batch (B, H, W, 3), got {images.shape}; use reconstruct")
-    if world not in WORLDS:
-        raise ValueError(f"world must be one of {WORLDS}, got {world!r}")
-    check_views(views)
-    if batch_size < 1:
-        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+    _check_batch_settings(images, world, views, batch_size, adapt)
     rc = np.broadcast_to(np.asarray(rc, np.float32), images.shape[:1])
     if not np.all(np.isfinite(rc)) or np.any(rc < 0):
         raise ValueError(f"rc must be finite radii >= 0 in metres, got {rc}")
@@ -668,7 +682,8 @@ def reconstruct(
             :func:`reconstruct_batch`).
         program_cache: where the traced programs are kept for later processes (default: the user's cache folder;
             see :func:`reconstruct_batch`).
-        adapt: fit the network to the panorama's flat floor and ceiling first (see :func:`reconstruct_batch`).
+        adapt: an :class:`ncjax.network.adapt.AdaptConfig` to fit the network to the panorama's flat floor and
+            ceiling first (see :func:`reconstruct_batch`); None: the network as trained.
 
     Returns:
         An unbatched :class:`~ncjax.Layout`; check ``ok`` / ``status``.

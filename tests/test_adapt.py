@@ -11,11 +11,10 @@ import pytest
 from flax import nnx
 
 from ncjax.cli.demo import DEMO_DIR
-from ncjax.geometry.camera import NonCentralPanorama, pixel_to_angles
+from ncjax.geometry.camera import NonCentralPanorama, point_to_angles
 from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss
 from ncjax.network.predict import default_model, network_input, predict_boundaries
 from ncjax.reconstruction import reconstruct_batch
-from ncjax.synth import Room, room_labels
 
 
 def _box_room_elevations(ceiling_height: float, floor_height: float, width: int = 256):
@@ -45,29 +44,18 @@ def test_flat_rows_cost_nothing_and_a_doorway_costs_in_proportion():
 
 
 @pytest.mark.parametrize("rc", [0.0, 0.3])
-def test_exact_label_rows_cost_nothing_for_the_rig_too(rc):
-    # a column's rays leave one optical centre at one azimuth, so its wall's foot and top are at one distance
-    # from it whatever rc: the labels' own rows (ncjax.synth.room_labels) of an off-centre box room are flat
-    corners = jnp.array([[3.0, -1.2], [3.0, 2.0], [-1.5, 2.0], [-1.5, -1.2]])
-    room = Room(
-        corners=corners,
-        mask=jnp.ones(4, bool),
-        ceiling_height=jnp.array(1.1),
-        floor_height=jnp.array(-1.5),
-        rc=jnp.array(rc),
-        camera_position=jnp.array([0.0, 0.0, 1.5]),
-        is_atlanta=jnp.array(False),
-        status=jnp.array(0, jnp.int32),
-    )
+def test_the_walls_foot_and_top_cost_nothing_for_the_rig_too(rc):
+    # a column's rays leave one optical centre at one azimuth (the paper's forward projection, point_to_angles), so
+    # it sees its wall's foot and top at one distance whatever rc: points along an off-centre box room's walls
+    corners = np.array([[3.0, -1.2], [3.0, 2.0], [-1.5, 2.0], [-1.5, -1.2]])
+    along = np.linspace(0.0, 1.0, 64, endpoint=False)[:, None]
+    plan = np.concatenate([a + along * (b - a) for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True)])
     cam = NonCentralPanorama(width=256, height=128, rc=rc)
-    labels = room_labels(room, cam)
-    columns = jnp.arange(256.0)
-    ceiling = pixel_to_angles(cam, columns, labels.ceiling_v)[1]
-    floor = pixel_to_angles(cam, columns, labels.floor_v)[1]
+    ceiling = point_to_angles(cam, jnp.asarray(np.c_[plan, np.full(len(plan), 1.1)]))[1]
+    floor = point_to_angles(cam, jnp.asarray(np.c_[plan, np.full(len(plan), -1.5)]))[1]
     assert float(flatness_loss(ceiling, floor, 0.05)) == pytest.approx(0.0, abs=1e-9)
-    # the floor rows of half the columns 3 px lower (a doorway's floor, say) are not
-    lower = pixel_to_angles(cam, columns, labels.floor_v + jnp.where(columns < 128, 3.0, 0.0))[1]
-    assert float(flatness_loss(ceiling, lower, 0.05)) > 1e-4
+    # the floor of a quarter of them 0.02 rad lower (a floor row through a doorway, say) is not flat
+    assert float(flatness_loss(ceiling, floor.at[: len(plan) // 4].add(-0.02), 0.05)) > 1e-4
 
 
 def test_the_backbones_batch_norm_scales_and_offsets_are_what_adapts():
@@ -84,6 +72,9 @@ def test_configuration_rejects_bad_values():
     for bad in ({"steps": 0}, {"learning_rate": 0.0}, {"huber": -1.0}):
         with pytest.raises(ValueError):
             AdaptConfig(**bad)
+    image = np.zeros((64, 128, 3), np.uint8)
+    with pytest.raises(TypeError, match="AdaptConfig or None"):
+        reconstruct_batch(image[None], np.zeros(1, np.float32), adapt=True)
 
 
 @pytest.mark.slow
@@ -108,15 +99,17 @@ def test_adaptation_lowers_the_loss_on_the_demo_and_leaves_the_model_it_copies()
 
 
 @pytest.mark.slow
-def test_reconstruct_reads_each_panorama_with_the_network_adapted_to_it():
+@pytest.mark.parametrize("program_cache", [True, False])
+def test_reconstruct_reads_each_panorama_with_the_network_adapted_to_it(program_cache):
     """``reconstruct_batch(adapt=...)``: the rows the geometry gets are the adapted network's (through the saved
-    network program, with the adapted parameters as its arguments), not the shipped one's."""
+    network program, with the adapted parameters as its arguments, or jitted in the process), not the shipped
+    one's."""
     name = json.loads((DEMO_DIR / "ground_truth.json").read_text())["image"]
     image = cv2.imread(str(DEMO_DIR / name), cv2.IMREAD_COLOR)[..., ::-1].copy()
     config = AdaptConfig(steps=2)
     adapted, _ = adapt_to_panorama(default_model(), image, config)
     expected = predict_boundaries(image, adapted)
-    result = reconstruct_batch(image[None], np.array([0.68], np.float32), adapt=config)
+    result = reconstruct_batch(image[None], np.array([0.68], np.float32), program_cache=program_cache, adapt=config)
     for got, want in zip((result.ceiling_v, result.floor_v, result.corner_prob), expected, strict=True):
         np.testing.assert_allclose(np.asarray(got[0]), want, atol=2e-3)
     shipped = predict_boundaries(image)

@@ -131,8 +131,9 @@ def test_a_low_confidence_layout_is_replaced_by_the_plan_layout():
 def test_a_rectangle_is_simple_and_its_bow_tie_is_not(width, depth, start):
     corners = np.array([[0.0, 0.0], [width, 0.0], [width, depth], [0.0, depth]])
     corners = np.roll(corners, start, axis=0)
-    padded = jnp.asarray(np.concatenate([corners, np.zeros((2, 2))]), jnp.float32)
-    mask = jnp.array([True] * 4 + [False] * 2)
+    junk = np.array([[-7.0, 0.3 * depth], [9.0, 0.6 * depth], [2.0, -3.0]])  # empty slots' edges would cross
+    padded = jnp.asarray(np.concatenate([corners, junk]), jnp.float32)
+    mask = jnp.array([True] * 4 + [False] * 3)
     assert bool(is_simple(padded, mask))
     bow_tie = padded.at[jnp.array([1, 2])].set(padded[jnp.array([2, 1])])
     assert not bool(is_simple(bow_tie, mask))
@@ -141,8 +142,10 @@ def test_a_rectangle_is_simple_and_its_bow_tie_is_not(width, depth, start):
 @given(st.floats(0.5, 5.0), st.floats(0.5, 5.0), st.floats(0.01, 0.99), st.floats(0.01, 0.99), st.integers(0, 3))
 def test_a_rectangle_holds_its_inner_points_and_not_those_beyond_a_wall(width, depth, u, v, start):
     corners = np.roll(np.array([[0.0, 0.0], [width, 0.0], [width, depth], [0.0, depth]]), start, axis=0)
-    padded = jnp.asarray(np.concatenate([corners, np.zeros((2, 2))]), jnp.float32)
-    mask = jnp.array([True] * 4 + [False] * 2)
+    # empty slots hold whatever they hold: these edges would cross the test points' lines if they counted
+    junk = np.array([[-7.0, 0.3 * depth], [9.0, 0.6 * depth], [2.0, -3.0]])
+    padded = jnp.asarray(np.concatenate([corners, junk]), jnp.float32)
+    mask = jnp.array([True] * 4 + [False] * 3)
     assert bool(point_in_polygon(jnp.array([u * width, v * depth]), padded, mask))
     for outside in ([-u, v * depth], [width + u, v * depth], [u * width, -v], [u * width, depth + v]):
         assert not bool(point_in_polygon(jnp.array(outside, jnp.float32), padded, mask))
@@ -150,8 +153,9 @@ def test_a_rectangle_holds_its_inner_points_and_not_those_beyond_a_wall(width, d
 
 @pytest.mark.slow
 def test_a_plan_layout_that_leaves_the_camera_outside_is_not_used(monkeypatch):
-    """The doorway's rows of the test above, with the plan layout moved 10 m along x (still a simple polygon, its
-    corners far from the rig): the camera would stand outside the room, so the flagged layout stays."""
+    """The doorway's rows of test_a_low_confidence_layout_is_replaced_by_the_plan_layout, with the plan layout moved
+    10 m along x (still a simple polygon, its corners far from the rig): the camera would stand outside the room, so
+    the flagged layout stays."""
     batch, labels = rooms("manhattan", (0.0, 0.0), 4)
     room, label = jax.tree.map(lambda x: x[0], (batch, labels))
     floor_v = np.asarray(label.floor_v).copy()
@@ -164,11 +168,14 @@ def test_a_plan_layout_that_leaves_the_camera_outside_is_not_used(monkeypatch):
         return eqx.tree_at(lambda layout: (layout.ceiling_corners, layout.floor_corners), plan, corners)
 
     monkeypatch.setattr(run, "plan_layout", moved_plan)
-    jax.clear_caches()  # a cached trace would call the original
     config = PipelineConfig(plan=PlanConfig(fallback=True), checks=ChecksConfig(min_explained_fraction=1.0))
     prior = HeightPrior("camera_height", -room.floor_height)
     rows = (label.ceiling_v, jnp.asarray(floor_v), label.corner_target)
-    layout = ncjax.layout_from_boundaries(*rows, room.camera(WIDTH, HEIGHT), "auto", config, prior=prior)
+    jax.clear_caches()  # a cached trace would call the original
+    try:
+        layout = ncjax.layout_from_boundaries(*rows, room.camera(WIDTH, HEIGHT), "auto", config, prior=prior)
+    finally:
+        jax.clear_caches()  # and a later test must not get this one's
     assert int(layout.status) == ncjax.LayoutStatus.LOW_CONFIDENCE and branch_name(layout) != "plan"
 
 
