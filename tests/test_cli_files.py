@@ -25,7 +25,9 @@ from ncjax import cli
 from ncjax.cli import demo, inputs, outputs, reconstruct, summary
 from ncjax.cli.arguments import DefaultsHelpFormatter
 from ncjax.cli.main import build_parser
+from ncjax.cli.reconstruct import ADAPT_TIP
 from ncjax.io.files import replace_together
+from ncjax.network.adapt import AdaptConfig
 from ncjax.network.checkpoint import load_model
 from ncjax.reconstruction import Reconstruction
 from ncjax.viz import overlay
@@ -42,6 +44,7 @@ class FakeReconstruction:
         layout: the unbatched layout every image gets.
         calls: the number of images of each call.
         batch_sizes: the ``batch_size`` of each call (the programs' chunk).
+        adapt: the ``adapt`` of each call.
         interrupt_on_call: raise KeyboardInterrupt on this call (1-based), None never.
         signal_on_call: send this process SIGINT (a Ctrl-C) during this call, None never.
     """
@@ -50,12 +53,14 @@ class FakeReconstruction:
         self.layout = make_layout(RECTANGLE) if layout is None else layout
         self.calls: list[int] = []
         self.batch_sizes: list[int] = []
+        self.adapt: list = []
         self.interrupt_on_call = interrupt_on_call
         self.signal_on_call = signal_on_call
 
     def __call__(self, images, rc, world, **options):
         self.calls.append(len(images))
         self.batch_sizes.append(options["batch_size"])
+        self.adapt.append(options["adapt"])
         if len(self.calls) == self.interrupt_on_call:
             raise KeyboardInterrupt
         if len(self.calls) == self.signal_on_call:
@@ -312,10 +317,15 @@ def test_a_flagged_layout_is_one_short_line_and_its_reason_is_in_the_summary(tmp
         "1 failed (what each status means: summary.csv's reason column):",
         f"  {image[0]}: layout of low confidence written (LOW_CONFIDENCE; room height 2.50 ± 0.02 m); "
         "see room_overlay.png",
+        ADAPT_TIP,
     ]
     (row,) = summary_rows(out)
     assert row["result"] == "low confidence" and row["message"] == lines[1].removeprefix(f"  {image[0]}: ")
     assert row["reason"] == ncjax.LayoutStatus.LOW_CONFIDENCE.reason
+    # a run that adapted the network is not told to
+    assert reconstruct_cli(image, out, "--adapt") == 1
+    assert error_lines(capsys.readouterr().err) == lines[:2]
+    assert fake.adapt[-1] == AdaptConfig()
 
 
 # ----------------------------------------------------------------------------- Ctrl-C

@@ -34,6 +34,7 @@ from ..io.images import PanoramaError
 from ..network.config import DEFAULT_VIEWS, check_views
 from ..network.edges import EdgeSnap
 from ..pipeline.config import DEFAULT_WORLD, RENAMED, WORLDS
+from ..pipeline.types import LayoutStatus
 from ..reconstruction import DEFAULT_BATCH_SIZE
 from .arguments import add_texture_argument
 from .compilation import CompileLedger, enable_compilation_cache, settings_key
@@ -59,6 +60,12 @@ from .outputs import (
 )
 from .summary import SUMMARY_FILE, failure_message, read_summary, skipped_row, summary_row, update_summary
 
+# after a run with layouts of low confidence, without --adapt (experiments/RESULTS.md, "Real photographs": on the
+# real photographs measured, 16 of 26 layouts were of low confidence as the network reads them, 14 adapted)
+ADAPT_TIP = (
+    "tip: on real photographs, --adapt first fits the network to each panorama's own flat floor and ceiling "
+    "(about 4 s more an image), which brings its boundaries nearer the walls"
+)
 WORLD_HELP = (
     "room model: manhattan (walls at right angles), atlanta (vertical walls at any angles), or auto "
     "(per panorama, the one whose layout explains more of the boundaries; default); a layout that explains too "
@@ -220,8 +227,8 @@ class RunTally:
     :meth:`interrupted` writes the summary and prints the run's last lines.
     """
 
-    def __init__(self, images: list[str], out: str, bar):
-        self.images, self.out, self.bar = images, out, bar
+    def __init__(self, images: list[str], out: str, bar, adapted: bool = False):
+        self.images, self.out, self.bar, self.adapted = images, out, bar, adapted
         self.summary: dict[str, dict] = {}  # path -> its summary.csv row
         self.failures: list[str] = []
         self.summary_path = os.path.join(out, SUMMARY_FILE)
@@ -276,6 +283,12 @@ class RunTally:
             print(f"{len(self.failures)} failed{hint}:", file=sys.stderr)
             for reason in self.failures:
                 print(f"  {reason}", file=sys.stderr)
+            low_confidence = any(
+                row["status"] == LayoutStatus.LOW_CONFIDENCE.name and row["result"] != "skipped"
+                for row in self.summary.values()
+            )
+            if low_confidence and not self.adapted:
+                print(ADAPT_TIP, file=sys.stderr)
             return 1
         return 0
 
@@ -323,7 +336,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     )
     ledger = CompileLedger(enable_compilation_cache())
     import_mesh_modules_in_background()
-    tally = RunTally(images, args.out, tqdm(total=len(images), unit="image", desc="ncjax reconstruct"))
+    bar = tqdm(total=len(images), unit="image", desc="ncjax reconstruct")
+    tally = RunTally(images, args.out, bar, adapted=adapt is not None)
 
     def reconstruct(group):
         from ..reconstruction import background_compilations_deferred
