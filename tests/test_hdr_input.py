@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from ncjax.io import images
 from ncjax.io.images import (
     PANORAMA_SUFFIXES,
     PanoramaDevelopedWarning,
@@ -57,6 +58,19 @@ def test_development_keeps_the_walls_order_and_blows_the_window_out():
     assert np.corrcoef(_ranks(light), _ranks(shown))[0, 1] > 0.9
     assert image[8:14, 20:28].mean() > 240  # the window blows out, as in a photograph
     np.testing.assert_array_equal(develop_hdr(radiance), develop_hdr(radiance.copy()))  # deterministic
+
+
+def test_a_panorama_wider_than_ncjax_works_at_develops_as_it_would_at_its_own_size(monkeypatch):
+    # developed at the working width and brought back: what ncjax reconstructs (the working width) is what the
+    # development at the file's own size gives there, to a grey level or two
+    radiance = cv2.resize(_radiance(), (8 * WIDTH, 8 * HEIGHT), interpolation=cv2.INTER_LINEAR)
+    full = develop_hdr(radiance)
+    monkeypatch.setattr(images, "MAX_WIDTH", 2 * WIDTH)
+    reduced = develop_hdr(radiance)
+    assert reduced.shape == full.shape == radiance.shape
+    working = [cv2.resize(x, (2 * WIDTH, HEIGHT), interpolation=cv2.INTER_AREA).astype(float) for x in (full, reduced)]
+    assert np.abs(working[0] - working[1]).mean() < 2.0
+    assert np.abs(full.astype(float) - reduced).max() > 0  # it did develop smaller
 
 
 def test_light_near_the_limits_of_float32_develops_as_any_other():

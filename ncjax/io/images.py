@@ -128,18 +128,30 @@ def develop_hdr(radiance: np.ndarray) -> np.ndarray:
     luminance at 18% grey, part of a grey-world white balance, the filmic tone curve and sRGB. Negative values (a
     resampled file's) count as black.
 
+    A panorama wider than :data:`MAX_WIDTH` is developed at that width (its light averaged, as a smaller sensor's
+    pixels would collect it) and the result brought back to its size: ncjax reconstructs it at that width anyway,
+    and every step of the development is relative to the image's size, so at that width the image moves by half a
+    grey level on average where the time and memory halve or better (benchmarks/bench_hdr_input.py).
+
     Raises:
         PanoramaError: a pixel is not a finite number.
     """
     bad = int(np.count_nonzero(~np.isfinite(radiance).all(axis=-1)))
     if bad:
         raise PanoramaError(f"{bad} pixels of the HDR image are not finite numbers (NaN or infinity)")
+    height, width = radiance.shape[:2]
     # The development does not depend on the light's scale (the metering sets it): brought to a peak of 1 before
     # float32, light near float32's limits neither overflows nor underflows.
     peak = float(np.max(radiance))
-    linear = jnp.maximum(jnp.asarray(radiance / peak if peak > 0 else radiance, jnp.float32), 0.0)
-    display = develop(linear, HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
-    return np.round(np.asarray(display) * 255).astype(np.uint8)
+    if width > MAX_WIDTH:  # averaged before the copies below, which then are small
+        size = (MAX_WIDTH, max(1, round(height * MAX_WIDTH / width)))
+        radiance = cv2.resize(np.maximum(radiance, 0.0), size, interpolation=cv2.INTER_AREA)
+    linear = np.maximum(np.asarray(radiance / peak if peak > 0 else radiance, np.float32), 0.0)
+    display = develop(jnp.asarray(linear), HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
+    developed = np.round(np.asarray(display) * 255).astype(np.uint8)
+    if developed.shape[:2] != (height, width):
+        developed = cv2.resize(developed, (width, height), interpolation=cv2.INTER_LINEAR)
+    return developed
 
 
 def nearly_full_panorama(width: int, height: int) -> bool:
