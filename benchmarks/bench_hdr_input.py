@@ -5,10 +5,10 @@
 Writes a ``--width`` x ``--width / 2`` Radiance ``.hdr`` panorama (a synthetic room's light: walls of a few levels,
 a window 200 times brighter, fine texture) to a temporary folder, then, each in a fresh process, reads it as
 ``ncjax reconstruct`` does (:func:`ncjax.io.images.read_panorama_file`: developed at the working width
-:data:`ncjax.io.images.MAX_WIDTH`, brought back, resized to the working width) and develops the same light at its own
-size (:func:`ncjax.io.tone_mapping.develop` on the whole file, as the reader did before it developed at the working
-width). Prints each one's wall time and peak resident memory (the process's, Python and jax included), and how far
-apart the two images are at the working width (mean and 99th percentile of |difference|, grey levels).
+:data:`ncjax.io.images.MAX_WIDTH`, brought back, resized to the working width), and reads it so with the
+development at the file's own size instead (:func:`ncjax.io.tone_mapping.develop` on the whole file). Prints each
+one's wall time and peak resident memory (the process's, Python and jax included; Linux), and how far apart the two
+images are at the working width (mean and 99th percentile of |difference|, grey levels).
 """
 
 from __future__ import annotations
@@ -26,29 +26,24 @@ import numpy as np
 READ = """
 import sys, time, resource, warnings
 import numpy as np
-from ncjax.io.images import read_panorama_file
+from ncjax.io import images
 warnings.simplefilter("ignore")
-started = time.perf_counter()
-image = read_panorama_file(sys.argv[1]).image
-seconds = time.perf_counter() - started
-np.save(sys.argv[2], image)
-print(seconds, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
-"""
+if sys.argv[3] == "own size":  # the development at the file's own size, the reader otherwise the same
+    import jax.numpy as jnp
+    from ncjax.io.tone_mapping import develop
 
-FULL_SIZE = """
-import sys, time, resource
-import cv2, jax.numpy as jnp, numpy as np
-from ncjax.io.images import HDR_LOCAL_COMPRESSION, MAX_WIDTH
-from ncjax.io.tone_mapping import develop
+    def develop_at_own_size(radiance):
+        peak = float(np.max(radiance))
+        linear = np.maximum(np.asarray(radiance / peak, np.float32), 0.0)
+        display = develop(jnp.asarray(linear), images.HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
+        return np.round(np.asarray(display) * 255).astype(np.uint8)
+
+    images.develop_hdr = develop_at_own_size  # to_rgb8 looks it up when it is called
 started = time.perf_counter()
-radiance = cv2.imread(sys.argv[1], cv2.IMREAD_UNCHANGED)[..., ::-1]
-linear = np.maximum(radiance / radiance.max(), 0.0).astype(np.float32)
-display = develop(jnp.asarray(linear), HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
-image = np.round(np.asarray(display) * 255).astype(np.uint8)
-image = cv2.resize(image, (MAX_WIDTH, MAX_WIDTH // 2), interpolation=cv2.INTER_AREA)
+image = images.read_panorama_file(sys.argv[1]).image
 seconds = time.perf_counter() - started
 np.save(sys.argv[2], image)
-print(seconds, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+print(seconds, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)  # Linux: KiB
 """
 
 
@@ -66,12 +61,12 @@ def room_light(width: int) -> np.ndarray:
     return light
 
 
-def run(code: str, hdr: pathlib.Path, out: pathlib.Path) -> tuple[float, float, np.ndarray]:
-    """Run ``code`` on ``hdr`` in a fresh process: its seconds, its peak memory in MB and the image it saved."""
-    environment = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    printed = subprocess.run(
-        [sys.executable, "-c", code, str(hdr), str(out)], capture_output=True, text=True, check=True, env=environment
-    ).stdout
+def run(hdr: pathlib.Path, out: pathlib.Path, development: str) -> tuple[float, float, np.ndarray]:
+    """Read ``hdr`` in a fresh process, developed at its "working width" or its "own size": the seconds, the peak
+    memory in MiB and the image read."""
+    environment = {**os.environ, "JAX_PLATFORMS": "cpu", "OPENBLAS_NUM_THREADS": "1"}
+    command = [sys.executable, "-c", READ, str(hdr), str(out), development]
+    printed = subprocess.run(command, capture_output=True, text=True, check=True, env=environment).stdout
     seconds, megabytes = map(float, printed.split())
     return seconds, megabytes, np.load(out)
 
@@ -83,13 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as folder:
         hdr = pathlib.Path(folder) / "room.hdr"
         cv2.imwrite(str(hdr), room_light(args.width)[..., ::-1])
-        results = {
-            name: run(code, hdr, pathlib.Path(folder) / f"{name}.npy")
-            for name, code in (("working width", READ), ("own size", FULL_SIZE))
-        }
+        results = {name: run(hdr, pathlib.Path(folder) / f"{name}.npy", name) for name in ("working width", "own size")}
     print(f"a {args.width} x {args.width // 2} .hdr panorama, read and developed (each in a fresh process):")
     for name, (seconds, megabytes, _) in results.items():
-        print(f"  developed at its {name}: {seconds:.1f} s, peak memory {megabytes:.0f} MB")
+        print(f"  developed at its {name}: {seconds:.1f} s, peak memory {megabytes:.0f} MiB")
     difference = np.abs(results["working width"][2].astype(float) - results["own size"][2])
     print(
         f"the two at the working width differ by {difference.mean():.2f} grey levels on average, "

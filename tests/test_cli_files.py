@@ -326,6 +326,11 @@ def test_a_flagged_layout_is_one_short_line_and_its_reason_is_in_the_summary(tmp
     assert reconstruct_cli(image, out, "--adapt") == 1
     assert error_lines(capsys.readouterr().err) == lines[:2]
     assert fake.adapt[-1] == AdaptConfig()
+    # nor one whose layout of low confidence is an earlier run's, skipped (another image failed)
+    (tmp_path / "in" / "bad.png").write_bytes(b"not an image")
+    assert reconstruct_cli([*image, tmp_path / "in" / "bad.png"], out, "--skip-existing") == 1
+    printed = error_lines(capsys.readouterr().err)
+    assert printed[0] == "1 failed:" and ADAPT_TIP not in printed
 
 
 # ----------------------------------------------------------------------------- Ctrl-C

@@ -68,15 +68,22 @@ def test_a_panorama_wider_than_ncjax_works_at_develops_as_it_would_at_its_own_si
     monkeypatch.setattr(images, "MAX_WIDTH", 2 * WIDTH)
     reduced = develop_hdr(radiance)
     assert reduced.shape == full.shape == radiance.shape
-    working = [cv2.resize(x, (2 * WIDTH, HEIGHT), interpolation=cv2.INTER_AREA).astype(float) for x in (full, reduced)]
+    working = [
+        cv2.resize(x, (2 * WIDTH, 2 * HEIGHT), interpolation=cv2.INTER_AREA).astype(float) for x in (full, reduced)
+    ]
     assert np.abs(working[0] - working[1]).mean() < 2.0
     assert np.abs(full.astype(float) - reduced).max() > 0  # it did develop smaller
 
 
-def test_light_near_the_limits_of_float32_develops_as_any_other():
+@pytest.mark.parametrize("max_width", [None, WIDTH // 4])
+def test_light_near_the_limits_of_float32_develops_as_any_other(max_width, monkeypatch):
+    if max_width is not None:  # developed smaller: its light averaged as well
+        monkeypatch.setattr(images, "MAX_WIDTH", max_width)
     radiance = _radiance().astype(np.float64)
     for scale in (1e40, 1e-40, 1e37):  # beyond float32 both ways, and a float32 sum's overflow
         np.testing.assert_array_equal(develop_hdr(scale * radiance), develop_hdr(radiance))
+    # a float32 file's light of 1e37 (an area average of 16 such pixels would overflow in float32)
+    np.testing.assert_array_equal(develop_hdr((1e37 * radiance).astype(np.float32)), develop_hdr(radiance))
 
 
 def test_negative_light_counts_as_black_and_not_a_number_is_refused():

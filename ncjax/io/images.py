@@ -130,8 +130,8 @@ def develop_hdr(radiance: np.ndarray) -> np.ndarray:
 
     A panorama wider than :data:`MAX_WIDTH` is developed at that width (its light averaged, as a smaller sensor's
     pixels would collect it) and the result brought back to its size: ncjax reconstructs it at that width anyway,
-    and every step of the development is relative to the image's size, so at that width the image moves by half a
-    grey level on average where the time and memory halve or better (benchmarks/bench_hdr_input.py).
+    and every step of the development is relative to the image's size, so at that width the image moves by a fraction
+    of a grey level on average where the time and memory halve or better (benchmarks/bench_hdr_input.py).
 
     Raises:
         PanoramaError: a pixel is not a finite number.
@@ -143,14 +143,16 @@ def develop_hdr(radiance: np.ndarray) -> np.ndarray:
     # The development does not depend on the light's scale (the metering sets it): brought to a peak of 1 before
     # float32, light near float32's limits neither overflows nor underflows.
     peak = float(np.max(radiance))
-    if width > MAX_WIDTH:  # averaged before the copies below, which then are small
+    linear = radiance / peak if peak > 0 else radiance.copy()
+    np.maximum(linear, 0.0, out=linear)
+    if width > MAX_WIDTH:  # averaged after the normalisation: a block's float32 sum of bright light would overflow
         size = (MAX_WIDTH, max(1, round(height * MAX_WIDTH / width)))
-        radiance = cv2.resize(np.maximum(radiance, 0.0), size, interpolation=cv2.INTER_AREA)
-    linear = np.maximum(np.asarray(radiance / peak if peak > 0 else radiance, np.float32), 0.0)
-    display = develop(jnp.asarray(linear), HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
+        linear = cv2.resize(linear, size, interpolation=cv2.INTER_AREA)
+    display = develop(jnp.asarray(linear, jnp.float32), HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
     developed = np.round(np.asarray(display) * 255).astype(np.uint8)
     if developed.shape[:2] != (height, width):
-        developed = cv2.resize(developed, (width, height), interpolation=cv2.INTER_LINEAR)
+        # nearest, so that the reader's area resize to the working width gives back the developed image itself
+        developed = cv2.resize(developed, (width, height), interpolation=cv2.INTER_NEAREST)
     return developed
 
 
