@@ -6,7 +6,7 @@ Writes a ``--width`` x ``--width / 2`` Radiance ``.hdr`` panorama (a synthetic r
 a window 200 times brighter, fine texture) to a temporary folder, then, each in a fresh process, reads it as
 ``ncjax reconstruct`` does (:func:`ncjax.io.images.read_panorama_file`: developed at the working width
 :data:`ncjax.io.images.MAX_WIDTH`, brought back, resized to the working width), and reads it so with the
-development at the file's own size instead (:func:`ncjax.io.tone_mapping.develop` on the whole file). Prints each
+development at the file's own size instead (:func:`ncjax.io.images.develop_hdr` without its width limit). Prints each
 one's wall time and peak resident memory (the process's, Python and jax included; Linux), and how far apart the two
 images are at the working width (mean and 99th percentile of |difference|, grey levels).
 """
@@ -29,14 +29,14 @@ import numpy as np
 from ncjax.io import images
 warnings.simplefilter("ignore")
 if sys.argv[3] == "own size":  # the development at the file's own size, the reader otherwise the same
-    import jax.numpy as jnp
-    from ncjax.io.tone_mapping import develop
+    develop_at_working_width, working_width = images.develop_hdr, images.MAX_WIDTH
 
     def develop_at_own_size(radiance):
-        peak = float(np.max(radiance))
-        linear = np.maximum(np.asarray(radiance / peak, np.float32), 0.0)
-        display = develop(jnp.asarray(linear), images.HDR_LOCAL_COMPRESSION, 1.0, jnp.ones(3))
-        return np.round(np.asarray(display) * 255).astype(np.uint8)
+        images.MAX_WIDTH = radiance.shape[1]  # develop_hdr's width limit only, for the call
+        try:
+            return develop_at_working_width(radiance)
+        finally:
+            images.MAX_WIDTH = working_width
 
     images.develop_hdr = develop_at_own_size  # to_rgb8 looks it up when it is called
 started = time.perf_counter()

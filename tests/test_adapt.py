@@ -1,16 +1,13 @@
 """Test-time adaptation to a panorama's flat floor and ceiling (ncjax.network.adapt): the loss against the geometry
 of exact rows, and the adaptation lowering it on the demo panorama without touching the model it copies."""
 
-import json
-
-import cv2
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from flax import nnx
+from test_app import demo_image
 
-from ncjax.cli.demo import DEMO_DIR
 from ncjax.geometry.camera import NonCentralPanorama, point_to_angles
 from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss
 from ncjax.network.predict import default_model, network_input, predict_boundaries
@@ -79,8 +76,7 @@ def test_configuration_rejects_bad_values():
 
 @pytest.mark.slow
 def test_adaptation_lowers_the_loss_on_the_demo_and_leaves_the_model_it_copies():
-    name = json.loads((DEMO_DIR / "ground_truth.json").read_text())["image"]
-    image = cv2.imread(str(DEMO_DIR / name), cv2.IMREAD_COLOR)[..., ::-1].copy()
+    image = np.ascontiguousarray(demo_image())
     model = default_model()
     before = jax.tree.map(np.asarray, nnx.state(model, ADAPTED))
     adapted, losses = adapt_to_panorama(model, image, AdaptConfig(steps=2))
@@ -104,8 +100,7 @@ def test_reconstruct_reads_each_panorama_with_the_network_adapted_to_it(program_
     """``reconstruct_batch(adapt=...)``: the rows the geometry gets are the adapted network's (through the saved
     network program, with the adapted parameters as its arguments, or jitted in the process), not the shipped
     one's."""
-    name = json.loads((DEMO_DIR / "ground_truth.json").read_text())["image"]
-    image = cv2.imread(str(DEMO_DIR / name), cv2.IMREAD_COLOR)[..., ::-1].copy()
+    image = np.ascontiguousarray(demo_image())
     config = AdaptConfig(steps=2)
     adapted, _ = adapt_to_panorama(default_model(), image, config)
     expected = predict_boundaries(image, adapted)
