@@ -3,9 +3,10 @@
 A first ``ncjax reconstruct`` traces the network and both worlds' geometry
 (about 10 s on 2 CPU cores) before XLA compiles them. The package carries the
 traced programs (``jax.export``, :data:`ncjax.programs.SHIPPED_DIRECTORY`: the
-network's for one image, and the geometry's two halves for the default ``--batch`` twice: without a height prior,
-and with the default camera-height prior for central panoramas and the fallback) of the default settings (shipped
-model, world auto, 4 views, edge snap) for 1024 x 512 panoramas, so that a user's first run only compiles.
+network's for one image, the geometry's two halves for the default ``--batch`` twice: without a height prior,
+and with the default camera-height prior for central panoramas and the fallback, and ``--adapt``'s adaptation
+for one image) of the default settings (shipped model, world auto, 4 views, edge snap) for 1024 x 512 panoramas,
+so that a user's first run only compiles.
 Other sizes and settings are traced on their first run (the network's program serves every world and pipeline
 setting).
 
@@ -17,7 +18,7 @@ run this script after every change of ncjax's sources:
     uv run python experiments/export_default_program.py
 
 It runs the commands a user would (``ncjax reconstruct`` on the demo panorama,
-``--rc auto``, then ``--rc 0``) with an empty cache, copies the five programs
+``--rc auto``, then ``--rc 0 --adapt``) with an empty cache, copies the six programs
 they saved into the package in place of the old ones and writes the manifest.
 """
 
@@ -43,13 +44,15 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as work:
         os.environ["NCJAX_CACHE"] = os.path.join(work, "cache")
         demo = next(DEMO_DIR.glob("*.png"))
-        for rc in ("auto", "0"):
-            code = ncjax_main(["reconstruct", str(demo), "--rc", rc, "--out", os.path.join(work, "out")])
+        for options in (["--rc", "auto"], ["--rc", "0", "--adapt"]):
+            code = ncjax_main(["reconstruct", str(demo), *options, "--out", os.path.join(work, "out")])
             if code != 0:
-                raise SystemExit(f"ncjax reconstruct --rc {rc} failed with exit code {code}")
+                raise SystemExit(f"ncjax reconstruct {' '.join(options)} failed with exit code {code}")
         exported = sorted(pathlib.Path(work, "cache", "programs").glob(f"*{programs.SUFFIX}"))
-        if len(exported) != 5:
-            raise SystemExit(f"expected five saved programs (network; walls, layouts of 2 routes), got {exported}")
+        if len(exported) != 6:
+            raise SystemExit(
+                f"expected six saved programs (network, adaptation; 2 routes' walls, layouts), got {exported}"
+            )
         programs.SHIPPED_DIRECTORY.mkdir(parents=True, exist_ok=True)
         shipped = [programs.SHIPPED_DIRECTORY / path.name for path in exported]
         for source, destination in zip(exported, shipped, strict=True):
@@ -59,7 +62,7 @@ def main() -> int:
         "settings": (
             "ncjax reconstruct defaults, 1024 x 512 panoramas: the network (one image); walls and layouts (batches "
             f"of {DEFAULT_BATCH_SIZE}) without a prior (--rc > 0) and with the camera-height prior (--rc 0, and the "
-            "fallback of --rc > 0)"
+            "fallback of --rc > 0); the adaptation of --adapt (one image)"
         ),
         "jax": jax.__version__,
         "source_digest": programs.source_digest(),

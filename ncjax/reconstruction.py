@@ -25,7 +25,7 @@ import dataclasses
 import functools
 import os
 from collections.abc import Callable
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -34,7 +34,7 @@ from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped, U
 
 from .geometry.camera import NonCentralPanorama
 from .geometry.gravity import panorama_size_error
-from .network.config import DEFAULT_VIEWS, Network, check_views
+from .network.config import DEFAULT_VIEWS, AdaptConfig, Network, check_views
 from .network.edges import EdgeSnap
 from .network.weights import DEFAULT_MODEL_PATH, ModelWeights, read_weights
 from .pipeline.batch import panorama_keys
@@ -55,9 +55,6 @@ from .pipeline.run import FittedWalls, finish, fit_walls
 from .pipeline.types import Layout, LayoutStatus, Rows
 from .programs import compiled_before, load_saved, program_path, result_like, user_program_directory
 from .solvers.ransac import RansacConfig
-
-if TYPE_CHECKING:  # Flax and optax load only for an adaptation
-    from .network.adapt import AdaptConfig
 
 # The pipeline's settings for the shipped network's rows, chosen on tuning renders, never the test renders (the
 # figures behind each value: experiments/RESULTS.md, "The network configuration, chosen on the tuning renders" and the
@@ -371,6 +368,26 @@ def _adapted(model: Network, image: Shaped[np.ndarray, "1 H W 3"], adapt: AdaptC
     return adapt_to_panorama(model, np.asarray(image[0]), adapt)[0]
 
 
+def _saved_adaptation(
+    directory: str | os.PathLike, weights: ModelWeights, image_shape: tuple, adapt: AdaptConfig
+) -> Callable[[np.ndarray], dict]:
+    """The tensors of ``weights``' network fitted to one image of ``image_shape`` (1, H, W, 3)
+    (:func:`~ncjax.network.adapt.adapt_model`), through its program saved in ``directory``, the weights its
+    arguments."""
+
+    def adapted_tensors(tensors, images):  # traced only when no process saved the program (Flax imported then)
+        from .network.adapt import adapt_model
+        from .network.checkpoint import model_from_weights, model_weights
+
+        model = model_from_weights(weights._replace(tensors=tensors))
+        return model_weights(adapt_model(model, images[0], adapt)[0]).tensors
+
+    image_like = jax.ShapeDtypeStruct(image_shape, jnp.uint8)
+    key = repr(("adapt", weights.config, adapt))
+    program = load_saved(directory, key, adapted_tensors, weights.tensors, image_like)
+    return lambda image: program(weights.tensors, image)
+
+
 def _network_reader(
     model: Network | ModelWeights | str | os.PathLike | None,
     directory: str | os.PathLike | None,
@@ -379,8 +396,9 @@ def _network_reader(
     adapt: AdaptConfig | None,
 ) -> Callable[[np.ndarray], Rows]:
     """The rows of one image of ``image_shape`` (1, H, W, 3) read by ``model`` (:func:`reconstruct_batch`'s), adapted
-    to the image first unless ``adapt`` is None: through the network's program saved in ``directory``, the adapted
-    parameters as its arguments, or jitted in this process when ``directory`` is None."""
+    to the image first unless ``adapt`` is None: through the programs saved in ``directory`` (the adaptation's,
+    then the network's with the adapted tensors as its arguments), or jitted in this process when ``directory`` is
+    None."""
     if directory is None:
         network_model = _model_of(model)
         return lambda image: _rows()(_adapted(network_model, image, adapt), image, network=network)
@@ -388,12 +406,8 @@ def _network_reader(
     rows_with = _saved_rows(directory, weights, image_shape, network)
     if adapt is None:
         return functools.partial(rows_with, weights.tensors)
-    from .network.checkpoint import model_from_weights, model_weights
-    from .network.model import HorizonNet
-
-    # adapted from exactly the tensors the program takes otherwise (adapt_to_panorama copies a caller's network)
-    network_model = model if isinstance(model, HorizonNet) else model_from_weights(weights)
-    return lambda image: rows_with(model_weights(_adapted(network_model, image, adapt)).tensors, image)
+    adapted_tensors = _saved_adaptation(directory, weights, image_shape, adapt)
+    return lambda image: rows_with(adapted_tensors(image), image)
 
 
 def _chunks(count: int, size: int) -> list[np.ndarray]:
@@ -523,11 +537,8 @@ def _check_batch_settings(images: np.ndarray, world: str, views: int, batch_size
     check_views(views)
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
-    if adapt is not None:
-        from .network.adapt import AdaptConfig
-
-        if not isinstance(adapt, AdaptConfig):
-            raise TypeError(f"adapt must be an ncjax.network.adapt.AdaptConfig or None, got {adapt!r}")
+    if adapt is not None and not isinstance(adapt, AdaptConfig):
+        raise TypeError(f"adapt must be an ncjax.network.adapt.AdaptConfig or None, got {adapt!r}")
 
 
 def reconstruct_batch(
@@ -589,10 +600,10 @@ def reconstruct_batch(
             one padded, so that any number of images runs the same programs (the network runs image by image).
         adapt: an :class:`ncjax.network.adapt.AdaptConfig` (``AdaptConfig()``: its defaults) to fit the network to
             each panorama's own flat floor and ceiling before it reads the panorama's rows
-            (:func:`~ncjax.network.adapt.adapt_to_panorama`, from ``model``'s weights for every image, no labels):
+            (:func:`~ncjax.network.adapt.adapt_model`, from ``model``'s weights for every image, no labels):
             on real photographs the rows come 2-3 px nearer their labels (experiments/RESULTS.md, "Real
-            photographs"), for about 4 s more a 1024 x 512 image on 2 CPU cores, and Flax is loaded. None
-            (default): the network as trained.
+            photographs"), for about 3 s more a 1024 x 512 image on 2 CPU cores (a saved program, as the network's
+            with ``program_cache``). None (default): the network as trained.
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).

@@ -27,8 +27,8 @@ from ncjax.cli.arguments import DefaultsHelpFormatter
 from ncjax.cli.main import build_parser
 from ncjax.cli.reconstruct import ADAPT_TIP
 from ncjax.io.files import replace_together
-from ncjax.network.adapt import AdaptConfig
 from ncjax.network.checkpoint import load_model
+from ncjax.network.config import AdaptConfig
 from ncjax.reconstruction import Reconstruction
 from ncjax.viz import overlay
 

@@ -116,7 +116,7 @@ def test_the_shipped_program_is_exported_from_these_sources():
     assert manifest["source_digest"] == programs.source_digest(), stale
     assert manifest["jax"] == jax.__version__, stale
     shipped = sorted(path.name for path in programs.SHIPPED_DIRECTORY.glob(f"*{programs.SUFFIX}"))
-    assert shipped == sorted(manifest["programs"]) and len(shipped) == 5
+    assert shipped == sorted(manifest["programs"]) and len(shipped) == 6
 
 
 def test_the_background_compilations_are_waited_for_before_the_process_ends():

@@ -31,7 +31,7 @@ import threading
 import numpy as np
 
 from ..io.images import PanoramaError
-from ..network.config import DEFAULT_VIEWS, check_views
+from ..network.config import DEFAULT_VIEWS, AdaptConfig, check_views
 from ..network.edges import EdgeSnap
 from ..pipeline.config import DEFAULT_WORLD, RENAMED, WORLDS
 from ..pipeline.types import LayoutStatus
@@ -64,7 +64,7 @@ from .summary import SUMMARY_FILE, failure_message, read_summary, skipped_row, s
 # real photographs measured, 16 of 26 layouts were of low confidence as the network reads them, 14 adapted)
 ADAPT_TIP = (
     "tip: on real photographs, --adapt first fits the network to each panorama's own flat floor and ceiling "
-    "(about 4 s more an image), which brings its boundaries nearer the walls"
+    "(about 3 s more an image), which brings its boundaries nearer the walls"
 )
 WORLD_HELP = (
     "room model: manhattan (walls at right angles), atlanta (vertical walls at any angles), or auto "
@@ -314,12 +314,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     # an earlier summary.csv that cannot be merged stops the run before any work
     read_summary(os.path.join(args.out, SUMMARY_FILE))
     model = model_weights_option(args.model)
-    adapt = None
-    if args.adapt:  # the network built once, adapted from its weights for every image
-        from ..network.adapt import AdaptConfig
-        from ..network.checkpoint import model_from_weights
-
-        adapt, model = AdaptConfig(), model_from_weights(model)
+    adapt = AdaptConfig() if args.adapt else None
     make_output_folder(args.out)  # only now that the inputs and the model are good
     settings = ReconstructSettings(
         model,
@@ -445,7 +440,7 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="fit the network to each panorama's own flat floor and ceiling before it reads the boundaries (a few "
         "gradient steps of the backbone's batch norms, no labels): on real photographs the rows come 2-3 px nearer "
-        "the walls' true edges, for about 4 s more per 1024 x 512 image on 2 CPU cores",
+        "the walls' true edges, for about 3 s more per 1024 x 512 image on 2 CPU cores",
     )
     add_pipeline_arguments(parser)
 

@@ -14,47 +14,20 @@ photographs it brings the rows 2-3 px nearer their labels (experiments/RESULTS.m
 
 from __future__ import annotations
 
-import dataclasses
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 from flax import nnx
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Shaped
 
+from .config import AdaptConfig
 from .model import HorizonNet
 from .predict import network_input
 
 # the backbone's batch-norm scales and offsets (its ConvNorm layers' ``norm``; the height compressions' ``norms`` stay)
 ADAPTED = nnx.All(nnx.Param, nnx.PathContains("backbone"), nnx.PathContains("norm"))
 _LEVEL = 1e-3  # radians kept between a boundary and the horizon or a pole, where tan is 0 or infinite
-
-
-@dataclasses.dataclass(frozen=True)
-class AdaptConfig:
-    """Settings of :func:`adapt_to_panorama` (set once, not chosen on the photographs it is measured on).
-
-    The loss has degenerate minimisers (any rows of one constant ratio, both boundaries at the horizon included):
-    what keeps the network near its trained rows is the small budget, ``steps`` times ``learning_rate`` (5e-3 on
-    each parameter by default).
-
-    Attributes:
-        steps: Adam steps on the panorama.
-        learning_rate: Adam's step size.
-        huber: the Huber loss's threshold, in natural log of the distance ratio (0.05: 5% of the distance).
-    """
-
-    steps: int = 5
-    learning_rate: float = 1e-3
-    huber: float = 0.05
-
-    def __post_init__(self):
-        if self.steps < 1:
-            raise ValueError(f"steps must be >= 1, got {self.steps}")
-        if not self.learning_rate > 0 or not self.huber > 0:
-            raise ValueError(f"learning_rate and huber must be > 0, got {self.learning_rate}, {self.huber}")
 
 
 def flatness_loss(
@@ -74,36 +47,41 @@ def flatness_loss(
     return jnp.mean(optax.huber_loss(log_ratio - centre, delta=huber))
 
 
-def adapt_to_panorama(
-    model: HorizonNet, image: np.ndarray, config: AdaptConfig = AdaptConfig()
-) -> tuple[HorizonNet, list[float]]:
+def adapt_model(
+    model: HorizonNet, image: Shaped[Array, "H W 3"], config: AdaptConfig = AdaptConfig()
+) -> tuple[HorizonNet, Float[Array, " steps"]]:
     """A copy of ``model`` whose backbone's batch-norm scales and offsets took ``config.steps`` Adam steps on
-    :func:`flatness_loss` of one RGB uint8 panorama (H, W, 3), and the loss before each step and after the last.
-    ``model`` itself is left as it is; read the panorama's rows with the copy
-    (:func:`~ncjax.network.predict.predict_boundaries`)."""
+    :func:`flatness_loss` of one RGB uint8 panorama (H, W, 3), and the loss before each step. Traceable: the steps
+    are one ``lax.scan``, and ``model``'s parameters may be traced (``ncjax.reconstruct_batch`` saves this program
+    with the weights as its arguments)."""
     copy = nnx.clone(model)
     copy.eval()
     graphdef, adapted, rest = nnx.split(copy, ADAPTED, ...)
     pixels = network_input(copy, jnp.asarray(image)[None])[1]
     optimiser = optax.adam(config.learning_rate)
-    state = optimiser.init(adapted)
-    losses = []
-    for _ in range(config.steps):
-        value, grads = _loss_and_grad(graphdef, adapted, rest, pixels, config.huber)
-        updates, state = optimiser.update(grads, state, adapted)
-        adapted = optax.apply_updates(adapted, updates)
-        losses.append(float(value))
-    losses.append(float(_loss_and_grad(graphdef, adapted, rest, pixels, config.huber)[0]))
-    return nnx.merge(graphdef, adapted, rest, copy=True), losses
-
-
-@functools.partial(jax.jit, static_argnames=("graphdef", "huber"))
-def _loss_and_grad(graphdef, adapted, rest, pixels, huber: float):
-    """:func:`flatness_loss` of the network ``graphdef`` with the ``adapted`` parameters on ``pixels``, and its
-    gradient in them (compiled once per network and image size)."""
 
     def loss(params):
         prediction = nnx.merge(graphdef, params, rest, copy=True)(pixels)  # fresh variables in this trace
-        return flatness_loss(prediction.ceiling_elevation[0], prediction.floor_elevation[0], huber)
+        return flatness_loss(prediction.ceiling_elevation[0], prediction.floor_elevation[0], config.huber)
 
-    return jax.value_and_grad(loss)(adapted)
+    def step(carry, _):
+        params, state = carry
+        value, grads = jax.value_and_grad(loss)(params)
+        updates, state = optimiser.update(grads, state, params)
+        return (optax.apply_updates(params, updates), state), value
+
+    (adapted, _), losses = jax.lax.scan(step, (adapted, optimiser.init(adapted)), length=config.steps)
+    return nnx.merge(graphdef, adapted, rest, copy=True), losses
+
+
+def adapt_to_panorama(
+    model: HorizonNet, image: Shaped[np.ndarray, "H W 3"], config: AdaptConfig = AdaptConfig()
+) -> tuple[HorizonNet, list[float]]:
+    """:func:`adapt_model` compiled (once per network and image size): a copy of ``model`` fitted to one RGB uint8
+    panorama (H, W, 3), and the loss before each step. ``model`` itself is left as it is; read the panorama's rows
+    with the copy (:func:`~ncjax.network.predict.predict_boundaries`)."""
+    adapted, losses = _adapt_model(model, jnp.asarray(image), config)
+    return adapted, [float(value) for value in losses]
+
+
+_adapt_model = nnx.jit(adapt_model, static_argnames=("config",))

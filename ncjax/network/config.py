@@ -126,3 +126,29 @@ def check_views(views: int) -> None:
     """Raise ValueError unless ``views`` is 1 or an even number (see :func:`~ncjax.network.model.predict_views`)."""
     if not (isinstance(views, int) and (views == 1 or (views >= 2 and views % 2 == 0))):
         raise ValueError(f"views must be 1 or an even number >= 2, got {views!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class AdaptConfig:
+    """Settings of the test-time adaptation, :func:`~ncjax.network.adapt.adapt_model` (set once, not chosen on the
+    photographs it is measured on).
+
+    The loss has degenerate minimisers (any rows of one constant ratio, both boundaries at the horizon included):
+    what keeps the network near its trained rows is the small budget, ``steps`` times ``learning_rate`` (5e-3 on
+    each parameter by default).
+
+    Attributes:
+        steps: Adam steps on the panorama.
+        learning_rate: Adam's step size.
+        huber: the Huber loss's threshold, in natural log of the distance ratio (0.05: 5% of the distance).
+    """
+
+    steps: int = 5
+    learning_rate: float = 1e-3
+    huber: float = 0.05
+
+    def __post_init__(self):
+        if self.steps < 1:
+            raise ValueError(f"steps must be >= 1, got {self.steps}")
+        if not self.learning_rate > 0 or not self.huber > 0:
+            raise ValueError(f"learning_rate and huber must be > 0, got {self.learning_rate}, {self.huber}")
