@@ -1,14 +1,15 @@
 """Central mode on real, labelled panoramas: ``ncjax reconstruct --rc 0`` against each image's label_cor.
 
     uv run python benchmarks/central_layouts.py --data DIR [--out DIR] [--model FILE] [--limit N] [--no-align]
-        [any option of ncjax reconstruct: --world manhattan, --camera-height 1.5, --inlier-threshold 4, ...]
+        [any option of ncjax reconstruct: --no-adapt, --world manhattan, --camera-height 1.5, ...]
 
 Input: a folder of central panoramas (``*.jpg``, ``*.jpeg``, ``*.png``), each with its label ``<stem>.txt``
 (label_cor: one ``x y`` line per point, ceiling then floor of each corner, pixels of that image) beside it, or
 ``label_cor/<stem>.txt`` for an image in ``img/``.
 
 It runs the command a user would (``ncjax reconstruct IMAGES --rc 0 --export label_cor``: the default camera height
-prior of 1.6 m, gravity alignment, the shipped model, 4 views; any other option is passed to the command as it is),
+prior of 1.6 m, gravity alignment, the shipped model, 4 views, a panorama whose rows are not flat read again by the
+network adapted to it; any other option is passed to the command as it is, ``--no-adapt`` for the network as trained),
 reads back each written ``<stem>.label_cor.txt`` and scores it against the label with
 :mod:`ncjax.evaluation.central_metrics`, both back-projected at camera height 1 (HorizonNet's and LGT-Net's
 convention: the metrics are up to scale). It prints per image and on average the 2D and 3D IoU, the corner error (% of

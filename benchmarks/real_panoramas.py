@@ -31,7 +31,7 @@ Per image and on average it prints (and writes to ``real_panoramas.csv``):
 
 With ``--adapt`` the network is first fitted to each panorama's own flat floor and ceiling
 (:func:`ncjax.network.adapt.adapt_to_panorama`, its default settings; no label is used), from the same weights for
-every panorama.
+every panorama, however flat its rows (``ncjax reconstruct`` adapts the central panoramas whose rows are not).
 
 It also writes ``contact_sheet.png``: each panorama downscaled with the label's boundaries and corners in
 green, the prediction's in red, and the corner probability below it with the peak threshold in grey.

@@ -4,9 +4,10 @@ A first ``ncjax reconstruct`` traces the network and both worlds' geometry
 (about 10 s on 2 CPU cores) before XLA compiles them. The package carries the
 traced programs (``jax.export``, :data:`ncjax.programs.SHIPPED_DIRECTORY`: the
 network's for one image, the geometry's two halves for the default ``--batch`` twice: without a height prior,
-and with the default camera-height prior for central panoramas and the fallback, and ``--adapt``'s adaptation
-for one image) of the default settings (shipped model, world auto, 4 views, edge snap) for 1024 x 512 panoramas,
-so that a user's first run only compiles.
+and with the default camera-height prior for central panoramas and the fallback, and the adaptation to one
+image, which ``ncjax reconstruct`` runs on central panoramas whose rows are not flat) of the default settings
+(shipped model, world auto, 4 views, edge snap) for 1024 x 512 panoramas, so that a user's first run only
+compiles.
 Other sizes and settings are traced on their first run (the network's program serves every world and pipeline
 setting).
 
@@ -18,7 +19,8 @@ run this script after every change of ncjax's sources:
     uv run python experiments/export_default_program.py
 
 It runs the commands a user would (``ncjax reconstruct`` on the demo panorama,
-``--rc auto``, then ``--rc 0 --adapt``) with an empty cache, copies the six programs
+``--rc auto``, then ``--rc 0``; then its adaptation, which a render's flat rows do not ask for, through
+``ncjax.reconstruct_batch``) with an empty cache, copies the six programs
 they saved into the package in place of the old ones and writes the manifest.
 """
 
@@ -31,11 +33,14 @@ import shutil
 import tempfile
 
 import jax
+import numpy as np
 
 from ncjax import programs
 from ncjax.cli.demo import DEMO_DIR
 from ncjax.cli.main import main as ncjax_main
-from ncjax.reconstruction import DEFAULT_BATCH_SIZE
+from ncjax.io.images import read_panorama_file
+from ncjax.network.config import AdaptConfig
+from ncjax.reconstruction import DEFAULT_BATCH_SIZE, reconstruct_batch
 
 
 def main() -> int:
@@ -44,10 +49,16 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as work:
         os.environ["NCJAX_CACHE"] = os.path.join(work, "cache")
         demo = next(DEMO_DIR.glob("*.png"))
-        for options in (["--rc", "auto"], ["--rc", "0", "--adapt"]):
-            code = ncjax_main(["reconstruct", str(demo), *options, "--out", os.path.join(work, "out")])
+        for rc in ("auto", "0"):
+            code = ncjax_main(["reconstruct", str(demo), "--rc", rc, "--out", os.path.join(work, "out")])
             if code != 0:
-                raise SystemExit(f"ncjax reconstruct {' '.join(options)} failed with exit code {code}")
+                raise SystemExit(f"ncjax reconstruct --rc {rc} failed with exit code {code}")
+        # the demo's rows are flat, so it is not adapted: its adaptation exported through the API, which the
+        # default's program serves (a program does not depend on which panoramas are adapted, min_loss)
+        image = read_panorama_file(demo)[0]
+        always = AdaptConfig(min_loss=0.0)
+        if not reconstruct_batch(image[None], np.zeros(1, np.float32), adapt=always).adapted[0]:
+            raise SystemExit("the demo was not adapted with min_loss 0")
         exported = sorted(pathlib.Path(work, "cache", "programs").glob(f"*{programs.SUFFIX}"))
         if len(exported) != 6:
             raise SystemExit(
@@ -62,7 +73,7 @@ def main() -> int:
         "settings": (
             "ncjax reconstruct defaults, 1024 x 512 panoramas: the network (one image); walls and layouts (batches "
             f"of {DEFAULT_BATCH_SIZE}) without a prior (--rc > 0) and with the camera-height prior (--rc 0, and the "
-            "fallback of --rc > 0); the adaptation of --adapt (one image)"
+            "fallback of --rc > 0); the adaptation to one image"
         ),
         "jax": jax.__version__,
         "source_digest": programs.source_digest(),

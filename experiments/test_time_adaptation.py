@@ -60,8 +60,9 @@ def main(argv: list[str] | None = None) -> int:
             row += [row_error(ceiling, ceiling_label), row_error(floor, floor_label), corners_iou(corners, label)]
         errors.append(row)
         print(
-            f"{image_path.stem}: loss {losses[0]:.4f} -> {losses[-1]:.4f}; ceiling / floor px, layout 3D IoU "
-            f"{row[0]:.1f} / {row[1]:.1f}, {row[2]:.3f} -> {row[3]:.1f} / {row[4]:.1f}, {row[5]:.3f}",
+            f"{image_path.stem}: loss {losses[0]:.4f} before the first step, {losses[-1]:.4f} before the last; "
+            f"ceiling / floor px, layout 3D IoU {row[0]:.1f} / {row[1]:.1f}, {row[2]:.3f} -> "
+            f"{row[3]:.1f} / {row[4]:.1f}, {row[5]:.3f}",
             flush=True,
         )
     mean = np.nanmean(np.asarray(errors), axis=0)

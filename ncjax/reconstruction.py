@@ -30,12 +30,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Key, PRNGKeyArray, Shaped, UInt32
 
 from .geometry.camera import NonCentralPanorama
 from .geometry.gravity import panorama_size_error
 from .network.config import DEFAULT_VIEWS, AdaptConfig, Network, check_views
 from .network.edges import EdgeSnap
+from .network.flatness import row_flatness
 from .network.weights import DEFAULT_MODEL_PATH, ModelWeights, read_weights
 from .pipeline.batch import panorama_keys
 from .pipeline.config import (
@@ -114,6 +115,8 @@ class Reconstruction(NamedTuple):
         scale_source: (B,) index into :data:`SCALE_SOURCES`.
         geometry: the layouts with the scale the non-central geometry measured (B leading), or None when
             it did not run (no prior, then ``layout`` is it, or every ``rc`` 0).
+        adapted: (B,) whether the rows are those of the network adapted to the image (``adapt``; all False without
+            it); None in a result built otherwise.
     """
 
     layout: Layout
@@ -122,6 +125,7 @@ class Reconstruction(NamedTuple):
     corner_prob: Float[Array, "B W"]
     scale_source: Int[Array, " B"]
     geometry: Layout | None = None
+    adapted: Bool[Array, " B"] | None = None
 
 
 # Images per call of the geometry's programs: a batch is laid out in chunks of this many, the last one padded with
@@ -383,9 +387,13 @@ def _saved_adaptation(
         return model_weights(adapt_model(model, images[0], adapt)[0]).tensors
 
     image_like = jax.ShapeDtypeStruct(image_shape, jnp.uint8)
-    key = repr(("adapt", weights.config, adapt))
-    program = load_saved(directory, key, adapted_tensors, weights.tensors, image_like)
+    program = load_saved(directory, adaptation_key(weights, adapt), adapted_tensors, weights.tensors, image_like)
     return lambda image: program(weights.tensors, image)
+
+
+def adaptation_key(weights: ModelWeights, adapt: AdaptConfig) -> str:
+    """The key of the adaptation's saved program for ``weights``' architecture: its traced settings only."""
+    return repr(("adapt", weights.config, adapt.traced()))
 
 
 def _network_reader(
@@ -394,20 +402,37 @@ def _network_reader(
     image_shape: tuple[int, ...],
     network: _Network,
     adapt: AdaptConfig | None,
-) -> Callable[[np.ndarray], Rows]:
-    """The rows of one image of ``image_shape`` (1, H, W, 3) read by ``model`` (:func:`reconstruct_batch`'s), adapted
-    to the image first unless ``adapt`` is None: through the programs saved in ``directory`` (the adaptation's,
-    then the network's with the adapted tensors as its arguments), or jitted in this process when ``directory`` is
-    None."""
+) -> Callable[[np.ndarray, float], tuple[Rows, bool]]:
+    """``rows(image, rc)``: the rows of one image of ``image_shape`` (1, H, W, 3) and radius ``rc`` read by ``model``
+    (:func:`reconstruct_batch`'s), and whether they were read again by the network adapted to the image (``adapt``
+    given, ``rc`` at most its ``max_rc`` and the rows' flatness loss at least its ``min_loss``). Through the
+    programs saved in ``directory`` (the adaptation's, then the network's with the adapted tensors as its
+    arguments), or jitted in this process when ``directory`` is None."""
     if directory is None:
         network_model = _model_of(model)
-        return lambda image: _rows()(_adapted(network_model, image, adapt), image, network=network)
-    weights = _weights_of(DEFAULT_MODEL_PATH if model is None else model)
-    rows_with = _saved_rows(directory, weights, image_shape, network)
-    if adapt is None:
-        return functools.partial(rows_with, weights.tensors)
-    adapted_tensors = _saved_adaptation(directory, weights, image_shape, adapt)
-    return lambda image: rows_with(adapted_tensors(image), image)
+
+        def read(image, adapted=False):
+            return _rows()(_adapted(network_model, image, adapt if adapted else None), image, network=network)
+
+    else:
+        weights = _weights_of(DEFAULT_MODEL_PATH if model is None else model)
+        rows_with = _saved_rows(directory, weights, image_shape, network)
+        # loaded at the first panorama to adapt: a run whose rows are all flat never loads it
+        adaptation = functools.cache(lambda: _saved_adaptation(directory, weights, image_shape, adapt))
+
+        def read(image, adapted=False):
+            return rows_with(adaptation()(image) if adapted else weights.tensors, image)
+
+    def rows(image, rc):
+        first = read(image)
+        if adapt is None or rc > np.float32(adapt.max_rc):  # rc is float32: max_rc itself is adapted
+            return first, False
+        flatness = row_flatness(first.ceiling[0], first.floor[0], image_shape[1], adapt.huber)
+        if not float(flatness) >= adapt.min_loss:  # flat enough (or a non-finite loss: nothing to fit)
+            return first, False
+        return read(image, adapted=True), True
+
+    return rows
 
 
 def _chunks(count: int, size: int) -> list[np.ndarray]:
@@ -538,7 +563,7 @@ def _check_batch_settings(images: np.ndarray, world: str, views: int, batch_size
     if batch_size < 1:
         raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     if adapt is not None and not isinstance(adapt, AdaptConfig):
-        raise TypeError(f"adapt must be an ncjax.network.adapt.AdaptConfig or None, got {adapt!r}")
+        raise TypeError(f"adapt must be an ncjax.network.config.AdaptConfig or None, got {adapt!r}")
 
 
 def reconstruct_batch(
@@ -598,12 +623,14 @@ def reconstruct_batch(
             process, as any jitted function.
         batch_size: images per call of the geometry's programs: the batch runs in chunks of this many, the last
             one padded, so that any number of images runs the same programs (the network runs image by image).
-        adapt: an :class:`ncjax.network.adapt.AdaptConfig` (``AdaptConfig()``: its defaults) to fit the network to
-            each panorama's own flat floor and ceiling before it reads the panorama's rows
-            (:func:`~ncjax.network.adapt.adapt_model`, from ``model``'s weights for every image, no labels):
-            on real photographs the rows come 2-3 px nearer their labels (experiments/RESULTS.md, "Real
+        adapt: an :class:`ncjax.network.config.AdaptConfig` (``AdaptConfig()``: its defaults, as ``ncjax
+            reconstruct``'s) to read a panorama again with the network fitted to its own flat floor and ceiling
+            (:func:`~ncjax.network.adapt.adapt_model`, from ``model``'s weights for every image, no labels) where
+            the rows read first are not flat (its ``min_loss``) and the panorama is central (its ``max_rc``): on
+            real photographs the rows come 2-3 px nearer their labels (experiments/RESULTS.md, "Real
             photographs"), for about 3 s more a 1024 x 512 image on 2 CPU cores (a saved program, as the network's
-            with ``program_cache``). None (default): the network as trained.
+            with ``program_cache``); ``Reconstruction.adapted`` says which were. None (default): the network as
+            trained.
 
     Returns:
         :class:`Reconstruction` (check ``layout.ok`` per image).
@@ -643,7 +670,7 @@ def reconstruct_batch(
         geometry = _SavedGeometry(directory, (batch_size, width), config, settings)
         geometry.load(prior_kind if route == "prior" else None)
     rows_of = _network_reader(model, directory, (1, *images.shape[1:]), network, adapt)
-    image_rows = [jax.device_get(rows_of(images[i : i + 1])) for i in range(count)]
+    image_rows, adapted = zip(*(jax.device_get(rows_of(images[i : i + 1], rc[i])) for i in range(count)), strict=True)
     rows = jax.tree.map(lambda *r: np.concatenate(r).astype(np.float32), *image_rows)
     prior_settings = (prior_kind, float(config.prior.max_scale_conflict))
     laid_out = []
@@ -660,7 +687,7 @@ def reconstruct_batch(
     # device_put, not jnp.asarray: the latter compiles a copy per shape, a few milliseconds each in a new process
     source = jax.device_put(_scale_sources(route, rc, own))
     ceiling, floor, corner_prob = (jax.device_put(x) for x in (rows.ceiling, rows.floor, rows.corner_prob))
-    return Reconstruction(layouts, ceiling, floor, corner_prob, source, own)
+    return Reconstruction(layouts, ceiling, floor, corner_prob, source, own, jax.device_put(np.array(adapted)))
 
 
 def reconstruct(
@@ -693,8 +720,9 @@ def reconstruct(
             :func:`reconstruct_batch`).
         program_cache: where the traced programs are kept for later processes (default: the user's cache folder;
             see :func:`reconstruct_batch`).
-        adapt: an :class:`ncjax.network.adapt.AdaptConfig` to fit the network to the panorama's flat floor and
-            ceiling first (see :func:`reconstruct_batch`); None: the network as trained.
+        adapt: an :class:`ncjax.network.config.AdaptConfig` to read the panorama again with the network fitted to
+            its flat floor and ceiling where its rows need it (see :func:`reconstruct_batch`); None: the network as
+            trained.
 
     Returns:
         An unbatched :class:`~ncjax.Layout`; check ``ok`` / ``status``.

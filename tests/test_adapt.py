@@ -1,17 +1,24 @@
 """Test-time adaptation to a panorama's flat floor and ceiling (ncjax.network.adapt): the loss against the geometry
 of exact rows, and the adaptation lowering it on the demo panorama without touching the model it copies."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 from flax import nnx
 from test_app import demo_image
 
-from ncjax.geometry.camera import NonCentralPanorama, point_to_angles
-from ncjax.network.adapt import ADAPTED, AdaptConfig, adapt_to_panorama, flatness_loss
+from ncjax import programs
+from ncjax.geometry.camera import NonCentralPanorama, elevation_to_row, point_to_angles
+from ncjax.network.adapt import ADAPTED, adapt_to_panorama
+from ncjax.network.config import AdaptConfig
+from ncjax.network.flatness import flatness_loss, huber_loss, row_flatness
 from ncjax.network.predict import default_model, network_input, predict_boundaries
-from ncjax.reconstruction import _check_batch_settings, reconstruct_batch
+from ncjax.network.weights import DEFAULT_MODEL_PATH, read_weights
+from ncjax.reconstruction import _check_batch_settings, adaptation_key, reconstruct_batch
 
 
 def _box_room_elevations(ceiling_height: float, floor_height: float, width: int = 256):
@@ -55,6 +62,23 @@ def test_the_walls_foot_and_top_cost_nothing_for_the_rig_too(rc):
     assert float(flatness_loss(ceiling, floor.at[: len(plan) // 4].add(-0.02), 0.05)) > 1e-4
 
 
+def test_huber_loss_is_optaxs():
+    x = jnp.linspace(-0.2, 0.2, 81)
+    np.testing.assert_allclose(huber_loss(x, 0.05), optax.huber_loss(x, delta=0.05), rtol=1e-6, atol=1e-9)
+
+
+def test_row_flatness_is_the_loss_of_the_rows_elevations():
+    ceiling, floor = _box_room_elevations(1.1, 1.5)
+    height = 128
+    rows = [elevation_to_row(e, height) for e in (ceiling, floor)]
+    assert float(row_flatness(*rows, height, 0.05)) == pytest.approx(0.0, abs=1e-8)
+    # a doorway's 32 floor rows 6 px lower: the rows' loss is their elevations' (the rows' own map, docs/design.md)
+    lowered = rows[1].at[:32].add(6.0)
+    elevation = -np.pi / 2 + np.pi * (height - np.asarray(lowered) - 0.5) / height  # rows grow downwards
+    want = float(flatness_loss(ceiling, jnp.asarray(elevation), 0.05))
+    assert float(row_flatness(rows[0], lowered, height, 0.05)) == pytest.approx(want, rel=1e-4) and want > 1e-4
+
+
 def test_the_backbones_batch_norm_scales_and_offsets_are_what_adapts():
     model = default_model()
     adapted = {
@@ -65,8 +89,19 @@ def test_the_backbones_batch_norm_scales_and_offsets_are_what_adapts():
     assert all("['backbone']" in path and "['norm']" in path for path in adapted)
 
 
+def test_the_adaptation_program_is_keyed_by_its_traced_settings_alone():
+    weights = read_weights(DEFAULT_MODEL_PATH)
+    same = (AdaptConfig(), AdaptConfig(min_loss=0.0, max_rc=np.inf), AdaptConfig(learning_rate=np.float64(1e-3)))
+    keys = {adaptation_key(weights, config) for config in same}
+    assert len(keys) == 1 and adaptation_key(weights, AdaptConfig(steps=2)) not in keys
+    # the package ships it for 1024 x 512, whichever panoramas a run adapts
+    image_like = jax.ShapeDtypeStruct((1, 512, 1024, 3), jnp.uint8)
+    assert programs.program_path(programs.SHIPPED_DIRECTORY, keys.pop(), (weights.tensors, image_like)).exists()
+
+
 def test_configuration_rejects_bad_values():
-    for bad in ({"steps": 0}, {"learning_rate": 0.0}, {"huber": -1.0}):
+    bad_values = ({"steps": 0}, {"learning_rate": 0.0}, {"huber": -1.0}, {"min_loss": -1e-3}, {"min_loss": np.nan})
+    for bad in (*bad_values, {"max_rc": -0.1}):
         with pytest.raises(ValueError):
             AdaptConfig(**bad)
     images = np.zeros((1, 64, 128, 3), np.uint8)
@@ -105,12 +140,13 @@ def test_adaptation_lowers_the_loss_on_the_demo_and_leaves_the_model_it_copies()
 def test_reconstruct_reads_each_panorama_with_the_network_adapted_to_it(program_cache):
     """``reconstruct_batch(adapt=...)``: the rows the geometry gets are the adapted network's (through the saved
     network program, with the adapted parameters as its arguments, or jitted in the process), not the shipped
-    one's."""
+    one's, where the shipped network's rows are less flat than ``min_loss`` asks; else the shipped network's."""
     image = np.ascontiguousarray(demo_image())
-    config = AdaptConfig(steps=2)
+    config = AdaptConfig(steps=2, min_loss=0.0, max_rc=np.inf)
     adapted, _ = adapt_to_panorama(default_model(), image, config)
     expected = predict_boundaries(image, adapted)
     result = reconstruct_batch(image[None], np.array([0.68], np.float32), program_cache=program_cache, adapt=config)
+    assert result.adapted.tolist() == [True]
     for got, want in zip((result.ceiling_v, result.floor_v, result.corner_prob), expected, strict=True):
         np.testing.assert_allclose(np.asarray(got[0]), want, atol=2e-3)
     shipped = predict_boundaries(image)
@@ -119,3 +155,13 @@ def test_reconstruct_reads_each_panorama_with_the_network_adapted_to_it(program_
         for got, own in zip((result.ceiling_v, result.floor_v), shipped[:2], strict=True)
     ]
     assert max(moved) > 0.05, moved
+    # rows as flat as the demo's (a render's) are read as they are, unless min_loss is at most their flatness loss
+    flatness = float(row_flatness(jnp.asarray(shipped[0]), jnp.asarray(shipped[1]), image.shape[0], config.huber))
+    # and a panorama of the rig (rc 0.68) only where max_rc allows it
+    cases = ((1.01 * flatness, np.inf, False), (0.99 * flatness, np.inf, True), (0.0, 0.5, False), (0.0, 0.68, True))
+    for min_loss, max_rc, adapts in cases:
+        gated = dataclasses.replace(config, min_loss=min_loss, max_rc=max_rc)
+        result = reconstruct_batch(image[None], np.array([0.68], np.float32), program_cache=program_cache, adapt=gated)
+        assert result.adapted.tolist() == [adapts]
+        want = expected if adapts else shipped
+        np.testing.assert_allclose(np.asarray(result.floor_v[0]), want[1], atol=2e-3)

@@ -25,7 +25,6 @@ from ncjax import cli
 from ncjax.cli import demo, inputs, outputs, reconstruct, summary
 from ncjax.cli.arguments import DefaultsHelpFormatter
 from ncjax.cli.main import build_parser
-from ncjax.cli.reconstruct import ADAPT_TIP
 from ncjax.io.files import replace_together
 from ncjax.network.checkpoint import load_model
 from ncjax.network.config import AdaptConfig
@@ -68,8 +67,11 @@ class FakeReconstruction:
         batch, height, width = images.shape[:3]
         layouts = jax.tree.map(lambda *fields: np.stack([np.asarray(x) for x in fields]), *[self.layout] * batch)
         rows = np.full((batch, width), 0.3 * height, np.float32)
+        # the plumbing only (the gate itself: tests/test_adapt.py): every panorama within max_rc counts as adapted
+        adapt = options["adapt"]
+        adapted = np.asarray(rc) <= (-1.0 if adapt is None else adapt.max_rc)
         return Reconstruction(
-            layouts, rows, height - rows, np.zeros((batch, width), np.float32), np.zeros(batch, np.int32), None
+            layouts, rows, height - rows, np.zeros((batch, width), np.float32), np.zeros(batch, np.int32), None, adapted
         )
 
 
@@ -317,20 +319,32 @@ def test_a_flagged_layout_is_one_short_line_and_its_reason_is_in_the_summary(tmp
         "1 failed (what each status means: summary.csv's reason column):",
         f"  {image[0]}: layout of low confidence written (LOW_CONFIDENCE; room height 2.50 ± 0.02 m); "
         "see room_overlay.png",
-        ADAPT_TIP,
     ]
     (row,) = summary_rows(out)
     assert row["result"] == "low confidence" and row["message"] == lines[1].removeprefix(f"  {image[0]}: ")
     assert row["reason"] == ncjax.LayoutStatus.LOW_CONFIDENCE.reason
-    # a run that adapted the network is not told to
-    assert reconstruct_cli(image, out, "--adapt") == 1
-    assert error_lines(capsys.readouterr().err) == lines[:2]
-    assert fake.adapt[-1] == AdaptConfig()
-    # nor one whose layout of low confidence is an earlier run's, skipped (another image failed)
-    (tmp_path / "in" / "bad.png").write_bytes(b"not an image")
-    assert reconstruct_cli([*image, tmp_path / "in" / "bad.png"], out, "--skip-existing") == 1
-    printed = error_lines(capsys.readouterr().err)
-    assert printed[0] == "1 failed:" and ADAPT_TIP not in printed
+
+
+def test_the_network_adapts_to_panoramas_by_default_and_each_record_says_whether_it_did(tmp_path, fake, capsys):
+    images = panoramas(tmp_path / "in", "a", "b")
+    out = tmp_path / "out"
+    assert reconstruct_cli(images, out, "--rc", "0") == 0
+    assert fake.adapt == [AdaptConfig()] * 2  # reconstruct_batch decides per panorama (min_loss, max_rc)
+    assert all(json.loads((out / f"{name}.json").read_text())["adapted"] is True for name in "ab")
+    assert (
+        capsys.readouterr().out.rstrip().endswith("; 2 read by the network adapted to their own flat floor and ceiling")
+    )
+    for options in (["--rc", "0", "--no-adapt"], []):  # not asked to, or a rig's panoramas (rc 0.5)
+        assert reconstruct_cli(images, out, *options) == 0
+        assert fake.adapt[-1] == (None if options else AdaptConfig())
+        assert all(json.loads((out / f"{name}.json").read_text())["adapted"] is False for name in "ab")
+        assert "adapted" not in capsys.readouterr().out
+    # the rig's panoramas too when asked; a negative radius is one line, with nothing written
+    assert reconstruct_cli(images, out, "--adapt-max-rc", "inf") == 0
+    assert fake.adapt[-1] == AdaptConfig(max_rc=np.inf)
+    assert reconstruct_cli(images, tmp_path / "none", "--adapt-max-rc", "-1") == 2
+    assert error_lines(capsys.readouterr().err)[-1] == "ncjax reconstruct: error: --adapt-max-rc must be >= 0, got -1.0"
+    assert not (tmp_path / "none").exists()
 
 
 # ----------------------------------------------------------------------------- Ctrl-C

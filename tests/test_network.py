@@ -188,9 +188,9 @@ def test_convolutional_features_roll_with_the_panorama():
 
 def test_elevation_row_round_trip():
     rows = jnp.array([-0.5, 0.0, 31.5, 63.5])
-    elevation = ncjax.network.model.row_to_elevation(rows, 64)
+    elevation = ncjax.geometry.camera.row_to_elevation(rows, 64)
     np.testing.assert_allclose(elevation[2], 0.0, atol=1e-7)  # the horizon is between rows 31 and 32
-    np.testing.assert_allclose(ncjax.network.model.elevation_to_row(elevation, 64), rows, atol=1e-5)
+    np.testing.assert_allclose(ncjax.geometry.camera.elevation_to_row(elevation, 64), rows, atol=1e-5)
     prediction = ncjax.network.BoundaryPrediction(
         jnp.full((1, 8), 0.0), jnp.full((1, 8), -math.pi / 4), jnp.zeros((1, 8))
     )

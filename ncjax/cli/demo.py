@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from ..io.images import read_panorama_file
+from ..network.config import AdaptConfig
 from ..pipeline.config import DEFAULT_WORLD, WORLDS
 from ..pipeline.types import LayoutStatus
 from .arguments import add_texture_argument
@@ -31,6 +32,8 @@ from .reconstruct import (
 from .summary import failure_message
 
 DEMO_DIR = pathlib.Path(__file__).parent.parent / "data" / "demo"
+# `ncjax reconstruct`'s default (central panoramas whose rows are not flat adapted), so that the two share programs
+ADAPT = AdaptConfig()
 
 
 def run_demo(args: argparse.Namespace) -> int:
@@ -58,7 +61,7 @@ def run_demo(args: argparse.Namespace) -> int:
     )
     # the programs of `ncjax reconstruct`'s default --batch: one run of either serves the other
     settings = ReconstructSettings(
-        model, DEFAULT_BATCH_SIZE, args.world, config, args.views, args.edge_snap, args.out, (), None
+        model, DEFAULT_BATCH_SIZE, args.world, config, args.views, args.edge_snap, args.out, (), None, adapt=ADAPT
     )
     key = program_key((DEFAULT_BATCH_SIZE, *image.shape), settings)
     with ledger.compiling(
@@ -75,6 +78,7 @@ def run_demo(args: argparse.Namespace) -> int:
                 views=args.views,
                 edge_snap=args.edge_snap,
                 program_cache=True,
+                adapt=ADAPT,
             )
         )
     one = jax.tree.map(lambda x: x[0], tuple(result))

@@ -33,7 +33,7 @@ def scale_fields(result, prior) -> dict:
     from ..io.export import status_has_geometry
     from ..reconstruction import SCALE_SOURCES
 
-    _, _, _, _, source, geometry = result
+    source, geometry = result[4:6]
     fields = {
         "scale_source": SCALE_SOURCES[int(source)],
         "height_prior": None if prior is None else {"kind": prior.kind, "value": float(prior.value)},
@@ -80,7 +80,8 @@ class ReconstructedImage(NamedTuple):
         name: the stem of its files (``<name>.json``, ...).
         image: the panorama the layout was found on (levelled where ``gravity`` says so), RGB uint8.
         result: its unbatched :func:`~ncjax.reconstruction.reconstruct_batch` result: the layout, the ceiling
-            and floor rows, the corner probability, the scale source and the geometry's own layout.
+            and floor rows, the corner probability, the scale source, the geometry's own layout and, optionally,
+            whether the network was adapted to it.
         rc: the radius of its circle of optical centres, metres.
         gravity: how it was levelled (:func:`align_to_gravity`), or None.
         file_size: (W, H) of the image file as given, when it was resized to ``image`` (None: ``image``'s size), or
@@ -154,7 +155,12 @@ def write_outputs(
     cam = NonCentralPanorama(image.shape[1], image.shape[0], rc=rc)
     file_cam = cam if file_size is None else NonCentralPanorama(*file_size, rc=rc)
     sphere_crop = None if crop is None else crop._asdict()
-    extra = scale_fields(result, prior) | {"gravity": gravity, "sphere_crop": sphere_crop}
+    adapted = result[6] if len(result) > 6 else None  # Reconstruction.adapted
+    extra = scale_fields(result, prior) | {
+        "gravity": gravity,
+        "sphere_crop": sphere_crop,
+        "adapted": None if adapted is None else bool(adapted),
+    }
     record = layout_record(layout, cam, name=name, world=world, extra=extra, image_size=file_size)
 
     def write_pictures(stem: str) -> None:

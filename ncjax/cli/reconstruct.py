@@ -34,7 +34,6 @@ from ..io.images import PanoramaError
 from ..network.config import DEFAULT_VIEWS, AdaptConfig, check_views
 from ..network.edges import EdgeSnap
 from ..pipeline.config import DEFAULT_WORLD, RENAMED, WORLDS
-from ..pipeline.types import LayoutStatus
 from ..reconstruction import DEFAULT_BATCH_SIZE
 from .arguments import add_texture_argument
 from .compilation import CompileLedger, enable_compilation_cache, settings_key
@@ -60,12 +59,6 @@ from .outputs import (
 )
 from .summary import SUMMARY_FILE, failure_message, read_summary, skipped_row, summary_row, update_summary
 
-# after a run with layouts of low confidence, without --adapt (experiments/RESULTS.md, "Real photographs": on the
-# real photographs measured, 16 of 26 layouts were of low confidence as the network reads them, 14 adapted)
-ADAPT_TIP = (
-    "tip: on real photographs, --adapt first fits the network to each panorama's own flat floor and ceiling "
-    "(about 3 s more an image), which brings its boundaries nearer the walls"
-)
 WORLD_HELP = (
     "room model: manhattan (walls at right angles), atlanta (vertical walls at any angles), or auto "
     "(per panorama, the one whose layout explains more of the boundaries; default); a layout that explains too "
@@ -127,9 +120,10 @@ def _reconstruct_group(
         images = np.stack([item.image for item in chunk])
         radii = np.array([item.rc for item in chunk], np.float32)
         key = program_key((batch_size, *images.shape[1:]), settings)
-        network = "the network, its adaptation" if settings.adapt else "the network"
         try:
-            with ledger.compiling(key, f"{network} and the geometry for {images.shape[2]} x {images.shape[1]}", say):
+            size = f"{images.shape[2]} x {images.shape[1]}"
+            what = f"the network (its adaptation where asked) and the geometry for {size}"
+            with ledger.compiling(key, what, say):
                 result = jax.device_get(
                     reconstruct_batch(
                         images,
@@ -227,8 +221,9 @@ class RunTally:
     :meth:`interrupted` writes the summary and prints the run's last lines.
     """
 
-    def __init__(self, images: list[str], out: str, bar, adapted: bool = False):
-        self.images, self.out, self.bar, self.adapted = images, out, bar, adapted
+    def __init__(self, images: list[str], out: str, bar):
+        self.images, self.out, self.bar = images, out, bar
+        self.adapted = 0  # images whose rows the network adapted to them read
         self.summary: dict[str, dict] = {}  # path -> its summary.csv row
         self.failures: list[str] = []
         self.summary_path = os.path.join(out, SUMMARY_FILE)
@@ -237,6 +232,7 @@ class RunTally:
         """An image reconstructed and its files written (its layout may have failed: ``record["ok"]``)."""
         message = "" if record["ok"] else f"{failure_message(record)}; see {record['name']}_overlay.png"
         self.summary[path] = summary_row(path, record, message)
+        self.adapted += bool(record.get("adapted"))
         if message:
             self.failures.append(f"{path}: {message}")
         self.bar.update()
@@ -273,9 +269,12 @@ class RunTally:
         skipped = sum(row["result"] == "skipped" for row in self.summary.values())
         succeeded = len(self.images) - len(self.failures) - skipped
         skipped_note = f", {skipped} skipped (their .json existed)" if skipped else ""
+        adapted_note = (
+            f"; {self.adapted} read by the network adapted to their own flat floor and ceiling" if self.adapted else ""
+        )
         print(
             f"{succeeded} of {len(self.images)} images reconstructed into {self.out}{skipped_note} "
-            f"(one line per image: {SUMMARY_FILE})"
+            f"(one line per image: {SUMMARY_FILE}){adapted_note}"
         )
         if self.failures:
             statuses = any(row["reason"] and row["result"] != "skipped" for row in self.summary.values())
@@ -283,12 +282,6 @@ class RunTally:
             print(f"{len(self.failures)} failed{hint}:", file=sys.stderr)
             for reason in self.failures:
                 print(f"  {reason}", file=sys.stderr)
-            low_confidence = any(
-                row["status"] == LayoutStatus.LOW_CONFIDENCE.name and row["result"] != "skipped"
-                for row in self.summary.values()
-            )
-            if low_confidence and not self.adapted:
-                print(ADAPT_TIP, file=sys.stderr)
             return 1
         return 0
 
@@ -314,7 +307,9 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     # an earlier summary.csv that cannot be merged stops the run before any work
     read_summary(os.path.join(args.out, SUMMARY_FILE))
     model = model_weights_option(args.model)
-    adapt = AdaptConfig() if args.adapt else None
+    if not args.adapt_max_rc >= 0:
+        raise ValueError(f"--adapt-max-rc must be >= 0, got {args.adapt_max_rc}")
+    adapt = AdaptConfig(max_rc=args.adapt_max_rc) if args.adapt else None
     make_output_folder(args.out)  # only now that the inputs and the model are good
     settings = ReconstructSettings(
         model,
@@ -332,7 +327,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     ledger = CompileLedger(enable_compilation_cache())
     import_mesh_modules_in_background()
     bar = tqdm(total=len(images), unit="image", desc="ncjax reconstruct")
-    tally = RunTally(images, args.out, bar, adapted=adapt is not None)
+    tally = RunTally(images, args.out, bar)
 
     def reconstruct(group):
         from ..reconstruction import background_compilations_deferred
@@ -437,10 +432,20 @@ def add_reconstruct_arguments(parser: argparse.ArgumentParser) -> None:
     add_boundary_arguments(parser)
     parser.add_argument(
         "--adapt",
-        action="store_true",
-        help="fit the network to each panorama's own flat floor and ceiling before it reads the boundaries (a few "
-        "gradient steps of the backbone's batch norms, no labels): on real photographs the rows come 2-3 px nearer "
-        "the walls' true edges, for about 3 s more per 1024 x 512 image on 2 CPU cores",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="where the network's boundaries do not see one flat floor and ceiling, fit the network to the "
+        "panorama's own (a few gradient steps of the backbone's batch norms, no labels) and read them again: on "
+        "real photographs the rows come 2-3 px nearer the walls' true edges, for about 3 s more per 1024 x 512 "
+        "image so adapted on 2 CPU cores; --no-adapt reads every panorama with the network as trained",
+    )
+    parser.add_argument(
+        "--adapt-max-rc",
+        type=float,
+        default=AdaptConfig().max_rc,
+        metavar="M",
+        help="adapt only panoramas whose circle of optical centres is at most this radius in metres (0: central "
+        "ones; inf: the rig's too, which the one real capture measured did not gain from)",
     )
     add_pipeline_arguments(parser)
 

@@ -199,3 +199,13 @@ def project(
     """
     azimuth, elevation = point_to_angles(cam, xyz)
     return angles_to_pixel(cam, azimuth, elevation)
+
+
+def elevation_to_row(elevation: Float[ArrayLike, "*batch"], height: int) -> Float[Array, "*batch"]:
+    """Sub-pixel row of an elevation in a full-sphere panorama of ``height`` rows (docs/design.md 2)."""
+    return angles_to_pixel(NonCentralPanorama(2 * height, height), 0.0, elevation)[1]
+
+
+def row_to_elevation(row: Float[ArrayLike, "*batch"], height: int) -> Float[Array, "*batch"]:
+    """Elevation (radians) of a sub-pixel row, inverse of :func:`elevation_to_row`."""
+    return pixel_to_angles(NonCentralPanorama(2 * height, height), 0.0, row)[1]

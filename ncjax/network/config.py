@@ -137,18 +137,38 @@ class AdaptConfig:
     what keeps the network near its trained rows is the small budget, ``steps`` times ``learning_rate`` (5e-3 on
     each parameter by default).
 
+    Where a panorama's rows, as they are read (views, edge snap), already see one flat floor and ceiling, there is
+    little to correct and the adaptation's time is spared: only a panorama whose rows' flatness loss
+    (:func:`~ncjax.network.flatness.row_flatness`) is at least ``min_loss`` is adapted. Its default, ``huber^2 / 2``
+    for the default ``huber``, is the loss of rows whose every column puts its wall the Huber threshold (5%) off
+    the others' distance: derived from the loss, not chosen on photographs. By default only central panoramas
+    are adapted (``max_rc`` 0): the gains were measured on central photographs, and the rig's one real capture
+    measured was laid out worse adapted (experiments/RESULTS.md, "Real photographs").
+
     Attributes:
         steps: Adam steps on the panorama.
         learning_rate: Adam's step size.
         huber: the Huber loss's threshold, in natural log of the distance ratio (0.05: 5% of the distance).
+        min_loss: the rows' flatness loss from which a panorama is adapted (0: every panorama).
+        max_rc: the largest radius of a panorama's circle of optical centres (metres) adapted (inf: any).
     """
 
     steps: int = 5
     learning_rate: float = 1e-3
     huber: float = 0.05
+    min_loss: float = 0.5 * 0.05**2
+    max_rc: float = 0.0
 
     def __post_init__(self):
         if self.steps < 1:
             raise ValueError(f"steps must be >= 1, got {self.steps}")
         if not self.learning_rate > 0 or not self.huber > 0:
             raise ValueError(f"learning_rate and huber must be > 0, got {self.learning_rate}, {self.huber}")
+        if not (self.min_loss >= 0 and self.max_rc >= 0):
+            raise ValueError(f"min_loss and max_rc must be >= 0, got {self.min_loss}, {self.max_rc}")
+
+    def traced(self) -> AdaptConfig:
+        """The settings the adaptation's program depends on, as Python numbers (``min_loss`` and ``max_rc`` only
+        choose the panoramas): its jit and saved program are keyed by them, so that no choice of panoramas traces
+        it again."""
+        return AdaptConfig(int(self.steps), float(self.learning_rate), float(self.huber))

@@ -30,7 +30,7 @@ roll-equivariant, as in HorizonNet.
 
 Boundary encoding: the network predicts elevations ``phi`` (radians, positive
 up; HorizonNet's ``bon`` is ``-phi``), so the L1 loss is "in radians" as in
-HorizonNet, independent of the image size. :func:`elevation_to_row` turns them
+HorizonNet, independent of the image size. :func:`~ncjax.geometry.camera.elevation_to_row` turns them
 into pixel rows with the camera's row convention (docs/design.md section 2).
 """
 
@@ -44,9 +44,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
-from ..geometry.camera import NonCentralPanorama, angles_to_pixel, pixel_to_angles
+from ..geometry.camera import elevation_to_row
 from .config import NETWORK_STRIDE, HorizonNetConfig, check_views
 from .efficientnet import LITE0, LITE0_FEATURE_CHANNELS, EfficientNet, load_efficientnet_lite0
 from .resnet import ResNet, WrapConv, batch_norm
@@ -290,16 +290,6 @@ def count_parameters(config: HorizonNetConfig) -> int:
 
 
 # ----------------------------------------------------------------------------- encoding
-
-
-def elevation_to_row(elevation: Float[ArrayLike, "*batch"], height: int) -> Float[Array, "*batch"]:
-    """Sub-pixel row of an elevation in a full-sphere panorama of ``height`` rows (docs/design.md 2)."""
-    return angles_to_pixel(NonCentralPanorama(2 * height, height), 0.0, elevation)[1]
-
-
-def row_to_elevation(row: Float[ArrayLike, "*batch"], height: int) -> Float[Array, "*batch"]:
-    """Elevation (radians) of a sub-pixel row, inverse of :func:`elevation_to_row`."""
-    return pixel_to_angles(NonCentralPanorama(2 * height, height), 0.0, row)[1]
 
 
 @functools.partial(jax.jit, static_argnames=("height", "width"))

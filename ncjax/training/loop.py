@@ -40,8 +40,9 @@ import optax
 from flax import nnx
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from ..geometry.camera import row_to_elevation
 from ..network.checkpoint import load_checkpoint, load_weights, save_checkpoint
-from ..network.model import BoundaryPrediction, HorizonNet, HorizonNetConfig, init_model, row_to_elevation
+from ..network.model import BoundaryPrediction, HorizonNet, HorizonNetConfig, init_model
 from ..pipeline.corners import CORNER_LABEL_BASE
 from ..synth.augment import AugmentConfig, random_augment
 from ..synth.labels import reencode_corner_prob
