@@ -325,6 +325,13 @@ def test_a_flagged_layout_is_one_short_line_and_its_reason_is_in_the_summary(tmp
     assert row["reason"] == ncjax.LayoutStatus.LOW_CONFIDENCE.reason
 
 
+def test_the_demo_adapts_as_reconstruct_does_by_default():
+    """``ncjax demo`` and ``ncjax reconstruct`` share their programs only if their settings, adaptation included,
+    are the same."""
+    args = build_parser().parse_args(["reconstruct", "room.png", "--rc", "0", "--out", "out"])
+    assert args.adapt and demo.ADAPT == AdaptConfig(max_rc=args.adapt_max_rc)
+
+
 def test_the_network_adapts_to_panoramas_by_default_and_each_record_says_whether_it_did(tmp_path, fake, capsys):
     images = panoramas(tmp_path / "in", "a", "b")
     out = tmp_path / "out"
